@@ -1,0 +1,76 @@
+"""The one reader of exponential-map text files (CMU and Human3.6M layouts).
+
+One frame per line, comma separated: root position (3) then 3 numbers per joint.
+"""
+from __future__ import annotations
+
+import hashlib
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from zoo.data.skeleton import Skeleton, forward_kinematics
+
+
+class DataFormatError(ValueError):
+    """A data file does not have the expected format; the message names file, line and field."""
+
+
+def sha256_file(path: str | Path) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def read_expmap_file(path: str | Path, skeleton: Skeleton) -> np.ndarray:
+    """Frames ``(F, 3 + 3J)`` as float64; any malformed line is an error naming file and line."""
+    path = Path(path)
+    expected = skeleton.num_channels
+    try:
+        text = path.read_text()
+    except OSError as e:
+        raise DataFormatError(f"{path}: cannot read exp-map file ({e.strerror})") from e
+    lines = [(n, line) for n, line in enumerate(text.splitlines(), start=1) if line.strip()]
+    if not lines:
+        raise DataFormatError(f"{path}: file holds no frames")
+    try:  # fast path: numpy parses the whole file at once
+        frames = np.array([line.split(",") for _, line in lines], dtype=np.float64)
+        ok = frames.ndim == 2 and frames.shape[1] == expected
+    except ValueError:
+        ok = False
+    if not ok:
+        _raise_first_bad_line(path, lines, skeleton)
+    bad_rows, bad_cols = np.nonzero(~np.isfinite(frames))
+    if bad_rows.size:
+        raise DataFormatError(
+            f"{path}, line {lines[bad_rows[0]][0]}, column {bad_cols[0] + 1}: "
+            f"value {frames[bad_rows[0], bad_cols[0]]} is not finite")
+    return frames
+
+
+def expmap_to_positions(frames: np.ndarray, skeleton: Skeleton) -> np.ndarray:
+    """Joint positions ``(F, J, 3)`` in mm (float32) of exp-map frames ``(F, 3 + 3J)``."""
+    expmaps = torch.from_numpy(frames[:, 3:]).reshape(len(frames), skeleton.num_joints, 3)
+    return forward_kinematics(expmaps, skeleton).numpy().astype(np.float32)
+
+
+def _raise_first_bad_line(path: Path, lines: list[tuple[int, str]], skeleton: Skeleton) -> None:
+    expected = skeleton.num_channels
+    for lineno, line in lines:
+        fields = line.split(",")
+        if len(fields) != expected:
+            raise DataFormatError(
+                f"{path}, line {lineno}: expected {expected} comma-separated values "
+                f"(root position + 3 x {skeleton.num_joints} joints of {skeleton.name}), "
+                f"found {len(fields)}")
+        for column, value in enumerate(fields, start=1):
+            try:
+                float(value)
+            except ValueError:
+                raise DataFormatError(
+                    f"{path}, line {lineno}, column {column}: {value.strip()!r} is not a number"
+                ) from None
+    raise DataFormatError(f"{path}: could not parse as exp-map frames")  # not reached in practice

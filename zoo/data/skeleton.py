@@ -1,0 +1,135 @@
+"""Skeletons of the exponential-map datasets and the one forward-kinematics routine.
+
+Everything here follows SPEC section 3 (the row-vector convention of the LTD / convSeq2Seq code):
+the root's rotation and position are never applied, so positions come out root-relative.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+# float32 machine epsilon, the reference code's guard against a zero rotation angle.
+RODRIGUES_EPS = float(np.finfo(np.float32).eps)
+
+
+@dataclass(frozen=True)
+class Skeleton:
+    """A kinematic tree with fixed bone offsets and the scoring rules of its benchmark.
+
+    ``used`` are the joints a predictor sees and predicts; ``copy_to`` / ``copy_from`` are the
+    official scoring rule: joints in ``copy_to`` are overwritten by the predicted ``copy_from``
+    joints before the error is averaged over all joints.
+    """
+
+    name: str
+    parents: tuple[int, ...]
+    offsets: np.ndarray  # (J, 3), millimetres
+    ignored: tuple[int, ...]
+    copy_to: tuple[int, ...]
+    copy_from: tuple[int, ...]
+    parts: dict[str, tuple[int, ...]] = field(default_factory=dict)  # indices into `used`
+
+    @property
+    def num_joints(self) -> int:
+        return len(self.parents)
+
+    @property
+    def used(self) -> tuple[int, ...]:
+        ignored = set(self.ignored)
+        return tuple(j for j in range(self.num_joints) if j not in ignored)
+
+    @property
+    def num_channels(self) -> int:
+        """Numbers per frame in an exp-map file: root position, then 3 per joint."""
+        return 3 + 3 * self.num_joints
+
+
+_CMU_OFFSETS = np.array([
+    [0, 0, 0], [0, 0, 0], [1.65674, -1.80282, 0.62477], [2.5972, -7.13576, 0],
+    [2.49236, -6.8477, 0], [0.19704, -0.54136, 2.14581], [0, 0, 1.11249], [0, 0, 0],
+    [-1.6107, -1.80282, 0.62476], [-2.59502, -7.12977, 0], [-2.4678, -6.78024, 0],
+    [-0.23024, -0.63258, 2.13368], [0, 0, 1.11569], [0, 0, 0], [0.01961, 2.0545, -0.14112],
+    [0.01021, 2.06436, -0.05921], [0, 0, 0], [0.00713, 1.56711, 0.14968],
+    [0.03429, 1.56041, -0.10006], [0.01305, 1.6256, -0.05265], [0, 0, 0],
+    [3.54205, 0.90436, -0.17364], [4.86513, 0, 0], [3.35554, 0, 0], [0, 0, 0], [0.66117, 0, 0],
+    [0.53306, 0, 0], [0, 0, 0], [0.5412, 0, 0.5412], [0, 0, 0], [-3.49802, 0.75994, -0.32616],
+    [-5.02649, 0, 0], [-3.36431, 0, 0], [0, 0, 0], [-0.73041, 0, 0], [-0.58887, 0, 0], [0, 0, 0],
+    [-0.59786, 0, 0.59786],
+], dtype=np.float64) * 70.0
+
+CMU = Skeleton(
+    name="cmu38",
+    parents=(-1, 0, 1, 2, 3, 4, 5, 0, 7, 8, 9, 10, 11, 0, 13, 14, 15, 16, 17, 18, 15, 20, 21, 22,
+             23, 24, 25, 23, 27, 15, 29, 30, 31, 32, 33, 34, 32, 36),
+    offsets=_CMU_OFFSETS,
+    ignored=(0, 1, 2, 7, 8, 13, 16, 20, 24, 27, 29, 33, 36),
+    copy_to=(16, 20, 29, 24, 27, 33, 36),
+    copy_from=(15, 15, 15, 23, 23, 32, 32),
+    # SPGSN's CMU split, as indices into the 25 used joints (legs first, then torso and arms).
+    parts={"upper": tuple(range(10, 25)), "lower": tuple(range(0, 10))},
+)
+
+_H36M_OFFSETS = np.array([
+    [0, 0, 0], [-132.948591, 0, 0], [0, -442.894612, 0], [0, -454.206447, 0],
+    [0, 0, 162.767078], [0, 0, 74.999437], [132.948826, 0, 0], [0, -442.894413, 0],
+    [0, -454.20659, 0], [0, 0, 162.767426], [0, 0, 74.999948], [0, 0.1, 0],
+    [0, 233.383263, 0], [0, 257.077681, 0], [0, 121.134938, 0], [0, 115.002227, 0],
+    [0, 257.077681, 0], [0, 151.034226, 0], [0, 278.882773, 0], [0, 251.733451, 0], [0, 0, 0],
+    [0, 0, 99.999627], [0, 100.000188, 0], [0, 0, 0], [0, 257.077681, 0], [0, 151.031437, 0],
+    [0, 278.892924, 0], [0, 251.72868, 0], [0, 0, 0], [0, 0, 99.999888], [0, 137.499922, 0],
+    [0, 0, 0],
+], dtype=np.float64)
+
+H36M = Skeleton(
+    name="h36m32",
+    parents=(-1, 0, 1, 2, 3, 4, 0, 6, 7, 8, 9, 0, 11, 12, 13, 14, 12, 16, 17, 18, 19, 20, 19, 22,
+             12, 24, 25, 26, 27, 28, 27, 30),
+    offsets=_H36M_OFFSETS,
+    ignored=(0, 1, 6, 11, 16, 20, 23, 24, 28, 31),
+    copy_to=(16, 20, 23, 24, 28, 31),
+    copy_from=(13, 19, 22, 13, 27, 30),
+    # Used joints 0..7 are the legs, 8..21 spine, head and arms.
+    parts={"upper": tuple(range(8, 22)), "lower": tuple(range(0, 8))},
+)
+
+SKELETONS = {s.name: s for s in (CMU, H36M)}
+
+
+def rodrigues(expmap: torch.Tensor) -> torch.Tensor:
+    """Rotation matrices ``(..., 3, 3)`` from exponential maps ``(..., 3)`` (SPEC section 3)."""
+    theta = torch.linalg.vector_norm(expmap, dim=-1, keepdim=True)
+    u = expmap / (theta + RODRIGUES_EPS)
+    zero = torch.zeros_like(u[..., 0])
+    x, y, z = u.unbind(-1)
+    skew = torch.stack([zero, -z, y, z, zero, -x, -y, x, zero], dim=-1).reshape(*u.shape[:-1], 3, 3)
+    eye = torch.eye(3, dtype=expmap.dtype, device=expmap.device)
+    s = torch.sin(theta)[..., None]
+    c = (1 - torch.cos(theta))[..., None]
+    return eye + s * skew + c * (skew @ skew)
+
+
+def forward_kinematics(expmaps: torch.Tensor, skeleton: Skeleton) -> torch.Tensor:
+    """Joint positions ``(N, J, 3)`` in mm from per-joint exponential maps ``(N, J, 3)``.
+
+    Batched over frames; the loop runs over joints only, in the tree's order, because each joint
+    needs its parent's accumulated rotation.
+    """
+    if expmaps.ndim != 3 or expmaps.shape[1:] != (skeleton.num_joints, 3):
+        raise ValueError(
+            f"forward_kinematics({skeleton.name}): expected exp-maps of shape (N, "
+            f"{skeleton.num_joints}, 3), got {tuple(expmaps.shape)}")
+    offsets = torch.as_tensor(skeleton.offsets, dtype=expmaps.dtype, device=expmaps.device)
+    local = rodrigues(expmaps)
+    rotations = [local[:, 0]]
+    positions = [offsets[0].expand(expmaps.shape[0], 3)]
+    for i in range(1, skeleton.num_joints):
+        p = skeleton.parents[i]
+        if p > 0:
+            rotations.append(local[:, i] @ rotations[p])
+            positions.append(offsets[i] @ rotations[p] + positions[p])
+        else:
+            rotations.append(local[:, i])
+            positions.append(offsets[i].expand(expmaps.shape[0], 3))
+    return torch.stack(positions, dim=1)

@@ -1,0 +1,150 @@
+"""Leaderboard tables and plots from evaluator rows, refusing to mix protocols.
+
+A table has one column per horizon and one row per (model, action); every number in it must
+come from the same protocol record. Rows whose records differ raise
+:class:`ProtocolMismatchError`, which names the fields that differ.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Iterable
+
+import pandas as pd
+from tabulate import tabulate
+
+from zoo.io import atomic_path, atomic_write_json, atomic_write_text
+
+
+class ProtocolMismatchError(ValueError):
+    pass
+
+
+def _comparable(record: dict[str, Any]) -> dict[str, Any]:
+    return {k: v for k, v in record.items() if k not in ("provenance", "protocol_id")}
+
+
+def protocol_differences(a: dict[str, Any], b: dict[str, Any]) -> list[str]:
+    """Human-readable differences between the comparable parts of two protocol records."""
+    a, b = _comparable(a), _comparable(b)
+    out = []
+    for key in sorted(set(a) | set(b)):
+        if a.get(key) == b.get(key):
+            continue
+        if key == "files" and isinstance(a.get(key), list) and isinstance(b.get(key), list):
+            fa = {f["file"]: f.get("sha256") for f in a[key]}
+            fb = {f["file"]: f.get("sha256") for f in b[key]}
+            only_a, only_b = sorted(set(fa) - set(fb)), sorted(set(fb) - set(fa))
+            changed = sorted(f for f in set(fa) & set(fb) if fa[f] != fb[f])
+            parts = [f"only in first: {only_a}" if only_a else "",
+                     f"only in second: {only_b}" if only_b else "",
+                     f"different sha256: {changed}" if changed else ""]
+            out.append("files (" + "; ".join(p for p in parts if p) + ")")
+        else:
+            out.append(f"{key} ({a.get(key)!r} vs {b.get(key)!r})")
+    return out
+
+
+def check_comparable(records: dict[str, dict[str, Any]]) -> None:
+    """Raise unless every record has the same comparable part."""
+    items = list(records.items())
+    for pid, record in items[1:]:
+        diff = protocol_differences(items[0][1], record)
+        if diff:
+            first = items[0][1].get("provenance", {}).get("model", items[0][0])
+            second = record.get("provenance", {}).get("model", pid)
+            raise ProtocolMismatchError(
+                f"refusing to put rows of different protocols in one table: protocol "
+                f"{items[0][0]} ({first}) and {pid} ({second}) differ in " + "; ".join(diff))
+
+
+def markdown_tables(frame: pd.DataFrame, records: dict[str, dict[str, Any]],
+                    horizons_ms: Iterable[int] | None = None) -> str:
+    """One Markdown table per (metric, averaging, joints), horizons as columns."""
+    ids = sorted(frame["protocol_id"].unique())
+    missing = [i for i in ids if i not in records]
+    if missing:
+        raise ProtocolMismatchError(f"rows carry protocol ids {missing} with no protocol record")
+    check_comparable({i: records[i] for i in ids})
+    record = records[ids[0]]
+    horizons = list(horizons_ms or _default_horizons(frame))
+    out = [f"# {record['benchmark']}: {record['dataset']} {record['split']}, "
+           f"sampler {record['sampler']}, {record['input_frames']} in / "
+           f"{record['output_frames']} out at {record['fps']:g} fps",
+           "", f"Protocol {ids[0]}; actions present: {', '.join(record['actions_present'])}; "
+           f"{record['action_averaging']}.", ""]
+    for (metric, averaging, joints), group in frame.groupby(["metric", "averaging", "joints"],
+                                                            sort=True):
+        table = (group[group["horizon_ms"].isin(horizons)]
+                 .pivot_table(index=["model", "action"], columns="horizon_ms", values="value",
+                              sort=False))
+        table = table.reindex(columns=[h for h in horizons if h in table.columns])
+        order = _action_order(record)
+        table = table.sort_index(level=["model", "action"],
+                                 key=lambda idx: idx.map(order) if idx.name == "action" else idx)
+        description = record.get("joint_protocols", {}).get(joints, "")
+        out += [f"## {metric.upper()}, averaging `{averaging}`, joints `{joints}`", "",
+                f"{record.get('averaging', {}).get(averaging, '')}. {description}.", "",
+                tabulate(table.reset_index(), headers=["model", "action"] +
+                         [f"{h} ms" for h in table.columns], tablefmt="github", floatfmt=".2f",
+                         showindex=False), ""]
+    return "\n".join(out)
+
+
+def _default_horizons(frame: pd.DataFrame) -> list[int]:
+    standard = [80, 160, 320, 400, 560, 720, 880, 1000]
+    present = set(frame["horizon_ms"])
+    chosen = [h for h in standard if h in present]
+    return chosen or sorted(present)
+
+
+def _action_order(record: dict[str, Any]) -> dict[str, int]:
+    order = {a: i for i, a in enumerate(record.get("actions_present", []))}
+    order["average"] = len(order)
+    return order
+
+
+def write_leaderboard(results: list, out_dir: str | Path,
+                      horizons_ms: Iterable[int] | None = None) -> Path:
+    """Combine :class:`zoo.evaluate.EvalResult` objects of one protocol into ``out_dir``:
+    ``results.csv``, ``leaderboard.md``, ``protocol.json`` and ``mpjpe.png``."""
+    out_dir = Path(out_dir)
+    records = {r.protocol["protocol_id"]: r.protocol for r in results}
+    check_comparable(records)
+    frame = pd.concat([r.frame for r in results], ignore_index=True)
+    tables = markdown_tables(frame, records, horizons_ms)
+    protocol = dict(results[0].protocol)
+    protocol["provenance"] = {"runs": [r.protocol.get("provenance", {}) for r in results]}
+    atomic_write_text(out_dir / "results.csv", frame.to_csv(index=False))
+    atomic_write_text(out_dir / "leaderboard.md", tables)
+    atomic_write_json(out_dir / "protocol.json", protocol)
+    plot_average(frame, out_dir / "mpjpe.png", title=tables.splitlines()[0].lstrip("# "))
+    return out_dir
+
+
+def plot_average(frame: pd.DataFrame, path: str | Path, title: str = "") -> None:
+    """Error against horizon for the action average: one panel per (averaging, joints)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    avg = frame[frame["action"] == "average"]
+    panels = sorted(avg.groupby(["metric", "averaging", "joints"]).groups)
+    fig, axes = plt.subplots(1, len(panels), figsize=(4.5 * len(panels), 3.8), squeeze=False)
+    for ax, key in zip(axes[0], panels):
+        metric, averaging, joints = key
+        sub = avg[(avg["metric"] == metric) & (avg["averaging"] == averaging) &
+                  (avg["joints"] == joints)]
+        for model, rows in sub.groupby("model"):
+            rows = rows.sort_values("horizon_ms")
+            ax.plot(rows["horizon_ms"], rows["value"], marker=".", label=model)
+        ax.set_title(f"{metric} ({averaging}, {joints})", fontsize=9)
+        ax.set_xlabel("horizon (ms)")
+        ax.set_ylabel("mm")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    fig.suptitle(title, fontsize=9)
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png", dpi=110)
+    plt.close(fig)

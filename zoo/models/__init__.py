@@ -1,0 +1,13 @@
+"""Models of the zoo: plain ``torch.nn.Module`` classes, one file each.
+
+The common contract (all a model needs to be evaluated, trained and registered):
+
+- constructor keywords ``input_frames``, ``output_frames`` and ``num_points`` (joints or
+  vertices), which the benchmark supplies, plus the model's own hyper-parameters, whose
+  defaults live in its ``registry.yaml`` entry;
+- ``forward(history)`` takes the observed frames ``(B, T_in, P, 3)`` (float32, the dataset's
+  units: mm for skeletons) and returns the predicted frames ``(B, T_out, P, 3)``. For skeleton
+  benchmarks ``P`` is the set of predicted joints (CMU: 25), in the dataset's joint order;
+- optional ``context`` keywords: a model that needs facts about the data (SPGSN's body parts)
+  names them in its registry entry under ``context``, and the benchmark provides them.
+"""

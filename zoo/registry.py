@@ -1,0 +1,194 @@
+"""The model registry: ``registry.yaml`` entries turned into models.
+
+``list_models()`` and ``create_model(name, **overrides)`` in the style of timm. Further registry
+files (a user's own baselines, outside ``zoo/``) join through ``load_registry(path, ...)``, the
+``ZOO_REGISTRY`` environment variable (paths separated by ``os.pathsep``) or ``--registry`` on the
+command line. A class is named ``package.module.Class`` or ``path/to/file.py:Class`` (a path
+relative to the registry file that names it).
+"""
+from __future__ import annotations
+
+import importlib
+import importlib.util
+import inspect
+import os
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+REPO_ROOT = Path(__file__).resolve().parent.parent
+DEFAULT_REGISTRY = REPO_ROOT / "registry.yaml"
+# Keywords every model receives from the benchmark (see zoo.models).
+SHAPE_ARGS = ("input_frames", "output_frames", "num_points")
+REPRESENTATIONS = ("joints", "mesh")
+_ENTRY_KEYS = {"class", "representation", "trainable", "hparams", "reference", "context",
+               "description", "weights"}
+
+
+class RegistryError(KeyError):
+    def __str__(self) -> str:  # KeyError would quote the message
+        return str(self.args[0])
+
+
+@dataclass(frozen=True)
+class ModelEntry:
+    name: str
+    class_path: str
+    representation: tuple[str, ...]
+    trainable: bool
+    hparams: dict[str, Any]
+    reference: str
+    source: Path
+    context: tuple[str, ...] = ()
+    description: str = ""
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def valid_args(self) -> list[str]:
+        return sorted(set(self.hparams) | set(SHAPE_ARGS) | set(self.context))
+
+    def load_class(self) -> type:
+        path = self.class_path
+        try:
+            if ":" in path:
+                file_part, cls_name = path.rsplit(":", 1)
+                file = (self.source.parent / file_part).resolve()
+                if not file.is_file():
+                    raise RegistryError(f"{self.source}: model {self.name!r}: class file {file} "
+                                        f"does not exist")
+                module_name = f"zoo_user_{abs(hash(str(file)))}"
+                module = sys.modules.get(module_name)
+                if module is None:
+                    spec = importlib.util.spec_from_file_location(module_name, file)
+                    module = importlib.util.module_from_spec(spec)
+                    sys.modules[module_name] = module
+                    spec.loader.exec_module(module)
+            else:
+                module_name, cls_name = path.rsplit(".", 1)
+                module = importlib.import_module(module_name)
+            return getattr(module, cls_name)
+        except (ImportError, AttributeError, ValueError) as e:
+            raise RegistryError(f"{self.source}: model {self.name!r}: cannot load class "
+                                f"{path!r} ({e})") from e
+
+
+class Registry:
+    def __init__(self, entries: dict[str, ModelEntry] | None = None) -> None:
+        self.entries: dict[str, ModelEntry] = dict(entries or {})
+
+    @classmethod
+    def from_files(cls, *paths: str | Path) -> "Registry":
+        registry = cls()
+        for path in paths:
+            registry.add_file(path)
+        return registry
+
+    def add_file(self, path: str | Path) -> None:
+        path = Path(path)
+        if not path.is_file():
+            raise RegistryError(f"registry file {path} does not exist")
+        try:
+            data = yaml.safe_load(path.read_text()) or {}
+        except yaml.YAMLError as e:
+            raise RegistryError(f"{path}: not valid YAML ({e})") from e
+        models = data.get("models") if isinstance(data, dict) else None
+        if not isinstance(models, dict):
+            raise RegistryError(f"{path}: expected a top-level mapping 'models: {{name: entry}}'")
+        for name, raw in models.items():
+            self.entries[name] = _parse_entry(path, name, raw)
+
+    def list_models(self, representation: str | None = None) -> list[str]:
+        return sorted(n for n, e in self.entries.items()
+                      if representation is None or representation in e.representation)
+
+    def get(self, name: str) -> ModelEntry:
+        if name not in self.entries:
+            raise RegistryError(f"unknown model {name!r}; registered models: "
+                                f"{', '.join(self.list_models())}")
+        return self.entries[name]
+
+    def model_args(self, name: str, **overrides: Any) -> dict[str, Any]:
+        """The full constructor keywords: registry defaults updated by ``overrides``."""
+        entry = self.get(name)
+        unknown = sorted(set(overrides) - set(entry.valid_args))
+        if unknown:
+            raise RegistryError(f"model {name!r} has no hyper-parameter "
+                                f"{', '.join(map(repr, unknown))}; valid: "
+                                f"{', '.join(entry.valid_args)}")
+        args = {**entry.hparams, **overrides}
+        missing = [a for a in (*SHAPE_ARGS, *entry.context) if a not in args]
+        if missing:
+            raise RegistryError(f"model {name!r} needs {', '.join(missing)}, which a benchmark "
+                                f"supplies: create_model({name!r}, benchmark='cmu') or pass them")
+        return args
+
+    def create_model(self, name: str, **overrides: Any):
+        entry = self.get(name)
+        args = self.model_args(name, **overrides)
+        cls = entry.load_class()
+        params = inspect.signature(cls).parameters
+        takes_any = any(p.kind is p.VAR_KEYWORD for p in params.values())
+        unused = [a for a in args if a not in params and not takes_any]
+        if unused:
+            raise RegistryError(f"{entry.source}: model {name!r}: class {entry.class_path} does "
+                                f"not accept {', '.join(unused)}")
+        return cls(**args)
+
+
+def _parse_entry(path: Path, name: str, raw: Any) -> ModelEntry:
+    where = f"{path}: model {name!r}"
+    if not isinstance(raw, dict):
+        raise RegistryError(f"{where}: entry must be a mapping")
+    unknown = sorted(set(raw) - _ENTRY_KEYS)
+    if unknown:
+        raise RegistryError(f"{where}: unknown field(s) {', '.join(unknown)}; valid fields: "
+                            f"{', '.join(sorted(_ENTRY_KEYS))}")
+    if not isinstance(raw.get("class"), str):
+        raise RegistryError(f"{where}: field 'class' (module.Class or file.py:Class) is required")
+    rep = raw.get("representation")
+    rep = (rep,) if isinstance(rep, str) else tuple(rep or ())
+    if not rep or any(r not in REPRESENTATIONS for r in rep):
+        raise RegistryError(f"{where}: field 'representation' must be one or more of "
+                            f"{', '.join(REPRESENTATIONS)}, got {raw.get('representation')!r}")
+    hparams = raw.get("hparams") or {}
+    if not isinstance(hparams, dict):
+        raise RegistryError(f"{where}: field 'hparams' must be a mapping")
+    clash = sorted(set(hparams) & set(SHAPE_ARGS))
+    if clash:
+        raise RegistryError(f"{where}: {', '.join(clash)} come from the benchmark, not hparams")
+    return ModelEntry(name=name, class_path=raw["class"], representation=rep,
+                      trainable=bool(raw.get("trainable", False)), hparams=dict(hparams),
+                      reference=str(raw.get("reference", "")).strip(), source=path,
+                      context=tuple(raw.get("context") or ()),
+                      description=str(raw.get("description", "")).strip(),
+                      extra={"weights": raw.get("weights")} if raw.get("weights") else {})
+
+
+def load_registry(*extra: str | Path) -> Registry:
+    """The project's registry plus ``ZOO_REGISTRY`` files plus ``extra`` (later ones win)."""
+    if not DEFAULT_REGISTRY.is_file():
+        raise RegistryError(f"{DEFAULT_REGISTRY} not found: install motion-zoo from its source "
+                            f"tree (pip install -e .) so the registry travels with the code")
+    env = [p for p in os.environ.get("ZOO_REGISTRY", "").split(os.pathsep) if p]
+    return Registry.from_files(DEFAULT_REGISTRY, *env, *extra)
+
+
+def list_models(representation: str | None = None) -> list[str]:
+    return load_registry().list_models(representation)
+
+
+def create_model(name: str, benchmark: Any = None, registry: Registry | None = None,
+                 **overrides: Any):
+    """A registered model. ``benchmark`` (a name or a :class:`zoo.benchmark.Benchmark`) supplies
+    the shape arguments and context; ``overrides`` replace any hyper-parameter by name."""
+    registry = registry or load_registry()
+    if benchmark is not None:
+        from zoo.benchmark import get_benchmark
+
+        bench = get_benchmark(benchmark) if isinstance(benchmark, (str, Path)) else benchmark
+        entry = registry.get(name)
+        overrides = {**bench.model_inputs(entry.context), **overrides}
+    return registry.create_model(name, **overrides)
