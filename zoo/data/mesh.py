@@ -1,0 +1,198 @@
+"""Meshes with constant connectivity: topology, mesh sequences and mesh datasets.
+
+Conventions shared by every mesh dataset (cloth, CMU on Anny, AMASS):
+- vertices are stored and evaluated in millimetres, like the skeleton datasets, so MPJPE and MELV
+  come out in mm everywhere (body models in metres are scaled by 1000 on the way in);
+- one triangulation for the whole dataset (``MeshTopology``), hashed, and the hash goes into
+  every protocol record;
+- an optional sparse joint regressor ``(J, V)`` turns vertices into joints, so mesh and skeleton
+  predictors can share an MPJPE column.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import dataclass, field
+from functools import cached_property
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import scipy.sparse as sp
+
+from zoo.io import atomic_path, atomic_write_json, canonical_json
+
+
+class MeshError(ValueError):
+    """A mesh, its connectivity or a mesh file is not what was expected."""
+
+
+class MeshTopology:
+    """A triangulation ``faces (F, 3)`` over ``num_vertices`` vertices, checked on creation."""
+
+    def __init__(self, faces: np.ndarray, num_vertices: int, name: str = "mesh") -> None:
+        faces = np.asarray(faces)
+        if faces.size == 0 or num_vertices <= 0:
+            raise MeshError(f"{name}: empty mesh ({num_vertices} vertices, {len(faces)} faces)")
+        if faces.ndim != 2 or faces.shape[1] != 3 or not np.issubdtype(faces.dtype, np.integer):
+            raise MeshError(f"{name}: faces must be an integer array (F, 3), got "
+                            f"{faces.dtype} {faces.shape}")
+        if faces.min() < 0 or faces.max() >= num_vertices:
+            raise MeshError(f"{name}: face indices must lie in [0, {num_vertices}), found "
+                            f"[{faces.min()}, {faces.max()}]")
+        degenerate = np.nonzero((faces[:, 0] == faces[:, 1]) | (faces[:, 1] == faces[:, 2]) |
+                                (faces[:, 0] == faces[:, 2]))[0]
+        if degenerate.size:
+            raise MeshError(f"{name}: face {degenerate[0]} {faces[degenerate[0]].tolist()} "
+                            f"repeats a vertex")
+        self.faces = faces.astype(np.int64)
+        self.num_vertices = int(num_vertices)
+        self.name = name
+        edges, counts = np.unique(self._face_edges(), axis=0, return_counts=True)
+        if (counts > 2).any():
+            bad = edges[np.argmax(counts)]
+            raise MeshError(f"{name}: non-manifold mesh: edge {bad.tolist()} is shared by "
+                            f"{counts.max()} faces (at most 2 allowed)")
+        self.edges = edges  # (E, 2), unique undirected, i < j
+        isolated = np.setdiff1d(np.arange(num_vertices), self.faces.ravel())
+        if isolated.size:
+            raise MeshError(f"{name}: vertex {isolated[0]} belongs to no face "
+                            f"({isolated.size} isolated vertices)")
+
+    def _face_edges(self) -> np.ndarray:
+        f = self.faces
+        e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+        return np.sort(e, axis=1)
+
+    @cached_property
+    def hash(self) -> str:
+        digest = hashlib.sha256()
+        digest.update(str(self.num_vertices).encode())
+        digest.update(np.ascontiguousarray(self.faces, dtype="<i8").tobytes())
+        return digest.hexdigest()
+
+    def adjacency(self) -> sp.csr_matrix:
+        i, j = self.edges.T
+        n = self.num_vertices
+        a = sp.coo_matrix((np.ones(len(i)), (i, j)), shape=(n, n))
+        return (a + a.T).tocsr()
+
+    def laplacian(self) -> sp.csr_matrix:
+        """Combinatorial Graph Laplacian ``L = D - A`` (SPEC section 4)."""
+        a = self.adjacency()
+        return (sp.diags(np.asarray(a.sum(axis=1)).ravel()) - a).tocsr()
+
+    def check_vertices(self, vertices: np.ndarray, what: str) -> None:
+        """Raise unless ``vertices (..., V, 3)`` fit this topology."""
+        if vertices.ndim < 2 or vertices.shape[-2:] != (self.num_vertices, 3):
+            raise MeshError(f"{what}: vertices of shape {tuple(vertices.shape)} do not fit "
+                            f"topology {self.name} ({self.num_vertices} vertices, hash "
+                            f"{self.hash[:12]})")
+
+
+@dataclass
+class MeshSequence:
+    """One motion of the mesh: ``vertices (T, V, 3)`` float32 in mm at ``fps``."""
+
+    name: str
+    action: str
+    vertices: np.ndarray
+    fps: float
+    identity: str = "default"
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return len(self.vertices)
+
+
+@dataclass
+class MeshDataset:
+    """Mesh sequences sharing one topology; ``recipe`` says how they were made (hashed)."""
+
+    name: str
+    split: str
+    topology: MeshTopology
+    sequences: list[MeshSequence]
+    recipe: dict[str, Any]
+    joint_regressor: sp.csr_matrix | None = None  # (J, V); rows sum to 1
+    joint_names: list[str] | None = None
+
+    def __post_init__(self) -> None:
+        for s in self.sequences:
+            self.topology.check_vertices(s.vertices, f"{self.name}/{s.name}")
+        if self.joint_regressor is not None:
+            if self.joint_regressor.shape[1] != self.topology.num_vertices:
+                raise MeshError(f"{self.name}: joint regressor has {self.joint_regressor.shape[1]}"
+                                f" columns, the mesh {self.topology.num_vertices} vertices")
+
+    @property
+    def recipe_hash(self) -> str:
+        return hashlib.sha256(canonical_json(self.recipe).encode()).hexdigest()[:16]
+
+    @property
+    def fps(self) -> float:
+        rates = {s.fps for s in self.sequences}
+        if len(rates) != 1:
+            raise MeshError(f"{self.name}: sequences have different frame rates {sorted(rates)}")
+        return rates.pop()
+
+    @property
+    def actions_present(self) -> tuple[str, ...]:
+        return tuple(dict.fromkeys(s.action for s in self.sequences))
+
+    def content_hash(self) -> str:
+        """sha256 over topology and every sequence's vertices (the data's own identity)."""
+        digest = hashlib.sha256(self.topology.hash.encode())
+        for s in self.sequences:
+            digest.update(s.name.encode())
+            digest.update(np.ascontiguousarray(s.vertices, dtype="<f4").tobytes())
+        return digest.hexdigest()
+
+    # ---- on-disk format: one folder, arrays in an .npz, metadata in a JSON ----------------------
+
+    def save(self, folder: str | Path) -> Path:
+        """Write ``meshes.npz`` and ``dataset.json`` into ``folder``, each atomically."""
+        folder = Path(folder)
+        arrays = {"faces": self.topology.faces, "num_vertices": np.int64(self.topology.num_vertices)}
+        for i, s in enumerate(self.sequences):
+            arrays[f"seq{i}"] = s.vertices.astype(np.float32)
+        if self.joint_regressor is not None:
+            r = self.joint_regressor.tocoo()
+            arrays.update(reg_row=r.row, reg_col=r.col, reg_val=r.data,
+                          reg_shape=np.asarray(r.shape))
+        with atomic_path(folder / "meshes.npz") as tmp:
+            with open(tmp, "wb") as f:
+                np.savez(f, **arrays)
+        atomic_write_json(folder / "dataset.json", {
+            "name": self.name, "split": self.split, "recipe": self.recipe,
+            "recipe_hash": self.recipe_hash, "topology_hash": self.topology.hash,
+            "joint_names": self.joint_names,
+            "sequences": [{"name": s.name, "action": s.action, "fps": s.fps,
+                           "identity": s.identity, "frames": len(s), "meta": s.meta}
+                          for s in self.sequences],
+        })
+        return folder
+
+    @classmethod
+    def load(cls, folder: str | Path) -> "MeshDataset":
+        folder = Path(folder)
+        meta_path, npz_path = folder / "dataset.json", folder / "meshes.npz"
+        for p in (meta_path, npz_path):
+            if not p.is_file():
+                raise MeshError(f"{p}: mesh dataset file missing (build it with `zoo data build`)")
+        meta = json.loads(meta_path.read_text())
+        with np.load(npz_path) as z:
+            topology = MeshTopology(z["faces"], int(z["num_vertices"]), name=meta["name"])
+            if topology.hash != meta["topology_hash"]:
+                raise MeshError(f"{npz_path}: topology hash {topology.hash[:12]} differs from "
+                                f"the recorded {meta['topology_hash'][:12]}")
+            sequences = [MeshSequence(name=m["name"], action=m["action"], vertices=z[f"seq{i}"],
+                                      fps=m["fps"], identity=m["identity"], meta=m["meta"])
+                         for i, m in enumerate(meta["sequences"])]
+            regressor = None
+            if "reg_row" in z:
+                regressor = sp.coo_matrix((z["reg_val"], (z["reg_row"], z["reg_col"])),
+                                          shape=tuple(z["reg_shape"])).tocsr()
+        return cls(name=meta["name"], split=meta["split"], topology=topology,
+                   sequences=sequences, recipe=meta["recipe"], joint_regressor=regressor,
+                   joint_names=meta.get("joint_names"))
