@@ -25,7 +25,7 @@ DEFAULT_REGISTRY = REPO_ROOT / "registry.yaml"
 SHAPE_ARGS = ("input_frames", "output_frames", "num_points")
 REPRESENTATIONS = ("joints", "mesh")
 _ENTRY_KEYS = {"class", "representation", "trainable", "hparams", "reference", "context",
-               "description", "weights"}
+               "description", "train"}
 
 
 class RegistryError(KeyError):
@@ -44,7 +44,7 @@ class ModelEntry:
     source: Path
     context: tuple[str, ...] = ()
     description: str = ""
-    extra: dict[str, Any] = field(default_factory=dict)
+    train: dict[str, Any] = field(default_factory=dict)  # the training recipe (zoo.train)
 
     @property
     def valid_args(self) -> list[str]:
@@ -164,7 +164,7 @@ def _parse_entry(path: Path, name: str, raw: Any) -> ModelEntry:
                       reference=str(raw.get("reference", "")).strip(), source=path,
                       context=tuple(raw.get("context") or ()),
                       description=str(raw.get("description", "")).strip(),
-                      extra={"weights": raw.get("weights")} if raw.get("weights") else {})
+                      train=dict(raw.get("train") or {}))
 
 
 def load_registry(*extra: str | Path) -> Registry:
