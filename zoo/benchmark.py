@@ -14,6 +14,7 @@ import yaml
 from zoo.data.motion import DATASETS, MotionDataset
 from zoo.data.skeleton import CMU, H36M, Skeleton
 from zoo.data.windows import check_sampler
+from zoo.errors import ZooError
 from zoo.registry import REPO_ROOT
 
 BENCHMARK_DIR = REPO_ROOT / "benchmarks"
@@ -23,7 +24,7 @@ _OPTIONAL = ("train_split", "data_root", "samplers", "actions", "horizons_ms", "
              "description")
 
 
-class BenchmarkError(ValueError):
+class BenchmarkError(ZooError, ValueError):
     pass
 
 
@@ -43,6 +44,10 @@ class Benchmark:
     horizons_ms: tuple[int, ...] = (80, 160, 320, 400, 560, 720, 880, 1000)
     averaging: tuple[str, ...] = ("frame", "cumulative")
     extra: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def representation(self) -> str:
+        return "joints"
 
     @property
     def skeleton(self) -> Skeleton:

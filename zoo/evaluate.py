@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import datetime as _dt
 import hashlib
+import json
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -20,6 +21,7 @@ import torch
 from zoo.benchmark import Benchmark, get_benchmark
 from zoo.data.motion import MotionDataset
 from zoo.data.windows import check_sampler, gather_windows, window_sampler
+from zoo.errors import ZooError
 from zoo.io import atomic_write_json, atomic_write_text, canonical_json, code_version
 from zoo.metrics import ACTION_AVERAGING, AVERAGING, FrameErrorMean, cumulative_mean, \
     joint_protocols, skeleton_errors
@@ -29,7 +31,7 @@ RESULT_COLUMNS = ["model", "benchmark", "action", "metric", "averaging", "joints
                   "output_frames", "fps", "protocol_id"]
 
 
-class EvaluationError(RuntimeError):
+class EvaluationError(ZooError, RuntimeError):
     pass
 
 
@@ -48,6 +50,15 @@ class EvalResult:
         atomic_write_json(out_dir / "protocol.json", self.protocol)
         atomic_write_text(out_dir / "tables.md", tables)
         return out_dir
+
+    @classmethod
+    def read(cls, out_dir: str | Path) -> "EvalResult":
+        out_dir = Path(out_dir)
+        for name in ("results.csv", "protocol.json"):
+            if not (out_dir / name).is_file():
+                raise EvaluationError(f"{out_dir / name}: missing (not an evaluation folder)")
+        protocol = json.loads((out_dir / "protocol.json").read_text())
+        return cls(frame=pd.read_csv(out_dir / "results.csv"), protocol=protocol)
 
 
 def protocol_id(record: dict[str, Any]) -> str:

@@ -12,10 +12,11 @@ from typing import Any, Iterable
 import pandas as pd
 from tabulate import tabulate
 
+from zoo.errors import ZooError
 from zoo.io import atomic_path, atomic_write_json, atomic_write_text
 
 
-class ProtocolMismatchError(ValueError):
+class ProtocolMismatchError(ZooError, ValueError):
     pass
 
 
@@ -148,3 +149,80 @@ def plot_average(frame: pd.DataFrame, path: str | Path, title: str = "") -> None
     with atomic_path(path) as tmp:
         fig.savefig(tmp, format="png", dpi=110)
     plt.close(fig)
+
+
+def regenerate(benchmark, *, registry=None, data_root=None, out_root: str | Path = "results",
+               checkpoints: str | Path | None = None, device: str = "cpu") -> list[Path]:
+    """Re-evaluate every model that can be evaluated on ``benchmark`` under each of its samplers
+    and rebuild ``<out_root>/<benchmark>/<sampler>/``.
+
+    A model is evaluated if it needs no training or if ``<checkpoints>/<benchmark>/<model>.pt``
+    exists; otherwise a result folder already under ``out_root`` (from an earlier
+    ``zoo eval --checkpoint``) is kept if its protocol still matches, and skipped with a warning
+    naming the difference if not.
+    """
+    import sys
+
+    from zoo.benchmark import get_benchmark
+    from zoo.evaluate import EvalResult, evaluate
+    from zoo.registry import create_model, load_registry
+
+    registry = registry or load_registry()
+    bench = get_benchmark(benchmark) if isinstance(benchmark, (str, Path)) else benchmark
+    dataset = bench.load(data_root)
+    out_root = Path(out_root)
+    written = []
+    for sampler in bench.samplers:
+        results, stored = [], []
+        for name in registry.list_models(bench.representation):
+            entry = registry.get(name)
+            ckpt = Path(checkpoints) / bench.name / f"{name}.pt" if checkpoints else None
+            run_dir = out_root / bench.name / sampler / name
+            provenance = {}
+            if ckpt is not None and ckpt.is_file():
+                from zoo.train import load_checkpoint
+
+                model, meta = load_checkpoint(ckpt, registry=registry, benchmark=bench)
+                provenance = {"checkpoint": str(ckpt), "training": meta.get("training", {})}
+            elif not entry.trainable:
+                model = create_model(name, benchmark=bench, registry=registry)
+            elif (run_dir / "results.csv").is_file():
+                stored.append(EvalResult.read(run_dir))
+                print(f"{bench.name}/{sampler}: {name}: no checkpoint here, keeping {run_dir}",
+                      file=sys.stderr)
+                continue
+            else:
+                print(f"{bench.name}/{sampler}: {name}: skipped (trainable, no checkpoint at "
+                      f"{ckpt})", file=sys.stderr)
+                continue
+            result = evaluate(model, bench, model_name=name, sampler=sampler, dataset=dataset,
+                              device=device, provenance=provenance)
+            result.write(run_dir)
+            results.append(result)
+        # Freshly evaluated results come first: they define the protocol stored ones must match.
+        kept = _drop_mismatched(results + stored, bench.name, sampler)
+        if not kept:
+            continue
+        written.append(write_leaderboard(kept, out_root / bench.name / sampler, bench.horizons_ms))
+        print(f"wrote {written[-1]}/leaderboard.md ({len(kept)} models, {len(results)} "
+              f"evaluated now)")
+    return written
+
+
+def _drop_mismatched(results: list, bench: str, sampler: str) -> list:
+    """Keep the results whose protocol matches the freshly evaluated reference."""
+    import sys
+
+    if not results:
+        return []
+    reference = results[0].protocol
+    kept = [results[0]]
+    for r in results[1:]:
+        diff = protocol_differences(reference, r.protocol)
+        if diff:
+            model = r.protocol.get("provenance", {}).get("model", "?")
+            print(f"{bench}/{sampler}: {model}: its stored result was measured under another "
+                  f"protocol ({'; '.join(diff)}); left out of the leaderboard", file=sys.stderr)
+        else:
+            kept.append(r)
+    return kept

@@ -19,6 +19,8 @@ from typing import Any
 
 import yaml
 
+from zoo.errors import ZooError
+
 REPO_ROOT = Path(__file__).resolve().parent.parent
 DEFAULT_REGISTRY = REPO_ROOT / "registry.yaml"
 # Keywords every model receives from the benchmark (see zoo.models).
@@ -28,7 +30,7 @@ _ENTRY_KEYS = {"class", "representation", "trainable", "hparams", "reference", "
                "description", "train"}
 
 
-class RegistryError(KeyError):
+class RegistryError(ZooError, KeyError):
     def __str__(self) -> str:  # KeyError would quote the message
         return str(self.args[0])
 

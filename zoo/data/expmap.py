@@ -11,9 +11,10 @@ import numpy as np
 import torch
 
 from zoo.data.skeleton import Skeleton, forward_kinematics
+from zoo.errors import ZooError
 
 
-class DataFormatError(ValueError):
+class DataFormatError(ZooError, ValueError):
     """A data file does not have the expected format; the message names file, line and field."""
 
 

@@ -20,10 +20,11 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 
+from zoo.errors import ZooError
 from zoo.io import atomic_path, atomic_write_json, canonical_json
 
 
-class MeshError(ValueError):
+class MeshError(ZooError, ValueError):
     """A mesh, its connectivity or a mesh file is not what was expected."""
 
 

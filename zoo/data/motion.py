@@ -13,6 +13,7 @@ import numpy as np
 
 from zoo.data.expmap import DataFormatError, expmap_to_positions, read_expmap_file, sha256_file
 from zoo.data.skeleton import CMU, H36M, Skeleton
+from zoo.errors import DataNotFoundError
 
 CMU_ACTIONS = ("basketball", "basketball_signal", "directing_traffic", "jumping", "running",
                "soccer", "walking", "washwindow")
@@ -75,10 +76,10 @@ def _load_sequence(path: Path, root: Path, action: str, skeleton: Skeleton, sour
 
 def _check_root(root: str | Path | None, what: str, hint: str) -> Path:
     if root is None:
-        raise FileNotFoundError(f"no data root given for {what}: {hint}")
+        raise DataNotFoundError(f"no data root given for {what}: {hint}")
     root = Path(root)
     if not root.is_dir():
-        raise FileNotFoundError(f"data root {root} for {what} does not exist or is not a folder: "
+        raise DataNotFoundError(f"data root {root} for {what} does not exist or is not a folder: "
                                 f"{hint}")
     return root
 
@@ -97,7 +98,7 @@ def load_cmu(root: str | Path | None, split: str = "test",
         raise ValueError(f"CMU split must be 'train' or 'test', got {split!r}")
     split_dir = root / split
     if not split_dir.is_dir():
-        raise FileNotFoundError(f"{split_dir}: CMU split folder missing (expected "
+        raise DataNotFoundError(f"{split_dir}: CMU split folder missing (expected "
                                 f"<data-root>/{split}/<action>/<action>_<n>.txt)")
     sequences, notes = [], []
     for action in actions:
@@ -132,12 +133,12 @@ def load_h36m(root: str | Path | None, split: str = "test",
     for subject in H36M_SPLITS[split]:
         subject_dir = root / f"S{subject}"
         if not subject_dir.is_dir():
-            raise FileNotFoundError(f"{subject_dir}: subject folder of split {split!r} missing")
+            raise DataNotFoundError(f"{subject_dir}: subject folder of split {split!r} missing")
         for action in actions:
             for sub in (1, 2):
                 path = subject_dir / f"{action}_{sub}.txt"
                 if not path.is_file():
-                    raise FileNotFoundError(f"{path}: Human3.6M file missing (each action has "
+                    raise DataNotFoundError(f"{path}: Human3.6M file missing (each action has "
                                             f"sub-actions 1 and 2)")
                 sequences.append(_load_sequence(path, root, action, H36M, 50.0, 2, sub))
     return MotionDataset(name="h36m", split=split, root=root, skeleton=H36M,

@@ -19,6 +19,8 @@ from typing import Sequence
 
 import numpy as np
 
+from zoo.errors import ZooError
+
 LTD_SEED = 1234567890
 # The LTD test windows are fixed by a 50-frame source and a 25-frame target whatever T_in/T_out.
 LTD_SOURCE, LTD_TARGET = 50, 25
@@ -27,7 +29,7 @@ SAMPLERS = ("ltd8", "rand256", "all", "strideK", "strideK_strict")
 _STRIDE = re.compile(r"^stride([1-9][0-9]*)(_strict)?$")
 
 
-class SamplerError(ValueError):
+class SamplerError(ZooError, ValueError):
     pass
 
 

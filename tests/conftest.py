@@ -1,0 +1,31 @@
+"""Shared fixtures: tiny datasets written in the exact on-disk formats."""
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+CMU_DATA = REPO.parent / "shared" / "data" / "cmu_mocap"
+
+# Joint 5's exp-map columns in a CMU file: 3 (root position) + 3 * 5.
+JOINT5 = 3 + 3 * 5
+LEAF_OFFSET = 1.11249 * 70  # joint 6's bone length (mm): the only joint that joint 5 moves
+
+
+def write_cmu_file(path: Path, angles: np.ndarray) -> Path:
+    """A CMU exp-map file whose only motion is joint 5 rotating about x by ``angles``."""
+    frames = np.zeros((len(angles), 117))
+    frames[:, :3] = [1.0, 2.0, 3.0]  # root position: never applied
+    frames[:, JOINT5] = angles
+    path.parent.mkdir(parents=True, exist_ok=True)
+    np.savetxt(path, frames, delimiter=",", fmt="%.10f")
+    return path
+
+
+@pytest.fixture
+def swinging_cmu(tmp_path) -> tuple[Path, float]:
+    """A CMU data root with one test file: joint 5 turns by ``omega`` rad per source frame."""
+    omega = 0.01
+    write_cmu_file(tmp_path / "cmu" / "test" / "walking" / "walking_1.txt",
+                   omega * np.arange(200))
+    return tmp_path / "cmu", omega

@@ -1,0 +1,78 @@
+"""Bad input gets a clear error naming the file and line, or the option and its valid values,
+and leaves no partial result files behind."""
+import numpy as np
+import pytest
+
+from conftest import write_cmu_file
+from zoo.cli import main
+from zoo.data.expmap import DataFormatError
+from zoo.data.motion import load_cmu
+from zoo.errors import DataNotFoundError
+
+
+def run_eval(root, out, *extra):
+    return main(["eval", "--model", "repeat_last", "--benchmark", "cmu", "--data-root", str(root),
+                 "--out", str(out), *extra])
+
+
+def corrupt_line(path, lineno, fields_transform):
+    lines = path.read_text().splitlines()
+    lines[lineno - 1] = ",".join(fields_transform(lines[lineno - 1].split(",")))
+    path.write_text("\n".join(lines) + "\n")
+
+
+@pytest.mark.parametrize("transform, message", [
+    (lambda f: f[:-1], r"walking_1.txt, line 7: expected 117 comma-separated values.*found 116"),
+    (lambda f: f[:4] + ["abc"] + f[5:], r"walking_1.txt, line 7, column 5: 'abc' is not a number"),
+    (lambda f: f[:9] + ["nan"] + f[10:], r"walking_1.txt, line 7, column 10: value nan is not fin"),
+])
+def test_malformed_file_names_file_and_line(swinging_cmu, tmp_path, capsys, transform, message):
+    root, _ = swinging_cmu
+    corrupt_line(root / "test" / "walking" / "walking_1.txt", 7, transform)
+    with pytest.raises(DataFormatError, match=message):
+        load_cmu(root, "test")
+    out = tmp_path / "out"
+    assert run_eval(root, out) == 2
+    assert "line 7" in capsys.readouterr().err
+    assert not out.exists()  # nothing half-written
+
+
+def test_empty_action_folder_is_an_error(swinging_cmu, tmp_path, capsys):
+    root, _ = swinging_cmu
+    (root / "test" / "running").mkdir()
+    assert run_eval(root, tmp_path / "out") == 2
+    assert "test/running: action folder holds no running_<n>.txt file" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
+
+
+def test_missing_data_root_says_what_to_pass(tmp_path, capsys):
+    assert run_eval(tmp_path / "nowhere", tmp_path / "out") == 2
+    err = capsys.readouterr().err
+    assert "nowhere for CMU Mocap (exp-map layout) does not exist" in err and "--data-root" in err
+    with pytest.raises(DataNotFoundError):
+        load_cmu(tmp_path / "nowhere")
+
+
+def test_unknown_sampler_lists_valid_ones(swinging_cmu, tmp_path, capsys):
+    root, _ = swinging_cmu
+    assert run_eval(root, tmp_path / "out", "--sampler", "random9") == 2
+    err = capsys.readouterr().err
+    assert "unknown sampler 'random9'" in err and "ltd8, rand256, all, strideK" in err
+    assert not (tmp_path / "out").exists()
+
+
+def test_file_too_short_for_ltd8(tmp_path, capsys):
+    write_cmu_file(tmp_path / "cmu" / "test" / "walking" / "walking_1.txt", np.zeros(100))
+    assert run_eval(tmp_path / "cmu", tmp_path / "out", "--sampler", "ltd8") == 2
+    assert "50 frames; ltd8 needs more than 75" in capsys.readouterr().err
+
+
+def test_interrupted_write_leaves_no_partial_file(tmp_path, monkeypatch):
+    from zoo import io
+
+    target = tmp_path / "results.csv"
+    with pytest.raises(RuntimeError):
+        with io.atomic_path(target) as tmp:
+            tmp.write_text("half")
+            raise RuntimeError("disk full")
+    assert list(tmp_path.iterdir()) == []

@@ -1,0 +1,115 @@
+"""The evaluator on motions whose errors are computed by hand, and its refusals."""
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from conftest import LEAF_OFFSET, write_cmu_file
+from zoo.benchmark import get_benchmark
+from zoo.cli import main
+from zoo.data.motion import load_cmu
+from zoo.evaluate import EvaluationError, evaluate
+from zoo.leaderboard import ProtocolMismatchError, markdown_tables
+from zoo.metrics import cumulative_mean
+from zoo.registry import create_model
+
+
+def expected_repeat_last(omega, t):
+    # After halving, joint 5 turns 2*omega per frame; joint 6 sits LEAF_OFFSET from it, so after
+    # t frames it has moved along a chord of 2 L sin(angle / 2). Only joint 6 moves.
+    return 2 * LEAF_OFFSET * np.sin(2 * omega * t / 2)
+
+
+@pytest.mark.parametrize("sampler", ["ltd8", "all"])
+def test_repeat_last_by_hand(swinging_cmu, sampler):
+    root, omega = swinging_cmu
+    bench = get_benchmark("cmu")
+    df = evaluate(create_model("repeat_last", benchmark=bench), bench, model_name="repeat_last",
+                  sampler=sampler, data_root=root).frame
+    t = np.arange(1, 26)
+    chord = expected_repeat_last(omega, t)
+    for joints, count in (("all38", 38), ("used25", 25)):
+        for averaging, values in (("frame", chord / count),
+                                  ("cumulative", np.cumsum(chord / count) / t)):
+            for action in ("walking", "average"):
+                got = df[(df.joints == joints) & (df.averaging == averaging) &
+                         (df.action == action)].sort_values("frame")["value"].to_numpy()
+                np.testing.assert_allclose(got, values, rtol=1e-5)
+    assert sorted(df.horizon_ms.unique())[:3] == [40, 80, 120]
+
+
+def test_cumulative_is_running_mean_of_frame_values():
+    per_frame = np.array([[1.0, 3.0, 8.0], [2.0, 2.0, 2.0]])
+    np.testing.assert_allclose(cumulative_mean(per_frame), [[1, 2, 4], [2, 2, 2]])
+
+
+def test_ltd8_windows_do_not_depend_on_t_in(swinging_cmu):
+    from zoo.data.windows import window_sampler
+
+    a = window_sampler("ltd8", [100], 10, 25)
+    b = window_sampler("ltd8", [100], 50, 25)
+    np.testing.assert_array_equal(a[:, 1] + 10, b[:, 1] + 50)  # same first predicted frame
+
+
+def test_action_average_is_unweighted_over_actions(tmp_path):
+    root = tmp_path / "cmu"
+    write_cmu_file(root / "test" / "walking" / "walking_1.txt", 0.01 * np.arange(200))
+    write_cmu_file(root / "test" / "running" / "running_1.txt", 0.03 * np.arange(400))
+    bench = get_benchmark("cmu")
+    result = evaluate(create_model("repeat_last", benchmark=bench), bench, model_name="rl",
+                      sampler="all", data_root=root)
+    df = result.frame[(result.frame.joints == "all38") & (result.frame.averaging == "frame")]
+    walk, run, avg = (df[df.action == a].sort_values("frame")["value"].to_numpy()
+                      for a in ("walking", "running", "average"))
+    np.testing.assert_allclose(avg, (walk + run) / 2)
+    assert result.protocol["windows_per_action"] == {"running": 200 - 35 + 1,
+                                                     "walking": 100 - 35 + 1}
+    assert result.protocol["actions_present"] == ["running", "walking"]
+
+
+def test_rows_of_different_protocols_refuse_to_share_a_table(swinging_cmu):
+    root, _ = swinging_cmu
+    bench = get_benchmark("cmu")
+    model = create_model("repeat_last", benchmark=bench)
+    a = evaluate(model, bench, model_name="a", sampler="ltd8", data_root=root)
+    b = evaluate(model, bench, model_name="b", sampler="all", data_root=root)
+    frame = pd.concat([a.frame, b.frame])
+    records = {r.protocol["protocol_id"]: r.protocol for r in (a, b)}
+    with pytest.raises(ProtocolMismatchError, match=r"differ in sampler \('(ltd8|all)' vs '(all|ltd8)'\)"):
+        markdown_tables(frame, records)
+    # Same protocol, different models: one table.
+    c = evaluate(model, bench, model_name="c", sampler="ltd8", data_root=root)
+    text = markdown_tables(pd.concat([a.frame, c.frame]),
+                           {r.protocol["protocol_id"]: r.protocol for r in (a, c)})
+    assert "| a " in text and "| c " in text
+
+
+def test_model_breaking_the_contract_is_named(swinging_cmu):
+    import torch
+
+    class Wrong(torch.nn.Module):
+        def forward(self, history):
+            return history  # T_in frames instead of T_out
+
+    root, _ = swinging_cmu
+    with pytest.raises(EvaluationError, match=r"model 'wrong' returned \(.*10, 25, 3\).*25, 25, 3"):
+        evaluate(Wrong(), "cmu", model_name="wrong", data_root=root)
+
+
+def test_cli_contract_writes_results_and_protocol(swinging_cmu, tmp_path):
+    root, _ = swinging_cmu
+    out = tmp_path / "out"
+    assert main(["eval", "--model", "repeat_last", "--benchmark", "cmu", "--sampler", "ltd8",
+                 "--data-root", str(root), "--out", str(out)]) == 0
+    df = pd.read_csv(out / "results.csv")
+    for column in ["model", "benchmark", "action", "metric", "averaging", "joints", "horizon_ms",
+                   "value"]:
+        assert column in df.columns
+    protocol = json.loads((out / "protocol.json").read_text())
+    assert protocol["sampler"] == "ltd8" and protocol["input_frames"] == 10
+    assert protocol["output_frames"] == 25 and protocol["fps"] == 25
+    assert protocol["files"][0]["file"] == "test/walking/walking_1.txt"
+    assert len(protocol["files"][0]["sha256"]) == 64
+    assert protocol["provenance"]["code_version"]
+    assert set(df.protocol_id) == {protocol["protocol_id"]}

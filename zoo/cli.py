@@ -1,0 +1,211 @@
+"""The ``zoo`` command: list models, evaluate, regenerate leaderboards, train, build data."""
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+from typing import Any, Sequence
+
+import yaml
+
+from zoo.errors import ZooError
+from zoo.registry import REPO_ROOT, load_registry
+
+RESULTS_DIR = REPO_ROOT / "results"
+
+
+class UsageError(ZooError, ValueError):
+    """A command-line argument is wrong; the message names it and what was expected."""
+
+
+def parse_overrides(items: Sequence[str] | None) -> dict[str, Any]:
+    """``--set key=value`` pairs, values parsed as YAML scalars (``3``, ``0.5``, ``[1, 2]``)."""
+    out = {}
+    for item in items or ():
+        if "=" not in item:
+            raise UsageError(f"--set expects key=value, got {item!r}")
+        key, value = item.split("=", 1)
+        out[key.strip()] = yaml.safe_load(value)
+    return out
+
+
+def _registry(args):
+    return load_registry(*(args.registry or ()))
+
+
+def cmd_list(args) -> int:
+    from tabulate import tabulate
+
+    registry = _registry(args)
+    rows = []
+    for name in registry.list_models(args.representation):
+        e = registry.get(name)
+        hp = ", ".join(f"{k}={v}" for k, v in e.hparams.items())
+        rows.append([name, "/".join(e.representation), "yes" if e.trainable else "no",
+                     hp if len(hp) < 70 else hp[:67] + "...", e.reference.split(".")[0]])
+    print(tabulate(rows, headers=["model", "representation", "trainable", "hparams",
+                                  "reference"], tablefmt="github"))
+    return 0
+
+
+def _load_model(args, registry, bench):
+    """The model to evaluate: a registered one, or the one a checkpoint holds."""
+    overrides = parse_overrides(args.set)
+    if getattr(args, "checkpoint", None):
+        from zoo.train import load_checkpoint
+
+        model, ckpt = load_checkpoint(args.checkpoint, registry=registry, benchmark=bench)
+        if args.model and args.model != ckpt["model"]:
+            raise UsageError(f"--model {args.model} but checkpoint {args.checkpoint} holds model "
+                             f"{ckpt['model']!r}")
+        if overrides:
+            raise UsageError("--set cannot change a trained checkpoint's hyper-parameters")
+        return ckpt["model"], model, {"checkpoint": str(args.checkpoint),
+                                      "hparams": ckpt["hparams"],
+                                      "training": ckpt.get("training", {})}
+    if not args.model:
+        raise UsageError("give --model NAME or --checkpoint PATH")
+    from zoo.registry import create_model
+
+    model = create_model(args.model, benchmark=bench, registry=registry, **overrides)
+    entry = registry.get(args.model)
+    if entry.trainable:
+        print(f"warning: {args.model} is trainable and no --checkpoint was given: evaluating "
+              f"its untrained initialisation", file=sys.stderr)
+    return args.model, model, {"hparams": registry.model_args(args.model, **{
+        **bench.model_inputs(entry.context), **overrides})}
+
+
+def cmd_eval(args) -> int:
+    from zoo.benchmark import get_benchmark
+    from zoo.evaluate import evaluate
+
+    registry = _registry(args)
+    bench = get_benchmark(args.benchmark)
+    name, model, provenance = _load_model(args, registry, bench)
+    samplers = args.sampler or [bench.sampler]
+    if args.out and len(samplers) > 1:
+        raise UsageError("--out takes one --sampler; omit --out to write "
+                         "results/<benchmark>/<sampler>/<model>/ for each")
+    for sampler in samplers:
+        result = evaluate(model, bench, model_name=name, sampler=sampler,
+                          data_root=args.data_root, batch_size=args.batch_size,
+                          device=args.device, provenance=_jsonable(provenance))
+        out = Path(args.out) if args.out else RESULTS_DIR / bench.name / sampler / name
+        result.write(out)
+        _print_average(result.frame, bench.horizons_ms)
+        print(f"wrote {out}/results.csv, protocol.json, tables.md")
+    return 0
+
+
+def cmd_leaderboard(args) -> int:
+    from zoo.leaderboard import regenerate
+
+    registry = _registry(args)
+    for bench in args.benchmark:
+        regenerate(bench, registry=registry, data_root=args.data_root,
+                   out_root=Path(args.out), checkpoints=Path(args.checkpoints),
+                   device=args.device)
+    return 0
+
+
+def cmd_train(args) -> int:
+    from zoo.train import train
+
+    registry = _registry(args)
+    train(args.model, args.benchmark, registry=registry, epochs=args.epochs, out_dir=args.out,
+          data_root=args.data_root, overrides=parse_overrides(args.set),
+          train_overrides=parse_overrides(args.train_set), resume=args.resume, seed=args.seed,
+          device=args.device, max_batches=args.max_batches, progress=not args.no_progress)
+    return 0
+
+
+def _print_average(frame, horizons) -> None:
+    from tabulate import tabulate
+
+    avg = frame[(frame["action"] == "average") & frame["horizon_ms"].isin(horizons)]
+    table = avg.pivot_table(index=["metric", "averaging", "joints"], columns="horizon_ms",
+                            values="value")
+    print(tabulate(table.reset_index(), headers=["metric", "averaging", "joints"] +
+                   [f"{h} ms" for h in table.columns], tablefmt="github", floatfmt=".2f",
+                   showindex=False))
+
+
+def _jsonable(value):
+    if isinstance(value, dict):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, (str, int, float, bool)) or value is None:
+        return value
+    return repr(value)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="zoo", description=__doc__)
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    def common(p, model_required=False):
+        p.add_argument("--registry", action="append", metavar="YAML",
+                       help="extra registry file (your own baselines); repeatable")
+        p.add_argument("--data-root", help="dataset folder (default: the benchmark's)")
+        p.add_argument("--device", default="cpu", help="torch device (default cpu)")
+
+    p = sub.add_parser("list", help="list registered models")
+    p.add_argument("--registry", action="append", metavar="YAML")
+    p.add_argument("--representation", choices=["joints", "mesh"])
+    p.set_defaults(func=cmd_list)
+
+    p = sub.add_parser("eval", help="evaluate one model on one benchmark")
+    common(p)
+    p.add_argument("--model", help="registered model name")
+    p.add_argument("--checkpoint", help="trained checkpoint (from zoo train)")
+    p.add_argument("--benchmark", default="cmu", help="benchmark name or YAML path")
+    p.add_argument("--sampler", action="append",
+                   help="window sampler (ltd8, rand256, all, strideK, strideK_strict); "
+                        "repeatable; default the benchmark's")
+    p.add_argument("--out", help="output folder (default results/<benchmark>/<sampler>/<model>)")
+    p.add_argument("--set", action="append", metavar="KEY=VALUE",
+                   help="override a hyper-parameter; repeatable")
+    p.add_argument("--batch-size", type=int, default=1024)
+    p.set_defaults(func=cmd_eval)
+
+    p = sub.add_parser("leaderboard", help="re-evaluate and rebuild results/<benchmark>/")
+    common(p)
+    p.add_argument("--benchmark", action="append", help="benchmark(s); default cmu")
+    p.add_argument("--out", default=str(RESULTS_DIR), help="results root (default results/)")
+    p.add_argument("--checkpoints", default=str(REPO_ROOT / "checkpoints"),
+                   help="folder of trained checkpoints <benchmark>/<model>.pt")
+    p.set_defaults(func=cmd_leaderboard)
+
+    p = sub.add_parser("train", help="train a model on a benchmark's training split")
+    common(p)
+    p.add_argument("--model", required=True)
+    p.add_argument("--benchmark", default="cmu")
+    p.add_argument("--epochs", type=int, help="default: the registry recipe's")
+    p.add_argument("--out", help="run folder (default runs/<benchmark>/<model>)")
+    p.add_argument("--set", action="append", metavar="KEY=VALUE", help="model hyper-parameter")
+    p.add_argument("--train-set", action="append", metavar="KEY=VALUE",
+                   help="training-recipe override (lr, batch_size, ...)")
+    p.add_argument("--resume", action="store_true", help="continue from the run's last state")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--max-batches", type=int, help="cap batches per epoch (quick runs)")
+    p.add_argument("--no-progress", action="store_true")
+    p.set_defaults(func=cmd_train)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if getattr(args, "command", None) == "leaderboard" and not args.benchmark:
+        args.benchmark = ["cmu"]
+    try:
+        return args.func(args)
+    except ZooError as e:
+        print(f"zoo {args.command}: error: {e}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

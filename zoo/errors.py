@@ -1,0 +1,10 @@
+"""The zoo's error base: every error a user can cause derives from ZooError, so the command line
+reports it as a one-line message while genuine bugs still show their traceback."""
+
+
+class ZooError(Exception):
+    pass
+
+
+class DataNotFoundError(ZooError, FileNotFoundError):
+    """A data root, file or folder that a benchmark needs does not exist."""
