@@ -81,7 +81,12 @@ def cmd_eval(args) -> int:
     from zoo.evaluate import evaluate
 
     registry = _registry(args)
-    bench = get_benchmark(args.benchmark)
+    if args.benchmark is None and args.checkpoint:
+        from zoo.train import read_checkpoint
+
+        # A trained model is evaluated under the protocol its checkpoint records by default.
+        args.benchmark = read_checkpoint(args.checkpoint)["protocol"]["benchmark"]
+    bench = get_benchmark(args.benchmark or "cmu")
     name, model, provenance = _load_model(args, registry, bench)
     samplers = args.sampler or [bench.sampler]
     if args.out and len(samplers) > 1:
@@ -160,7 +165,8 @@ def build_parser() -> argparse.ArgumentParser:
     common(p)
     p.add_argument("--model", help="registered model name")
     p.add_argument("--checkpoint", help="trained checkpoint (from zoo train)")
-    p.add_argument("--benchmark", default="cmu", help="benchmark name or YAML path")
+    p.add_argument("--benchmark", help="benchmark name or YAML path (default: the "
+                   "checkpoint's, else cmu)")
     p.add_argument("--sampler", action="append",
                    help="window sampler (ltd8, rand256, all, strideK, strideK_strict); "
                         "repeatable; default the benchmark's")

@@ -1,0 +1,134 @@
+"""The training engine: determinism, resume, checkpoints and their refusals, DDP."""
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from conftest import write_cmu_file
+from tiny_models import REGISTRY
+from zoo.cli import main
+from zoo.registry import Registry
+from zoo.train import CheckpointError, TrainingError, load_checkpoint, read_checkpoint, train, \
+    weights_digest
+
+HERE = Path(__file__).resolve().parent
+
+
+@pytest.fixture
+def setup(tmp_path):
+    root = tmp_path / "cmu"
+    for split, n in (("train", 3), ("test", 1)):
+        for i in range(1, n + 1):
+            write_cmu_file(root / split / "walking" / f"walking_{i}.txt",
+                           0.01 * i * np.arange(800))
+    reg_file = tmp_path / "registry.yaml"
+    reg_file.write_text(REGISTRY)
+    shutil.copy(HERE / "tiny_models.py", tmp_path / "tiny_models.py")
+    registry = Registry.from_files(Path(__file__).resolve().parents[1] / "registry.yaml",
+                                   reg_file)
+    return root, registry, reg_file
+
+
+def run(setup, out, **kw):
+    root, registry, _ = setup
+    return train("tiny", "cmu", registry=registry, data_root=root, out_dir=out, progress=False,
+                 **kw)
+
+
+def digest(path):
+    return weights_digest_of(read_checkpoint(path)["state_dict"])
+
+
+def weights_digest_of(state):
+    m = torch.nn.Module()
+    for k, v in state.items():
+        m.register_buffer(k.replace(".", "_"), v)
+    return weights_digest(m)
+
+
+def test_seeded_runs_match_and_checkpoint_carries_its_record(setup, tmp_path):
+    a = run(setup, tmp_path / "a")
+    b = run(setup, tmp_path / "b")
+    assert digest(a) == digest(b)
+    c = run(setup, tmp_path / "c", seed=1)
+    assert digest(a) != digest(c)
+    ckpt = read_checkpoint(a)
+    assert ckpt["model"] == "tiny" and ckpt["hparams"]["hidden"] == 16
+    assert ckpt["protocol"]["input_frames"] == 10 and ckpt["protocol"]["skeleton"] == "cmu38"
+    assert [f["file"] for f in ckpt["training_data"]["files"]] == [
+        f"train/walking/walking_{i}.txt" for i in (1, 2, 3)]
+    assert all(len(f["sha256"]) == 64 for f in ckpt["training_data"]["files"])
+    assert ckpt["code_version"] and ckpt["recipe"]["lr"] == 0.001
+    assert ckpt["training"]["best"]["val_mpjpe"] > 0
+    assert ckpt["training"]["epochs_run"] >= 1
+
+
+def test_resume_reaches_the_same_weights(setup, tmp_path):
+    full = run(setup, tmp_path / "full", epochs=3)
+    run(setup, tmp_path / "cut", epochs=3, stop_after_epoch=1)
+    assert read_checkpoint(tmp_path / "cut" / "last.pt")["epoch"] == 0
+    run(setup, tmp_path / "cut", epochs=3, resume=True)
+    assert weights_digest_of(read_checkpoint(tmp_path / "full" / "last.pt")["state_dict"]) == \
+        weights_digest_of(read_checkpoint(tmp_path / "cut" / "last.pt")["state_dict"])
+
+
+def test_nan_loss_names_epoch_and_batch(setup, tmp_path):
+    with pytest.raises(TrainingError, match="loss is nan at epoch 1, batch 1"):
+        run(setup, tmp_path / "nan", overrides={"poison": True})
+
+
+def test_trained_checkpoint_evaluates_and_refuses_mismatches(setup, tmp_path, capsys):
+    root, registry, reg_file = setup
+    best = run(setup, tmp_path / "run")
+    out = tmp_path / "eval"
+    assert main(["eval", "--registry", str(reg_file), "--checkpoint", str(best), "--data-root",
+                 str(root), "--sampler", "all", "--out", str(out)]) == 0
+    assert (out / "results.csv").is_file()
+    # another model
+    assert main(["eval", "--registry", str(reg_file), "--checkpoint", str(best), "--model",
+                 "repeat_last", "--data-root", str(root), "--out", str(tmp_path / "x")]) == 2
+    assert "holds model 'tiny'" in capsys.readouterr().err
+    # another protocol
+    other = tmp_path / "cmu_short.yaml"
+    text = (Path(__file__).resolve().parents[1] / "benchmarks" / "cmu.yaml").read_text()
+    other.write_text(text.replace("output_frames: 25", "output_frames: 10"))
+    with pytest.raises(CheckpointError, match=r"output_frames \(checkpoint 25, benchmark 10\)"):
+        load_checkpoint(best, registry=registry, benchmark=other)
+    # another skeleton
+    h36m = tmp_path / "h36m.yaml"
+    h36m.write_text(text.replace("dataset: cmu_mocap", "dataset: h36m"))
+    with pytest.raises(CheckpointError, match=r"skeleton \(checkpoint 'cmu38', benchmark 'h36m32'"):
+        load_checkpoint(best, registry=registry, benchmark=h36m)
+    # corrupted file
+    broken = tmp_path / "broken.pt"
+    broken.write_bytes(best.read_bytes()[:200])
+    with pytest.raises(CheckpointError, match="broken.pt is corrupted"):
+        load_checkpoint(broken, registry=registry)
+    assert not (tmp_path / "x").exists()
+
+
+def test_recipe_errors_are_named(setup, tmp_path):
+    with pytest.raises(TrainingError, match="unknown training-recipe key.*lrr"):
+        run(setup, tmp_path / "r", train_overrides={"lrr": 1})
+    with pytest.raises(TrainingError, match="nothing to train"):
+        train("repeat_last", "cmu", registry=setup[1], data_root=setup[0], out_dir=tmp_path)
+
+
+def test_two_process_ddp_ends_with_identical_weights(setup, tmp_path):
+    root, _, reg_file = setup
+    torchrun = Path(sys.executable).parent / "torchrun"
+    env = {**os.environ, "ZOO_REGISTRY": str(reg_file), "OMP_NUM_THREADS": "1"}
+    out = tmp_path / "ddp"
+    proc = subprocess.run([str(torchrun), "--standalone", "--nproc_per_node", "2", "-m",
+                           "zoo.cli", "train", "--model", "tiny", "--data-root", str(root),
+                           "--out", str(out), "--epochs", "1", "--no-progress"],
+                          env=env, capture_output=True, text=True, timeout=240)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    digests = [(out / "ranks" / f"rank{r}.sha256").read_text() for r in (0, 1)]
+    assert digests[0] == digests[1]
+    assert read_checkpoint(out / "best.pt")["world_size"] == 2

@@ -1,0 +1,31 @@
+"""A tiny trainable model for engine tests, registered from outside zoo/ like a user's own."""
+import torch
+from torch import nn
+
+REGISTRY = """\
+models:
+  tiny:
+    class: tiny_models.py:TinyTemporal
+    representation: joints
+    trainable: true
+    hparams: {hidden: 16, poison: false}
+    reference: test model
+    train: {lr: 0.001, batch_size: 8, epochs: 2, grad_clip: 1.0,
+            schedule: {type: step, every_epochs: 1, gamma: 0.5}, augment: [time_reversal]}
+"""
+
+
+class TinyTemporal(nn.Module):
+    """Residual temporal MLP with dropout (so resuming must restore the RNG too)."""
+
+    def __init__(self, input_frames, output_frames, num_points, hidden=16, poison=False):
+        super().__init__()
+        self.net = nn.Sequential(nn.Linear(input_frames, hidden), nn.Dropout(0.2), nn.ReLU(),
+                                 nn.Linear(hidden, output_frames))
+        self.poison = poison
+
+    def forward(self, history):
+        last = history[:, -1:]
+        x = (history - last).permute(0, 2, 3, 1)
+        y = self.net(x).permute(0, 3, 1, 2) + last
+        return y * float("nan") if self.poison else y

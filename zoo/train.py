@@ -1,0 +1,431 @@
+"""The one training engine, shared by every trainable model.
+
+A model's recipe is data: the ``train`` mapping of its registry entry (optimizer settings,
+schedule, batch size, epochs, gradient clipping, augmentation), overridable from the command
+line. The engine is seeded and deterministic on CPU; an interrupted run resumed with
+``resume=True`` ends with the same weights as an uninterrupted one, because the data order of
+every epoch derives from (seed, epoch) and the RNG states are saved with each epoch's state.
+
+Validation: the last ``val_fraction`` of every training sequence (by time) is held out; its
+windows never overlap the training windows. The checkpoint with the lowest validation MPJPE
+is kept as ``best.pt``; ``last.pt`` holds the full state for ``--resume``.
+
+Distributed data-parallel: launched by ``torchrun``, each process takes its share of every
+global batch (gloo on CPU, nccl on GPU), gradients are averaged, and rank 0 writes.
+"""
+from __future__ import annotations
+
+import hashlib
+import math
+import os
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+
+from zoo.benchmark import Benchmark, get_benchmark
+from zoo.data.motion import MotionDataset, MotionSequence
+from zoo.data.windows import gather_windows, window_sampler
+from zoo.errors import ZooError
+from zoo.io import atomic_path, code_version
+from zoo.metrics import mpjpe
+from zoo.registry import REPO_ROOT, Registry, load_registry
+
+CHECKPOINT_FORMAT = "motion-zoo-checkpoint/1"
+DEFAULT_RECIPE: dict[str, Any] = {
+    "optimizer": "adam",
+    "lr": 1e-3,
+    "weight_decay": 0.0,
+    "batch_size": 32,
+    "epochs": 10,
+    "grad_clip": None,
+    "schedule": {"type": "constant"},
+    "augment": [],
+    "val_fraction": 0.1,
+    "train_sampler": "all",
+}
+SCHEDULES = ("constant", "step", "cosine", "piecewise")
+AUGMENTATIONS = ("time_reversal",)
+
+
+class TrainingError(ZooError, RuntimeError):
+    pass
+
+
+class CheckpointError(ZooError, ValueError):
+    pass
+
+
+# ---- recipe ----------------------------------------------------------------------------------
+
+def training_recipe(entry_train: dict[str, Any], overrides: dict[str, Any] | None = None
+                    ) -> dict[str, Any]:
+    recipe = {**DEFAULT_RECIPE, **entry_train, **(overrides or {})}
+    unknown = sorted(set(recipe) - set(DEFAULT_RECIPE))
+    if unknown:
+        raise TrainingError(f"unknown training-recipe key(s) {', '.join(unknown)}; valid: "
+                            f"{', '.join(sorted(DEFAULT_RECIPE))}")
+    if recipe["optimizer"] != "adam":
+        raise TrainingError(f"training recipe: optimizer {recipe['optimizer']!r} unknown; "
+                            f"valid: adam")
+    schedule = recipe["schedule"] or {"type": "constant"}
+    if schedule.get("type") not in SCHEDULES:
+        raise TrainingError(f"training recipe: schedule type {schedule.get('type')!r} unknown; "
+                            f"valid: {', '.join(SCHEDULES)}")
+    bad = [a for a in recipe["augment"] or () if a not in AUGMENTATIONS]
+    if bad:
+        raise TrainingError(f"training recipe: augmentation {bad[0]!r} unknown; valid: "
+                            f"{', '.join(AUGMENTATIONS)}")
+    for key in ("batch_size", "epochs"):
+        if not isinstance(recipe[key], int) or recipe[key] < 1:
+            raise TrainingError(f"training recipe: {key} must be a positive integer, got "
+                                f"{recipe[key]!r}")
+    if not 0 < recipe["val_fraction"] < 0.5:
+        raise TrainingError(f"training recipe: val_fraction must lie in (0, 0.5), got "
+                            f"{recipe['val_fraction']}")
+    return recipe
+
+
+def learning_rate(schedule: dict[str, Any], base_lr: float, epoch: int, epochs: int) -> float:
+    """The learning rate of 0-based ``epoch`` (schedules step once per epoch)."""
+    kind = schedule.get("type", "constant")
+    if kind == "constant":
+        return base_lr
+    if kind == "step":  # SPGSN: x gamma every `every_epochs`
+        return base_lr * schedule["gamma"] ** (epoch // schedule["every_epochs"])
+    if kind == "cosine":  # SpecTrHuMS: cosine from lr to min_lr over the run
+        lo = schedule.get("min_lr", 0.0)
+        return lo + (base_lr - lo) * 0.5 * (1 + math.cos(math.pi * epoch / max(1, epochs)))
+    if kind == "piecewise":  # siMLPe: lrs[i] from boundaries_epochs[i-1] on
+        lrs, bounds = schedule["lrs"], schedule["boundaries_epochs"]
+        return lrs[sum(epoch >= b for b in bounds)]
+    raise TrainingError(f"schedule type {kind!r} unknown")
+
+
+# ---- data ------------------------------------------------------------------------------------
+
+def split_train_val(dataset: MotionDataset, val_fraction: float) -> tuple[list, list]:
+    """Training and validation sequences: the first and last parts of each sequence in time."""
+    train, val = [], []
+    for s in dataset.sequences:
+        cut = int(round(len(s) * (1 - val_fraction)))
+        train.append(MotionSequence(s.name, s.action, s.positions[:cut], s.fps, s.sha256))
+        val.append(MotionSequence(s.name + "#val", s.action, s.positions[cut:], s.fps, s.sha256))
+    return train, val
+
+
+def _windows(sequences, length: int, sampler: str, t_in: int, t_out: int):
+    usable = [s for s in sequences if len(s) >= length]
+    index = window_sampler(sampler, [len(s) for s in usable], t_in, t_out)
+    return [s.positions for s in usable], index
+
+
+@dataclass
+class _DistInfo:
+    rank: int = 0
+    world: int = 1
+
+    @property
+    def active(self) -> bool:
+        return self.world > 1
+
+
+def _init_distributed(device: str) -> _DistInfo:
+    world = int(os.environ.get("WORLD_SIZE", "1"))
+    if world <= 1:
+        return _DistInfo()
+    import torch.distributed as dist
+
+    if not dist.is_initialized():
+        dist.init_process_group(backend="nccl" if str(device).startswith("cuda") else "gloo")
+    return _DistInfo(rank=dist.get_rank(), world=dist.get_world_size())
+
+
+# ---- checkpoints -----------------------------------------------------------------------------
+
+def weights_digest(model: nn.Module) -> str:
+    digest = hashlib.sha256()
+    for name, tensor in sorted(model.state_dict().items()):
+        digest.update(name.encode())
+        digest.update(tensor.detach().cpu().contiguous().numpy().tobytes())
+    return digest.hexdigest()
+
+
+def _save(path: Path, payload: dict[str, Any]) -> None:
+    with atomic_path(path) as tmp:
+        torch.save(payload, tmp)
+
+
+def read_checkpoint(path: str | Path) -> dict[str, Any]:
+    path = Path(path)
+    if not path.is_file():
+        raise CheckpointError(f"checkpoint {path} does not exist")
+    try:
+        payload = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as e:  # torch raises several types for truncated or foreign files
+        raise CheckpointError(f"checkpoint {path} is corrupted or not a motion-zoo checkpoint "
+                              f"({type(e).__name__}: {str(e).splitlines()[0][:200]})") from e
+    if not isinstance(payload, dict) or payload.get("format") != CHECKPOINT_FORMAT:
+        raise CheckpointError(f"checkpoint {path} is not a motion-zoo checkpoint (format "
+                              f"{payload.get('format') if isinstance(payload, dict) else None!r},"
+                              f" expected {CHECKPOINT_FORMAT!r})")
+    return payload
+
+
+def load_checkpoint(path: str | Path, *, registry: Registry | None = None,
+                    benchmark: str | Benchmark | None = None, model_name: str | None = None
+                    ) -> tuple[nn.Module, dict[str, Any]]:
+    """The trained model of a checkpoint, checked against the benchmark it will be evaluated on.
+
+    With ``benchmark=None`` the checkpoint's own protocol is used.
+    """
+    ckpt = read_checkpoint(path)
+    registry = registry or load_registry()
+    if model_name is not None and model_name != ckpt["model"]:
+        raise CheckpointError(f"checkpoint {path} holds model {ckpt['model']!r}, not "
+                              f"{model_name!r}")
+    entry = registry.get(ckpt["model"])
+    bench = get_benchmark(benchmark or ckpt["protocol"]["benchmark"]) \
+        if not isinstance(benchmark, Benchmark) else benchmark
+    expected = model_protocol(bench)
+    diff = [f"{k} (checkpoint {ckpt['protocol'].get(k)!r}, benchmark {v!r})"
+            for k, v in expected.items() if ckpt["protocol"].get(k) != v]
+    if diff:
+        raise CheckpointError(f"checkpoint {path} was trained for another protocol than "
+                              f"benchmark {bench.name!r}: " + "; ".join(diff))
+    model = registry.create_model(entry.name, **ckpt["hparams"])
+    try:
+        model.load_state_dict(ckpt["state_dict"])
+    except RuntimeError as e:
+        raise CheckpointError(f"checkpoint {path}: weights do not fit model {entry.name!r} "
+                              f"({str(e).splitlines()[0]})") from e
+    return model.eval(), ckpt
+
+
+def model_protocol(bench: Benchmark) -> dict[str, Any]:
+    """What a trained model's weights depend on: it must match wherever they are evaluated."""
+    return {"benchmark": bench.name, "dataset": bench.dataset,
+            "skeleton": bench.skeleton.name, "used_joints": list(bench.skeleton.used),
+            "input_frames": bench.input_frames, "output_frames": bench.output_frames}
+
+
+# ---- the loop --------------------------------------------------------------------------------
+
+def train(model_name: str, benchmark: str | Benchmark, *, registry: Registry | None = None,
+          epochs: int | None = None, out_dir: str | Path | None = None,
+          data_root: str | Path | None = None, overrides: dict[str, Any] | None = None,
+          train_overrides: dict[str, Any] | None = None, resume: bool = False, seed: int = 0,
+          device: str = "cpu", max_batches: int | None = None, progress: bool = True,
+          stop_after_epoch: int | None = None) -> Path:
+    """Train ``model_name`` on ``benchmark``'s training split; returns the best checkpoint path.
+
+    ``stop_after_epoch`` ends the run early as if interrupted (tests of ``resume``).
+    """
+    registry = registry or load_registry()
+    bench = get_benchmark(benchmark) if isinstance(benchmark, (str, Path)) else benchmark
+    entry = registry.get(model_name)
+    if not entry.trainable:
+        raise TrainingError(f"model {model_name!r} has nothing to train (registry: trainable: "
+                            f"false)")
+    recipe = training_recipe(entry.train, {**(train_overrides or {}),
+                                           **({"epochs": epochs} if epochs else {})})
+    dist_info = _init_distributed(device)
+    out_dir = Path(out_dir) if out_dir else REPO_ROOT / "checkpoints" / bench.name / model_name
+    hparams = registry.model_args(model_name, **{**bench.model_inputs(entry.context),
+                                                 **(overrides or {})})
+
+    torch.manual_seed(seed)
+    np.random.seed(seed)
+    torch.use_deterministic_algorithms(True, warn_only=True)
+    model = registry.create_model(model_name, **hparams).to(device)
+    optimizer = torch.optim.Adam(model.parameters(), lr=recipe["lr"],
+                                 weight_decay=recipe["weight_decay"])
+    dataset = bench.load(data_root, split=bench.train_split)
+    train_seqs, val_seqs = split_train_val(dataset, recipe["val_fraction"])
+    t_in, t_out = bench.input_frames, bench.output_frames
+    length = t_in + t_out
+    train_pos, train_index = _windows(train_seqs, length, recipe["train_sampler"], t_in, t_out)
+    val_pos, val_index = _windows(val_seqs, length, "all", t_in, t_out)
+    if len(train_index) == 0 or len(val_index) == 0:
+        raise TrainingError(f"{dataset.root}: no training or validation window of {length} "
+                            f"frames")
+    used = list(bench.skeleton.used)
+
+    start_epoch, best, history = 0, {"val_mpjpe": math.inf, "epoch": -1}, []
+    last_path, best_path = out_dir / "last.pt", out_dir / "best.pt"
+    if resume:
+        state = read_checkpoint(last_path)
+        if state["model"] != model_name or state["hparams"] != _plain(hparams):
+            raise CheckpointError(f"{last_path}: cannot resume: it holds {state['model']!r} with "
+                                  f"other hyper-parameters")
+        model.load_state_dict(state["state_dict"])
+        optimizer.load_state_dict(state["optimizer"])
+        torch.set_rng_state(state["rng"])
+        start_epoch, best, history = state["epoch"] + 1, state["best"], state["history"]
+
+    objective = _Objective(model)
+    net = torch.nn.parallel.DistributedDataParallel(objective) if dist_info.active else objective
+    batch_size = recipe["batch_size"]
+    if batch_size % dist_info.world:
+        raise TrainingError(f"batch_size {batch_size} must divide evenly over "
+                            f"{dist_info.world} processes")
+    # Incomplete last batches are dropped, so every process always gets an equal share.
+    steps_per_epoch = max(1, len(train_index) // batch_size)
+    if max_batches:
+        steps_per_epoch = min(steps_per_epoch, max_batches)
+    meta = _metadata(model_name, hparams, bench, dataset, recipe, seed, device, dist_info)
+
+    for epoch in range(start_epoch, recipe["epochs"]):
+        lr = learning_rate(recipe["schedule"], recipe["lr"], epoch, recipe["epochs"])
+        for group in optimizer.param_groups:
+            group["lr"] = lr
+        order = torch.randperm(len(train_index),
+                               generator=torch.Generator().manual_seed(seed * 100003 + epoch))
+        augment_rng = np.random.default_rng([seed, epoch])
+        model.train()
+        bar = _progress(progress and dist_info.rank == 0, steps_per_epoch,
+                        f"{model_name} epoch {epoch + 1}/{recipe['epochs']}")
+        started, seen, loss_sum = time.perf_counter(), 0, 0.0
+        for step in range(steps_per_epoch):
+            rows = order[step * batch_size:(step + 1) * batch_size].numpy()
+            rows = rows[dist_info.rank::dist_info.world]  # this process's share of the batch
+            windows = gather_windows(train_pos, train_index[rows], length)[:, :, used]
+            if "time_reversal" in (recipe["augment"] or ()):
+                flip = augment_rng.random(len(windows)) < 0.5
+                windows[flip] = windows[flip, ::-1]
+            windows = torch.from_numpy(np.ascontiguousarray(windows)).to(device)
+            history_, future = windows[:, :t_in], windows[:, t_in:]
+            loss = net(history_, future)
+            if not torch.isfinite(loss):
+                raise TrainingError(f"{model_name}: loss is {loss.item()} at epoch {epoch + 1}, "
+                                    f"batch {step + 1}: training stopped (lower the lr or check "
+                                    f"the data)")
+            optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            if recipe["grad_clip"]:
+                nn.utils.clip_grad_norm_(model.parameters(), recipe["grad_clip"])
+            optimizer.step()
+            seen += len(rows) * dist_info.world
+            loss_sum += loss.item()
+            if bar is not None:
+                bar.update(1)
+                bar.set_postfix(loss=f"{loss.item():.3f}",
+                                samples_per_s=f"{seen / (time.perf_counter() - started):.0f}")
+        if bar is not None:
+            bar.close()
+        val = validate(model, val_pos, val_index, t_in, t_out, used, device)
+        record = {"epoch": epoch + 1, "lr": lr, "train_loss": loss_sum / steps_per_epoch,
+                  "val_mpjpe": val, "seconds": time.perf_counter() - started,
+                  "samples": seen}
+        history.append(record)
+        if dist_info.rank == 0:
+            if val < best["val_mpjpe"]:
+                best = {"val_mpjpe": val, "epoch": epoch + 1}
+                _save(best_path, {**meta, "state_dict": model.state_dict(),
+                                  "training": _training_summary(recipe, history, best, device)})
+            _save(last_path, {**meta, "state_dict": model.state_dict(),
+                              "optimizer": optimizer.state_dict(), "rng": torch.get_rng_state(),
+                              "epoch": epoch, "best": best, "history": history,
+                              "training": _training_summary(recipe, history, best, device)})
+            print(f"{model_name} epoch {epoch + 1}: train loss {record['train_loss']:.4f}, "
+                  f"val MPJPE {val:.2f} mm (best {best['val_mpjpe']:.2f} at epoch "
+                  f"{best['epoch']}), {record['seconds']:.1f} s", flush=True)
+        if stop_after_epoch is not None and epoch + 1 >= stop_after_epoch:
+            break
+    if dist_info.active:
+        _write_rank_digest(out_dir, model, dist_info)
+    return best_path
+
+
+class _Objective(nn.Module):
+    """The training loss as a module, so DDP synchronises gradients of any model's own loss:
+    the model's ``training_loss`` if it defines one, else mean MPJPE over predicted frames."""
+
+    def __init__(self, model: nn.Module) -> None:
+        super().__init__()
+        self.model = model
+
+    def forward(self, history: torch.Tensor, future: torch.Tensor) -> torch.Tensor:
+        own = getattr(self.model, "training_loss", None)
+        if own is not None:
+            return own(history, future)
+        return mpjpe(self.model(history), future).mean()
+
+
+@torch.no_grad()
+def validate(model, positions, index, t_in, t_out, used, device, batch_size: int = 1024) -> float:
+    """Mean MPJPE (mm) over validation windows and predicted frames, on the predicted joints."""
+    model.eval()
+    total, count = 0.0, 0
+    for start in range(0, len(index), batch_size):
+        w = torch.from_numpy(gather_windows(positions, index[start:start + batch_size],
+                                            t_in + t_out)[:, :, used]).to(device)
+        err = mpjpe(model(w[:, :t_in]), w[:, t_in:])
+        total += err.sum().item()
+        count += err.numel()
+    return total / count
+
+
+def _metadata(model_name, hparams, bench, dataset, recipe, seed, device, dist_info):
+    return {
+        "format": CHECKPOINT_FORMAT,
+        "model": model_name,
+        "hparams": _plain(hparams),
+        "protocol": model_protocol(bench),
+        "training_data": {"dataset": dataset.name, "split": dataset.split,
+                          "files": [{"file": f["file"], "sha256": f["sha256"]}
+                                    for f in dataset.files()]},
+        "recipe": _plain(recipe),
+        "seed": seed,
+        "code_version": code_version(),
+        "torch": str(torch.__version__),
+        "world_size": dist_info.world,
+    }
+
+
+def _training_summary(recipe, history, best, device) -> dict[str, Any]:
+    return {"epochs_run": len(history), "epochs_planned": recipe["epochs"],
+            "samples_seen": int(sum(h["samples"] for h in history)),
+            "seconds": float(sum(h["seconds"] for h in history)), "device": str(device),
+            "device_name": _device_name(device), "best": best,
+            "final_val_mpjpe": history[-1]["val_mpjpe"] if history else None}
+
+
+def _device_name(device) -> str:
+    if str(device).startswith("cuda") and torch.cuda.is_available():
+        return torch.cuda.get_device_name(torch.device(device))
+    import platform
+
+    return f"CPU {platform.processor() or platform.machine()}, {os.cpu_count()} cores"
+
+
+def _plain(value):
+    """Checkpoint metadata as plain Python (loadable with weights_only=True)."""
+    if isinstance(value, dict):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    if isinstance(value, (np.integer,)):
+        return int(value)
+    if isinstance(value, (np.floating,)):
+        return float(value)
+    return value
+
+
+def _write_rank_digest(out_dir: Path, model: nn.Module, dist_info: _DistInfo) -> None:
+    from zoo.io import atomic_write_text
+
+    atomic_write_text(out_dir / "ranks" / f"rank{dist_info.rank}.sha256",
+                      weights_digest(model) + "\n")
+
+
+def _progress(enabled: bool, total: int, desc: str):
+    if not enabled:
+        return None
+    from tqdm import tqdm
+
+    return tqdm(total=total, desc=desc, unit="batch", leave=False, dynamic_ncols=True)
