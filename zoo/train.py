@@ -10,6 +10,10 @@ Validation: the last ``val_fraction`` of every training sequence (by time) is he
 windows never overlap the training windows. The checkpoint with the lowest validation MPJPE
 is kept as ``best.pt``; ``last.pt`` holds the full state for ``--resume``.
 
+Model hooks (both optional): ``training_loss(history, future)`` replaces the default loss (mean
+MPJPE over predicted frames); ``start_epoch(epoch, windows)`` runs before every epoch, with
+``windows()`` yielding every training window ``(B, T_in + T_out, P, 3)`` once in a fixed order.
+
 Distributed data-parallel: launched by ``torchrun``, each process takes its share of every
 global batch (gloo on CPU, nccl on GPU), gradients are averaged, and rank 0 writes.
 """
@@ -255,7 +259,7 @@ def train(model_name: str, benchmark: str | Benchmark, *, registry: Registry | N
                             f"frames")
     used = list(bench.skeleton.used)
 
-    start_epoch, best, history = 0, {"val_mpjpe": math.inf, "epoch": -1}, []
+    first_epoch, best, history = 0, {"val_mpjpe": math.inf, "epoch": -1}, []
     last_path, best_path = out_dir / "last.pt", out_dir / "best.pt"
     if resume:
         state = read_checkpoint(last_path)
@@ -265,7 +269,7 @@ def train(model_name: str, benchmark: str | Benchmark, *, registry: Registry | N
         model.load_state_dict(state["state_dict"])
         optimizer.load_state_dict(state["optimizer"])
         torch.set_rng_state(state["rng"])
-        start_epoch, best, history = state["epoch"] + 1, state["best"], state["history"]
+        first_epoch, best, history = state["epoch"] + 1, state["best"], state["history"]
 
     objective = _Objective(model)
     net = torch.nn.parallel.DistributedDataParallel(objective) if dist_info.active else objective
@@ -279,7 +283,15 @@ def train(model_name: str, benchmark: str | Benchmark, *, registry: Registry | N
         steps_per_epoch = min(steps_per_epoch, max_batches)
     meta = _metadata(model_name, hparams, bench, dataset, recipe, seed, device, dist_info)
 
-    for epoch in range(start_epoch, recipe["epochs"]):
+    def training_windows(batch: int = 256):
+        """Every training window once, in a fixed order (for per-epoch statistics)."""
+        for start in range(0, len(train_index), batch):
+            w = gather_windows(train_pos, train_index[start:start + batch], length)[:, :, used]
+            yield torch.from_numpy(w).to(device)
+
+    for epoch in range(first_epoch, recipe["epochs"]):
+        if hasattr(model, "start_epoch"):  # e.g. warm-up phases, statistics over the data
+            model.start_epoch(epoch, training_windows)
         lr = learning_rate(recipe["schedule"], recipe["lr"], epoch, recipe["epochs"])
         for group in optimizer.param_groups:
             group["lr"] = lr
