@@ -53,10 +53,6 @@ class Benchmark:
     def skeleton(self) -> Skeleton:
         return SKELETON_OF[self.dataset]
 
-    @property
-    def frame_ms(self) -> float:
-        return 1000.0 / 25.0  # both exp-map datasets are evaluated at 25 Hz
-
     def resolve_data_root(self, data_root: str | Path | None = None) -> Path | None:
         if data_root is not None:
             return Path(data_root)

@@ -181,7 +181,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--benchmark", action="append", help="benchmark(s); default cmu")
     p.add_argument("--out", default=str(RESULTS_DIR), help="results root (default results/)")
     p.add_argument("--checkpoints", default=str(REPO_ROOT / "checkpoints"),
-                   help="folder of trained checkpoints <benchmark>/<model>.pt")
+                   help="folder of trained checkpoints <benchmark>/<model>/best.pt "
+                        "(default checkpoints/, where zoo train writes)")
     p.set_defaults(func=cmd_leaderboard)
 
     p = sub.add_parser("train", help="train a model on a benchmark's training split")
@@ -189,7 +190,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--model", required=True)
     p.add_argument("--benchmark", default="cmu")
     p.add_argument("--epochs", type=int, help="default: the registry recipe's")
-    p.add_argument("--out", help="run folder (default runs/<benchmark>/<model>)")
+    p.add_argument("--out", help="run folder (default checkpoints/<benchmark>/<model>)")
     p.add_argument("--set", action="append", metavar="KEY=VALUE", help="model hyper-parameter")
     p.add_argument("--train-set", action="append", metavar="KEY=VALUE",
                    help="training-recipe override (lr, batch_size, ...)")

@@ -156,10 +156,11 @@ def regenerate(benchmark, *, registry=None, data_root=None, out_root: str | Path
     """Re-evaluate every model that can be evaluated on ``benchmark`` under each of its samplers
     and rebuild ``<out_root>/<benchmark>/<sampler>/``.
 
-    A model is evaluated if it needs no training or if ``<checkpoints>/<benchmark>/<model>.pt``
-    exists; otherwise a result folder already under ``out_root`` (from an earlier
-    ``zoo eval --checkpoint``) is kept if its protocol still matches, and skipped with a warning
-    naming the difference if not.
+    A model is evaluated if it needs no training or if its best checkpoint
+    ``<checkpoints>/<benchmark>/<model>/best.pt`` (where ``zoo train`` writes it) exists;
+    otherwise a result folder already under ``out_root`` (from an earlier ``zoo eval
+    --checkpoint``) is kept if its protocol still matches, and skipped with a warning naming the
+    difference if not.
     """
     import sys
 
@@ -176,7 +177,7 @@ def regenerate(benchmark, *, registry=None, data_root=None, out_root: str | Path
         results, stored = [], []
         for name in registry.list_models(bench.representation):
             entry = registry.get(name)
-            ckpt = Path(checkpoints) / bench.name / f"{name}.pt" if checkpoints else None
+            ckpt = Path(checkpoints) / bench.name / name / "best.pt" if checkpoints else None
             run_dir = out_root / bench.name / sampler / name
             provenance = {}
             if ckpt is not None and ckpt.is_file():
