@@ -1,0 +1,52 @@
+"""zoo leaderboard: one command re-evaluates what it can and refuses stale protocols."""
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from conftest import write_cmu_file
+from tiny_models import REGISTRY
+from zoo.leaderboard import regenerate
+from zoo.registry import Registry
+from zoo.train import train
+
+HERE = Path(__file__).resolve().parent
+
+
+def test_regenerate_with_checkpoint_and_stale_result(tmp_path, capsys):
+    root = tmp_path / "cmu"
+    for split, n in (("train", 2), ("test", 1)):
+        for i in range(1, n + 1):
+            write_cmu_file(root / split / "walking" / f"walking_{i}.txt",
+                           0.01 * i * np.arange(800))
+    (tmp_path / "registry.yaml").write_text(REGISTRY)
+    shutil.copy(HERE / "tiny_models.py", tmp_path / "tiny_models.py")
+    registry = Registry.from_files(HERE.parent / "registry.yaml", tmp_path / "registry.yaml")
+    checkpoints = tmp_path / "checkpoints"
+    train("tiny", "cmu", registry=registry, data_root=root, epochs=1, progress=False,
+          out_dir=checkpoints / "cmu" / "tiny")
+    out = tmp_path / "results"
+    written = regenerate("cmu", registry=registry, data_root=root, out_root=out,
+                         checkpoints=checkpoints)
+    assert [p.name for p in written] == ["ltd8", "all"]
+    board = (out / "cmu" / "all" / "leaderboard.md").read_text()
+    assert "| tiny " in board and "| repeat_last " in board
+    assert (out / "cmu" / "all" / "mpjpe.png").stat().st_size > 0
+    combined = pd.read_csv(out / "cmu" / "all" / "results.csv")
+    assert set(combined.model) == {"tiny", "repeat_last"}
+    assert combined.protocol_id.nunique() == 1
+
+    # Without its checkpoint the trained model's stored result is kept while it still matches...
+    shutil.rmtree(checkpoints)
+    regenerate("cmu", registry=registry, data_root=root, out_root=out, checkpoints=checkpoints)
+    assert "| tiny " in (out / "cmu" / "all" / "leaderboard.md").read_text()
+    # ...and left out, with the difference named, once the data under it changed.
+    stored = out / "cmu" / "all" / "tiny" / "protocol.json"
+    record = json.loads(stored.read_text())
+    record["files"][0]["sha256"] = "0" * 64
+    stored.write_text(json.dumps(record))
+    regenerate("cmu", registry=registry, data_root=root, out_root=out, checkpoints=checkpoints)
+    assert "| tiny " not in (out / "cmu" / "all" / "leaderboard.md").read_text()
+    assert "different sha256: ['test/walking/walking_1.txt']" in capsys.readouterr().err
