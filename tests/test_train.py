@@ -132,3 +132,17 @@ def test_two_process_ddp_ends_with_identical_weights(setup, tmp_path):
     digests = [(out / "ranks" / f"rank{r}.sha256").read_text() for r in (0, 1)]
     assert digests[0] == digests[1]
     assert read_checkpoint(out / "best.pt")["world_size"] == 2
+
+
+def test_learning_rate_schedules():
+    from zoo.train import learning_rate
+
+    step = {"type": "step", "every_epochs": 2, "gamma": 0.96}
+    assert [round(learning_rate(step, 1e-3, e, 50), 10) for e in range(5)] == \
+        [1e-3, 1e-3, 9.6e-4, 9.6e-4, 9.216e-4]
+    cosine = {"type": "cosine", "min_lr": 1e-6}
+    assert learning_rate(cosine, 1e-4, 0, 100) == 1e-4
+    assert abs(learning_rate(cosine, 1e-4, 50, 100) - (1e-6 + 0.5 * (1e-4 - 1e-6))) < 1e-15
+    multi = {"type": "multistep", "milestones_steps": [30000], "lrs": [3e-4, 1e-5]}
+    assert learning_rate(multi, 3e-4, 0, 1, 29999) == 3e-4
+    assert learning_rate(multi, 3e-4, 0, 1, 30000) == 1e-5

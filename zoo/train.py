@@ -52,7 +52,7 @@ DEFAULT_RECIPE: dict[str, Any] = {
     "val_fraction": 0.1,
     "train_sampler": "all",
 }
-SCHEDULES = ("constant", "step", "cosine", "piecewise")
+SCHEDULES = ("constant", "step", "cosine", "multistep")
 AUGMENTATIONS = ("time_reversal",)
 
 
@@ -94,19 +94,20 @@ def training_recipe(entry_train: dict[str, Any], overrides: dict[str, Any] | Non
     return recipe
 
 
-def learning_rate(schedule: dict[str, Any], base_lr: float, epoch: int, epochs: int) -> float:
-    """The learning rate of 0-based ``epoch`` (schedules step once per epoch)."""
+def learning_rate(schedule: dict[str, Any], base_lr: float, epoch: int, epochs: int,
+                  step: int = 0) -> float:
+    """The learning rate at 0-based ``epoch`` and global optimizer ``step``."""
     kind = schedule.get("type", "constant")
     if kind == "constant":
         return base_lr
     if kind == "step":  # SPGSN: x gamma every `every_epochs`
         return base_lr * schedule["gamma"] ** (epoch // schedule["every_epochs"])
-    if kind == "cosine":  # SpecTrHuMS: cosine from lr to min_lr over the run
+    if kind == "cosine":  # SpecTrHuMS: cosine from lr to min_lr over the run, per epoch
         lo = schedule.get("min_lr", 0.0)
         return lo + (base_lr - lo) * 0.5 * (1 + math.cos(math.pi * epoch / max(1, epochs)))
-    if kind == "piecewise":  # siMLPe: lrs[i] from boundaries_epochs[i-1] on
-        lrs, bounds = schedule["lrs"], schedule["boundaries_epochs"]
-        return lrs[sum(epoch >= b for b in bounds)]
+    if kind == "multistep":  # siMLPe: lrs[i] from optimizer step milestones_steps[i-1] on
+        lrs, milestones = schedule["lrs"], schedule["milestones_steps"]
+        return lrs[sum(step >= m for m in milestones)]
     raise TrainingError(f"schedule type {kind!r} unknown")
 
 
@@ -292,9 +293,6 @@ def train(model_name: str, benchmark: str | Benchmark, *, registry: Registry | N
     for epoch in range(first_epoch, recipe["epochs"]):
         if hasattr(model, "start_epoch"):  # e.g. warm-up phases, statistics over the data
             model.start_epoch(epoch, training_windows)
-        lr = learning_rate(recipe["schedule"], recipe["lr"], epoch, recipe["epochs"])
-        for group in optimizer.param_groups:
-            group["lr"] = lr
         order = torch.randperm(len(train_index),
                                generator=torch.Generator().manual_seed(seed * 100003 + epoch))
         augment_rng = np.random.default_rng([seed, epoch])
@@ -303,6 +301,10 @@ def train(model_name: str, benchmark: str | Benchmark, *, registry: Registry | N
                         f"{model_name} epoch {epoch + 1}/{recipe['epochs']}")
         started, seen, loss_sum = time.perf_counter(), 0, 0.0
         for step in range(steps_per_epoch):
+            lr = learning_rate(recipe["schedule"], recipe["lr"], epoch, recipe["epochs"],
+                               epoch * steps_per_epoch + step)
+            for group in optimizer.param_groups:
+                group["lr"] = lr
             rows = order[step * batch_size:(step + 1) * batch_size].numpy()
             rows = rows[dist_info.rank::dist_info.world]  # this process's share of the batch
             windows = gather_windows(train_pos, train_index[rows], length)[:, :, used]
