@@ -659,7 +659,9 @@ def build_cmu_anny(bvh_root: str | Path, *, identities: Literal["one", "many"],
         "builder": "zoo.data.anny_motion.build_cmu_anny", "format": DATASET_FORMAT,
         "source": "cmu_bvh", "identities": identities, "topology": topology,
         "anny_topology": TOPOLOGIES[topology], "rig": "cmu_mb", "split": split,
-        "split_rule": SPLIT_RULE, "seed": int(seed), "root": root,
+        "split_rule": SPLIT_RULE, "root": root,
+        # The seed only draws MI bodies: OI datasets of any seed are one dataset.
+        "seed": int(seed) if identities == "many" else None,
         "anny_version": anny_version(), "fps": TARGET_FPS,
         "resampling": "drop frame 0 (T-pose); slerp of local rotations to 25 Hz",
         "mapping": "SPEC section 7: Z-Y-X local rotations, M (x,y,z)->(x,-z,y), rest "
