@@ -227,15 +227,6 @@ def resample_rotations(local_rotations: np.ndarray, source_fps: float,
     return out
 
 
-def resample_positions(positions: np.ndarray, source_fps: float,
-                       target_fps: float = TARGET_FPS) -> np.ndarray:
-    """``(F, 3)`` -> ``(F', 3)`` by linear interpolation (same times as the rotations)."""
-    n = len(positions)
-    times = resample_times(n, source_fps, target_fps)
-    source_times = np.arange(n) / source_fps
-    return np.stack([np.interp(times, source_times, positions[:, k]) for k in range(3)], axis=1)
-
-
 # ---- the retargeting -------------------------------------------------------------------------
 
 class CMUAnnyRetarget:
@@ -393,7 +384,7 @@ def mi_phenotype(seed: int, key: str) -> dict[str, float]:
     return {k: float(rng.uniform(*MI_PHENOTYPE_RANGES[k])) for k in PHENOTYPE_LABELS}
 
 
-def fit_joint_regressor(model, topology: str, bvh_files: Sequence[str | Path], *,
+def fit_joint_regressor(model, bvh_files: Sequence[str | Path], *,
                         support: int, frames_per_trial: int, identities: int,
                         seed: int = 0) -> tuple[sp.csr_matrix, dict[str, float]]:
     """Fit each bone head as a convex combination of its ``support`` nearest rest vertices.
@@ -608,10 +599,9 @@ def joint_regressor(bvh_root: str | Path, topology: str, *, cache_dir: str | Pat
             matrix = sp.csr_matrix((z["data"], z["indices"], z["indptr"]),
                                    shape=tuple(z["shape"]))
             stats = {k: float(z[k]) for k in ("fit_mean_mm", "fit_p99_mm", "fit_frames")}
-
     else:
         model = _model(topology) if model is None else model
-        matrix, stats = fit_joint_regressor(model, topology, [t.path for t in files],
+        matrix, stats = fit_joint_regressor(model, [t.path for t in files],
                                             seed=0, **REGRESSOR_SETTINGS[topology])
         with atomic_path(path) as tmp:
             with open(tmp, "wb") as f:
