@@ -1,0 +1,301 @@
+"""CMU BVH motion on the Anny body (zoo.data.anny_motion).
+
+The tests that need the ``anny`` package share one low-resolution model (session fixture) and
+use the shortest trials (09_03: 128 motion frames at 120 fps, 27 frames at 25 Hz). With a cold
+anny cache the first model build takes a few minutes; afterwards loading takes seconds.
+"""
+import importlib.util
+import shutil
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from zoo.data import anny_motion as am
+from zoo.data.bvh import CMU_BVH_JOINTS, read_bvh
+from zoo.data.expmap import DataFormatError
+from zoo.data.mesh import MeshDataset, MeshTopology
+from zoo.registry import REPO_ROOT
+
+CMU_BVH = REPO_ROOT.parent / "shared" / "data" / "cmu_bvh"
+SHORT = "09_03"  # train split, 27 frames at 25 Hz
+SHORT_TEST = "09_05"  # test split
+
+needs_data = pytest.mark.skipif(not CMU_BVH.is_dir(), reason=f"CMU BVH data not found at {CMU_BVH}")
+needs_anny = pytest.mark.skipif(importlib.util.find_spec("anny") is None,
+                                reason="the anny package is not installed (pip install "
+                                       "anny==0.6.2); CI installs it")
+
+
+def bvh_path(key):
+    return CMU_BVH / "data" / f"0{key[:2]}" / f"{key}.bvh"
+
+
+# ---- rotations and resampling (no anny needed) -------------------------------------------------
+
+def test_rotation_between_is_the_smallest_rotation():
+    rng = np.random.default_rng(1)
+    for _ in range(20):
+        a, b = rng.normal(size=3), rng.normal(size=3)
+        r = am.rotation_between(a, b)
+        np.testing.assert_allclose(r @ (a / np.linalg.norm(a)), b / np.linalg.norm(b), atol=1e-12)
+        axis = Rotation.from_matrix(r).as_rotvec()
+        assert abs(axis @ a) < 1e-9 and abs(axis @ b) < 1e-9  # about a x b: smallest angle
+    np.testing.assert_allclose(am.rotation_between([1, 0, 0], [-1, 0, 0]) @ [1, 0, 0], [-1, 0, 0],
+                               atol=1e-12)
+    np.testing.assert_allclose(am.rotation_between([0, 2, 0], [0, 1, 0]), np.eye(3))
+
+
+def test_remove_heading_keeps_the_tilt():
+    rng = np.random.default_rng(2)
+    for _ in range(20):
+        heading = Rotation.from_rotvec([0, rng.uniform(-3, 3), 0])
+        axis = rng.normal(size=3)
+        axis[1] = 0
+        tilt = Rotation.from_rotvec(axis / np.linalg.norm(axis) * rng.uniform(0, 1.2))
+        q = (heading * tilt).as_matrix()
+        np.testing.assert_allclose(am.remove_heading(q), tilt.as_matrix(), atol=1e-9)
+    # A pure heading leaves nothing; a rotation about a horizontal axis is kept as is.
+    np.testing.assert_allclose(am.remove_heading(Rotation.from_rotvec([0, 1, 0]).as_matrix()),
+                               np.eye(3), atol=1e-12)
+
+
+def test_resampling_to_25_hz_is_exact_on_shared_instants_and_slerps_between():
+    rng = np.random.default_rng(3)
+    n = 241  # 2 s at 120 fps
+    rots = Rotation.random(n * 2, random_state=4).as_matrix().reshape(n, 2, 3, 3)
+    out = am.resample_rotations(rots, 120.0)
+    assert out.shape == (51, 2, 3, 3)  # k / 25 for k = 0..50
+    # 25 Hz frame 5k is 120 fps frame 24k.
+    np.testing.assert_allclose(out[::5], rots[::24], atol=1e-9)
+    # 25 Hz frame 1 (t = 40 ms) lies 4.8 frames in: slerp 80 % of the way from frame 4 to 5.
+    r4, r5 = Rotation.from_matrix(rots[4, 0]), Rotation.from_matrix(rots[5, 0])
+    expected = r4 * Rotation.from_rotvec(0.8 * (r4.inv() * r5).as_rotvec())
+    np.testing.assert_allclose(out[1, 0], expected.as_matrix(), atol=1e-9)
+    assert len(am.resample_times(129 - 1, 120.0)) == 27
+    assert am.snapped_fps(0.0083333) == 120.0 and am.snapped_fps(0.01) == 100.0
+    del rng
+
+
+# ---- trials and split (data, no anny) ---------------------------------------------------------
+
+@needs_data
+def test_trials_split_and_selection_errors():
+    trials = am.list_trials(CMU_BVH)
+    assert len(trials) == 98
+    test = [t.key for t in trials if t.split == "test"]
+    assert len(test) == 17 and all(int(k[3:]) % 5 == 0 for k in test)
+    assert {t.description for t in trials if t.key in ("02_01", "09_03")} == {"walk", "run"}
+    assert [t.key for t in am.select_trials(CMU_BVH, "train", [SHORT])] == [SHORT]
+    with pytest.raises(ValueError, match=r"'09_03' belongs to the train split, not test"):
+        am.select_trials(CMU_BVH, "test", [SHORT])
+    with pytest.raises(ValueError, match=r"'04_01' is not a trial under"):
+        am.select_trials(CMU_BVH, "train", ["04_01"])
+
+
+@needs_data
+def test_a_bvh_with_an_unexpected_joint_is_named(tmp_path):
+    text = bvh_path(SHORT).read_text().replace("JOINT LThumb", "JOINT LPinky", 1)
+    (tmp_path / "odd.bvh").write_text(text)
+    with pytest.raises(DataFormatError, match=r"odd\.bvh: unexpected joint 'LPinky'; expected "
+                                              r"the joint set \{Hips, LHipJoint, .*RThumb\}"):
+        read_bvh(tmp_path / "odd.bvh", CMU_BVH_JOINTS)
+
+
+# ---- on the Anny body -------------------------------------------------------------------------
+
+@pytest.fixture(scope="session")
+def low_model():
+    if importlib.util.find_spec("anny") is None:
+        pytest.skip("the anny package is not installed (pip install anny==0.6.2); CI installs it")
+    return am.load_anny_model("low")
+
+
+@pytest.fixture(scope="session")
+def short_motion():
+    if not CMU_BVH.is_dir():
+        pytest.skip(f"CMU BVH data not found at {CMU_BVH}")
+    bvh = read_bvh(bvh_path(SHORT), CMU_BVH_JOINTS)
+    return bvh, am.motion_rotations(bvh)
+
+
+@pytest.fixture(scope="session")
+def cache(tmp_path_factory):
+    """One cache folder for the session: the joint regressor is fitted once."""
+    return tmp_path_factory.mktemp("zoo-cache")
+
+
+MI_BODY = {"gender": 0.9, "age": 0.85, "muscle": 0.2, "weight": 0.8, "height": 0.3,
+           "proportions": 0.7}
+
+
+@needs_anny
+@pytest.mark.parametrize("phenotype", [None, MI_BODY], ids=["default", "mi"])
+@pytest.mark.parametrize("root", am.ROOT_MODES)
+def test_skinned_bone_directions_match_the_bvh_forward_kinematics(low_model, short_motion,
+                                                                  phenotype, root):
+    bvh, rots = short_motion
+    frames = rots[[0, 9, 18, 26]]
+    target = am.retarget(low_model, bvh, phenotype)
+    params = target.pose_parameters(frames, root)
+    if root == "identity":
+        np.testing.assert_array_equal(params[:, 0], np.eye(4)[None].repeat(4, 0))
+    np.testing.assert_array_equal(params[..., :3, 3], 0)  # no translation anywhere
+    out = am.skin(low_model, params, phenotype, return_bone_ends=True)
+    got = out["tails"] - out["heads"]
+    expected = target.expected_directions(frames, root)
+    angles = am.angle_degrees(got[:, target.directed], expected[:, target.directed])
+    assert target.directed.sum() == 17  # legs, feet, toes, back, neck, head, arms, forearms
+    assert angles.max() < 0.01, f"max bone-direction error {angles.max():.4f} degrees"
+    # The root (Hips) head sits at the origin: no global translation.
+    np.testing.assert_allclose(out["heads"][:, 0], 0, atol=1e-3)
+    # And the motion is not trivial: the legs swing by tens of degrees over the run.
+    leg = low_model.bone_labels.index("LeftUpLeg")
+    swing = am.angle_degrees(got[:, None, leg], got[None, :, leg])
+    assert swing.max() > 20, f"the thigh swings by {swing.max():.1f} degrees only"
+
+
+@needs_anny
+def test_identity_root_removes_heading_and_tilt(low_model, short_motion):
+    bvh, rots = short_motion
+    target = am.retarget(low_model, bvh)
+    turned = rots.copy()
+    turned[:, 0] = Rotation.from_rotvec([0, 1.0, 0]).as_matrix() @ turned[:, 0]
+    np.testing.assert_allclose(target.pose_parameters(turned, "no_heading"),
+                               target.pose_parameters(rots, "no_heading"), atol=1e-9)
+    tilted = rots.copy()
+    tilted[:, 0] = Rotation.from_rotvec([0.3, 0, 0]).as_matrix() @ tilted[:, 0]
+    np.testing.assert_array_equal(target.pose_parameters(tilted, "identity"),
+                                  target.pose_parameters(rots, "identity"))
+    assert not np.allclose(target.pose_parameters(tilted, "no_heading"),
+                           target.pose_parameters(rots, "no_heading"))
+
+
+@needs_anny
+def test_ground_truth_edge_length_changes_at_low_resolution(low_model, short_motion):
+    # SPEC section 7 (full resolution): mean |edge change| vs the first frame about 0.25 mm for
+    # 10 mm edges. The low-resolution mesh has ~42 mm edges and, measured on 09_03, 1.2 mm
+    # mean change (p99 18 mm, max 62 mm): the same ~3 % of an edge.
+    bvh, rots = short_motion
+    v = am.skin(low_model, am.retarget(low_model, bvh).pose_parameters(rots))["vertices"]
+    edges = MeshTopology(am.model_faces(low_model), v.shape[1]).edges
+    lengths = np.linalg.norm(v[:, edges[:, 0]] - v[:, edges[:, 1]], axis=-1).astype(np.float64)
+    change = np.abs(lengths[1:] - lengths[0])
+    assert 38 < lengths[0].mean() < 46
+    assert 0.6 < change.mean() < 2.0
+    assert 10 < np.percentile(change, 99) < 30 and change.max() < 100
+
+
+@needs_anny
+@needs_data
+def test_build_one_identity_low(low_model, cache):
+    ds = am.build_cmu_anny(CMU_BVH, identities="one", topology="low", split="train",
+                           trials=[SHORT], cache_dir=cache, progress=False)
+    assert ds.name == "cmu_anny-oi-low-train" and ds.split == "train" and ds.fps == 25.0
+    (seq,) = ds.sequences
+    assert seq.vertices.shape == (27, 1229, 3) and seq.vertices.dtype == np.float32
+    assert seq.action == "run" and seq.identity == "default"
+    assert seq.meta["source_frames"] == 128 and seq.meta["source_fps"] == 120.0
+    assert seq.meta["phenotype"] == am.DEFAULT_PHENOTYPE
+    # Millimetres, Z up, about 1.6 m tall (the default body), root at the origin.
+    height = np.ptp(seq.vertices[0, :, 2])
+    assert 1400 < height < 1800
+    assert ds.recipe["trials"][0]["trial"] == SHORT and len(ds.recipe["trials"][0]["sha256"]) == 64
+    assert ds.recipe["anny_version"] == am.anny_version() and ds.recipe["fps"] == 25.0
+    # The joint regressor: 31 rows in BVH order summing to 1, close to the rig's bone heads.
+    reg = ds.joint_regressor
+    assert reg.shape == (31, 1229) and ds.joint_names == list(CMU_BVH_JOINTS)
+    np.testing.assert_allclose(np.asarray(reg.sum(axis=1)).ravel(), 1.0, atol=1e-9)
+    assert (reg.data > 0).all() and reg.nnz < 31 * 40
+    folder = am.dataset_folder(ds, cache)
+    (rig,) = am.load_rig_joints(folder)
+    err = am.regressor_error(reg, seq.vertices, rig)
+    assert err.mean() < 10, f"regressed joints {err.mean():.1f} mm from the rig's bone heads"
+    # Cached on disk under its recipe hash; a second call loads the same data.
+    assert folder.name == f"{ds.name}-{ds.recipe_hash}"
+    again = am.build_cmu_anny(CMU_BVH, identities="one", topology="low", split="train",
+                              trials=[SHORT], cache_dir=cache, progress=False)
+    assert again.content_hash() == ds.content_hash() and again.recipe_hash == ds.recipe_hash
+    # The seed draws MI bodies only: an OI build of another seed is the same dataset.
+    assert am.build_cmu_anny(CMU_BVH, identities="one", topology="low", split="train",
+                             trials=[SHORT], seed=7, cache_dir=cache,
+                             progress=False).recipe_hash == ds.recipe_hash
+    assert MeshDataset.load(folder).topology.hash == ds.topology.hash
+
+
+@needs_anny
+@needs_data
+def test_many_identities_share_the_triangulation_differ_in_shape_and_are_seeded(low_model,
+                                                                               cache):
+    def build(seed, split="train", trials=(SHORT, "02_03")):
+        return am.build_cmu_anny(CMU_BVH, identities="many", topology="low", split=split,
+                                 trials=list(trials), seed=seed, cache_dir=cache,
+                                 progress=False)
+
+    ds = build(0)
+    oi = am.build_cmu_anny(CMU_BVH, identities="one", topology="low", split="train",
+                           trials=[SHORT], cache_dir=cache, progress=False)
+    assert ds.topology.hash == oi.topology.hash  # one triangulation for every identity
+    a, b = ds.sequences
+    assert a.identity != b.identity and a.meta["phenotype"] != b.meta["phenotype"]
+    assert a.meta["phenotype"] == am.mi_phenotype(0, SHORT)
+    for key, (lo, hi) in am.MI_PHENOTYPE_RANGES.items():
+        assert lo <= a.meta["phenotype"][key] <= hi
+    # Different bodies: same motion frame, different shapes (edge lengths differ).
+    edges = ds.topology.edges
+
+    def lengths(v):
+        return np.linalg.norm(v[:, edges[:, 0]] - v[:, edges[:, 1]], axis=-1)
+
+    diff = np.abs(lengths(a.vertices[:1]) - lengths(oi.sequences[0].vertices[:1]))
+    assert diff.mean() > 0.5  # mm
+    assert a.vertices.shape[0] == oi.sequences[0].vertices.shape[0] == 27
+    # Reproducible: rebuilt from scratch with the same seed it is identical; another seed is not.
+    shutil.rmtree(am.dataset_folder(ds, cache))
+    assert build(0).content_hash() == ds.content_hash()
+    other = build(1)
+    assert other.recipe_hash != ds.recipe_hash and other.content_hash() != ds.content_hash()
+    # An identity depends on the seed and its trial only, not on the other trials built.
+    alone = build(0, trials=(SHORT,))
+    np.testing.assert_array_equal(alone.sequences[0].vertices, a.vertices)
+    test = build(0, split="test", trials=(SHORT_TEST,))
+    assert test.split == "test" and test.name == "cmu_anny-mi-low-test"
+
+
+@needs_anny
+@needs_data
+def test_builder_argument_errors(cache):
+    with pytest.raises(ValueError, match="identities must be one of"):
+        am.build_cmu_anny(CMU_BVH, identities="some", topology="low", split="train",
+                          cache_dir=cache)
+    with pytest.raises(ValueError, match="topology must be one of"):
+        am.build_cmu_anny(CMU_BVH, identities="one", topology="mid", split="train",
+                          cache_dir=cache)
+    with pytest.raises(ValueError, match="split must be one of"):
+        am.build_cmu_anny(CMU_BVH, identities="one", topology="low", split="val",
+                          cache_dir=cache)
+    with pytest.raises(ValueError, match="root must be one of"):
+        am.build_cmu_anny(CMU_BVH, identities="one", topology="low", split="train",
+                          root="world", cache_dir=cache)
+
+
+@needs_anny
+@needs_data
+@pytest.mark.slow
+def test_full_resolution_directions_and_edge_lengths(short_motion):
+    # SPEC section 7 sanity figures at 13,718 vertices: measured on 09_03, mean edge 9.96 mm,
+    # mean |edge change| 0.22 mm, p99 4.2 mm, max 30 mm.
+    model = am.load_anny_model("full")
+    bvh, rots = short_motion
+    target = am.retarget(model, bvh)
+    out = am.skin(model, target.pose_parameters(rots), return_bone_ends=True)
+    angles = am.angle_degrees((out["tails"] - out["heads"])[:, target.directed],
+                              target.expected_directions(rots)[:, target.directed])
+    assert angles.max() < 0.01
+    v = out["vertices"]
+    assert v.shape == (27, 13718, 3)
+    edges = MeshTopology(am.model_faces(model), v.shape[1]).edges
+    lengths = np.linalg.norm(v[:, edges[:, 0]] - v[:, edges[:, 1]], axis=-1).astype(np.float64)
+    change = np.abs(lengths[1:] - lengths[0])
+    assert 9 < lengths[0].mean() < 11
+    assert 0.1 < change.mean() < 0.4 and 2 < np.percentile(change, 99) < 8
