@@ -114,3 +114,37 @@ def test_bad_arguments_are_named():
         cloth_mesh(ClothConfig(grid=(1, 5)))
     with pytest.raises(MeshError, match="split 'val' has 0 sequences"):
         cloth.generate_cloth("val", TINY)
+
+
+def test_cloth_benchmark_on_a_small_cloth(tmp_path):
+    from zoo.evaluate import evaluate
+    from zoo.models.repeat_last import RepeatLast
+
+    small = ClothConfig(grid=(10, 10), substeps=5, test_sequences=2)  # 50 frames, like the default
+    dataset = load_cloth("test", small, cache_dir=tmp_path)
+    result = evaluate(RepeatLast(25, 25, 100), "cloth", dataset=dataset,
+                      model_name="repeat_last")
+    frame = result.frame[(result.frame.action == "average") & (result.frame.averaging == "frame")]
+    value = {(m, metric): g.sort_values("frame").value.to_numpy()
+             for (m, metric), g in frame.groupby(["model", "metric"])}
+    assert set(value) == {("repeat_last", "melv"), ("repeat_last", "rmse"),
+                          ("ground_truth", "melv")}
+    assert (value["repeat_last", "melv"] == 0).all()  # the last observed frame, unchanged
+    assert (value["ground_truth", "melv"] > 0).all()
+    assert value["repeat_last", "rmse"][0] < value["repeat_last", "rmse"][9]
+    assert result.protocol["windows_per_action"] == {"fall": 2}  # one window per sequence
+    assert result.protocol["recipe_hash"] == dataset.recipe_hash
+
+
+@pytest.mark.slow
+def test_default_cloth_benchmark_end_to_end(tmp_path, monkeypatch):
+    """Builds the default test split (100 sequences) and evaluates repeat_last on it."""
+    from zoo.evaluate import evaluate
+    from zoo.registry import create_model
+
+    monkeypatch.setenv("ZOO_CACHE_DIR", str(tmp_path))
+    model = create_model("repeat_last", benchmark="cloth")
+    result = evaluate(model, "cloth", model_name="repeat_last")
+    assert result.protocol["windows_per_action"] == {"fall": 100}
+    assert result.protocol["num_vertices"] == 484
+    assert (tmp_path / "datasets" / f"cloth-{result.protocol['recipe_hash']}").is_dir()

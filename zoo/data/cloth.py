@@ -29,6 +29,7 @@ split under ``<cache root>/datasets/cloth-<recipe hash>`` (cache root: ``$ZOO_CA
 from __future__ import annotations
 
 import dataclasses
+import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -367,5 +368,12 @@ def load_cloth(split: str = "test", config: ClothConfig | None = None,
     dataset.save(folder)
     if progress:
         print(f"cloth {split}: {len(dataset.sequences)} sequences generated in "
-              f"{time.perf_counter() - started:.1f} s -> {folder}")
+              f"{time.perf_counter() - started:.1f} s -> {folder}", file=sys.stderr)
     return dataset
+
+
+def cloth_dataset(root: str | Path | None, split: str) -> MeshDataset:
+    """The benchmark loader (``zoo.benchmark.MESH_DATASETS``): the default recipe's ``split``,
+    cached under ``root`` (default ``<cache root>/datasets``), generated with a progress bar the
+    first time."""
+    return load_cloth(split, cache_dir=root, progress=True)
