@@ -51,6 +51,23 @@ def test_lanczos_and_dense_solvers_agree():
     np.testing.assert_allclose(sparse.eigenvalues, dense, atol=1e-9)
 
 
+def test_spectrum_slices_join_without_gaps_or_repeats(monkeypatch):
+    from zoo.data import spectral
+
+    monkeypatch.setattr(spectral, "SLICE", 8)  # 40 eigenpairs from 5 or more slices
+    topo = grid(30, 25, seed=4)
+    sliced = SpectralBasis.compute(topo, 40)
+    dense = np.linalg.eigvalsh(topo.laplacian().toarray())[:40]
+    np.testing.assert_allclose(sliced.eigenvalues, dense, atol=1e-9)
+    np.testing.assert_allclose(sliced.vectors.T @ sliced.vectors, np.eye(40), atol=1e-10)
+    # The inertia check counts eigenvalues below a point; a wrong count is an error.
+    lap = topo.laplacian().tocsc()
+    between = (dense[19] + dense[20]) / 2
+    spectral._check_count(lap, between, 20, 40)
+    with pytest.raises(SpectralError, match="found 19 eigenvalues below .* the matrix has 20"):
+        spectral._check_count(lap, between, 19, 40)
+
+
 def test_recompute_is_bit_identical():
     topo = grid(30, 25, seed=1)
     a, b = SpectralBasis.compute(topo, 16), SpectralBasis.compute(topo, 16)
@@ -76,6 +93,8 @@ def test_project_and_reconstruct_match_per_frame_products():
     torch.testing.assert_close(coeffs, expected, atol=1e-5, rtol=1e-5)
     torch.testing.assert_close(basis.reconstruct(coeffs), phi @ expected, atol=1e-5, rtol=1e-5)
     assert basis.project(x[0, 0]).shape == (12, 3)  # no leading dimensions
+    assert basis.vectors_torch.dtype == torch.float32 and basis.vectors_torch.shape == (72, 12)
+    assert basis.vectors_torch is basis.torch_vectors()  # cached, not rebuilt
     # numpy in, float64 numpy out
     out = basis.reconstruct(basis.project(x.double().numpy()))
     assert isinstance(out, np.ndarray) and out.dtype == np.float64

@@ -32,6 +32,7 @@ SIGMA = -1e-3
 # cannot return k >= V - 1 vectors at all): use the dense symmetric solver instead.
 DENSE_FRACTION = 0.25
 DENSE_MAX_VERTICES = 600  # small meshes: the dense solver is fast and exact
+SLICE = 128  # eigenvalues per shift-invert solve (see _lanczos)
 FORMAT_VERSION = 1
 
 
@@ -42,8 +43,9 @@ class SpectralError(MeshError):
 class SpectralBasis:
     """``k`` Laplacian eigenvectors of one topology, with their eigenvalues and a hash.
 
-    ``vectors`` is float64 numpy ``(V, k)``; :meth:`torch_vectors` is a cached torch copy
-    (float32 unless asked otherwise) used by :meth:`project` and :meth:`reconstruct`.
+    ``vectors`` is float64 numpy ``(V, k)``; ``vectors_torch`` is a cached float32 torch copy and
+    :meth:`torch_vectors` one per device and dtype, used by :meth:`project` and
+    :meth:`reconstruct`.
     """
 
     def __init__(self, topology_hash: str, eigenvalues: np.ndarray, vectors: np.ndarray,
@@ -84,7 +86,8 @@ class SpectralBasis:
             solver = "scipy.linalg.eigh (dense)"
         else:
             values, vectors = _lanczos(lap, k)
-            solver = f"scipy.sparse.linalg.eigsh (shift-invert, sigma={SIGMA:g})"
+            solver = (f"scipy.sparse.linalg.eigsh (shift-invert from sigma={SIGMA:g}, slices of "
+                      f"{SLICE})")
         order = np.argsort(values, kind="stable")
         values, vectors = values[order], vectors[:, order]
         values[np.abs(values) < 1e-12] = 0.0  # the constant vector's eigenvalue, without noise
@@ -163,6 +166,11 @@ class SpectralBasis:
                                 f"{self.num_vertices} vertices), not to {topology.name} (hash "
                                 f"{topology.hash[:12]}, {topology.num_vertices} vertices)")
 
+    @property
+    def vectors_torch(self) -> torch.Tensor:
+        """``Phi (V, k)`` as a float32 CPU tensor (cached; see :meth:`torch_vectors`)."""
+        return self.torch_vectors()
+
     def torch_vectors(self, device: str | torch.device = "cpu",
                       dtype: torch.dtype = torch.float32) -> torch.Tensor:
         """``Phi (V, k)`` as a torch tensor, cached per device and dtype."""
@@ -225,19 +233,81 @@ def cache_path(topology: MeshTopology, k: int, cache_dir: str | Path | None = No
 
 
 def _lanczos(lap: sp.csr_matrix, k: int) -> tuple[np.ndarray, np.ndarray]:
-    """Shift-invert Lanczos (ARPACK). If its vectors are not orthonormal to 1e-10 (possible inside
-    clusters of near-equal eigenvalues), a Rayleigh-Ritz step on their span makes them so."""
+    """The ``k`` smallest eigenpairs by shift-invert Lanczos (ARPACK), in spectrum slices.
+
+    ARPACK's cost grows with the square of the number of vectors it keeps, so beyond
+    ``SLICE`` vectors the spectrum is cut into slices of about ``SLICE`` eigenvalues, each found
+    by its own shift-invert run centred where the previous one ended. A slice is complete on the
+    interval it spans (shift-invert returns the eigenvalues nearest its shift), consecutive
+    slices overlap, and they are joined at the widest gap inside the overlap, so no eigenvalue is
+    counted twice and a cluster of repeated eigenvalues is never split between two solves. Every
+    join, and the k-th eigenvalue, is checked with Sylvester's law of inertia: the number of
+    eigenvalues found below the cut must be the number the matrix has. If the vectors are not
+    orthonormal to 1e-10 in the end, a Rayleigh-Ritz step on their span makes them so.
+    """
     n = lap.shape[0]
+    lap = lap.tocsc()
     # A fixed start vector: ARPACK otherwise starts from a random one and recomputes differ.
     v0 = np.cos(np.arange(n) * 0.7071) + 1.5
-    ncv = min(n, max(2 * k + 1, 20))
-    values, vectors = spla.eigsh(lap.tocsc(), k=k, sigma=SIGMA, which="LM", v0=v0, ncv=ncv)
+
+    def solve(count: int, sigma: float) -> tuple[np.ndarray, np.ndarray]:
+        count = min(count, n - 2)
+        values, vectors = spla.eigsh(lap, k=count, sigma=sigma, which="LM", v0=v0,
+                                     ncv=min(n, max(2 * count + 1, 20)))
+        order = np.argsort(values, kind="stable")
+        return values[order], vectors[:, order]
+
+    first = k if k <= 1.5 * SLICE else SLICE
+    values, vectors = solve(first, SIGMA)
+    while len(values) < k:
+        top = values[-1]  # every eigenvalue up to `top` has been found
+        density = len(values) / max(top - values[0], 1e-12)  # eigenvalues per unit (Weyl: ~flat)
+        need = min(SLICE, k - len(values) + 8)
+        overlap = max(8, need // 8)
+        for _ in range(4):
+            sigma = top + need / 2 / density
+            new_values, new_vectors = solve(need + 2 * overlap, sigma)
+            shared = new_values[new_values <= top]
+            if len(shared) >= 2 and new_values[-1] > top:
+                break
+            overlap *= 2  # the slice did not reach back below `top`: widen it
+        else:
+            raise SpectralError(f"spectrum slicing found no overlap above eigenvalue {top:.6g} "
+                                f"(k={k}, V={n})")
+        gaps = np.diff(shared)
+        cut = (shared[np.argmax(gaps)] + shared[np.argmax(gaps) + 1]) / 2
+        keep_old, keep_new = values < cut, new_values > cut
+        _check_count(lap, cut, int(keep_old.sum()), k)
+        values = np.concatenate([values[keep_old], new_values[keep_new]])
+        vectors = np.concatenate([vectors[:, keep_old], new_vectors[:, keep_new]], axis=1)
+    if len(values) > k:  # the k-th and the next: nothing is missing below them
+        _check_count(lap, (values[k - 1] + values[k]) / 2, k, k)
+    values, vectors = values[:k], vectors[:, :k]
     if np.abs(vectors.T @ vectors - np.eye(k)).max() > 1e-10:
         q, _ = np.linalg.qr(vectors)
         small = q.T @ (lap @ q)
         values, rotation = np.linalg.eigh((small + small.T) / 2)
         vectors = q @ rotation
     return values, vectors
+
+
+def _check_count(lap: sp.csc_matrix, x: float, found: int, k: int) -> None:
+    """Raise unless ``found`` is the number of eigenvalues below ``x`` that Sylvester's law of
+    inertia gives: the count of negative pivots of a symmetric LDL^T factorisation of
+    ``L - x I`` (SuperLU in symmetric mode, diagonal pivots only)."""
+    n = lap.shape[0]
+    try:
+        lu = spla.splu((lap - x * sp.identity(n, format="csc")).tocsc(),
+                       permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+                       options={"SymmetricMode": True})
+    except RuntimeError:  # exactly singular: x is an eigenvalue, the count is undefined
+        return
+    if not np.array_equal(lu.perm_r, lu.perm_c):
+        return  # off-diagonal pivoting: not an LDL^T, no inertia to read
+    below = int(np.count_nonzero(lu.U.diagonal() < 0))
+    if below != found:
+        raise SpectralError(f"the Lanczos solver found {found} eigenvalues below {x:.6g}, the "
+                            f"matrix has {below} (k={k}, V={n}); try another k")
 
 
 def _fix_signs(vectors: np.ndarray) -> np.ndarray:
