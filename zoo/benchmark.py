@@ -2,6 +2,11 @@
 
 A benchmark names its dataset and split, the observed and predicted frame counts, the default
 and offered window samplers, the actions and the horizons its tables show.
+
+Mesh benchmarks (``representation: mesh``, or a dataset of ``MESH_DATASETS``) also name the number
+``spectral_k`` of Laplacian eigenvectors of the dataset's spectral basis (what models with
+``context: [basis]`` receive) and the ground truth they score against: ``raw`` vertices or
+``spectral`` (the k-coefficient reconstruction, as SpecTrHuMS does).
 """
 from __future__ import annotations
 
@@ -21,7 +26,12 @@ BENCHMARK_DIR = REPO_ROOT / "benchmarks"
 SKELETON_OF = {"cmu_mocap": CMU, "h36m": H36M}
 _REQUIRED = ("name", "dataset", "split", "input_frames", "output_frames", "sampler")
 _OPTIONAL = ("train_split", "data_root", "samplers", "actions", "horizons_ms", "averaging",
-             "description")
+             "description", "representation", "spectral_k", "ground_truth", "ground_truths")
+# Mesh datasets: name -> a loader ``(root: Path | None, split) -> MeshDataset`` or the
+# "module:function" that names one (``root``: where the data, or the cache of generated data,
+# lives; None: the loader's default).
+MESH_DATASETS: dict[str, Any] = {"cloth": "zoo.data.cloth:cloth_dataset"}
+GROUND_TRUTHS = ("raw", "spectral")
 
 
 class BenchmarkError(ZooError, ValueError):
@@ -44,13 +54,16 @@ class Benchmark:
     horizons_ms: tuple[int, ...] = (80, 160, 320, 400, 560, 720, 880, 1000)
     averaging: tuple[str, ...] = ("frame", "cumulative")
     extra: dict[str, Any] = field(default_factory=dict)
-
-    @property
-    def representation(self) -> str:
-        return "joints"
+    representation: str = "joints"
+    spectral_k: int | None = None
+    ground_truth: str = "raw"
+    ground_truths: tuple[str, ...] = ()
 
     @property
     def skeleton(self) -> Skeleton:
+        if self.representation == "mesh":
+            raise BenchmarkError(f"benchmark {self.name!r} is a mesh benchmark: it has no "
+                                 f"skeleton")
         return SKELETON_OF[self.dataset]
 
     def resolve_data_root(self, data_root: str | Path | None = None) -> Path | None:
@@ -62,12 +75,17 @@ class Benchmark:
         return path if path.is_absolute() else (REPO_ROOT / path).resolve()
 
     def load(self, data_root: str | Path | None = None, split: str | None = None) -> MotionDataset:
+        if self.representation == "mesh":
+            return self.load_mesh(data_root, split)
         loader = DATASETS[self.dataset]
         kwargs = {"actions": self.actions} if self.actions else {}
         return loader(self.resolve_data_root(data_root), split or self.split, **kwargs)
 
-    def model_inputs(self, context: tuple[str, ...] = ()) -> dict[str, Any]:
+    def model_inputs(self, context: tuple[str, ...] = (),
+                     data_root: str | Path | None = None) -> dict[str, Any]:
         """Constructor keywords a model gets from this benchmark (see zoo.models)."""
+        if self.representation == "mesh":
+            return self._mesh_model_inputs(context, data_root)
         inputs = {"input_frames": self.input_frames, "output_frames": self.output_frames,
                   "num_points": len(self.skeleton.used)}
         for name in context:
@@ -76,6 +94,45 @@ class Benchmark:
             else:
                 raise BenchmarkError(f"benchmark {self.name!r} cannot supply context {name!r}; "
                                      f"it supplies: parts")
+        return inputs
+
+    # ---- mesh benchmarks ------------------------------------------------------------------------
+
+    def load_mesh(self, data_root: str | Path | None = None, split: str | None = None):
+        """The benchmark's :class:`zoo.data.mesh.MeshDataset` (generated and cached if need be)."""
+        import importlib
+
+        loader = MESH_DATASETS.get(self.dataset)
+        if loader is None:
+            raise BenchmarkError(f"benchmark {self.name!r}: no mesh dataset {self.dataset!r} is "
+                                 f"registered; known: {', '.join(MESH_DATASETS)}")
+        if isinstance(loader, str):
+            module, function = loader.split(":")
+            loader = getattr(importlib.import_module(module), function)
+        return loader(self.resolve_data_root(data_root), split or self.split)
+
+    def spectral_basis(self, dataset=None, data_root: str | Path | None = None):
+        """The :class:`zoo.data.spectral.SpectralBasis` of the dataset's topology with
+        ``spectral_k`` vectors, from the basis cache (computed once, then never recomputed)."""
+        from zoo.data.spectral import SpectralBasis
+
+        if self.spectral_k is None:
+            raise BenchmarkError(f"benchmark {self.name!r} ({self.source}) sets no spectral_k: "
+                                 f"it has no spectral basis")
+        dataset = dataset if dataset is not None else self.load_mesh(data_root)
+        return SpectralBasis.load_or_compute(dataset.topology, self.spectral_k)
+
+    def _mesh_model_inputs(self, context: tuple[str, ...],
+                           data_root: str | Path | None) -> dict[str, Any]:
+        dataset = self.load_mesh(data_root)
+        inputs = {"input_frames": self.input_frames, "output_frames": self.output_frames,
+                  "num_points": dataset.topology.num_vertices}
+        for name in context:
+            if name == "basis":
+                inputs["basis"] = self.spectral_basis(dataset)
+            else:
+                raise BenchmarkError(f"benchmark {self.name!r} cannot supply context {name!r}; "
+                                     f"it supplies: basis")
         return inputs
 
 
@@ -107,9 +164,11 @@ def get_benchmark(name_or_path: str | Path) -> Benchmark:
     if unknown:
         raise BenchmarkError(f"{path}: unknown field(s) {', '.join(unknown)}; valid: "
                              f"{', '.join(_REQUIRED + _OPTIONAL)}")
-    if raw["dataset"] not in SKELETON_OF:
-        raise BenchmarkError(f"{path}: field 'dataset': unknown dataset {raw['dataset']!r}; "
-                             f"known: {', '.join(SKELETON_OF)}")
+    mesh = _check_mesh_fields(path, raw)
+    known = MESH_DATASETS if mesh else SKELETON_OF
+    if raw["dataset"] not in known:
+        raise BenchmarkError(f"{path}: field 'dataset': unknown {'mesh' if mesh else 'skeleton'} "
+                             f"dataset {raw['dataset']!r}; known: {', '.join(known)}")
     for key in ("input_frames", "output_frames"):
         if not isinstance(raw[key], int) or raw[key] < 1:
             raise BenchmarkError(f"{path}: field {key!r} must be a positive integer")
@@ -121,5 +180,36 @@ def get_benchmark(name_or_path: str | Path) -> Benchmark:
             raise BenchmarkError(f"{path}: {e}") from None
     kwargs = {k: tuple(v) if isinstance(v, list) else v for k, v in raw.items()
               if k in _OPTIONAL and k not in ("description", "samplers")}
+    if mesh:
+        kwargs["representation"] = "mesh"
     return Benchmark(source=path, samplers=samplers, extra={"description": raw.get("description")},
                      **{k: raw[k] for k in _REQUIRED}, **kwargs)
+
+
+def _check_mesh_fields(path: Path, raw: dict[str, Any]) -> bool:
+    """Validate the mesh fields of a benchmark file; True if it is a mesh benchmark."""
+    representation = raw.get("representation",
+                             "mesh" if raw.get("dataset") in MESH_DATASETS else "joints")
+    if representation not in ("joints", "mesh"):
+        raise BenchmarkError(f"{path}: field 'representation' must be joints or mesh, got "
+                             f"{representation!r}")
+    if representation != "mesh":
+        extra = [k for k in ("spectral_k", "ground_truth", "ground_truths") if k in raw]
+        if extra:
+            raise BenchmarkError(f"{path}: field(s) {', '.join(extra)} belong to mesh benchmarks "
+                                 f"(representation: mesh)")
+        return False
+    k = raw.get("spectral_k")
+    if k is not None and (isinstance(k, bool) or not isinstance(k, int) or k < 1):
+        raise BenchmarkError(f"{path}: field 'spectral_k' must be a positive integer, got {k!r}")
+    offered = raw.get("ground_truths") or [raw.get("ground_truth", "raw")]
+    if raw.get("ground_truth", "raw") not in offered:
+        raise BenchmarkError(f"{path}: field 'ground_truth' ({raw.get('ground_truth', 'raw')!r}) "
+                             f"must be one of field 'ground_truths' {offered}")
+    for gt in (raw.get("ground_truth", "raw"), *offered):
+        if gt not in GROUND_TRUTHS:
+            raise BenchmarkError(f"{path}: ground truth {gt!r} is not one of "
+                                 f"{', '.join(GROUND_TRUTHS)}")
+        if gt == "spectral" and k is None:
+            raise BenchmarkError(f"{path}: ground truth 'spectral' needs field 'spectral_k'")
+    return True

@@ -4,6 +4,10 @@
 metric, averaging, joint protocol and horizon) and the protocol record that produced it. The
 record's comparable part (everything but provenance) is hashed into ``protocol_id``, which every
 row carries, so rows measured differently can never be mistaken for each other.
+
+Mesh benchmarks go through the same entry point (:func:`evaluate_mesh`): windows of the mesh
+sequences, metrics ``melv`` (with the ground-truth future's own MELV as model ``ground_truth``),
+``rmse`` and, with a joint regressor, ``mpjpe``, in the same long format.
 """
 from __future__ import annotations
 
@@ -98,9 +102,20 @@ def evaluate(model: torch.nn.Module, benchmark: str | Benchmark, *, model_name: 
              sampler: str | None = None, data_root: str | Path | None = None,
              dataset: MotionDataset | None = None, batch_size: int = 1024,
              device: str | torch.device = "cpu",
-             provenance: dict[str, Any] | None = None) -> EvalResult:
-    """Evaluate ``model`` under ``benchmark`` with ``sampler`` (default: the benchmark's)."""
+             provenance: dict[str, Any] | None = None,
+             ground_truth: str | None = None) -> EvalResult:
+    """Evaluate ``model`` under ``benchmark`` with ``sampler`` (default: the benchmark's).
+
+    ``ground_truth`` (mesh benchmarks only): ``raw`` or ``spectral``, default the benchmark's.
+    """
     bench = get_benchmark(benchmark) if isinstance(benchmark, (str, Path)) else benchmark
+    if bench.representation == "mesh":
+        return evaluate_mesh(model, bench, model_name=model_name, sampler=sampler,
+                             data_root=data_root, dataset=dataset, batch_size=batch_size,
+                             device=device, provenance=provenance, ground_truth=ground_truth)
+    if ground_truth is not None:
+        raise EvaluationError(f"benchmark {bench.name}: ground_truth={ground_truth!r} applies to "
+                              f"mesh benchmarks only")
     sampler = check_sampler(sampler or bench.sampler)
     dataset = dataset if dataset is not None else bench.load(data_root)
     skeleton = dataset.skeleton
@@ -166,3 +181,154 @@ def _long_frame(accumulators: dict[str, FrameErrorMean], record: dict[str, Any],
                                  record["split"], record["sampler"], record["input_frames"],
                                  record["output_frames"], record["fps"], record["protocol_id"]))
     return pd.DataFrame(rows, columns=RESULT_COLUMNS)
+
+
+# ---- mesh benchmarks ---------------------------------------------------------------------------
+
+MESH_BATCH_VALUES = 2 ** 24  # float32 values of ground-truth windows held at once (64 MiB)
+
+
+def mesh_protocol_record(bench: Benchmark, dataset, sampler: str,
+                         windows_per_action: dict[str, int], ground_truth: str,
+                         basis=None) -> dict[str, Any]:
+    """The protocol record of a mesh evaluation (SPEC sections 2 and 4)."""
+    topology = dataset.topology
+    joints = {"vertices": f"all {topology.num_vertices} vertices (MELV: their "
+                          f"{len(topology.edges)} unique undirected edges)"}
+    if dataset.joint_regressor is not None:
+        n = dataset.joint_regressor.shape[0]
+        names = f" ({', '.join(dataset.joint_names)})" if dataset.joint_names else ""
+        joints[f"regressor{n}"] = (f"{n} joints regressed from the vertices by the dataset's "
+                                   f"sparse joint regressor{names}, mean L2 error over them")
+    if ground_truth == "spectral":
+        truth = f"spectral{basis.k}"
+        truth_rule = (f"every window (observed and future frames) replaced by its reconstruction "
+                      f"from the k={basis.k} lowest-frequency Laplacian coefficients, as "
+                      f"SpecTrHuMS scores")
+    else:
+        truth, truth_rule = "raw", "the dataset's vertices as stored"
+    fps = dataset.fps
+    return {
+        "benchmark": bench.name,
+        "dataset": dataset.name,
+        "split": dataset.split,
+        "representation": "mesh",
+        "units": "mm (rmse: none, normalised)",
+        "fps": fps,
+        "input_frames": bench.input_frames,
+        "output_frames": bench.output_frames,
+        "horizon_rule": f"predicted frame t (1-based) is at t * {1000 / fps:g} ms",
+        "sampler": sampler,
+        "windows_per_action": windows_per_action,
+        "actions_present": [a for a in dataset.actions_present if a in windows_per_action],
+        "topology_hash": topology.hash,
+        "num_vertices": topology.num_vertices,
+        "recipe_hash": dataset.recipe_hash,
+        "data_hash": dataset.content_hash(),
+        "ground_truth": truth,
+        "ground_truth_rule": truth_rule,
+        "spectral_basis": ({"k": basis.k, "hash": basis.hash, "topology_hash":
+                            basis.topology_hash} if ground_truth == "spectral" else None),
+        "joint_protocols": joints,
+        "metrics": {
+            "melv": "mean over unique edges of |len_t - len_ref| (mm), reference = last observed "
+                    "ground-truth frame; model `ground_truth` rows: the same for the "
+                    "ground-truth future (the data baseline)",
+            "rmse": "sqrt(mean_v |v_hat - v|^2) / |max_v v - min_v v| of the ground-truth frame "
+                    "(the zoo's own definition; SpecTrHuMS publishes none)",
+            "mpjpe": "mean L2 error of the regressed joints (mm)",
+        },
+        "averaging": AVERAGING,
+        "action_averaging": ACTION_AVERAGING,
+        "global_motion": dataset.recipe.get("global_motion", "as stored in the dataset"),
+    }
+
+
+def evaluate_mesh(model: torch.nn.Module, benchmark: str | Benchmark, *, model_name: str,
+                  sampler: str | None = None, data_root: str | Path | None = None,
+                  dataset=None, batch_size: int = 1024, device: str | torch.device = "cpu",
+                  provenance: dict[str, Any] | None = None,
+                  ground_truth: str | None = None) -> EvalResult:
+    """Evaluate ``model`` on a mesh benchmark: windows ``(B, T_in, V, 3)`` in, ``(B, T_out, V,
+    3)`` out, rows for ``melv``, ``rmse`` and (with a joint regressor) ``mpjpe``."""
+    from zoo.benchmark import GROUND_TRUTHS
+    from zoo.data.spectral import SpectralBasis
+    from zoo.metrics import melv, regressed_mpjpe, vertex_rmse
+
+    bench = get_benchmark(benchmark) if isinstance(benchmark, (str, Path)) else benchmark
+    sampler = check_sampler(sampler or bench.sampler)
+    ground_truth = ground_truth or bench.ground_truth
+    if ground_truth not in GROUND_TRUTHS:
+        raise EvaluationError(f"ground_truth must be one of {', '.join(GROUND_TRUTHS)}, got "
+                              f"{ground_truth!r}")
+    dataset = dataset if dataset is not None else bench.load(data_root)
+    topology = dataset.topology
+    basis = bench.spectral_basis(dataset) if ground_truth == "spectral" else None
+    t_in, t_out = bench.input_frames, bench.output_frames
+    sequences = dataset.sequences
+    index = window_sampler(sampler, [len(s) for s in sequences], t_in, t_out, "per_file",
+                           groups=[s.action for s in sequences])
+    if len(index) == 0:
+        raise EvaluationError(f"benchmark {bench.name}: sampler {sampler} found no window of "
+                              f"{t_in + t_out} frames in {dataset.name}/{dataset.split} "
+                              f"(sequences of {min(len(s) for s in sequences)} to "
+                              f"{max(len(s) for s in sequences)} frames)")
+    actions = np.asarray([sequences[i].action for i in index[:, 0]])
+    vertices = [s.vertices for s in sequences]
+    edges = topology.edges
+    regressor = dataset.joint_regressor
+    accumulators: dict[tuple[str, str], FrameErrorMean] = {}
+    baseline = FrameErrorMean()
+    batch = max(1, min(batch_size, MESH_BATCH_VALUES // ((t_in + t_out) * topology.num_vertices
+                                                         * 3)))
+    expected_tail = (t_out, topology.num_vertices, 3)
+    model = model.to(device).eval()
+    with torch.no_grad():
+        for start in range(0, len(index), batch):
+            rows = slice(start, start + batch)
+            windows = torch.from_numpy(gather_windows(vertices, index[rows], t_in + t_out))
+            if basis is not None:
+                windows = basis.reconstruct(basis.project(windows.double())).float()
+            pred = model(windows[:, :t_in].to(device))
+            expected = (len(windows), *expected_tail)
+            if not isinstance(pred, torch.Tensor) or tuple(pred.shape) != expected:
+                got = tuple(pred.shape) if isinstance(pred, torch.Tensor) else type(pred).__name__
+                raise EvaluationError(f"model {model_name!r} returned {got}; the contract "
+                                      f"(zoo.models) expects {expected}")
+            pred = pred.detach().to("cpu", torch.float32)
+            if not torch.isfinite(pred).all():
+                raise EvaluationError(f"model {model_name!r} predicted non-finite values "
+                                      f"(windows {start}..{start + len(pred) - 1})")
+            target, reference = windows[:, t_in:], windows[:, t_in - 1]
+            errors = {("melv", "vertices"): melv(pred, reference, edges),
+                      ("rmse", "vertices"): vertex_rmse(pred, target)}
+            if regressor is not None:
+                errors[("mpjpe", f"regressor{regressor.shape[0]}")] = regressed_mpjpe(
+                    pred, target, regressor)
+            for key, value in errors.items():
+                accumulators.setdefault(key, FrameErrorMean()).update(value, actions[rows])
+            baseline.update(melv(target, reference, edges), actions[rows])
+
+    windows_per_action = {a: int((actions == a).sum()) for a in dataset.actions_present
+                          if (actions == a).any()}
+    record = mesh_protocol_record(bench, dataset, sampler, windows_per_action, ground_truth,
+                                  basis)
+    record["protocol_id"] = protocol_id(record)
+    model_basis = getattr(model, "basis", None)
+    record["provenance"] = {
+        "model": model_name,
+        "code_version": code_version(),
+        "torch": torch.__version__,
+        "device": str(device),
+        "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+        **({"model_basis": {"k": model_basis.k, "hash": model_basis.hash}}
+           if isinstance(model_basis, SpectralBasis) else {}),
+        **(provenance or {}),
+    }
+    frames = []
+    for (metric, joints), acc in accumulators.items():
+        frames.append(_long_frame({joints: acc}, record, model_name, windows_per_action)
+                      .assign(metric=metric))
+    frames.append(_long_frame({"vertices": baseline}, record, "ground_truth",
+                              windows_per_action).assign(metric="melv"))
+    return EvalResult(frame=pd.concat(frames, ignore_index=True), protocol=record)

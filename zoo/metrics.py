@@ -102,3 +102,71 @@ class FrameErrorMean:
         if means:
             means["average"] = np.mean(np.stack(list(means.values())), axis=0)
         return means
+
+
+# ---- mesh metrics (SPEC section 4) -------------------------------------------------------------
+
+def edge_lengths(vertices: torch.Tensor, edges: np.ndarray | torch.Tensor) -> torch.Tensor:
+    """Lengths of ``edges (E, 2)`` in ``vertices (..., V, 3)``: ``(..., E)``."""
+    edges = torch.as_tensor(np.asarray(edges), dtype=torch.long, device=vertices.device)
+    if edges.ndim != 2 or edges.shape[1] != 2:
+        raise ValueError(f"edge_lengths: edges must be (E, 2), got {tuple(edges.shape)}")
+    return torch.linalg.vector_norm(vertices[..., edges[:, 0], :] - vertices[..., edges[:, 1], :],
+                                    dim=-1)
+
+
+def melv(pred: torch.Tensor, reference: torch.Tensor,
+         edges: np.ndarray | torch.Tensor) -> torch.Tensor:
+    """Mean edge length variation ``(B, T)``: for every frame of ``pred (B, T, V, 3)``, the mean
+    over the unique undirected ``edges (E, 2)`` of ``|len_t - len_ref|``, with ``reference
+    (B, V, 3)`` the last observed ground-truth frame (SPEC section 4). In the vertices' units (mm).
+    Scored on the ground-truth future it gives the data's own figure (the baseline)."""
+    if pred.ndim != 4 or reference.shape != pred.shape[:1] + pred.shape[2:]:
+        raise ValueError(f"melv: expected pred (B, T, V, 3) and reference (B, V, 3), got "
+                         f"{tuple(pred.shape)} and {tuple(reference.shape)}")
+    ref = edge_lengths(reference, edges).unsqueeze(1)
+    return (edge_lengths(pred, edges) - ref).abs().mean(dim=-1)
+
+
+def vertex_rmse(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """Normalised per-frame vertex RMSE ``(B, T)`` of ``(B, T, V, 3)`` meshes.
+
+    ``RMSE_t = sqrt(mean_v |v_hat - v|^2) / |max_v v - min_v v|``: the root mean squared vertex
+    error divided by the length of the diagonal of the ground-truth frame's axis-aligned bounding
+    box, so it has no unit. SpecTrHuMS reports an RMSE normalised by the bounding-box diagonal but
+    publishes no code for it: this definition is the zoo's own (SPEC section 4).
+    """
+    if pred.shape != target.shape or pred.ndim != 4:
+        raise ValueError(f"vertex_rmse: expected prediction and target (B, T, V, 3) of one "
+                         f"shape, got {tuple(pred.shape)} and {tuple(target.shape)}")
+    rmse = (pred - target).pow(2).sum(dim=-1).mean(dim=-1).sqrt()
+    diagonal = torch.linalg.vector_norm(target.amax(dim=-2) - target.amin(dim=-2), dim=-1)
+    return rmse / diagonal
+
+
+def regress_joints(vertices: torch.Tensor, regressor) -> torch.Tensor:
+    """Joints ``(..., J, 3)`` from vertices ``(..., V, 3)`` with a ``(J, V)`` regressor (scipy
+    sparse, numpy or torch), as one matrix product over all leading dimensions."""
+    import scipy.sparse as sp
+
+    if sp.issparse(regressor):
+        r = regressor.tocoo()
+        matrix = torch.sparse_coo_tensor(np.stack([r.row, r.col]), r.data, r.shape,
+                                         check_invariants=True)
+    else:
+        matrix = torch.as_tensor(regressor)
+    matrix = matrix.to(device=vertices.device, dtype=vertices.dtype)
+    joints, num_vertices = matrix.shape
+    if vertices.ndim < 2 or vertices.shape[-2:] != (num_vertices, 3):
+        raise ValueError(f"regress_joints: regressor ({joints}, {num_vertices}) does not fit "
+                         f"vertices {tuple(vertices.shape)}")
+    lead = vertices.shape[:-2]
+    flat = vertices.reshape(-1, num_vertices, 3).permute(1, 0, 2).reshape(num_vertices, -1)
+    out = (matrix @ flat).reshape(joints, -1, 3).permute(1, 0, 2)
+    return out.reshape(*lead, joints, 3)
+
+
+def regressed_mpjpe(pred: torch.Tensor, target: torch.Tensor, regressor) -> torch.Tensor:
+    """MPJPE ``(...)`` of the joints that ``regressor (J, V)`` takes from both meshes
+    ``(..., V, 3)`` (the mesh benchmarks' joint column, ``regressor<J>``)."""
+    return mpjpe(regress_joints(pred, regressor), regress_joints(target, regressor))

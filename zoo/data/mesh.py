@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
@@ -22,6 +23,14 @@ import scipy.sparse as sp
 
 from zoo.errors import ZooError
 from zoo.io import atomic_path, atomic_write_json, canonical_json
+from zoo.registry import REPO_ROOT
+
+
+def cache_root() -> Path:
+    """Where generated data and spectral bases are cached: ``$ZOO_CACHE_DIR`` if set, else
+    ``<repo>/cache``."""
+    env = os.environ.get("ZOO_CACHE_DIR")
+    return Path(env).expanduser() if env else REPO_ROOT / "cache"
 
 
 class MeshError(ZooError, ValueError):

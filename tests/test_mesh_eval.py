@@ -1,0 +1,219 @@
+"""Mesh metrics with hand-computed values, and the mesh path of the evaluator."""
+import math
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+import torch
+
+from zoo.data.mesh import MeshTopology
+from zoo.metrics import melv, regress_joints, regressed_mpjpe, vertex_rmse
+
+# One 3-4-5 right triangle: its edges (0,1), (0,2), (1,2) have lengths 3, 4 and 5.
+TRIANGLE = torch.tensor([[0.0, 0, 0], [3, 0, 0], [0, 4, 0]])
+EDGES = MeshTopology(np.array([[0, 1, 2]]), 3).edges
+
+
+def test_melv_by_hand():
+    pred = torch.stack([TRIANGLE, 2 * TRIANGLE, TRIANGLE + 7])[None]  # (1, 3, 3, 3)
+    out = melv(pred, TRIANGLE[None], EDGES)
+    # frame 1: unchanged; frame 2: lengths 6, 8, 10 -> |diff| 3, 4, 5 -> 4; frame 3: translated.
+    torch.testing.assert_close(out, torch.tensor([[0.0, 4.0, 0.0]]))
+    # one edge stretched by 3 (vertex 1 moved along x): mean over 3 edges of (3, 0, |sqrt(52)-5|)
+    moved = TRIANGLE.clone()
+    moved[1, 0] = 6
+    expected = (3 + abs(math.sqrt(36 + 16) - 5)) / 3
+    torch.testing.assert_close(melv(moved[None, None], TRIANGLE[None], EDGES),
+                               torch.tensor([[expected]]))
+    with pytest.raises(ValueError, match="melv: expected pred"):
+        melv(pred[0], TRIANGLE[None], EDGES)
+
+
+def test_vertex_rmse_by_hand():
+    target = TRIANGLE[None, None].expand(2, 2, 3, 3)  # bounding-box diagonal |(3, 4, 0)| = 5
+    pred = target.clone()
+    pred[0, 0] += torch.tensor([1.0, 0, 0])   # every vertex off by 1 -> RMSE 1 -> 0.2
+    pred[1, 1, 2, 2] = 3.0                     # one vertex off by 3 -> sqrt(9 / 3) / 5
+    out = vertex_rmse(pred, target)
+    torch.testing.assert_close(out, torch.tensor([[0.2, 0.0], [0.0, math.sqrt(3) / 5]]))
+    with pytest.raises(ValueError, match="vertex_rmse"):
+        vertex_rmse(pred[:, :1], target)
+
+
+def test_mpjpe_through_a_sparse_regressor_by_hand():
+    # joint 0 = midpoint of vertices 0 and 1 = (1.5, 0, 0); joint 1 = vertex 2 = (0, 4, 0)
+    regressor = sp.csr_matrix(np.array([[0.5, 0.5, 0.0], [0.0, 0.0, 1.0]]))
+    target = TRIANGLE[None, None].repeat(1, 2, 1, 1)
+    torch.testing.assert_close(regress_joints(target, regressor)[0, 0],
+                               torch.tensor([[1.5, 0, 0], [0, 4, 0]]))
+    pred = target.clone()
+    pred[0, 1, 0] += torch.tensor([0.0, 0, 4])   # joint 0 moves by 2, joint 1 stays: mean 1
+    pred[0, 1, 2] += torch.tensor([0.0, 3, 4])   # joint 1 moves by 5: mean (2 + 5) / 2
+    torch.testing.assert_close(regressed_mpjpe(pred, target, regressor),
+                               torch.tensor([[0.0, 3.5]]))
+    with pytest.raises(ValueError, match=r"regressor \(2, 3\) does not fit"):
+        regress_joints(torch.zeros(1, 4, 3), regressor)
+
+
+# ---- the evaluator on mesh benchmarks ---------------------------------------------------------
+
+import yaml  # noqa: E402
+
+from zoo import benchmark as benchmark_module  # noqa: E402
+from zoo.benchmark import BenchmarkError, get_benchmark  # noqa: E402
+from zoo.data.mesh import MeshDataset, MeshSequence  # noqa: E402
+from zoo.data.spectral import SpectralBasis, SpectralError  # noqa: E402
+from zoo.evaluate import EvaluationError, evaluate  # noqa: E402
+from zoo.models.repeat_last import RepeatLast  # noqa: E402
+from zoo.registry import create_model  # noqa: E402
+
+# A 10 mm square of two triangles: 4 sides of 10 mm and a diagonal of 10 sqrt(2) mm.
+SQUARE = np.array([[0.0, 0, 0], [10, 0, 0], [10, 10, 0], [0, 10, 0]])
+SQUARE_FACES = np.array([[0, 1, 2], [0, 2, 3]])
+MEAN_EDGE = (40 + 10 * math.sqrt(2)) / 5
+
+
+def scaling(rate: float, frames: int = 5) -> np.ndarray:
+    """The square scaled by ``1 + rate * t`` at frame t."""
+    return np.stack([SQUARE * (1 + rate * t) for t in range(frames)]).astype(np.float32)
+
+
+def toy_dataset() -> MeshDataset:
+    topology = MeshTopology(SQUARE_FACES, 4, name="square")
+    sequences = [MeshSequence("a0", "a", scaling(0.1), 25.0),
+                 MeshSequence("a1", "a", scaling(0.1), 25.0),
+                 MeshSequence("b0", "b", scaling(0.2), 25.0)]
+    centroid = sp.csr_matrix(np.full((1, 4), 0.25))
+    return MeshDataset("toy", "test", topology, sequences, recipe={"toy": 1},
+                       joint_regressor=centroid, joint_names=["centre"])
+
+
+@pytest.fixture
+def toy_bench(tmp_path, monkeypatch):
+    """A mesh benchmark on the toy dataset: 2 frames in, 3 out, one window per sequence."""
+    monkeypatch.setenv("ZOO_CACHE_DIR", str(tmp_path / "cache"))
+    monkeypatch.setitem(benchmark_module.MESH_DATASETS, "toy", lambda root, split: toy_dataset())
+
+    def write(**fields):
+        spec = {"name": "toy", "representation": "mesh", "dataset": "toy", "split": "test",
+                "input_frames": 2, "output_frames": 3, "sampler": "all", **fields}
+        path = tmp_path / f"toy{len(list(tmp_path.glob('*.yaml')))}.yaml"
+        path.write_text(yaml.safe_dump(spec))
+        return get_benchmark(path)
+
+    return write
+
+
+def rows(frame, model, metric, averaging="frame"):
+    sel = frame[(frame.model == model) & (frame.metric == metric) &
+                (frame.averaging == averaging)]
+    return {a: g.sort_values("frame")["value"].to_numpy() for a, g in sel.groupby("action")}
+
+
+def test_mesh_evaluation_by_hand(toy_bench, tmp_path):
+    bench = toy_bench(spectral_k=2, ground_truths=["raw", "spectral"])
+    model = create_model("repeat_last", benchmark=bench)
+    assert model.num_points == 4
+    result = evaluate(model, bench, model_name="repeat_last")
+    frame, k = result.frame, np.arange(1, 4)
+    # Reference = frame 1 (last observed), predicted frame k is frame 1 + k; the square scales.
+    expected = {}
+    for action, rate in (("a", 0.1), ("b", 0.2)):
+        scale = 1 + rate * (1 + k)
+        expected[action] = {
+            "melv_gt": MEAN_EDGE * rate * k,                               # every edge scales
+            "rmse": rate * k * 10 / (scale * 10 * math.sqrt(2)),           # RMS |x0| = 10
+            "mpjpe": 5 * math.sqrt(2) * rate * k,                          # centroid (5, 5, 0)
+        }
+    for action in ("a", "b"):
+        np.testing.assert_allclose(rows(frame, "ground_truth", "melv")[action],
+                                   expected[action]["melv_gt"], rtol=1e-5)
+        np.testing.assert_allclose(rows(frame, "repeat_last", "melv")[action], 0, atol=1e-6)
+        np.testing.assert_allclose(rows(frame, "repeat_last", "rmse")[action],
+                                   expected[action]["rmse"], rtol=1e-5)
+        np.testing.assert_allclose(rows(frame, "repeat_last", "mpjpe")[action],
+                                   expected[action]["mpjpe"], rtol=1e-5)
+    # Actions: unweighted mean (2 windows of a, 1 of b); cumulative: running mean over frames.
+    average = (expected["a"]["rmse"] + expected["b"]["rmse"]) / 2
+    np.testing.assert_allclose(rows(frame, "repeat_last", "rmse")["average"], average, rtol=1e-5)
+    np.testing.assert_allclose(rows(frame, "repeat_last", "rmse", "cumulative")["average"],
+                               np.cumsum(average) / k, rtol=1e-5)
+    assert set(frame.joints) == {"vertices", "regressor1"}
+    assert set(frame[frame.metric == "mpjpe"].joints) == {"regressor1"}
+    assert sorted(frame.horizon_ms.unique()) == [40, 80, 120]
+    assert dict(frame[frame.action == "a"].groupby("action").windows.first()) == {"a": 2}
+    record = result.protocol
+    assert record["ground_truth"] == "raw" and record["spectral_basis"] is None
+    assert record["topology_hash"] == toy_dataset().topology.hash
+    assert record["recipe_hash"] == toy_dataset().recipe_hash
+    assert record["windows_per_action"] == {"a": 2, "b": 1}
+    assert "regressor1" in record["joint_protocols"]
+    out = result.write(tmp_path / "out")
+    assert (out / "tables.md").read_text().count("## ") == 6  # melv, rmse, mpjpe x 2 averagings
+
+
+def test_spectral_ground_truth(toy_bench):
+    full = toy_bench(spectral_k=4, ground_truths=["raw", "spectral"])
+    raw = evaluate(RepeatLast(2, 3, 4), full, model_name="repeat_last")
+    spectral = evaluate(RepeatLast(2, 3, 4), full, model_name="repeat_last",
+                        ground_truth="spectral")
+    basis = SpectralBasis.load_or_compute(toy_dataset().topology, 4)
+    assert spectral.protocol["ground_truth"] == "spectral4"
+    assert spectral.protocol["spectral_basis"]["hash"] == basis.hash
+    assert spectral.protocol["protocol_id"] != raw.protocol["protocol_id"]
+    # k = V: the reconstruction is the data itself, so the numbers agree.
+    np.testing.assert_allclose(spectral.frame.value, raw.frame.value, rtol=1e-4, atol=1e-5)
+    # k = 1 keeps only the mean of each coordinate: nothing moves but the centroid.
+    low = evaluate(RepeatLast(2, 3, 4), toy_bench(spectral_k=1, ground_truth="spectral",
+                                                  ground_truths=["spectral"]),
+                   model_name="repeat_last")
+    np.testing.assert_allclose(rows(low.frame, "ground_truth", "melv")["a"], 0, atol=1e-5)
+    np.testing.assert_allclose(rows(low.frame, "repeat_last", "mpjpe")["a"],
+                               rows(raw.frame, "repeat_last", "mpjpe")["a"], rtol=1e-5)
+    with pytest.raises(SpectralError, match=r"k must be an integer in \[1, 4\]"):
+        evaluate(RepeatLast(2, 3, 4), toy_bench(spectral_k=5, ground_truth="spectral",
+                                                ground_truths=["spectral"]), model_name="x")
+
+
+def test_basis_context_and_model_contract(toy_bench):
+    bench = toy_bench(spectral_k=3)
+    inputs = bench.model_inputs(("basis",))
+    assert inputs["num_points"] == 4 and inputs["basis"].k == 3
+    inputs["basis"].check_topology(toy_dataset().topology)
+    with pytest.raises(BenchmarkError, match="cannot supply context 'parts'.*basis"):
+        bench.model_inputs(("parts",))
+
+    class WithBasis(RepeatLast):
+        def __init__(self, basis, **kwargs):
+            super().__init__(**kwargs)
+            self.basis = basis
+
+    result = evaluate(WithBasis(**inputs), bench, model_name="with_basis")
+    assert result.protocol["provenance"]["model_basis"]["hash"] == inputs["basis"].hash
+
+    class Wrong(RepeatLast):
+        def forward(self, history):
+            return history[:, -1:]
+
+    with pytest.raises(EvaluationError, match=r"returned \(3, 1, 4, 3\).*expects \(3, 3, 4, 3\)"):
+        evaluate(Wrong(2, 3, 4), bench, model_name="wrong")
+    with pytest.raises(EvaluationError, match="found no window of 6 frames"):
+        evaluate(RepeatLast(3, 3, 4), toy_bench(input_frames=3), model_name="x")
+
+
+def test_mesh_benchmark_files_are_checked(toy_bench, tmp_path):
+    with pytest.raises(BenchmarkError, match="ground truth 'spectral' needs field 'spectral_k'"):
+        toy_bench(ground_truth="spectral", ground_truths=["spectral"])
+    with pytest.raises(BenchmarkError, match="'ground_truth' .'spectral'. must be one of"):
+        toy_bench(spectral_k=2, ground_truth="spectral", ground_truths=["raw"])
+    with pytest.raises(BenchmarkError, match="ground truth 'smooth' is not one of raw, spectral"):
+        toy_bench(ground_truth="smooth")
+    with pytest.raises(BenchmarkError, match="unknown mesh dataset 'nope'"):
+        toy_bench(dataset="nope")
+    with pytest.raises(BenchmarkError, match="spectral_k belong to mesh benchmarks"):
+        toy_bench(representation="joints", dataset="cmu_mocap", spectral_k=8)
+    cloth = get_benchmark("cloth")
+    assert cloth.representation == "mesh" and cloth.spectral_k == 256
+    assert (cloth.input_frames, cloth.output_frames) == (25, 25)
+    with pytest.raises(EvaluationError, match="mesh benchmarks only"):
+        evaluate(RepeatLast(10, 25, 25), "cmu", model_name="x", ground_truth="raw")

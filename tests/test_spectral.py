@@ -1,0 +1,188 @@
+"""Spectral basis: orthonormality, reconstruction, frequency order, topology checks, cache."""
+import shutil
+
+import numpy as np
+import pytest
+import torch
+
+from zoo.data.mesh import MeshTopology
+from zoo.data.spectral import SpectralBasis, SpectralError, cache_path
+
+
+def grid(nx: int, ny: int, seed: int = 0, name: str = "grid") -> MeshTopology:
+    """A triangulated nx-by-ny grid, each quad split along a random diagonal."""
+    rng = np.random.default_rng(seed)
+    idx = np.arange(nx * ny).reshape(ny, nx)
+    a, b = idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel()
+    c, d = idx[1:, :-1].ravel(), idx[1:, 1:].ravel()
+    flip = (rng.random(a.size) < 0.5)[:, None]
+    f1 = np.where(flip, np.stack([a, b, d], 1), np.stack([a, b, c], 1))
+    f2 = np.where(flip, np.stack([a, d, c], 1), np.stack([b, d, c], 1))
+    return MeshTopology(np.concatenate([f1, f2]), nx * ny, name=name)
+
+
+def grid_xy(nx: int, ny: int) -> np.ndarray:
+    x, y = np.meshgrid(np.linspace(0, 1, nx), np.linspace(0, 1, ny))
+    return np.stack([x.ravel(), y.ravel()], axis=1)
+
+
+@pytest.mark.parametrize("nx, ny, k", [(8, 7, 20), (30, 25, 24)])  # dense and Lanczos paths
+def test_orthonormal_sorted_eigenvectors(nx, ny, k):
+    topo = grid(nx, ny)
+    basis = SpectralBasis.compute(topo, k)
+    phi = basis.vectors
+    assert phi.shape == (nx * ny, k) and phi.dtype == np.float64
+    np.testing.assert_allclose(phi.T @ phi, np.eye(k), atol=1e-10)
+    lap = topo.laplacian()
+    np.testing.assert_allclose(lap @ phi, phi * basis.eigenvalues, atol=1e-9)
+    assert np.all(np.diff(basis.eigenvalues) >= -1e-12)
+    assert basis.eigenvalues[0] == 0.0  # the constant vector, sign fixed positive
+    np.testing.assert_allclose(phi[:, 0], 1 / np.sqrt(nx * ny), atol=1e-10)
+    # Largest-magnitude entry of every vector is positive: the sign convention.
+    pivot = np.argmax(np.abs(phi), axis=0)
+    assert (phi[pivot, np.arange(k)] > 0).all()
+
+
+def test_lanczos_and_dense_solvers_agree():
+    topo = grid(30, 25, seed=3)
+    sparse = SpectralBasis.compute(topo, 24)
+    assert "eigsh" in sparse.solver
+    dense = np.linalg.eigvalsh(topo.laplacian().toarray())[:24]
+    np.testing.assert_allclose(sparse.eigenvalues, dense, atol=1e-9)
+
+
+def test_spectrum_slices_join_without_gaps_or_repeats(monkeypatch):
+    from zoo.data import spectral
+
+    monkeypatch.setattr(spectral, "SLICE", 8)  # 40 eigenpairs from 5 or more slices
+    topo = grid(30, 25, seed=4)
+    sliced = SpectralBasis.compute(topo, 40)
+    dense = np.linalg.eigvalsh(topo.laplacian().toarray())[:40]
+    np.testing.assert_allclose(sliced.eigenvalues, dense, atol=1e-9)
+    np.testing.assert_allclose(sliced.vectors.T @ sliced.vectors, np.eye(40), atol=1e-10)
+    # The inertia check counts eigenvalues below a point; a wrong count is an error.
+    lap = topo.laplacian().tocsc()
+    between = (dense[19] + dense[20]) / 2
+    spectral._check_count(lap, between, 20, 40)
+    with pytest.raises(SpectralError, match="found 19 eigenvalues below .* the matrix has 20"):
+        spectral._check_count(lap, between, 19, 40)
+
+
+def test_recompute_is_bit_identical():
+    topo = grid(30, 25, seed=1)
+    a, b = SpectralBasis.compute(topo, 16), SpectralBasis.compute(topo, 16)
+    assert a.hash == b.hash and np.array_equal(a.vectors, b.vectors)
+
+
+def test_full_basis_reconstructs_exactly():
+    topo = grid(6, 5)
+    basis = SpectralBasis.compute(topo, topo.num_vertices)
+    x = torch.randn(2, 3, topo.num_vertices, 3, dtype=torch.float64)
+    coeffs = basis.project(x)
+    assert coeffs.shape == (2, 3, topo.num_vertices, 3)
+    torch.testing.assert_close(basis.reconstruct(coeffs), x, atol=1e-10, rtol=0)
+
+
+def test_project_and_reconstruct_match_per_frame_products():
+    topo = grid(9, 8)
+    basis = SpectralBasis.compute(topo, 12)
+    x = torch.randn(4, 5, topo.num_vertices, 3)
+    phi = torch.from_numpy(basis.vectors).float()
+    coeffs = basis.project(x)
+    expected = torch.stack([torch.stack([phi.T @ x[i, t] for t in range(5)]) for i in range(4)])
+    torch.testing.assert_close(coeffs, expected, atol=1e-5, rtol=1e-5)
+    torch.testing.assert_close(basis.reconstruct(coeffs), phi @ expected, atol=1e-5, rtol=1e-5)
+    assert basis.project(x[0, 0]).shape == (12, 3)  # no leading dimensions
+    assert basis.vectors_torch.dtype == torch.float32 and basis.vectors_torch.shape == (72, 12)
+    assert basis.vectors_torch is basis.torch_vectors()  # cached, not rebuilt
+    # numpy in, float64 numpy out
+    out = basis.reconstruct(basis.project(x.double().numpy()))
+    assert isinstance(out, np.ndarray) and out.dtype == np.float64
+
+
+def test_smooth_signals_live_in_low_frequencies():
+    nx = ny = 16
+    topo = grid(nx, ny)
+    basis = SpectralBasis.compute(topo, topo.num_vertices)
+    xy = grid_xy(nx, ny)
+    bumpy = np.concatenate([xy, 0.2 * (np.sin(np.pi * xy[:, :1]) *
+                                       np.cos(np.pi * xy[:, 1:]))], axis=1)
+    noise = np.random.default_rng(0).normal(size=bumpy.shape)
+    low = 16  # 16 of 256 frequencies
+    for signal, lower, upper in ((bumpy, 0.995, 1.0), (noise, 0.0, 0.2)):
+        c = basis.project(signal)
+        fraction = (c[:low] ** 2).sum() / (c ** 2).sum()
+        assert lower <= fraction <= upper, fraction
+    # Truncating to the low frequencies keeps the smooth shape to within a few percent.
+    truncated = SpectralBasis.compute(topo, 32)
+    error = np.abs(truncated.reconstruct(truncated.project(bumpy)) - bumpy).max()
+    assert error < 0.05
+
+
+@pytest.mark.parametrize("k", [0, -1, 31, 2.5, True])
+def test_bad_k_is_a_clear_error(k):
+    with pytest.raises(SpectralError, match=r"k must be an integer in \[1, 30\]"):
+        SpectralBasis.compute(grid(6, 5), k)
+
+
+def test_mismatched_mesh_is_an_error():
+    topo, other = grid(6, 5), grid(6, 5, seed=9, name="other")
+    basis = SpectralBasis.compute(topo, 8)
+    basis.check_topology(topo)
+    with pytest.raises(SpectralError, match="belongs to topology grid.*not to other"):
+        basis.check_topology(other)
+    with pytest.raises(SpectralError, match=r"project.*topology grid.*V=30.*\(2, 31, 3\)"):
+        basis.project(torch.zeros(2, 31, 3))
+    with pytest.raises(SpectralError, match=r"reconstruct.*k=8.*\(9, 3\)"):
+        basis.reconstruct(torch.zeros(9, 3))
+
+
+def test_cache_hit_returns_identical_basis(tmp_path, monkeypatch):
+    topo = grid(7, 6)
+    first = SpectralBasis.load_or_compute(topo, 10, tmp_path)
+    assert cache_path(topo, 10, tmp_path).is_file()
+
+    def no_compute(*args, **kwargs):
+        raise AssertionError("recomputed although cached")
+
+    monkeypatch.setattr(SpectralBasis, "compute", classmethod(no_compute))
+    again = SpectralBasis.load_or_compute(topo, 10, tmp_path)
+    assert again.hash == first.hash and np.array_equal(again.vectors, first.vectors)
+    assert np.array_equal(again.eigenvalues, first.eigenvalues)
+    assert again.topology_hash == topo.hash and again.k == 10
+
+
+def test_default_cache_dir_follows_env(tmp_path, monkeypatch):
+    monkeypatch.setenv("ZOO_CACHE_DIR", str(tmp_path))
+    topo = grid(5, 4)
+    SpectralBasis.load_or_compute(topo, 3)
+    assert cache_path(topo, 3).parent == tmp_path / "spectral"
+    assert cache_path(topo, 3).is_file()
+
+
+def test_corrupted_or_foreign_cache_is_an_error(tmp_path):
+    topo, other = grid(7, 6), grid(7, 6, seed=5, name="other")
+    path = cache_path(topo, 10, tmp_path)
+    SpectralBasis.load_or_compute(topo, 10, tmp_path)
+    good = path.read_bytes()
+
+    path.write_bytes(good[: len(good) // 2])  # truncated file
+    with pytest.raises(SpectralError, match="unreadable spectral basis file"):
+        SpectralBasis.load_or_compute(topo, 10, tmp_path)
+
+    # Vectors changed after the hash was recorded.
+    path.write_bytes(good)
+    with np.load(path) as z:
+        fields = dict(z)
+    fields["vectors"] = fields["vectors"] * 1.001
+    with open(path, "wb") as f:
+        np.savez(f, **fields)
+    with pytest.raises(SpectralError, match="corrupted spectral basis"):
+        SpectralBasis.load_or_compute(topo, 10, tmp_path)
+
+    # Another topology's basis under this topology's name: an error, not a recompute.
+    path.unlink()
+    shutil.copy(SpectralBasis.load_or_compute(other, 10, tmp_path) and
+                cache_path(other, 10, tmp_path), path)
+    with pytest.raises(SpectralError, match="belongs to topology other"):
+        SpectralBasis.load_or_compute(topo, 10, tmp_path)

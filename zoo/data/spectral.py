@@ -1,0 +1,342 @@
+"""Spectral basis of a mesh: eigenvectors of its combinatorial Graph Laplacian (SPEC section 4).
+
+``Phi (V, k)`` holds the ``k`` eigenvectors of ``L = D - A`` with the smallest eigenvalues, ordered
+by frequency. Spectral coefficients are ``C = Phi^T X`` and the reconstruction is ``X = Phi C``.
+
+Eigenvector signs, and the basis inside an eigenspace of a repeated eigenvalue, are arbitrary: a
+different solver, BLAS or machine may return a different (equally valid) basis. So a basis is
+computed once, cached on disk next to its topology hash, and its own ``hash`` goes into every
+protocol record that depends on it; a cached file that does not match is an error, never a silent
+recompute. Signs are fixed by a convention (the largest-magnitude entry of every vector is
+positive) so that recomputes agree wherever the eigenvalues are simple.
+"""
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import scipy.linalg
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+import torch
+
+from zoo.data.mesh import MeshError, MeshTopology, cache_root
+from zoo.io import atomic_path
+
+# Shift of the shift-invert solver: slightly below the smallest eigenvalue (0) of a Laplacian,
+# so that L - sigma I is positive definite and its sparse LU factorisation never meets a zero pivot.
+SIGMA = -1e-3
+# Above this fraction of the vertex count the Lanczos solver loses its advantage (and ARPACK
+# cannot return k >= V - 1 vectors at all): use the dense symmetric solver instead.
+DENSE_FRACTION = 0.25
+DENSE_MAX_VERTICES = 600  # small meshes: the dense solver is fast and exact
+SLICE = 128  # eigenvalues per shift-invert solve (see _lanczos)
+FORMAT_VERSION = 1
+
+
+class SpectralError(MeshError):
+    """A spectral basis does not fit its mesh, or a cached basis file is not what was expected."""
+
+
+class SpectralBasis:
+    """``k`` Laplacian eigenvectors of one topology, with their eigenvalues and a hash.
+
+    ``vectors`` is float64 numpy ``(V, k)``; ``vectors_torch`` is a cached float32 torch copy and
+    :meth:`torch_vectors` one per device and dtype, used by :meth:`project` and
+    :meth:`reconstruct`.
+    """
+
+    def __init__(self, topology_hash: str, eigenvalues: np.ndarray, vectors: np.ndarray,
+                 topology_name: str = "mesh", solver: str = "") -> None:
+        vectors = np.ascontiguousarray(vectors, dtype=np.float64)
+        eigenvalues = np.ascontiguousarray(eigenvalues, dtype=np.float64)
+        if vectors.ndim != 2 or eigenvalues.shape != (vectors.shape[1],):
+            raise SpectralError(f"spectral basis of {topology_name}: vectors (V, k) and "
+                                f"eigenvalues (k,) expected, got {vectors.shape} and "
+                                f"{eigenvalues.shape}")
+        self.topology_hash = str(topology_hash)
+        self.topology_name = topology_name
+        self.k = int(vectors.shape[1])
+        self.num_vertices = int(vectors.shape[0])
+        self.eigenvalues = eigenvalues
+        self.vectors = vectors
+        self.solver = solver
+        self.hash = basis_hash(self.k, self.topology_hash, self.vectors)
+        self._torch: dict[tuple[str, torch.dtype], torch.Tensor] = {}
+
+    def __repr__(self) -> str:
+        return (f"SpectralBasis(topology={self.topology_name} {self.topology_hash[:12]}, "
+                f"V={self.num_vertices}, k={self.k}, hash={self.hash[:12]})")
+
+    # ---- construction -------------------------------------------------------------------------
+
+    @classmethod
+    def compute(cls, topology: MeshTopology, k: int) -> "SpectralBasis":
+        """The ``k`` lowest eigenvectors of ``topology.laplacian()``, sorted by eigenvalue."""
+        n = topology.num_vertices
+        if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or not 1 <= k <= n:
+            raise SpectralError(f"spectral basis of {topology.name}: k must be an integer in "
+                                f"[1, {n}] (the number of vertices), got {k!r}")
+        k = int(k)
+        lap = topology.laplacian().astype(np.float64)
+        if n <= DENSE_MAX_VERTICES or k >= DENSE_FRACTION * n or k >= n - 1:
+            values, vectors = scipy.linalg.eigh(lap.toarray(), subset_by_index=[0, k - 1])
+            solver = "scipy.linalg.eigh (dense)"
+        else:
+            with _one_blas_thread():
+                values, vectors = _lanczos(lap, k)
+            solver = (f"scipy.sparse.linalg.eigsh (shift-invert from sigma={SIGMA:g}, slices of "
+                      f"{SLICE})")
+        order = np.argsort(values, kind="stable")
+        values, vectors = values[order], vectors[:, order]
+        values[np.abs(values) < 1e-12] = 0.0  # the constant vector's eigenvalue, without noise
+        return cls(topology.hash, values, _fix_signs(vectors), topology.name, solver)
+
+    @classmethod
+    def load_or_compute(cls, topology: MeshTopology, k: int,
+                        cache_dir: str | Path | None = None) -> "SpectralBasis":
+        """The cached basis of ``topology`` with ``k`` vectors; computed and cached if absent.
+
+        The file is ``<cache_dir>/spectral-<topology hash>-k<k>.npz`` (``cache_dir`` defaults to
+        ``<cache root>/spectral``, see :func:`zoo.data.mesh.cache_root`). A file there that
+        belongs to another topology, or whose content no longer matches its hash, raises
+        :class:`SpectralError`: delete it deliberately to recompute.
+        """
+        path = cache_path(topology, k, cache_dir)
+        if path.is_file():
+            basis = cls.load(path)
+            basis.check_topology(topology)
+            if basis.k != k:
+                raise SpectralError(f"{path}: cached basis has k={basis.k}, expected {k}")
+            return basis
+        basis = cls.compute(topology, k)
+        basis.save(path)
+        return basis
+
+    # ---- files --------------------------------------------------------------------------------
+
+    def save(self, path: str | Path) -> Path:
+        """Write the basis as an ``.npz`` atomically."""
+        path = Path(path)
+        with atomic_path(path) as tmp:
+            with open(tmp, "wb") as f:
+                np.savez(f, format_version=np.int64(FORMAT_VERSION), k=np.int64(self.k),
+                         topology_hash=np.str_(self.topology_hash),
+                         topology_name=np.str_(self.topology_name), solver=np.str_(self.solver),
+                         hash=np.str_(self.hash), eigenvalues=self.eigenvalues,
+                         vectors=self.vectors)
+        return path
+
+    @classmethod
+    def load(cls, path: str | Path) -> "SpectralBasis":
+        """Read a basis written by :meth:`save`, checking its recorded hash."""
+        path = Path(path)
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                fields = {name: z[name] for name in ("format_version", "k", "topology_hash",
+                                                     "topology_name", "solver", "hash",
+                                                     "eigenvalues", "vectors")}
+        except FileNotFoundError:
+            raise SpectralError(f"{path}: spectral basis file does not exist") from None
+        except KeyError as e:
+            raise SpectralError(f"{path}: not a spectral basis file (field {e} missing)") from None
+        except (OSError, ValueError, EOFError, zipfile.BadZipFile) as e:
+            raise SpectralError(f"{path}: unreadable spectral basis file ({e}); delete it to "
+                                f"recompute") from None
+        if int(fields["format_version"]) != FORMAT_VERSION:
+            raise SpectralError(f"{path}: format version {int(fields['format_version'])}, "
+                                f"expected {FORMAT_VERSION}")
+        basis = cls(str(fields["topology_hash"]), fields["eigenvalues"], fields["vectors"],
+                    str(fields["topology_name"]), str(fields["solver"]))
+        if basis.k != int(fields["k"]) or basis.hash != str(fields["hash"]):
+            raise SpectralError(f"{path}: corrupted spectral basis: content hash "
+                                f"{basis.hash[:12]} (k={basis.k}) differs from the recorded "
+                                f"{str(fields['hash'])[:12]} (k={int(fields['k'])}); delete it "
+                                f"to recompute")
+        return basis
+
+    # ---- use ----------------------------------------------------------------------------------
+
+    def check_topology(self, topology: MeshTopology) -> None:
+        """Raise :class:`SpectralError` unless this basis was computed on ``topology``."""
+        if topology.hash != self.topology_hash or topology.num_vertices != self.num_vertices:
+            raise SpectralError(f"spectral basis {self.hash[:12]} belongs to topology "
+                                f"{self.topology_name} (hash {self.topology_hash[:12]}, "
+                                f"{self.num_vertices} vertices), not to {topology.name} (hash "
+                                f"{topology.hash[:12]}, {topology.num_vertices} vertices)")
+
+    @property
+    def vectors_torch(self) -> torch.Tensor:
+        """``Phi (V, k)`` as a float32 CPU tensor (cached; see :meth:`torch_vectors`)."""
+        return self.torch_vectors()
+
+    def torch_vectors(self, device: str | torch.device = "cpu",
+                      dtype: torch.dtype = torch.float32) -> torch.Tensor:
+        """``Phi (V, k)`` as a torch tensor, cached per device and dtype."""
+        key = (str(torch.device(device)), dtype)
+        if key not in self._torch:
+            self._torch[key] = torch.from_numpy(self.vectors).to(device=device, dtype=dtype)
+        return self._torch[key]
+
+    def project(self, vertices: torch.Tensor) -> torch.Tensor:
+        """Spectral coefficients ``Phi^T X``: ``(..., V, 3)`` -> ``(..., k, 3)``.
+
+        One matrix product over all leading dimensions. Torch tensors stay on their device and
+        dtype; a numpy array is projected in float64 and returned as numpy.
+        """
+        if isinstance(vertices, np.ndarray):
+            return self.project(torch.from_numpy(np.asarray(vertices, np.float64))).numpy()
+        self._check_last(vertices, self.num_vertices, "project", "vertices (..., V, 3)")
+        phi = self.torch_vectors(vertices.device, vertices.dtype)
+        lead = vertices.shape[:-2]
+        # (..., V, 3) -> (N*3, V) @ (V, k) -> (N, 3, k) -> (..., k, 3)
+        flat = vertices.reshape(-1, self.num_vertices, 3).transpose(1, 2).reshape(-1,
+                                                                                 self.num_vertices)
+        coeffs = (flat @ phi).reshape(-1, 3, self.k).transpose(1, 2)
+        return coeffs.reshape(*lead, self.k, 3)
+
+    def reconstruct(self, coeffs: torch.Tensor) -> torch.Tensor:
+        """Vertices ``Phi C``: ``(..., k, 3)`` -> ``(..., V, 3)``, one matrix product."""
+        if isinstance(coeffs, np.ndarray):
+            return self.reconstruct(torch.from_numpy(np.asarray(coeffs, np.float64))).numpy()
+        self._check_last(coeffs, self.k, "reconstruct", "coefficients (..., k, 3)")
+        phi = self.torch_vectors(coeffs.device, coeffs.dtype)
+        lead = coeffs.shape[:-2]
+        flat = coeffs.reshape(-1, self.k, 3).transpose(1, 2).reshape(-1, self.k)
+        out = (flat @ phi.T).reshape(-1, 3, self.num_vertices).transpose(1, 2)
+        return out.reshape(*lead, self.num_vertices, 3)
+
+    def _check_last(self, x: torch.Tensor, n: int, what: str, expected: str) -> None:
+        if not isinstance(x, torch.Tensor):
+            raise TypeError(f"SpectralBasis.{what}: expected a torch tensor or numpy array, got "
+                            f"{type(x).__name__}")
+        if x.ndim < 2 or x.shape[-2:] != (n, 3):
+            raise SpectralError(f"SpectralBasis.{what}: expected {expected} with {n} in the "
+                                f"second-to-last axis for topology {self.topology_name} (hash "
+                                f"{self.topology_hash[:12]}, V={self.num_vertices}, k={self.k}),"
+                                f" got shape {tuple(x.shape)}")
+
+
+def basis_hash(k: int, topology_hash: str, vectors: np.ndarray) -> str:
+    """sha256 over ``k``, the topology hash and the float64 little-endian bytes of ``vectors``."""
+    digest = hashlib.sha256()
+    digest.update(f"k={int(k)}".encode())
+    digest.update(topology_hash.encode())
+    digest.update(np.ascontiguousarray(vectors, dtype="<f8").tobytes())
+    return digest.hexdigest()
+
+
+def cache_path(topology: MeshTopology, k: int, cache_dir: str | Path | None = None) -> Path:
+    folder = Path(cache_dir) if cache_dir is not None else cache_root() / "spectral"
+    return folder / f"spectral-{topology.hash}-k{int(k)}.npz"
+
+
+def _lanczos(lap: sp.csr_matrix, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """The ``k`` smallest eigenpairs by shift-invert Lanczos (ARPACK), in spectrum slices.
+
+    ARPACK's cost grows with the square of the number of vectors it keeps, so beyond
+    ``SLICE`` vectors the spectrum is cut into slices of about ``SLICE`` eigenvalues, each found
+    by its own shift-invert run centred where the previous one ended. A slice is complete on the
+    interval it spans (shift-invert returns the eigenvalues nearest its shift), consecutive
+    slices overlap, and they are joined at the widest gap inside the overlap, so no eigenvalue is
+    counted twice and a cluster of repeated eigenvalues is never split between two solves. Every
+    join, and the k-th eigenvalue, is checked with Sylvester's law of inertia: the number of
+    eigenvalues found below the cut must be the number the matrix has. If the vectors are not
+    orthonormal to 1e-10 in the end, a Rayleigh-Ritz step on their span makes them so.
+    """
+    n = lap.shape[0]
+    lap = lap.tocsc()
+    # A fixed start vector: ARPACK otherwise starts from a random one and recomputes differ.
+    v0 = np.cos(np.arange(n) * 0.7071) + 1.5
+
+    def solve(count: int, sigma: float) -> tuple[np.ndarray, np.ndarray]:
+        count = min(count, n - 2)
+        values, vectors = spla.eigsh(lap, k=count, sigma=sigma, which="LM", v0=v0,
+                                     ncv=min(n, max(2 * count + 1, 20)))
+        order = np.argsort(values, kind="stable")
+        return values[order], vectors[:, order]
+
+    first = k if k <= 1.5 * SLICE else SLICE
+    values, vectors = solve(first, SIGMA)
+    while len(values) < k:
+        top = values[-1]  # every eigenvalue up to `top` has been found
+        density = len(values) / max(top - values[0], 1e-12)  # eigenvalues per unit (Weyl: ~flat)
+        need = min(SLICE, k - len(values) + 8)
+        overlap = max(8, need // 8)
+        for _ in range(4):
+            sigma = top + need / 2 / density
+            new_values, new_vectors = solve(need + 2 * overlap, sigma)
+            shared = new_values[new_values <= top]
+            if len(shared) >= 2 and new_values[-1] > top:
+                break
+            overlap *= 2  # the slice did not reach back below `top`: widen it
+        else:
+            raise SpectralError(f"spectrum slicing found no overlap above eigenvalue {top:.6g} "
+                                f"(k={k}, V={n})")
+        gaps = np.diff(shared)
+        cut = (shared[np.argmax(gaps)] + shared[np.argmax(gaps) + 1]) / 2
+        keep_old, keep_new = values < cut, new_values > cut
+        _check_count(lap, cut, int(keep_old.sum()), k)
+        values = np.concatenate([values[keep_old], new_values[keep_new]])
+        vectors = np.concatenate([vectors[:, keep_old], new_vectors[:, keep_new]], axis=1)
+    if len(values) > k:  # the k-th and the next: nothing is missing below them
+        _check_count(lap, (values[k - 1] + values[k]) / 2, k, k)
+    values, vectors = values[:k], vectors[:, :k]
+    if np.abs(vectors.T @ vectors - np.eye(k)).max() > 1e-10:
+        q, _ = np.linalg.qr(vectors)
+        small = q.T @ (lap @ q)
+        values, rotation = np.linalg.eigh((small + small.T) / 2)
+        vectors = q @ rotation
+    return values, vectors
+
+
+def _one_blas_thread():
+    """Run ARPACK with one BLAS thread: its level-2 products gain nothing from more, and
+    OpenBLAS's spinning threads cost several times the work when the cores are shared (measured:
+    41 s of CPU for k=512 on 13,718 vertices with 2 threads against 8 s with one). Needs
+    ``threadpoolctl``; without it the BLAS keeps its own setting (``OPENBLAS_NUM_THREADS``)."""
+    try:
+        from threadpoolctl import threadpool_limits
+    except ImportError:
+        return contextlib.nullcontext()
+    return threadpool_limits(limits=1, user_api="blas")
+
+
+def _check_count(lap: sp.csc_matrix, x: float, found: int, k: int) -> None:
+    """Raise unless ``found`` is the number of eigenvalues below ``x`` that Sylvester's law of
+    inertia gives: the count of negative pivots of a symmetric LDL^T factorisation of
+    ``L - x I`` (SuperLU in symmetric mode, diagonal pivots only)."""
+    n = lap.shape[0]
+    try:
+        lu = spla.splu((lap - x * sp.identity(n, format="csc")).tocsc(),
+                       permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+                       options={"SymmetricMode": True})
+    except RuntimeError:  # exactly singular: x is an eigenvalue, the count is undefined
+        return
+    if not np.array_equal(lu.perm_r, lu.perm_c):
+        return  # off-diagonal pivoting: not an LDL^T, no inertia to read
+    below = int(np.count_nonzero(lu.U.diagonal() < 0))
+    if below != found:
+        raise SpectralError(f"the Lanczos solver found {found} eigenvalues below {x:.6g}, the "
+                            f"matrix has {below} (k={k}, V={n}); try another k")
+
+
+def _fix_signs(vectors: np.ndarray) -> np.ndarray:
+    """Make the largest-magnitude entry of every column positive (ties, within a relative 1e-6,
+    go to the lowest vertex index)."""
+    magnitude = np.abs(vectors)
+    near_max = magnitude >= magnitude.max(axis=0, keepdims=True) * (1 - 1e-6)
+    pivot = np.argmax(near_max, axis=0)  # first True per column
+    signs = np.sign(vectors[pivot, np.arange(vectors.shape[1])])
+    signs[signs == 0] = 1.0
+    return np.ascontiguousarray(vectors * signs)
+
+
+def default_cache_dir() -> Path:
+    return cache_root() / "spectral"
+
+
+__all__ = ["SpectralBasis", "SpectralError", "basis_hash", "cache_path", "default_cache_dir"]
