@@ -307,7 +307,7 @@ def build_amass(root: str | Path, model: str | Path | Mapping[str, str | Path], 
     """
     from tqdm.auto import tqdm
 
-    from zoo.data.anny_motion import cache_root
+    from zoo.data.mesh import cache_root
 
     root = Path(root)
     paths = amass_files(root) if files is None else [

@@ -47,7 +47,6 @@ from __future__ import annotations
 import hashlib
 import importlib.metadata
 import math
-import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterable, Literal, Sequence
@@ -61,9 +60,8 @@ from scipy.spatial.transform import Rotation, Slerp
 from zoo.data.bvh import (BVH, CMU_BVH_JOINTS, bone_directions, forward_kinematics,
                           read_bvh)
 from zoo.data.expmap import DataFormatError, sha256_file
-from zoo.data.mesh import MeshDataset, MeshSequence, MeshTopology
+from zoo.data.mesh import MeshDataset, MeshSequence, MeshTopology, cache_root
 from zoo.io import atomic_path
-from zoo.registry import REPO_ROOT
 
 # BVH name -> Anny ``cmu_mb`` bone name where they differ (all others are the same).
 BVH_TO_ANNY = {"LeftHandIndex1": "LeftHandFinger1", "RightHandIndex1": "RightHandFinger1"}
@@ -543,14 +541,6 @@ def select_trials(bvh_root: str | Path, split: str, trials: Iterable[str] | None
     if not chosen:
         raise ValueError("trials: empty selection")
     return chosen
-
-
-def cache_root(cache_dir: str | Path | None = None) -> Path:
-    """``cache_dir``, else ``$ZOO_CACHE_DIR``, else ``<repo>/cache``."""
-    if cache_dir is not None:
-        return Path(cache_dir)
-    env = os.environ.get("ZOO_CACHE_DIR")
-    return Path(env) if env else REPO_ROOT / "cache"
 
 
 def dataset_name(identities: str, topology: str, split: str, root: str = "identity") -> str:

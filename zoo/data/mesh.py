@@ -26,9 +26,11 @@ from zoo.io import atomic_path, atomic_write_json, canonical_json
 from zoo.registry import REPO_ROOT
 
 
-def cache_root() -> Path:
-    """Where generated data and spectral bases are cached: ``$ZOO_CACHE_DIR`` if set, else
-    ``<repo>/cache``."""
+def cache_root(cache_dir: str | Path | None = None) -> Path:
+    """Where generated data and spectral bases are cached: ``cache_dir`` if given, else
+    ``$ZOO_CACHE_DIR`` if set, else ``<repo>/cache``."""
+    if cache_dir is not None:
+        return Path(cache_dir)
     env = os.environ.get("ZOO_CACHE_DIR")
     return Path(env).expanduser() if env else REPO_ROOT / "cache"
 
