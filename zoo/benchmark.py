@@ -30,7 +30,15 @@ _OPTIONAL = ("train_split", "data_root", "samplers", "actions", "horizons_ms", "
 # Mesh datasets: name -> a loader ``(root: Path | None, split) -> MeshDataset`` or the
 # "module:function" that names one (``root``: where the data, or the cache of generated data,
 # lives; None: the loader's default).
-MESH_DATASETS: dict[str, Any] = {"cloth": "zoo.data.cloth:cloth_dataset"}
+# An entry may also be ("module:function", {keyword: value}) to fix a loader's options.
+_ANNY = "zoo.data.anny_motion:cmu_anny_dataset"
+MESH_DATASETS: dict[str, Any] = {
+    "cloth": "zoo.data.cloth:cloth_dataset",
+    "cmu_anny_oi": (_ANNY, {"identities": "one", "topology": "full"}),
+    "cmu_anny_mi": (_ANNY, {"identities": "many", "topology": "full"}),
+    "cmu_anny_oi_low": (_ANNY, {"identities": "one", "topology": "low"}),
+    "cmu_anny_mi_low": (_ANNY, {"identities": "many", "topology": "low"}),
+}
 GROUND_TRUTHS = ("raw", "spectral")
 
 
@@ -106,10 +114,11 @@ class Benchmark:
         if loader is None:
             raise BenchmarkError(f"benchmark {self.name!r}: no mesh dataset {self.dataset!r} is "
                                  f"registered; known: {', '.join(MESH_DATASETS)}")
+        loader, options = loader if isinstance(loader, tuple) else (loader, {})
         if isinstance(loader, str):
             module, function = loader.split(":")
             loader = getattr(importlib.import_module(module), function)
-        return loader(self.resolve_data_root(data_root), split or self.split)
+        return loader(self.resolve_data_root(data_root), split or self.split, **options)
 
     def spectral_basis(self, dataset=None, data_root: str | Path | None = None):
         """The :class:`zoo.data.spectral.SpectralBasis` of the dataset's topology with

@@ -125,15 +125,53 @@ def cmd_train(args) -> int:
     return 0
 
 
+def cmd_data(args) -> int:
+    from tabulate import tabulate
+
+    from zoo.benchmark import get_benchmark, list_benchmarks
+    from zoo.data.catalog import describe, export_window
+
+    if args.action == "list":
+        rows = []
+        for name in list_benchmarks():
+            b = get_benchmark(name)
+            rows.append([name, b.dataset, b.representation, b.split, b.train_split,
+                         str(b.resolve_data_root() or ("(generated)" if b.representation ==
+                                                       "mesh" else "(give --data-root)"))])
+        print(tabulate(rows, headers=["benchmark", "dataset", "representation", "test split",
+                                      "train split", "data root"], tablefmt="github"))
+        return 0
+    if not args.benchmark:
+        raise UsageError(f"zoo data {args.action} needs a benchmark name (see zoo data list)")
+    bench = get_benchmark(args.benchmark)
+    splits = [bench.split, bench.train_split] if args.split == "all" else \
+        [args.split or bench.split]
+    if args.action in ("build", "describe"):
+        for split in splits:
+            dataset = bench.load(args.data_root, split=split)
+            info = describe(dataset)
+            print(tabulate(list(info.items()), tablefmt="plain"))
+            print()
+        return 0
+    if args.action == "export":
+        if not args.out:
+            raise UsageError("zoo data export needs --out FILE.ply or FILE.glb")
+        dataset = bench.load(args.data_root, split=splits[0])
+        written = export_window(dataset, bench, args.window, args.out, sampler=args.sampler)
+        print(f"wrote {', '.join(str(p) for p in written[:3])}"
+              f"{f' and {len(written) - 3} more' if len(written) > 3 else ''}")
+        return 0
+    raise UsageError(f"unknown data action {args.action!r}")
+
+
 def _print_average(frame, horizons) -> None:
     from tabulate import tabulate
 
     avg = frame[(frame["action"] == "average") & frame["horizon_ms"].isin(horizons)]
-    table = avg.pivot_table(index=["metric", "averaging", "joints"], columns="horizon_ms",
-                            values="value")
-    print(tabulate(table.reset_index(), headers=["metric", "averaging", "joints"] +
-                   [f"{h} ms" for h in table.columns], tablefmt="github", floatfmt=".2f",
-                   showindex=False))
+    keys = ["model", "metric", "averaging", "joints"]
+    table = avg.pivot_table(index=keys, columns="horizon_ms", values="value")
+    print(tabulate(table.reset_index(), headers=keys + [f"{h} ms" for h in table.columns],
+                   tablefmt="github", floatfmt=".4g", showindex=False))
 
 
 def _jsonable(value):
@@ -184,6 +222,17 @@ def build_parser() -> argparse.ArgumentParser:
                    help="folder of trained checkpoints <benchmark>/<model>/best.pt "
                         "(default checkpoints/, where zoo train writes)")
     p.set_defaults(func=cmd_leaderboard)
+
+    p = sub.add_parser("data", help="build, list, describe and export datasets")
+    p.add_argument("action", choices=["list", "build", "describe", "export"])
+    p.add_argument("benchmark", nargs="?", help="benchmark whose dataset to use")
+    p.add_argument("--split", help="split (default: the benchmark's test split; 'all': both)")
+    p.add_argument("--data-root", help="dataset folder (default: the benchmark's)")
+    p.add_argument("--window", type=int, default=0, help="export: window index (default 0)")
+    p.add_argument("--sampler", help="export: window sampler (default: the benchmark's)")
+    p.add_argument("--out", help="export: FILE.glb (all frames side by side) or FILE.ply "
+                                 "(one file per frame)")
+    p.set_defaults(func=cmd_data)
 
     p = sub.add_parser("train", help="train a model on a benchmark's training split")
     common(p)

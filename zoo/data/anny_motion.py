@@ -61,6 +61,7 @@ from zoo.data.bvh import (BVH, CMU_BVH_JOINTS, bone_directions, forward_kinemati
                           read_bvh)
 from zoo.data.expmap import DataFormatError, sha256_file
 from zoo.data.mesh import MeshDataset, MeshSequence, MeshTopology, cache_root
+from zoo.errors import DataNotFoundError
 from zoo.io import atomic_path
 
 # BVH name -> Anny ``cmu_mb`` bone name where they differ (all others are the same).
@@ -701,3 +702,13 @@ def load_rig_joints(folder: str | Path) -> list[np.ndarray]:
         raise FileNotFoundError(f"{path}: no rig joints (build the dataset with build_cmu_anny)")
     with np.load(path) as z:
         return [z[f"seq{i}"] for i in range(len(z.files))]
+
+
+def cmu_anny_dataset(root: str | Path | None, split: str, *, identities: str,
+                     topology: str) -> MeshDataset:
+    """The benchmark loader (``zoo.benchmark.MESH_DATASETS``): ``root`` is the CMU BVH folder
+    (the benchmark's ``data_root``); built on first use, then loaded from the cache."""
+    if root is None:
+        raise DataNotFoundError("no CMU BVH folder given: pass --data-root pointing at the folder "
+                                "holding MANIFEST.tsv and data/ (../shared/data/cmu_bvh here)")
+    return build_cmu_anny(root, identities=identities, topology=topology, split=split)

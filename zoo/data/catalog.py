@@ -1,0 +1,84 @@
+"""What ``zoo data`` says about a dataset, and exporting a window of a mesh dataset to look at."""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from zoo.data.mesh import MeshDataset, MeshError
+from zoo.data.motion import MotionDataset
+from zoo.data.windows import check_sampler, gather_windows, window_sampler
+
+EXPORT_FORMATS = (".glb", ".ply")
+
+
+def describe(dataset: MeshDataset | MotionDataset) -> dict[str, Any]:
+    """Sizes, frame rate, identities and hashes of a dataset, as ordered (field, value) pairs."""
+    frames = sum(len(s) for s in dataset.sequences)
+    info: dict[str, Any] = {"dataset": dataset.name, "split": dataset.split,
+                            "sequences": len(dataset.sequences), "frames": frames,
+                            "actions": len({s.action for s in dataset.sequences})}
+    if isinstance(dataset, MeshDataset):
+        topology = dataset.topology
+        info.update({
+            "fps": dataset.fps, "duration_s": round(frames / dataset.fps, 1),
+            "vertices": topology.num_vertices, "faces": len(topology.faces),
+            "edges": len(topology.edges),
+            "identities": len({s.identity for s in dataset.sequences}),
+            "joint_regressor": (f"{dataset.joint_regressor.shape[0]} joints"
+                                if dataset.joint_regressor is not None else "none"),
+            "size_mb": round(sum(s.vertices.nbytes for s in dataset.sequences) / 2**20, 1),
+            "topology_hash": topology.hash, "recipe_hash": dataset.recipe_hash,
+            "content_hash": dataset.content_hash(),
+        })
+    else:
+        info.update({"fps": dataset.fps, "skeleton": dataset.skeleton.name,
+                     "joints": dataset.skeleton.num_joints, "root": str(dataset.root),
+                     "files_sha256": ", ".join(f"{f['file']}={f['sha256'][:12]}"
+                                               for f in dataset.files()[:3]) +
+                     (" ..." if len(dataset.sequences) > 3 else "")})
+    return info
+
+
+def export_window(dataset: MeshDataset, bench, window: int, out: str | Path,
+                  sampler: str | None = None) -> list[Path]:
+    """Write window ``window`` of the benchmark's sampler through trimesh: a ``.glb`` scene with
+    the frames side by side (observed in grey, future in blue), or one ``.ply`` per frame."""
+    import trimesh
+
+    from zoo.io import atomic_path
+
+    if not isinstance(dataset, MeshDataset):
+        raise MeshError(f"{dataset.name} is a skeleton dataset: only mesh windows export")
+    out = Path(out)
+    if out.suffix not in EXPORT_FORMATS:
+        raise MeshError(f"--out {out}: expected a file ending in {' or '.join(EXPORT_FORMATS)}")
+    sampler = check_sampler(sampler or bench.sampler)
+    t_in, t_out = bench.input_frames, bench.output_frames
+    index = window_sampler(sampler, [len(s) for s in dataset.sequences], t_in, t_out)
+    if not 0 <= window < len(index):
+        raise MeshError(f"--window {window}: {dataset.name}/{dataset.split} has {len(index)} "
+                        f"windows under sampler {sampler} (valid: 0..{len(index) - 1})")
+    frames = gather_windows([s.vertices for s in dataset.sequences], index[window:window + 1],
+                            t_in + t_out)[0] / 1000.0  # mm -> m, the unit viewers expect
+    faces = dataset.topology.faces
+    extent = float(np.ptp(frames[..., 0]))
+    written = []
+    if out.suffix == ".glb":
+        scene = trimesh.Scene()
+        for t, vertices in enumerate(frames):
+            mesh = trimesh.Trimesh(vertices + [t * 1.2 * extent, 0, 0], faces, process=False)
+            mesh.visual.face_colors = [150, 150, 150, 255] if t < t_in else [60, 110, 220, 255]
+            scene.add_geometry(mesh, node_name=f"frame_{t:03d}")
+        with atomic_path(out) as tmp:
+            tmp.write_bytes(scene.export(file_type="glb"))
+        written.append(out)
+    else:
+        for t, vertices in enumerate(frames):
+            path = out.with_name(f"{out.stem}_{t:03d}.ply")
+            with atomic_path(path) as tmp:
+                tmp.write_bytes(trimesh.Trimesh(vertices, faces, process=False)
+                                .export(file_type="ply"))
+            written.append(path)
+    return written
