@@ -58,7 +58,7 @@ def timed(fn, repeats: int = 1) -> tuple[float, object]:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--k", type=int, default=512)
-    parser.add_argument("--repeats", type=int, default=5, help="repeats of the product timings")
+    parser.add_argument("--repeats", type=int, default=3, help="repeats of the product timings")
     parser.add_argument("--default-split", action="store_true",
                         help="also time generating the default cloth splits (about a minute)")
     args = parser.parse_args(argv)

@@ -5,9 +5,16 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 import torch
+import yaml
 
-from zoo.data.mesh import MeshTopology
+from zoo import benchmark as benchmark_module
+from zoo.benchmark import BenchmarkError, get_benchmark
+from zoo.data.mesh import MeshDataset, MeshSequence, MeshTopology
+from zoo.data.spectral import SpectralBasis, SpectralError
+from zoo.evaluate import EvaluationError, evaluate
 from zoo.metrics import melv, regress_joints, regressed_mpjpe, vertex_rmse
+from zoo.models.repeat_last import RepeatLast
+from zoo.registry import create_model
 
 # One 3-4-5 right triangle: its edges (0,1), (0,2), (1,2) have lengths 3, 4 and 5.
 TRIANGLE = torch.tensor([[0.0, 0, 0], [3, 0, 0], [0, 4, 0]])
@@ -56,16 +63,6 @@ def test_mpjpe_through_a_sparse_regressor_by_hand():
 
 
 # ---- the evaluator on mesh benchmarks ---------------------------------------------------------
-
-import yaml  # noqa: E402
-
-from zoo import benchmark as benchmark_module  # noqa: E402
-from zoo.benchmark import BenchmarkError, get_benchmark  # noqa: E402
-from zoo.data.mesh import MeshDataset, MeshSequence  # noqa: E402
-from zoo.data.spectral import SpectralBasis, SpectralError  # noqa: E402
-from zoo.evaluate import EvaluationError, evaluate  # noqa: E402
-from zoo.models.repeat_last import RepeatLast  # noqa: E402
-from zoo.registry import create_model  # noqa: E402
 
 # A 10 mm square of two triangles: 4 sides of 10 mm and a diagonal of 10 sqrt(2) mm.
 SQUARE = np.array([[0.0, 0, 0], [10, 0, 0], [10, 10, 0], [0, 10, 0]])

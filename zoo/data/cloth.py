@@ -15,9 +15,14 @@ dynamics solver:
   stretch constraints on every mesh edge, bending constraints between the two vertices opposite
   every interior edge, Gauss-Seidel over groups of independent constraints (a colouring in which
   no two constraints of a group share a vertex) so every group is one vectorised update for all
-  sequences at once, light velocity damping, and a cheap vertex-vertex self-collision (vertices
-  that are not neighbours within two rings are kept ``thickness`` apart; candidate pairs are found
-  once per frame with a k-d tree, within ``2 * thickness``);
+  sequences at once; long range attachments (Kim, Chentanez and Mueller 2012: no vertex gets
+  farther from a pin than its rest geodesic distance) against the over-stretching of hanging
+  cloth; velocity damping standing in for air drag; and a cheap vertex-vertex self-collision
+  (vertices that are not neighbours within two rings are kept ``thickness`` apart; candidate
+  pairs are found once per frame with a k-d tree, within ``2 * thickness``). On the default test
+  split edge lengths stay within 0.7 % of rest on average (99th percentile 5 %); the worst few
+  reach +33 % on the taut line between two pins that carries the whole cloth and -41 % where it
+  folds sharply next to a pin;
 - seeding: sequence ``i`` of split ``s`` draws from ``numpy.random.default_rng([seed, s, i])``, so
   a sequence does not depend on how many others are generated, the splits never share one, and the
   same recipe gives the same bytes.
