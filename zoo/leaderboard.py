@@ -20,6 +20,14 @@ class ProtocolMismatchError(ZooError, ValueError):
     pass
 
 
+# Units and printed precision per metric: RMSE is normalised by the bounding-box diagonal.
+METRIC_UNITS = {"mpjpe": ("mm", ".2f"), "melv": ("mm", ".3f"), "rmse": ("normalised", ".4f")}
+
+
+def metric_unit(metric: str) -> tuple[str, str]:
+    return METRIC_UNITS.get(metric, ("", ".4g"))
+
+
 def _comparable(record: dict[str, Any]) -> dict[str, Any]:
     return {k: v for k, v in record.items() if k not in ("provenance", "protocol_id")}
 
@@ -83,11 +91,12 @@ def markdown_tables(frame: pd.DataFrame, records: dict[str, dict[str, Any]],
         table = table.sort_index(level=["model", "action"],
                                  key=lambda idx: idx.map(order) if idx.name == "action" else idx)
         description = record.get("joint_protocols", {}).get(joints, "")
-        out += [f"## {metric.upper()}, averaging `{averaging}`, joints `{joints}`", "",
+        unit = metric_unit(metric)[0]
+        out += [f"## {metric.upper()} ({unit}), averaging `{averaging}`, joints `{joints}`", "",
                 f"{record.get('averaging', {}).get(averaging, '')}. {description}.", "",
                 tabulate(table.reset_index(), headers=["model", "action"] +
-                         [f"{h} ms" for h in table.columns], tablefmt="github", floatfmt=".2f",
-                         showindex=False), ""]
+                         [f"{h} ms" for h in table.columns], tablefmt="github",
+                         floatfmt=metric_unit(metric)[1], showindex=False), ""]
     return "\n".join(out)
 
 
@@ -141,7 +150,7 @@ def plot_average(frame: pd.DataFrame, path: str | Path, title: str = "") -> None
             ax.plot(rows["horizon_ms"], rows["value"], marker=".", label=model)
         ax.set_title(f"{metric} ({averaging}, {joints})", fontsize=9)
         ax.set_xlabel("horizon (ms)")
-        ax.set_ylabel("mm")
+        ax.set_ylabel(metric_unit(metric)[0])
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
     fig.suptitle(title, fontsize=9)

@@ -12,7 +12,6 @@ positive) so that recomputes agree wherever the eigenvalues are simple.
 """
 from __future__ import annotations
 
-import contextlib
 import hashlib
 import zipfile
 from pathlib import Path
@@ -296,12 +295,9 @@ def _lanczos(lap: sp.csr_matrix, k: int) -> tuple[np.ndarray, np.ndarray]:
 def _one_blas_thread():
     """Run ARPACK with one BLAS thread: its level-2 products gain nothing from more, and
     OpenBLAS's spinning threads cost several times the work when the cores are shared (measured:
-    41 s of CPU for k=512 on 13,718 vertices with 2 threads against 8 s with one). Needs
-    ``threadpoolctl``; without it the BLAS keeps its own setting (``OPENBLAS_NUM_THREADS``)."""
-    try:
-        from threadpoolctl import threadpool_limits
-    except ImportError:
-        return contextlib.nullcontext()
+    41 s of CPU for k=512 on 13,718 vertices with 2 threads against 8 s with one)."""
+    from threadpoolctl import threadpool_limits
+
     return threadpool_limits(limits=1, user_api="blas")
 
 

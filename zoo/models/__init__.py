@@ -8,6 +8,11 @@ The common contract (all a model needs to be evaluated, trained and registered):
 - ``forward(history)`` takes the observed frames ``(B, T_in, P, 3)`` (float32, the dataset's
   units: mm for skeletons) and returns the predicted frames ``(B, T_out, P, 3)``. For skeleton
   benchmarks ``P`` is the set of predicted joints (CMU: 25), in the dataset's joint order;
-- optional ``context`` keywords: a model that needs facts about the data (SPGSN's body parts)
-  names them in its registry entry under ``context``, and the benchmark provides them.
+- mesh benchmarks give vertices: ``(B, T_in, V, 3)`` in mm in, ``(B, T_out, V, 3)`` out;
+- optional ``context`` keywords: a model that needs facts about the data names them in its
+  registry entry under ``context`` and the benchmark provides them: ``parts`` (skeletons: the
+  body-part split as indices into the predicted joints, SPGSN) and ``basis`` (meshes: the
+  dataset's ``zoo.data.spectral.SpectralBasis``, SpecTrHuMS);
+- optional training hooks ``training_loss(history, future)`` and ``start_epoch(epoch, windows)``
+  (see ``zoo.train``).
 """
