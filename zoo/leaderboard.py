@@ -163,6 +163,7 @@ def plot_average(frame: pd.DataFrame, path: str | Path, title: str = "") -> None
 def regenerate(benchmark, *, registry=None, data_root=None, out_root: str | Path = "results",
                checkpoints: str | Path | None = None, device: str = "cpu") -> list[Path]:
     """Re-evaluate every model that can be evaluated on ``benchmark`` under each of its samplers
+    (and, for mesh benchmarks, each ground truth: ``<sampler>-gt_spectral`` beside ``<sampler>``)
     and rebuild ``<out_root>/<benchmark>/<sampler>/``.
 
     A model is evaluated if it needs no training or if its best checkpoint
@@ -171,52 +172,66 @@ def regenerate(benchmark, *, registry=None, data_root=None, out_root: str | Path
     --checkpoint``) is kept if its protocol still matches, and skipped with a warning naming the
     difference if not.
     """
-    import sys
-
     from zoo.benchmark import get_benchmark
-    from zoo.evaluate import EvalResult, evaluate
-    from zoo.registry import create_model, load_registry
+    from zoo.registry import load_registry
 
     registry = registry or load_registry()
     bench = get_benchmark(benchmark) if isinstance(benchmark, (str, Path)) else benchmark
     dataset = bench.load(data_root)
     out_root = Path(out_root)
     written = []
+    truths = (bench.ground_truths or (bench.ground_truth,)) if bench.representation == "mesh" \
+        else (None,)
     for sampler in bench.samplers:
-        results, stored = [], []
-        for name in registry.list_models(bench.representation):
-            entry = registry.get(name)
-            ckpt = Path(checkpoints) / bench.name / name / "best.pt" if checkpoints else None
-            run_dir = out_root / bench.name / sampler / name
-            provenance = {}
-            if ckpt is not None and ckpt.is_file():
-                from zoo.train import load_checkpoint
-
-                model, meta = load_checkpoint(ckpt, registry=registry, benchmark=bench)
-                provenance = {"checkpoint": str(ckpt), "training": meta.get("training", {})}
-            elif not entry.trainable:
-                model = create_model(name, benchmark=bench, registry=registry)
-            elif (run_dir / "results.csv").is_file():
-                stored.append(EvalResult.read(run_dir))
-                print(f"{bench.name}/{sampler}: {name}: no checkpoint here, keeping {run_dir}",
-                      file=sys.stderr)
-                continue
-            else:
-                print(f"{bench.name}/{sampler}: {name}: skipped (trainable, no checkpoint at "
-                      f"{ckpt})", file=sys.stderr)
-                continue
-            result = evaluate(model, bench, model_name=name, sampler=sampler, dataset=dataset,
-                              device=device, provenance=provenance)
-            result.write(run_dir)
-            results.append(result)
-        # Freshly evaluated results come first: they define the protocol stored ones must match.
-        kept = _drop_mismatched(results + stored, bench.name, sampler)
-        if not kept:
-            continue
-        written.append(write_leaderboard(kept, out_root / bench.name / sampler, bench.horizons_ms))
-        print(f"wrote {written[-1]}/leaderboard.md ({len(kept)} models, {len(results)} "
-              f"evaluated now)")
+        for truth in truths:
+            folder = sampler if truth in (None, "raw") else f"{sampler}-gt_{truth}"
+            path = _regenerate_one(bench, registry, dataset, sampler, truth, folder, out_root,
+                                   checkpoints, device)
+            if path is not None:
+                written.append(path)
     return written
+
+
+def _regenerate_one(bench, registry, dataset, sampler, truth, folder, out_root, checkpoints,
+                    device):
+    import sys
+
+    from zoo.evaluate import EvalResult, evaluate
+    from zoo.registry import create_model
+
+    results, stored = [], []
+    for name in registry.list_models(bench.representation):
+        entry = registry.get(name)
+        ckpt = Path(checkpoints) / bench.name / name / "best.pt" if checkpoints else None
+        run_dir = out_root / bench.name / folder / name
+        provenance = {}
+        if ckpt is not None and ckpt.is_file():
+            from zoo.train import load_checkpoint
+
+            model, meta = load_checkpoint(ckpt, registry=registry, benchmark=bench)
+            provenance = {"checkpoint": str(ckpt), "training": meta.get("training", {})}
+        elif not entry.trainable:
+            model = create_model(name, benchmark=bench, registry=registry)
+        elif (run_dir / "results.csv").is_file():
+            stored.append(EvalResult.read(run_dir))
+            print(f"{bench.name}/{folder}: {name}: no checkpoint here, keeping {run_dir}",
+                  file=sys.stderr)
+            continue
+        else:
+            print(f"{bench.name}/{folder}: {name}: skipped (trainable, no checkpoint at {ckpt})",
+                  file=sys.stderr)
+            continue
+        result = evaluate(model, bench, model_name=name, sampler=sampler, dataset=dataset,
+                          device=device, provenance=provenance, ground_truth=truth)
+        result.write(run_dir)
+        results.append(result)
+    # Freshly evaluated results come first: they define the protocol stored ones must match.
+    kept = _drop_mismatched(results + stored, bench.name, folder)
+    if not kept:
+        return None
+    path = write_leaderboard(kept, out_root / bench.name / folder, bench.horizons_ms)
+    print(f"wrote {path}/leaderboard.md ({len(kept)} models, {len(results)} evaluated now)")
+    return path
 
 
 def _drop_mismatched(results: list, bench: str, sampler: str) -> list:
