@@ -311,8 +311,6 @@ def test_spgsn_paper_configuration():
     whole_body = zoo.create_model("spgsn_1body", benchmark="cmu")
     assert set(whole_body.graphs) == {"whole"}
     assert not hasattr(whole_body.blocks[0], "embed_upper")
-    with torch.no_grad():
-        assert model.eval()(motion(1, 10)).shape == (1, 25, 25, 3)
 
 
 @pytest.mark.parametrize("kwargs, message", [
