@@ -1,8 +1,6 @@
 """Skeleton models (SPEC section 5): the DCT, the MLP baseline and SPGSN."""
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 import scipy.fft
@@ -203,9 +201,11 @@ def test_spgsn_scattering_tree_has_k_plus_1_to_the_l_leaves(monkeypatch):
 
     leaves = []
     original = ScatteringBlock._aggregate
-    monkeypatch.setattr(ScatteringBlock, "_aggregate",
-                        lambda self, x: leaves.append((x.shape[0] * x.shape[2], x.shape[1], x.shape[4]))
-                        or original(self, x))
+    def recording(self, x):  # leaves (F, N_p, M, B, C): F * M channels
+        leaves.append((x.shape[0] * x.shape[2], x.shape[1], x.shape[4]))
+        return original(self, x)
+
+    monkeypatch.setattr(ScatteringBlock, "_aggregate", recording)
     model = SPGSN(10, 25, 25, parts=CMU_PARTS, blocks=1, hidden=8, aggregation_dim=4).eval()
     with torch.no_grad():
         model(motion(2, 10))
@@ -329,7 +329,7 @@ def test_spgsn_rejects_bad_arguments(kwargs, message):
         SPGSN(10, 25, 25, **{"blocks": 1, "hidden": 8, **kwargs})
 
 
-# ---- every skeleton model: registry, contract, evaluator ------------------------------------------
+# ---- every skeleton model: registry, contract, evaluator ---------------------------------------
 
 @pytest.mark.parametrize("name", SKELETON_MODELS)
 def test_registered_model_follows_the_contract(name):

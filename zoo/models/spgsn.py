@@ -179,7 +179,8 @@ class ScatteringBlock(nn.Module):
     def _scatter(channels: torch.Tensor, bank: torch.Tensor, weight: torch.Tensor) -> torch.Tensor:
         """One deeper tree layer: every channel ``U`` to ``tanh(h_k U W_k)`` for every filter k.
 
-        ``channels``: ``(F, N_p, M, B, C)`` (``F * M`` channels); returns ``(K+1, N_p, F * M, B, C)``.
+        ``channels``: ``(F, N_p, M, B, C)`` (``F * M`` channels); returns
+        ``(K+1, N_p, F * M, B, C)``.
         """
         _, nodes, _, batch, hidden = channels.shape
         filters = bank.shape[0]
