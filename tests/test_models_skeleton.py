@@ -378,3 +378,36 @@ def test_models_evaluate_on_real_cmu_test_data(name, cmu_test_data, repeat_last_
     assert result.protocol["protocol_id"] == repeat_last_result.protocol["protocol_id"]
     if name == "mlp":  # untrained: repeat-last, so the same table to float rounding
         np.testing.assert_allclose(frame["value"], reference["value"], atol=1e-4)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name, overrides, lr", [
+    ("mlp", {}, 3e-4), ("spgsn", {"blocks": 2, "hidden": 64}, 1e-3),
+    ("spgsn_1body", {"blocks": 2, "hidden": 64}, 1e-3)])
+def test_models_learn_on_cmu_training_windows(name, overrides, lr):
+    """150 Adam steps on real CMU training windows take the model below repeat-last."""
+    if not (CMU_ROOT / "train").is_dir():
+        pytest.skip(f"CMU Mocap training data not found at {CMU_ROOT}")
+    from zoo.benchmark import get_benchmark
+    from zoo.data.windows import gather_windows, window_sampler
+
+    data = get_benchmark("cmu").load(CMU_ROOT, split="train")
+    index = window_sampler("stride5", [len(s) for s in data.sequences], 10, 25, data.ltd_rule)
+    windows = torch.from_numpy(gather_windows([s.positions for s in data.sequences], index, 35))
+    windows = windows[:, :, list(data.skeleton.used)].float()
+    held_out = windows[::50]
+    torch.manual_seed(0)
+    model = zoo.create_model(name, benchmark="cmu", **overrides).train()
+    optimizer = torch.optim.Adam(model.parameters(), lr)
+    generator = torch.Generator().manual_seed(0)
+    for _ in range(150):
+        batch = windows[torch.randint(0, len(windows), (32,), generator=generator)]
+        loss = model.training_loss(batch[:, :10], batch[:, 10:])
+        optimizer.zero_grad()
+        loss.backward()
+        torch.nn.utils.clip_grad_norm_(model.parameters(), 1.0)
+        optimizer.step()
+    with torch.no_grad():
+        error = (model.eval()(held_out[:, :10]) - held_out[:, 10:]).norm(dim=-1).mean()
+    repeat_last = (held_out[:, 9:10] - held_out[:, 10:]).norm(dim=-1).mean()
+    assert error < 0.95 * repeat_last, (error.item(), repeat_last.item())
