@@ -77,7 +77,7 @@ class SiMLPe(nn.Module):
         nn.init.zeros_(self.spatial_out.bias)
 
     def step(self, window: torch.Tensor) -> torch.Tensor:
-        """The next ``chunk`` frames ``(B, chunk, P, 3)`` in mm after ``window`` ``(B, T_in, P, 3)``."""
+        """The ``chunk`` frames ``(B, chunk, P, 3)`` (mm) after ``window`` ``(B, T_in, P, 3)``."""
         batch = window.shape[0]
         x = window.reshape(batch, self.input_frames, -1) / MM_PER_M
         h = self.spatial_in(torch.matmul(self.dct, x))

@@ -133,7 +133,7 @@ class ScatteringBlock(nn.Module):
             nn.init.xavier_uniform_(self.first_weight[:, k])
             for layer in range(layers - 1):
                 nn.init.xavier_uniform_(self.deeper_weights[layer, k])
-        self.spectrum = nn.Linear(hidden, hidden)  # W_sp
+        self.spectrum = nn.Linear(hidden, hidden, bias=False)  # W_sp
         # f1 on the concatenation [H_sp, H_k] = f1_sp(H_sp) + f1_leaf(H_k): H_sp's half once.
         self.attention_sp = nn.Linear(hidden, aggregation_dim)
         self.attention_leaf = nn.Linear(hidden, aggregation_dim, bias=False)
@@ -179,7 +179,8 @@ class ScatteringBlock(nn.Module):
     def _scatter(channels: torch.Tensor, bank: torch.Tensor, weight: torch.Tensor) -> torch.Tensor:
         """One deeper tree layer: every channel ``U`` to ``tanh(h_k U W_k)`` for every filter k.
 
-        ``channels``: ``(F, N_p, M, B, C)`` (``F * M`` channels); returns ``(K+1, N_p, F * M, B, C)``.
+        ``channels``: ``(F, N_p, M, B, C)`` (``F * M`` channels); returns
+        ``(K+1, N_p, F * M, B, C)``.
         """
         _, nodes, _, batch, hidden = channels.shape
         filters = bank.shape[0]
