@@ -54,7 +54,8 @@ def _load_model(args, registry, bench):
     if getattr(args, "checkpoint", None):
         from zoo.train import load_checkpoint
 
-        model, ckpt = load_checkpoint(args.checkpoint, registry=registry, benchmark=bench)
+        model, ckpt = load_checkpoint(args.checkpoint, registry=registry, benchmark=bench,
+                                      data_root=args.data_root)
         if args.model and args.model != ckpt["model"]:
             raise UsageError(f"--model {args.model} but checkpoint {args.checkpoint} holds model "
                              f"{ckpt['model']!r}")
@@ -65,15 +66,18 @@ def _load_model(args, registry, bench):
                                       "training": ckpt.get("training", {})}
     if not args.model:
         raise UsageError("give --model NAME or --checkpoint PATH")
-    from zoo.registry import create_model
-
-    model = create_model(args.model, benchmark=bench, registry=registry, **overrides)
+    model = registry.create_model(args.model, **{**bench.model_inputs(registry.get(
+        args.model).context, args.data_root), **overrides})
     entry = registry.get(args.model)
     if entry.trainable:
         print(f"warning: {args.model} is trainable and no --checkpoint was given: evaluating "
               f"its untrained initialisation", file=sys.stderr)
-    return args.model, model, {"hparams": registry.model_args(args.model, **{
-        **bench.model_inputs(entry.context), **overrides})}
+    from zoo.train import _stored_hparams
+
+    hparams = registry.model_args(args.model, **{**bench.model_inputs(entry.context,
+                                                                       args.data_root),
+                                                 **overrides})
+    return args.model, model, {"hparams": _stored_hparams(hparams)[0]}
 
 
 def cmd_eval(args) -> int:

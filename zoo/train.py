@@ -32,7 +32,6 @@ import torch
 from torch import nn
 
 from zoo.benchmark import Benchmark, get_benchmark
-from zoo.data.motion import MotionDataset, MotionSequence
 from zoo.data.windows import gather_windows, window_sampler
 from zoo.errors import ZooError
 from zoo.io import atomic_path, code_version
@@ -113,20 +112,33 @@ def learning_rate(schedule: dict[str, Any], base_lr: float, epoch: int, epochs: 
 
 # ---- data ------------------------------------------------------------------------------------
 
-def split_train_val(dataset: MotionDataset, val_fraction: float) -> tuple[list, list]:
-    """Training and validation sequences: the first and last parts of each sequence in time."""
-    train, val = [], []
-    for s in dataset.sequences:
-        cut = int(round(len(s) * (1 - val_fraction)))
-        train.append(MotionSequence(s.name, s.action, s.positions[:cut], s.fps, s.sha256))
-        val.append(MotionSequence(s.name + "#val", s.action, s.positions[cut:], s.fps, s.sha256))
-    return train, val
+def sequence_frames(sequence) -> np.ndarray:
+    """The ``(T, P, 3)`` array of a skeleton (joint positions) or mesh (vertices) sequence."""
+    return sequence.positions if hasattr(sequence, "positions") else sequence.vertices
 
 
-def _windows(sequences, length: int, sampler: str, t_in: int, t_out: int):
-    usable = [s for s in sequences if len(s) >= length]
-    index = window_sampler(sampler, [len(s) for s in usable], t_in, t_out)
-    return [s.positions for s in usable], index
+def split_train_val(dataset, val_fraction: float, window: int) -> tuple[list, list]:
+    """Training and validation arrays ``(T, P, 3)``, never overlapping.
+
+    Where every sequence is long enough, the last ``val_fraction`` of each (in time) is held out
+    (CMU: long recordings); otherwise whole sequences are, the last ``val_fraction`` of them
+    (cloth: one window per sequence).
+    """
+    arrays = [sequence_frames(s) for s in dataset.sequences]
+    if all(len(a) * val_fraction >= window for a in arrays):
+        cuts = [int(round(len(a) * (1 - val_fraction))) for a in arrays]
+        return [a[:c] for a, c in zip(arrays, cuts)], [a[c:] for a, c in zip(arrays, cuts)]
+    held = max(1, int(round(len(arrays) * val_fraction)))
+    if held >= len(arrays):
+        raise TrainingError(f"{dataset.name}/{dataset.split}: {len(arrays)} sequences are too few "
+                            f"to hold {val_fraction:.0%} out for validation")
+    return arrays[:-held], arrays[-held:]
+
+
+def _windows(arrays, length: int, sampler: str, t_in: int, t_out: int):
+    usable = [a for a in arrays if len(a) >= length]
+    index = window_sampler(sampler, [len(a) for a in usable], t_in, t_out)
+    return usable, index
 
 
 @dataclass
@@ -182,11 +194,12 @@ def read_checkpoint(path: str | Path) -> dict[str, Any]:
 
 
 def load_checkpoint(path: str | Path, *, registry: Registry | None = None,
-                    benchmark: str | Benchmark | None = None, model_name: str | None = None
-                    ) -> tuple[nn.Module, dict[str, Any]]:
+                    benchmark: str | Benchmark | None = None, model_name: str | None = None,
+                    data_root: str | Path | None = None) -> tuple[nn.Module, dict[str, Any]]:
     """The trained model of a checkpoint, checked against the benchmark it will be evaluated on.
 
-    With ``benchmark=None`` the checkpoint's own protocol is used.
+    With ``benchmark=None`` the checkpoint's own protocol is used. Data objects the model was
+    built with (a spectral basis) come from the benchmark again and must hash the same.
     """
     ckpt = read_checkpoint(path)
     registry = registry or load_registry()
@@ -202,7 +215,18 @@ def load_checkpoint(path: str | Path, *, registry: Registry | None = None,
     if diff:
         raise CheckpointError(f"checkpoint {path} was trained for another protocol than "
                               f"benchmark {bench.name!r}: " + "; ".join(diff))
-    model = registry.create_model(entry.name, **ckpt["hparams"])
+    hparams = dict(ckpt["hparams"])
+    hashes = ckpt.get("context_hashes", {})
+    if hashes:
+        supplied = bench.model_inputs(entry.context, data_root)
+        for key, trained_hash in hashes.items():
+            if supplied[key].hash != trained_hash:
+                raise CheckpointError(f"checkpoint {path}: its {key} hash {trained_hash[:16]} "
+                                      f"differs from benchmark {bench.name!r}'s "
+                                      f"{supplied[key].hash[:16]} (another basis or mesh); "
+                                      f"never silently recomputed, retrain for this data")
+            hparams[key] = supplied[key]
+    model = registry.create_model(entry.name, **hparams)
     try:
         model.load_state_dict(ckpt["state_dict"])
     except RuntimeError as e:
@@ -213,9 +237,18 @@ def load_checkpoint(path: str | Path, *, registry: Registry | None = None,
 
 def model_protocol(bench: Benchmark) -> dict[str, Any]:
     """What a trained model's weights depend on: it must match wherever they are evaluated."""
-    return {"benchmark": bench.name, "dataset": bench.dataset,
-            "skeleton": bench.skeleton.name, "used_joints": list(bench.skeleton.used),
-            "input_frames": bench.input_frames, "output_frames": bench.output_frames}
+    protocol = {"benchmark": bench.name, "dataset": bench.dataset,
+                "input_frames": bench.input_frames, "output_frames": bench.output_frames}
+    if bench.representation == "mesh":
+        protocol.update(representation="mesh", spectral_k=bench.spectral_k)
+    else:
+        protocol.update(skeleton=bench.skeleton.name, used_joints=list(bench.skeleton.used))
+    return protocol
+
+
+def _point_index(bench: Benchmark):
+    """Which points of a frame models see: the predicted joints, or every vertex."""
+    return slice(None) if bench.representation == "mesh" else list(bench.skeleton.used)
 
 
 # ---- the loop --------------------------------------------------------------------------------
@@ -240,7 +273,7 @@ def train(model_name: str, benchmark: str | Benchmark, *, registry: Registry | N
                                            **({"epochs": epochs} if epochs else {})})
     dist_info = _init_distributed(device)
     out_dir = Path(out_dir) if out_dir else REPO_ROOT / "checkpoints" / bench.name / model_name
-    hparams = registry.model_args(model_name, **{**bench.model_inputs(entry.context),
+    hparams = registry.model_args(model_name, **{**bench.model_inputs(entry.context, data_root),
                                                  **(overrides or {})})
 
     torch.manual_seed(seed)
@@ -250,21 +283,21 @@ def train(model_name: str, benchmark: str | Benchmark, *, registry: Registry | N
     optimizer = torch.optim.Adam(model.parameters(), lr=recipe["lr"],
                                  weight_decay=recipe["weight_decay"])
     dataset = bench.load(data_root, split=bench.train_split)
-    train_seqs, val_seqs = split_train_val(dataset, recipe["val_fraction"])
     t_in, t_out = bench.input_frames, bench.output_frames
     length = t_in + t_out
+    train_seqs, val_seqs = split_train_val(dataset, recipe["val_fraction"], length)
     train_pos, train_index = _windows(train_seqs, length, recipe["train_sampler"], t_in, t_out)
     val_pos, val_index = _windows(val_seqs, length, "all", t_in, t_out)
     if len(train_index) == 0 or len(val_index) == 0:
-        raise TrainingError(f"{dataset.root}: no training or validation window of {length} "
-                            f"frames")
-    used = list(bench.skeleton.used)
+        raise TrainingError(f"{dataset.name}/{dataset.split}: no training or validation window "
+                            f"of {length} frames")
+    used = _point_index(bench)
 
     first_epoch, best, history = 0, {"val_mpjpe": math.inf, "epoch": -1}, []
     last_path, best_path = out_dir / "last.pt", out_dir / "best.pt"
     if resume:
         state = read_checkpoint(last_path)
-        if state["model"] != model_name or state["hparams"] != _plain(hparams):
+        if state["model"] != model_name or state["hparams"] != _stored_hparams(hparams)[0]:
             raise CheckpointError(f"{last_path}: cannot resume: it holds {state['model']!r} with "
                                   f"other hyper-parameters")
         model.load_state_dict(state["state_dict"])
@@ -384,15 +417,35 @@ def validate(model, positions, index, t_in, t_out, used, device, batch_size: int
     return total / count
 
 
+def _stored_hparams(hparams: dict[str, Any]) -> tuple[dict[str, Any], dict[str, str]]:
+    """Hyper-parameters as stored: data objects (a spectral basis) become their hashes, and the
+    benchmark supplies them again when the checkpoint is loaded."""
+    plain, hashes = {}, {}
+    for key, value in hparams.items():
+        if hasattr(value, "hash") and not isinstance(value, (str, int, float, dict, list)):
+            hashes[key] = value.hash
+        else:
+            plain[key] = _plain(value)
+    return plain, hashes
+
+
+def _training_data(dataset) -> dict[str, Any]:
+    if hasattr(dataset, "files"):
+        return {"dataset": dataset.name, "split": dataset.split,
+                "files": [{"file": f["file"], "sha256": f["sha256"]} for f in dataset.files()]}
+    return {"dataset": dataset.name, "split": dataset.split, "recipe_hash": dataset.recipe_hash,
+            "content_hash": dataset.content_hash(), "topology_hash": dataset.topology.hash}
+
+
 def _metadata(model_name, hparams, bench, dataset, recipe, seed, device, dist_info):
+    stored, context_hashes = _stored_hparams(hparams)
     return {
         "format": CHECKPOINT_FORMAT,
         "model": model_name,
-        "hparams": _plain(hparams),
+        "hparams": stored,
+        "context_hashes": context_hashes,
         "protocol": model_protocol(bench),
-        "training_data": {"dataset": dataset.name, "split": dataset.split,
-                          "files": [{"file": f["file"], "sha256": f["sha256"]}
-                                    for f in dataset.files()]},
+        "training_data": _training_data(dataset),
         "recipe": _plain(recipe),
         "seed": seed,
         "code_version": code_version(),
