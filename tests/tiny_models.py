@@ -29,3 +29,33 @@ class TinyTemporal(nn.Module):
         x = (history - last).permute(0, 2, 3, 1)
         y = self.net(x).permute(0, 3, 1, 2) + last
         return y * float("nan") if self.poison else y
+
+
+MESH_REGISTRY = """\
+models:
+  tiny_spectral:
+    class: tiny_models.py:TinySpectral
+    representation: mesh
+    trainable: true
+    context: [basis]
+    hparams: {}
+    reference: test model
+    train: {lr: 0.01, batch_size: 4, epochs: 2, val_fraction: 0.25}
+"""
+
+
+class TinySpectral(nn.Module):
+    """Predicts in the spectral domain: a learned per-frequency extrapolation of the last frame."""
+
+    def __init__(self, input_frames, output_frames, num_points, basis):
+        super().__init__()
+        if basis.vectors.shape[0] != num_points:
+            raise ValueError("basis does not fit the mesh")
+        self.basis, self.output_frames = basis, output_frames
+        self.gain = nn.Parameter(torch.zeros(basis.k, 1))
+
+    def forward(self, history):
+        coeffs = self.basis.project(history)
+        last, velocity = coeffs[:, -1], coeffs[:, -1] - coeffs[:, -2]
+        steps = torch.arange(1, self.output_frames + 1, dtype=history.dtype).view(1, -1, 1, 1)
+        return self.basis.reconstruct(last[:, None] + steps * self.gain * velocity[:, None])

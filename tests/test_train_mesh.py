@@ -1,0 +1,75 @@
+"""Training a mesh model through the engine; its checkpoint carries the basis hash."""
+import shutil
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tiny_models import MESH_REGISTRY
+from zoo import benchmark as benchmark_module
+from zoo.data.mesh import MeshDataset, MeshSequence, MeshTopology
+from zoo.registry import Registry
+from zoo.train import CheckpointError, load_checkpoint, read_checkpoint, train
+
+HERE = Path(__file__).resolve().parent
+
+
+def grid(n):
+    idx = np.arange(n * n).reshape(n, n)
+    a, b, c, d = idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel()
+    return MeshTopology(np.concatenate([np.stack([a, b, d], 1), np.stack([a, d, c], 1)]), n * n)
+
+
+def waving(topology, split, count=8, frames=12):
+    rng = np.random.default_rng(0 if split == "train" else 1)
+    n = int(round(np.sqrt(topology.num_vertices)))
+    xy = np.stack(np.meshgrid(np.arange(n), np.arange(n)), -1).reshape(-1, 2) * 10.0
+    seqs = []
+    for i in range(count):
+        speed = rng.uniform(0.5, 2.0)
+        t = np.arange(frames)[:, None]
+        z = speed * t * np.sin(xy[:, 0] / 30.0)[None]  # a smooth mode moving at constant speed
+        v = np.concatenate([np.broadcast_to(xy, (frames, len(xy), 2)), z[..., None]], -1)
+        seqs.append(MeshSequence(f"{split}{i}", "wave", v.astype(np.float32), 25.0))
+    return MeshDataset(f"toy-{split}", split, topology, seqs, recipe={"split": split})
+
+
+@pytest.fixture
+def toy_mesh(tmp_path, monkeypatch):
+    sizes = {"n": 4}
+    monkeypatch.setitem(benchmark_module.MESH_DATASETS, "toy_mesh",
+                        lambda root, split: waving(grid(sizes["n"]), split))
+    monkeypatch.setenv("ZOO_CACHE_DIR", str(tmp_path / "cache"))
+    bench = tmp_path / "toy.yaml"
+    bench.write_text(textwrap.dedent("""\
+        name: toy
+        representation: mesh
+        dataset: toy_mesh
+        split: test
+        input_frames: 4
+        output_frames: 4
+        sampler: all
+        spectral_k: 6
+        """))
+    (tmp_path / "registry.yaml").write_text(MESH_REGISTRY)
+    shutil.copy(HERE / "tiny_models.py", tmp_path / "tiny_models.py")
+    registry = Registry.from_files(HERE.parent / "registry.yaml", tmp_path / "registry.yaml")
+    return bench, registry, sizes
+
+
+def test_mesh_model_trains_and_checkpoint_refuses_another_basis(toy_mesh, tmp_path):
+    bench, registry, sizes = toy_mesh
+    best = train("tiny_spectral", bench, registry=registry, out_dir=tmp_path / "run",
+                 progress=False)
+    ckpt = read_checkpoint(best)
+    assert ckpt["protocol"]["representation"] == "mesh" and ckpt["protocol"]["spectral_k"] == 6
+    assert set(ckpt["context_hashes"]) == {"basis"} and "basis" not in ckpt["hparams"]
+    assert len(ckpt["training_data"]["content_hash"]) == 64
+    # Learning moved the gains off zero (the data move at constant speed).
+    assert float(ckpt["state_dict"]["gain"].abs().max()) > 0.01
+    model, _ = load_checkpoint(best, registry=registry, benchmark=bench)
+    assert model.basis.hash == ckpt["context_hashes"]["basis"]
+    sizes["n"] = 5  # the benchmark's mesh changes: its basis hash differs
+    with pytest.raises(CheckpointError, match="basis hash .* differs from benchmark 'toy'"):
+        load_checkpoint(best, registry=registry, benchmark=bench)
