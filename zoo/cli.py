@@ -99,8 +99,14 @@ def cmd_eval(args) -> int:
     for sampler in samplers:
         result = evaluate(model, bench, model_name=name, sampler=sampler,
                           data_root=args.data_root, batch_size=args.batch_size,
-                          device=args.device, provenance=_jsonable(provenance))
-        out = Path(args.out) if args.out else RESULTS_DIR / bench.name / sampler / name
+                          device=args.device, provenance=_jsonable(provenance),
+                          task=args.task, horizon=args.horizon_frames,
+                          ground_truth=args.ground_truth)
+        folder = sampler if args.task == "prediction" else \
+            f"{sampler}-{args.task}{args.horizon_frames or ''}"
+        if args.ground_truth not in (None, "raw"):
+            folder += f"-gt_{args.ground_truth}"
+        out = Path(args.out) if args.out else RESULTS_DIR / bench.name / folder / name
         result.write(out)
         _print_average(result.frame, bench.horizons_ms)
         print(f"wrote {out}/results.csv, protocol.json, tables.md")
@@ -233,6 +239,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--set", action="append", metavar="KEY=VALUE",
                    help="override a hyper-parameter; repeatable")
     p.add_argument("--batch-size", type=int, default=1024)
+    p.add_argument("--task", default="prediction", choices=["prediction", "completion",
+                                                             "longterm"])
+    p.add_argument("--horizon-frames", type=int, help="frames to predict for --task longterm")
+    p.add_argument("--ground-truth", choices=["raw", "spectral"],
+                   help="mesh benchmarks: score against raw or k-coefficient vertices")
     p.set_defaults(func=cmd_eval)
 
     p = sub.add_parser("leaderboard", help="re-evaluate and rebuild results/<benchmark>/")

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import datetime as _dt
 import hashlib
+import inspect
 import json
 from dataclasses import dataclass
 from pathlib import Path
@@ -31,8 +32,15 @@ from zoo.metrics import ACTION_AVERAGING, AVERAGING, FrameErrorMean, cumulative_
     joint_protocols, skeleton_errors
 
 RESULT_COLUMNS = ["model", "benchmark", "action", "metric", "averaging", "joints", "horizon_ms",
-                  "frame", "value", "windows", "dataset", "split", "sampler", "input_frames",
-                  "output_frames", "fps", "protocol_id"]
+                  "frame", "value", "windows", "dataset", "split", "sampler", "task",
+                  "input_frames", "output_frames", "fps", "protocol_id"]
+TASKS = {
+    "prediction": "the T_out frames after the observed ones",
+    "completion": "in-betweening: the T_out frames after the observed ones, the last of them "
+                  "given to the model (final_frame)",
+    "longterm": "long-term prediction: horizon frames, the model's predictions fed back as its "
+                "next observed frames (autoregressive)",
+}
 
 
 class EvaluationError(ZooError, RuntimeError):
@@ -63,6 +71,46 @@ class EvalResult:
                 raise EvaluationError(f"{out_dir / name}: missing (not an evaluation folder)")
         protocol = json.loads((out_dir / "protocol.json").read_text())
         return cls(frame=pd.read_csv(out_dir / "results.csv"), protocol=protocol)
+
+
+def check_task(task: str, horizon: int | None, output_frames: int) -> int:
+    """The number of predicted frames a task scores."""
+    if task not in TASKS:
+        raise EvaluationError(f"unknown task {task!r}; valid tasks: {', '.join(TASKS)}")
+    if task == "longterm":
+        if horizon is None or horizon <= output_frames:
+            raise EvaluationError(f"task longterm needs a horizon of more than the model's "
+                                  f"{output_frames} output frames (--horizon-frames), got "
+                                  f"{horizon}")
+        return horizon
+    if horizon is not None:
+        raise EvaluationError(f"a horizon applies to task longterm, not {task}")
+    return output_frames
+
+
+def predict(model: torch.nn.Module, history: torch.Tensor, task: str, frames: int,
+            final_frame: torch.Tensor | None = None) -> torch.Tensor:
+    """A model's prediction for one of the evaluator's tasks (see ``TASKS``)."""
+    if task == "prediction":
+        return model(history)
+    if task == "completion":
+        if "final_frame" not in inspect.signature(model.forward).parameters:
+            raise EvaluationError(f"{type(model).__name__} does no completion: its forward takes "
+                                  f"no final_frame")
+        return model(history, final_frame=final_frame)
+    if hasattr(model, "rollout"):  # a model's own (cheaper) autoregression
+        return model.rollout(history, frames)
+    t_in, window, out, produced = history.shape[1], history, [], 0
+    while produced < frames:
+        step = model(window[:, -t_in:])
+        out.append(step)
+        produced += step.shape[1]
+        window = torch.cat([window, step], dim=1)
+    return torch.cat(out, dim=1)[:, :frames]
+
+
+def _task_record(task: str, frames: int) -> dict[str, Any]:
+    return {"task": task, "task_rule": TASKS[task], "predicted_frames": frames}
 
 
 def protocol_id(record: dict[str, Any]) -> str:
@@ -103,23 +151,27 @@ def evaluate(model: torch.nn.Module, benchmark: str | Benchmark, *, model_name: 
              dataset: MotionDataset | None = None, batch_size: int = 1024,
              device: str | torch.device = "cpu",
              provenance: dict[str, Any] | None = None,
-             ground_truth: str | None = None) -> EvalResult:
+             ground_truth: str | None = None, task: str = "prediction",
+             horizon: int | None = None) -> EvalResult:
     """Evaluate ``model`` under ``benchmark`` with ``sampler`` (default: the benchmark's).
 
     ``ground_truth`` (mesh benchmarks only): ``raw`` or ``spectral``, default the benchmark's.
+    ``task``: ``prediction``, ``completion`` or ``longterm`` (``horizon`` frames), see ``TASKS``.
     """
     bench = get_benchmark(benchmark) if isinstance(benchmark, (str, Path)) else benchmark
     if bench.representation == "mesh":
         return evaluate_mesh(model, bench, model_name=model_name, sampler=sampler,
                              data_root=data_root, dataset=dataset, batch_size=batch_size,
-                             device=device, provenance=provenance, ground_truth=ground_truth)
+                             device=device, provenance=provenance, ground_truth=ground_truth,
+                             task=task, horizon=horizon)
     if ground_truth is not None:
         raise EvaluationError(f"benchmark {bench.name}: ground_truth={ground_truth!r} applies to "
                               f"mesh benchmarks only")
     sampler = check_sampler(sampler or bench.sampler)
     dataset = dataset if dataset is not None else bench.load(data_root)
     skeleton = dataset.skeleton
-    t_in, t_out = bench.input_frames, bench.output_frames
+    t_in = bench.input_frames
+    t_out = check_task(task, horizon, bench.output_frames)
     sequences = dataset.sequences
     index = window_sampler(sampler, [len(s) for s in sequences], t_in, t_out, dataset.ltd_rule,
                            groups=[s.action for s in sequences],
@@ -137,7 +189,7 @@ def evaluate(model: torch.nn.Module, benchmark: str | Benchmark, *, model_name: 
             rows = slice(start, start + batch_size)
             windows = torch.from_numpy(gather_windows(positions, index[rows], t_in + t_out))
             history = windows[:, :t_in, used].to(device)
-            pred = model(history)
+            pred = predict(model, history, task, t_out, windows[:, -1, used].to(device))
             expected = (len(history), t_out, len(used), 3)
             if not isinstance(pred, torch.Tensor) or tuple(pred.shape) != expected:
                 got = tuple(pred.shape) if isinstance(pred, torch.Tensor) else type(pred).__name__
@@ -152,6 +204,7 @@ def evaluate(model: torch.nn.Module, benchmark: str | Benchmark, *, model_name: 
 
     windows_per_action = {a: int((actions == a).sum()) for a in dataset.actions_present}
     record = protocol_record(bench, dataset, sampler, windows_per_action)
+    record.update(_task_record(task, t_out))
     record["protocol_id"] = protocol_id(record)
     record["provenance"] = {
         "model": model_name,
@@ -178,7 +231,8 @@ def _long_frame(accumulators: dict[str, FrameErrorMean], record: dict[str, Any],
                     rows.append((model_name, record["benchmark"], action, "mpjpe", averaging,
                                  joints, int(round(t * frame_ms)), t, float(value),
                                  windows_per_action.get(action, total), record["dataset"],
-                                 record["split"], record["sampler"], record["input_frames"],
+                                 record["split"], record["sampler"], record["task"],
+                                 record["input_frames"],
                                  record["output_frames"], record["fps"], record["protocol_id"]))
     return pd.DataFrame(rows, columns=RESULT_COLUMNS)
 
@@ -248,7 +302,8 @@ def evaluate_mesh(model: torch.nn.Module, benchmark: str | Benchmark, *, model_n
                   sampler: str | None = None, data_root: str | Path | None = None,
                   dataset=None, batch_size: int = 1024, device: str | torch.device = "cpu",
                   provenance: dict[str, Any] | None = None,
-                  ground_truth: str | None = None) -> EvalResult:
+                  ground_truth: str | None = None, task: str = "prediction",
+                  horizon: int | None = None) -> EvalResult:
     """Evaluate ``model`` on a mesh benchmark: windows ``(B, T_in, V, 3)`` in, ``(B, T_out, V,
     3)`` out, rows for ``melv``, ``rmse`` and (with a joint regressor) ``mpjpe``."""
     from zoo.benchmark import GROUND_TRUTHS
@@ -264,7 +319,8 @@ def evaluate_mesh(model: torch.nn.Module, benchmark: str | Benchmark, *, model_n
     dataset = dataset if dataset is not None else bench.load(data_root)
     topology = dataset.topology
     basis = bench.spectral_basis(dataset) if ground_truth == "spectral" else None
-    t_in, t_out = bench.input_frames, bench.output_frames
+    t_in = bench.input_frames
+    t_out = check_task(task, horizon, bench.output_frames)
     sequences = dataset.sequences
     index = window_sampler(sampler, [len(s) for s in sequences], t_in, t_out, "per_file",
                            groups=[s.action for s in sequences])
@@ -289,7 +345,8 @@ def evaluate_mesh(model: torch.nn.Module, benchmark: str | Benchmark, *, model_n
             windows = torch.from_numpy(gather_windows(vertices, index[rows], t_in + t_out))
             if basis is not None:
                 windows = basis.reconstruct(basis.project(windows.double())).float()
-            pred = model(windows[:, :t_in].to(device))
+            pred = predict(model, windows[:, :t_in].to(device), task, t_out,
+                           windows[:, -1].to(device))
             expected = (len(windows), *expected_tail)
             if not isinstance(pred, torch.Tensor) or tuple(pred.shape) != expected:
                 got = tuple(pred.shape) if isinstance(pred, torch.Tensor) else type(pred).__name__
@@ -311,8 +368,8 @@ def evaluate_mesh(model: torch.nn.Module, benchmark: str | Benchmark, *, model_n
 
     windows_per_action = {a: int((actions == a).sum()) for a in dataset.actions_present
                           if (actions == a).any()}
-    record = mesh_protocol_record(bench, dataset, sampler, windows_per_action, ground_truth,
-                                  basis)
+    record = {**mesh_protocol_record(bench, dataset, sampler, windows_per_action, ground_truth,
+                                     basis), **_task_record(task, t_out)}
     record["protocol_id"] = protocol_id(record)
     model_basis = getattr(model, "basis", None)
     record["provenance"] = {

@@ -1,0 +1,53 @@
+"""The evaluator's tasks (prediction, completion, long-term) as protocol elements."""
+import numpy as np
+import pytest
+import torch
+
+from test_evaluator import expected_repeat_last
+from zoo.benchmark import get_benchmark
+from zoo.cli import main
+from zoo.evaluate import EvaluationError, evaluate, predict
+from zoo.registry import create_model
+
+
+class LastTwoFramesModel(torch.nn.Module):
+    """Predicts 2 frames at a time: how the generic long-term loop feeds predictions back."""
+
+    def forward(self, history):
+        return history[:, -1:].repeat(1, 2, 1, 1) + 1.0
+
+
+def test_generic_longterm_loop_feeds_predictions_back():
+    history = torch.zeros(1, 3, 2, 3)
+    out = predict(LastTwoFramesModel(), history, "longterm", 5)
+    assert out.shape == (1, 5, 2, 3)
+    np.testing.assert_allclose(out[0, :, 0, 0].numpy(), [1, 1, 2, 2, 3])
+
+
+def test_longterm_repeat_last_by_hand(swinging_cmu):
+    root, omega = swinging_cmu
+    bench = get_benchmark("cmu")
+    result = evaluate(create_model("repeat_last", benchmark=bench), bench, model_name="rl",
+                      sampler="all", data_root=root, task="longterm", horizon=40)
+    df = result.frame[(result.frame.joints == "all38") & (result.frame.averaging == "frame") &
+                      (result.frame.action == "average")].sort_values("frame")
+    assert df.horizon_ms.max() == 1600 and set(result.frame.task) == {"longterm"}
+    np.testing.assert_allclose(df.value, expected_repeat_last(omega, np.arange(1, 41)) / 38,
+                               rtol=1e-5)
+    assert result.protocol["predicted_frames"] == 40
+    short = evaluate(create_model("repeat_last", benchmark=bench), bench, model_name="rl",
+                     sampler="all", data_root=root)
+    assert short.protocol["protocol_id"] != result.protocol["protocol_id"]
+
+
+def test_task_errors_are_named(swinging_cmu, capsys):
+    root, _ = swinging_cmu
+    bench = get_benchmark("cmu")
+    model = create_model("repeat_last", benchmark=bench)
+    with pytest.raises(EvaluationError, match="RepeatLast does no completion"):
+        evaluate(model, bench, model_name="rl", data_root=root, task="completion")
+    with pytest.raises(EvaluationError, match="longterm needs a horizon of more than"):
+        evaluate(model, bench, model_name="rl", data_root=root, task="longterm")
+    assert main(["eval", "--model", "repeat_last", "--data-root", str(root), "--task",
+                 "longterm", "--horizon-frames", "20"]) == 2
+    assert "got 20" in capsys.readouterr().err
