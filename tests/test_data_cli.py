@@ -49,3 +49,19 @@ def test_data_list_and_missing_benchmark(capsys):
     assert "cmu_anny_oi" in out and "cloth" in out
     assert main(["data", "describe"]) == 2
     assert "needs a benchmark name" in capsys.readouterr().err
+
+
+def test_render_writes_picture_and_meshes(tmp_path):
+    from zoo.registry import create_model
+    from zoo.render import render_windows
+
+    ds, bench = toy_dataset(), get_benchmark("cloth")
+    model = create_model("repeat_last", input_frames=25, output_frames=25, num_points=4)
+    written = render_windows(model, "repeat_last", bench, ds, [0, 5], tmp_path)
+    assert [p.name for p in written] == ["repeat_last_windows.png", "repeat_last_window0.glb",
+                                         "repeat_last_window5.glb"]
+    assert written[0].read_bytes()[:4] == b"\x89PNG"
+    scene = trimesh.load(written[1])
+    assert len(scene.geometry) == 2 * 3  # truth and prediction at 80, 400 and 1000 ms
+    with pytest.raises(MeshError, match=r"--windows \[99\]"):
+        render_windows(model, "repeat_last", bench, ds, [99], tmp_path)

@@ -126,6 +126,27 @@ def cmd_leaderboard(args) -> int:
     return 0
 
 
+def cmd_render(args) -> int:
+    from zoo.benchmark import get_benchmark
+    from zoo.render import render_windows
+
+    registry = _registry(args)
+    if args.benchmark is None and args.checkpoint:
+        from zoo.train import read_checkpoint
+
+        args.benchmark = read_checkpoint(args.checkpoint)["protocol"]["benchmark"]
+    bench = get_benchmark(args.benchmark or "cloth")
+    if bench.representation != "mesh":
+        raise UsageError(f"zoo render draws meshes; benchmark {bench.name!r} is a skeleton one")
+    name, model, _ = _load_model(args, registry, bench)
+    dataset = bench.load(args.data_root)
+    out = Path(args.out) if args.out else RESULTS_DIR / bench.name / "renders"
+    written = render_windows(model, name, bench, dataset, args.windows, out, task=args.task,
+                             horizon=args.horizon_frames)
+    print("wrote " + ", ".join(str(p) for p in written))
+    return 0
+
+
 def default_benchmarks():
     """The main job: the embedded cloth benchmark (generated here, no download), plus CMU when
     its motion-capture files are present."""
@@ -255,6 +276,19 @@ def build_parser() -> argparse.ArgumentParser:
                    help="folder of trained checkpoints <benchmark>/<model>/best.pt "
                         "(default checkpoints/, where zoo train writes)")
     p.set_defaults(func=cmd_leaderboard)
+
+    p = sub.add_parser("render", help="ground truth and prediction side by side (PNG, .glb)")
+    common(p)
+    p.add_argument("--model")
+    p.add_argument("--checkpoint")
+    p.add_argument("--benchmark", help="mesh benchmark (default: the checkpoint's, else cloth)")
+    p.add_argument("--windows", type=int, nargs="+", default=[0, 1, 2])
+    p.add_argument("--set", action="append", metavar="KEY=VALUE")
+    p.add_argument("--task", default="prediction", choices=["prediction", "completion",
+                                                             "longterm"])
+    p.add_argument("--horizon-frames", type=int)
+    p.add_argument("--out", help="folder (default results/<benchmark>/renders)")
+    p.set_defaults(func=cmd_render)
 
     p = sub.add_parser("data", help="build, list, describe and export datasets")
     p.add_argument("action", choices=["list", "build", "describe", "export"])
