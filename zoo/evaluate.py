@@ -109,6 +109,19 @@ def predict(model: torch.nn.Module, history: torch.Tensor, task: str, frames: in
     return torch.cat(out, dim=1)[:, :frames]
 
 
+def _checked(pred, expected: tuple, model_name: str, start: int) -> torch.Tensor:
+    """A model's output on CPU in float32, or an error if it breaks the contract."""
+    if not isinstance(pred, torch.Tensor) or tuple(pred.shape) != expected:
+        got = tuple(pred.shape) if isinstance(pred, torch.Tensor) else type(pred).__name__
+        raise EvaluationError(f"model {model_name!r} returned {got}; the contract (zoo.models) "
+                              f"expects {expected}")
+    pred = pred.detach().to("cpu", torch.float32)
+    if not torch.isfinite(pred).all():
+        raise EvaluationError(f"model {model_name!r} predicted non-finite values (windows "
+                              f"{start}..{start + len(pred) - 1})")
+    return pred
+
+
 def _task_record(task: str, frames: int) -> dict[str, Any]:
     return {"task": task, "task_rule": TASKS[task], "predicted_frames": frames}
 
@@ -190,15 +203,7 @@ def evaluate(model: torch.nn.Module, benchmark: str | Benchmark, *, model_name: 
             windows = torch.from_numpy(gather_windows(positions, index[rows], t_in + t_out))
             history = windows[:, :t_in, used].to(device)
             pred = predict(model, history, task, t_out, windows[:, -1, used].to(device))
-            expected = (len(history), t_out, len(used), 3)
-            if not isinstance(pred, torch.Tensor) or tuple(pred.shape) != expected:
-                got = tuple(pred.shape) if isinstance(pred, torch.Tensor) else type(pred).__name__
-                raise EvaluationError(f"model {model_name!r} returned {got}; the contract "
-                                      f"(zoo.models) expects {expected}")
-            pred = pred.detach().to("cpu", torch.float32)
-            if not torch.isfinite(pred).all():
-                raise EvaluationError(f"model {model_name!r} predicted non-finite values "
-                                      f"(windows {start}..{start + len(pred) - 1})")
+            pred = _checked(pred, (len(history), t_out, len(used), 3), model_name, start)
             for joints, errors in skeleton_errors(pred, windows[:, t_in:], skeleton).items():
                 accumulators.setdefault(joints, FrameErrorMean()).update(errors, actions[rows])
 
@@ -347,15 +352,7 @@ def evaluate_mesh(model: torch.nn.Module, benchmark: str | Benchmark, *, model_n
                 windows = basis.reconstruct(basis.project(windows.double())).float()
             pred = predict(model, windows[:, :t_in].to(device), task, t_out,
                            windows[:, -1].to(device))
-            expected = (len(windows), *expected_tail)
-            if not isinstance(pred, torch.Tensor) or tuple(pred.shape) != expected:
-                got = tuple(pred.shape) if isinstance(pred, torch.Tensor) else type(pred).__name__
-                raise EvaluationError(f"model {model_name!r} returned {got}; the contract "
-                                      f"(zoo.models) expects {expected}")
-            pred = pred.detach().to("cpu", torch.float32)
-            if not torch.isfinite(pred).all():
-                raise EvaluationError(f"model {model_name!r} predicted non-finite values "
-                                      f"(windows {start}..{start + len(pred) - 1})")
+            pred = _checked(pred, (len(windows), *expected_tail), model_name, start)
             target, reference = windows[:, t_in:], windows[:, t_in - 1]
             errors = {("melv", "vertices"): melv(pred, reference, edges),
                       ("rmse", "vertices"): vertex_rmse(pred, target)}

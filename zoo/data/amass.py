@@ -152,14 +152,18 @@ class SMPLH:
         return vertices, g_pos
 
 
+def _require_keys(path: Path, data, keys, what: str) -> None:
+    for key in keys:
+        if key not in data:
+            raise DataFormatError(f"{path}: {what} has no key {key!r} (expected keys "
+                                  f"{', '.join(keys)})")
+
+
 def load_smplh(path: str | Path) -> SMPLH:
     """Read and check an SMPL-H model ``.npz`` (keys ``MODEL_KEYS``, standard shapes)."""
     path = Path(path)
     data = _load_npz(path, "SMPL-H model")
-    for key in MODEL_KEYS:
-        if key not in data:
-            raise DataFormatError(f"{path}: SMPL-H model has no key {key!r} (expected keys "
-                                  f"{', '.join(MODEL_KEYS)})")
+    _require_keys(path, data, MODEL_KEYS, "SMPL-H model")
     v = data["v_template"]
     _check_shape(path, "v_template", v, (None, 3))
     n_v = v.shape[0]
@@ -219,10 +223,7 @@ def read_amass(path: str | Path, num_joints: int | None = None) -> AmassMotion:
     naming the file and the key. ``num_joints`` checks ``poses`` has ``3 * num_joints`` columns."""
     path = Path(path)
     data = _load_npz(path, "AMASS motion")
-    for key in AMASS_KEYS:
-        if key not in data:
-            raise DataFormatError(f"{path}: AMASS file has no key {key!r} (expected keys "
-                                  f"{', '.join(AMASS_KEYS)})")
+    _require_keys(path, data, AMASS_KEYS, "AMASS file")
     poses = data["poses"]
     _check_shape(path, "poses", poses, (None, None if num_joints is None else 3 * num_joints))
     if poses.shape[1] % 3:
