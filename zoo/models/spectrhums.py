@@ -9,7 +9,8 @@ Data flow (every step on whole batches):
    with the dataset's basis ``Phi (V, k)``, one matrix product for all frames;
 2. coefficients standardised per (frequency, axis) with training-set mean and std;
 3. the convolutional spectral autoencoder encodes every frame to a latent vector (256);
-4. latents standardised with training-set mean and std (Welford, recomputed every epoch);
+4. latents standardised with training-set mean and std (Welford, recomputed every epoch in
+   which the transformer trains);
 5. a window of ``T_in + T_out`` latents is filled in: the ``T_out`` unknown ones are the last
    observed latent repeated (prediction) or a linear interpolation from the last observed latent
    to the latent of a given final frame (completion, the final frame being the window's last);
@@ -18,13 +19,15 @@ Data flow (every step on whole batches):
    and turned back into vertices ``V = Phi C``, one matrix product for all frames.
 
 Training (``training_loss``): a static loss, the MSE between de-standardised coefficients and
-their autoencoder reconstruction (random frames of each window, one by default as in the public
-code), which trains the autoencoder alone; and a dynamic loss, the MSE between the transformer's
+their autoencoder reconstruction on ``static_frames`` random frames of each window (default 1;
+the public code draws one frame index per batch, here each window draws its own), which trains
+the autoencoder alone; and a dynamic loss, the MSE between the transformer's
 output and the standardised latents of the whole window (all ``T_in + T_out`` frames), computed
 on latents encoded without gradient, so it trains the transformer alone. For the first
 ``autoencoder_epochs`` epochs (2) only the static loss is used. ``start_epoch`` computes the
-coefficient statistics (first epoch) and the latent statistics (every epoch of the joint phase)
-over all frames of all training windows; both are buffers, so they travel with the checkpoint.
+coefficient statistics (first epoch) and the latent statistics (at the start of every epoch in
+which the transformer trains, with the encoder as it is then) over all frames of all training
+windows; both are buffers, so they travel with the checkpoint.
 
 The static loss is measured in metres (coefficients divided by ``loss_unit_mm`` = 1000), the
 unit of the published SMPL data, while the model's inputs and outputs are in mm (zoo contract).
