@@ -1,0 +1,221 @@
+"""Speed of SpecTrHuMS in its published configuration, against the public code's figures.
+
+Configuration: the registry entry ``spectrhums`` (latent 256, 6 layers, 4 heads, feed-forward
+1024, pooling 64/32), window 75 = 50 observed + 25 predicted, k = 512 coefficients on 6,890
+vertices (SMPL's size). The basis is a RANDOM orthonormal 6890 x 512 matrix (QR of a Gaussian
+matrix), not a Laplacian eigenbasis: the cost of every step is the same for any orthonormal
+basis of that size. Inputs are random vertices in mm.
+
+Measured (medians of ``--repeats`` runs after one warm-up, wall clock):
+- parameters;
+- training samples per second at batch 32 (forward + backward + Adam step, joint phase: static
+  and dynamic losses), from coefficients and from vertices (the projection of 32 x 75 frames
+  included); the autoencoder-only phase (first 2 epochs) for reference; and, as a what-if
+  only, the coefficient step under bfloat16 autocast (the model itself runs float32);
+- inference latency at batch 1 and 32, coefficients in / coefficients out and vertices in /
+  vertices out;
+- mesh reconstruction of 25 predicted frames x 32 windows: one reshaped matrix product against
+  one product per frame.
+FLOPs come from ``torch.utils.flop_counter``; the machine's matrix-product rate is measured in
+the same run (a 2400 x 256 by 256 x 1024 product), so the figures can be read against what the
+machine delivered while they were taken (the machine is shared: see the load average).
+
+Run: python benchmarks/speed_spectrhums.py [--repeats 5] [--threads N]
+"""
+import argparse
+import os
+import statistics
+import time
+
+import torch
+from torch.utils.flop_counter import FlopCounterMode
+
+from zoo.registry import load_registry
+
+V, K, T_IN, T_OUT, BATCH = 6890, 512, 50, 25, 32
+# The public SpecTrHuMS code on this machine type (figures given with the task).
+PUBLIC = {"params": 6.0e6, "latency_b1_ms": 14.0, "latency_b32_ms": 542.0,
+          "train_step_ms": 536.0, "train_samples_s": 60.0, "reconstruction_loop_s": 0.7}
+
+
+class RandomBasis:
+    """A random orthonormal basis with the interface of the zoo's spectral basis."""
+
+    def __init__(self, v: int, k: int, seed: int = 0) -> None:
+        g = torch.Generator().manual_seed(seed)
+        q, _ = torch.linalg.qr(torch.randn(v, k, dtype=torch.float64, generator=g))
+        self.vectors = q.numpy()
+        self.k = k
+        self.hash = f"random-orthonormal-{v}x{k}-seed{seed}"
+        self.topology_hash = "none"
+
+
+def median_seconds(fn, repeats: int, warm_up: bool = True) -> float:
+    if warm_up:
+        fn()
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times)
+
+
+def flops(fn) -> float:
+    with FlopCounterMode(display=False) as counter:
+        fn()
+    return float(counter.get_total_flops())
+
+
+def gemm_rate(repeats: int) -> float:
+    a, b = torch.randn(2400, 256), torch.randn(256, 1024)
+    seconds = median_seconds(lambda: [a @ b for _ in range(10)], repeats) / 10
+    return 2 * 2400 * 256 * 1024 / seconds / 1e9
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--threads", type=int, default=None,
+                        help="torch threads (default: torch's own choice)")
+    args = parser.parse_args()
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    torch.manual_seed(0)
+    load0 = os.getloadavg()[0]
+    rate0 = gemm_rate(args.repeats)
+
+    t0 = time.perf_counter()
+    basis = RandomBasis(V, K)
+    basis_s = time.perf_counter() - t0
+    model = load_registry().create_model("spectrhums", input_frames=T_IN, output_frames=T_OUT,
+                                         num_points=V, basis=basis)
+    params = sum(p.numel() for p in model.parameters())
+
+    g = torch.Generator().manual_seed(1)
+    vertices = torch.randn(BATCH, T_IN + T_OUT, V, 3, generator=g) * 100.0
+    stats_windows = [vertices[:4]]
+    t0 = time.perf_counter()
+    model.start_epoch(0, lambda: iter(stats_windows))
+    model.start_epoch(2, lambda: iter(stats_windows))  # joint phase: both losses
+    stats_s = (time.perf_counter() - t0) / (2 * 4)
+    coeffs = model.project(vertices)
+    history, future = vertices[:, :T_IN], vertices[:, T_IN:]
+
+    optimizer = torch.optim.Adam(model.parameters(), lr=1e-4)
+
+    def step(loss_fn):
+        def run():
+            loss = loss_fn()
+            optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            optimizer.step()
+        return run
+
+    def coeff_loss():
+        terms = model.coefficient_loss_terms(coeffs)
+        return terms["static"] + terms["dynamic"]
+
+    model.train()
+    train_c = median_seconds(step(coeff_loss), args.repeats)
+    train_v = median_seconds(step(lambda: model.training_loss(history, future)),
+                             args.repeats)
+    train_flops = flops(step(coeff_loss))
+
+    def coeff_loss_bf16():
+        with torch.autocast("cpu", dtype=torch.bfloat16):
+            return coeff_loss()
+
+    train_bf16 = median_seconds(step(coeff_loss_bf16), args.repeats)
+    model.phase = "autoencoder"
+    train_ae = median_seconds(step(lambda: model.coefficient_loss_terms(coeffs)["static"]),
+                              args.repeats)
+    model.phase = "joint"
+
+    model.eval()
+    with torch.inference_mode():
+        lat = {}
+        for b in (1, BATCH):
+            lat[("coeffs", b)] = median_seconds(
+                lambda: model.predict_coefficients(coeffs[:b, :T_IN]), args.repeats)
+            lat[("vertices", b)] = median_seconds(lambda: model(history[:b]), args.repeats)
+        infer_flops = flops(lambda: model.predict_coefficients(coeffs[:, :T_IN]))
+        predicted = model.predict_coefficients(coeffs[:, :T_IN])  # (32, 25, 512, 3)
+        phi = model.phi
+
+        frames = predicted.reshape(-1, K, 3)
+        looped = torch.empty(len(frames), V, 3)
+
+        def per_frame():
+            for i in range(len(frames)):
+                torch.mm(phi, frames[i], out=looped[i])
+
+        one = median_seconds(lambda: model.reconstruct(predicted), args.repeats)
+        loop = median_seconds(per_frame, max(1, args.repeats // 2), warm_up=False)  # slow
+        torch.testing.assert_close(looped.view(BATCH, T_OUT, V, 3),
+                                   model.reconstruct(predicted), rtol=1e-4, atol=1e-2)
+    rate1 = gemm_rate(args.repeats)
+    load1 = os.getloadavg()[0]
+
+    samples_c, samples_v = BATCH / train_c, BATCH / train_v
+    print(f"SpecTrHuMS speed, published configuration: k={K} coefficients on V={V} vertices "
+          f"(random orthonormal basis, QR {basis_s:.1f} s), window {T_IN}+{T_OUT}, latent 256, "
+          f"6 layers, 4 heads, ff 1024")
+    print(f"torch {torch.__version__}, {torch.get_num_threads()} threads, "
+          f"{args.repeats} repeats (medians), load average {load0:.1f} -> {load1:.1f}, "
+          f"matrix products {rate0:.0f} -> {rate1:.0f} GFLOP/s")
+    print()
+    public_vertices_ms = PUBLIC["latency_b32_ms"] + PUBLIC["reconstruction_loop_s"] * 1e3
+    rows = [
+        ("parameters", f"{params / 1e6:.3f} M", f"{PUBLIC['params'] / 1e6:.1f} M",
+         f"{params / PUBLIC['params']:.2f}x"),
+        ("train step b32, coefficients in (ms)", f"{train_c * 1e3:.0f}",
+         f"{PUBLIC['train_step_ms']:.0f}", ""),
+        ("train samples/s, coefficients in", f"{samples_c:.1f}",
+         f"{PUBLIC['train_samples_s']:.0f}", f"{samples_c / PUBLIC['train_samples_s']:.2f}x"),
+        ("train samples/s, vertices in", f"{samples_v:.1f}", f"{PUBLIC['train_samples_s']:.0f}",
+         f"{samples_v / PUBLIC['train_samples_s']:.2f}x"),
+        ("train samples/s, autoencoder phase", f"{BATCH / train_ae:.0f}", "", ""),
+        ("what-if: train samples/s, coeffs, bf16 autocast", f"{BATCH / train_bf16:.1f}",
+         f"{PUBLIC['train_samples_s']:.0f}",
+         f"{BATCH / train_bf16 / PUBLIC['train_samples_s']:.2f}x"),
+        ("latency b1, coefficients (ms)", f"{lat[('coeffs', 1)] * 1e3:.1f}",
+         f"{PUBLIC['latency_b1_ms']:.0f}",
+         f"{PUBLIC['latency_b1_ms'] / (lat[('coeffs', 1)] * 1e3):.2f}x"),
+        ("latency b32, coefficients (ms)", f"{lat[('coeffs', BATCH)] * 1e3:.0f}",
+         f"{PUBLIC['latency_b32_ms']:.0f}",
+         f"{PUBLIC['latency_b32_ms'] / (lat[('coeffs', BATCH)] * 1e3):.2f}x"),
+        ("latency b1, vertices (ms)", f"{lat[('vertices', 1)] * 1e3:.1f}", "", ""),
+        ("latency b32, vertices (ms)", f"{lat[('vertices', BATCH)] * 1e3:.0f}",
+         f"{public_vertices_ms:.0f}*",
+         f"{public_vertices_ms / (lat[('vertices', BATCH)] * 1e3):.2f}x"),
+        ("reconstruction 25x32 frames, one product (ms)", f"{one * 1e3:.1f}", "", ""),
+        ("reconstruction 25x32 frames, per frame (ms)", f"{loop * 1e3:.1f}",
+         f"~{PUBLIC['reconstruction_loop_s'] * 1e3:.0f}", f"one product {loop / one:.1f}x"),
+        ("start_epoch statistics, ms per window and pass", f"{stats_s * 1e3:.0f}", "", ""),
+    ]
+    width = max(len(r[0]) for r in rows)
+    print(f"{'':{width}}  {'zoo':>10}  {'public':>10}  ratio (zoo vs public)")
+    for name, ours, public, ratio in rows:
+        print(f"{name:{width}}  {ours:>10}  {public:>10}  {ratio}")
+    print("* public: coefficients b32 plus its frame-by-frame reconstruction; the public code "
+          "takes coefficients, so its projection of the input is not counted")
+    print("what-if: the same step under torch.autocast(bfloat16) on the CPU, NOT the model's "
+          "precision (float32, as published)")
+    print()
+    print(f"train step (coefficients in): {train_flops / 1e9:.1f} GFLOP -> "
+          f"{train_flops / train_c / 1e9:.0f} GFLOP/s here; the public figure "
+          f"({PUBLIC['train_step_ms']:.0f} ms) implies "
+          f"{train_flops / (PUBLIC['train_step_ms'] / 1e3) / 1e9:.0f} GFLOP/s for the same work")
+    floor = train_flops / (max(rate0, rate1) * 1e9)
+    print(f"floor for that step if every FLOP ran at the best matrix-product rate measured "
+          f"({max(rate0, rate1):.0f} GFLOP/s): {floor * 1e3:.0f} ms = {BATCH / floor:.0f} "
+          f"samples/s = {BATCH / floor / PUBLIC['train_samples_s']:.2f}x the public figure")
+    print(f"inference b32 (coefficients): {infer_flops / 1e9:.1f} GFLOP -> "
+          f"{infer_flops / lat[('coeffs', BATCH)] / 1e9:.0f} GFLOP/s here; the public figure "
+          f"implies {infer_flops / (PUBLIC['latency_b32_ms'] / 1e3) / 1e9:.0f} GFLOP/s")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,666 @@
+"""SpecTrHuMS: a spectral autoencoder and a transformer over its latents (SPEC section 5).
+
+Lemeunier, Denis, Lavoué, Dupont. SpecTrHuMS: Spectral Transformer for Human Mesh Sequence
+learning. Computers & Graphics 2023.
+
+Data flow (every step on whole batches):
+
+1. vertices ``(B, T, V, 3)`` in mm -> spectral coefficients ``C = Phi^T V`` ``(B, T, k, 3)``
+   with the dataset's basis ``Phi (V, k)``, one matrix product for all frames;
+2. coefficients standardised per (frequency, axis) with training-set mean and std;
+3. the convolutional spectral autoencoder encodes every frame to a latent vector (256);
+4. latents standardised with training-set mean and std (Welford, recomputed every epoch in
+   which the transformer trains);
+5. a window of ``T_in + T_out`` latents is filled in: the ``T_out`` unknown ones are the last
+   observed latent repeated (prediction) or a linear interpolation from the last observed latent
+   to the latent of a given final frame (completion, the final frame being the window's last);
+6. a post-norm transformer encoder maps the window to a window of latents;
+7. the ``T_out`` predicted latents are de-standardised, decoded to coefficients, de-standardised
+   and turned back into vertices ``V = Phi C``, one matrix product for all frames.
+
+Training (``training_loss``): a static loss, the MSE between de-standardised coefficients and
+their autoencoder reconstruction on ``static_frames`` random frames of each window (default 1;
+the public code draws one frame index per batch, here each window draws its own), which trains
+the autoencoder alone; and a dynamic loss, the MSE between the transformer's
+output and the standardised latents of the whole window (all ``T_in + T_out`` frames), computed
+on latents encoded without gradient, so it trains the transformer alone. For the first
+``autoencoder_epochs`` epochs (2) only the static loss is used. ``start_epoch`` computes the
+coefficient statistics (first epoch) and the latent statistics (at the start of every epoch in
+which the transformer trains, with the encoder as it is then) over all frames of all training
+windows; both are buffers, so they travel with the checkpoint.
+
+The static loss is measured in metres (coefficients divided by ``loss_unit_mm`` = 1000), the
+unit of the published SMPL data, while the model's inputs and outputs are in mm (zoo contract).
+
+Long-term prediction (``rollout``) feeds the last ``T_in`` frames back: predicted coefficients
+are re-encoded, which equals projecting their reconstructed vertices since ``Phi^T Phi = I``.
+"""
+from __future__ import annotations
+
+import hashlib
+import math
+from typing import Any, Callable, Iterable, Iterator, Sequence
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import Tensor, nn
+
+from zoo.errors import ZooError
+
+TASKS = ("prediction", "completion")
+_STD_FLOOR = 1e-6  # a feature whose std is below this is only centred (its std is set to 1)
+_FRAMES_PER_CHUNK = 2048  # frames projected at once when computing statistics
+
+
+class SpecTrHuMSError(ZooError, ValueError):
+    """A SpecTrHuMS model was given inputs, a basis or settings it cannot work with."""
+
+
+# ---- statistics ------------------------------------------------------------------------------
+
+class Welford:
+    """Running mean and sample variance over batches of feature vectors, in float64.
+
+    Each batch is merged with Chan et al.'s parallel form of Welford's update, so the result
+    equals the mean and the ``ddof=1`` standard deviation over all rows seen, whatever the
+    batching.
+    """
+
+    def __init__(self, shape: Sequence[int], device: torch.device | str = "cpu") -> None:
+        self.shape = tuple(shape)
+        self.count = 0
+        self.mean = torch.zeros(self.shape, dtype=torch.float64, device=device)
+        self.m2 = torch.zeros(self.shape, dtype=torch.float64, device=device)
+
+    def update(self, rows: Tensor) -> None:
+        """Add ``rows (N, *shape)``."""
+        rows = rows.detach().to(self.mean.device, torch.float64).reshape(-1, *self.shape)
+        n_b = rows.shape[0]
+        if n_b == 0:
+            return
+        mean_b = rows.mean(0)
+        m2_b = (rows - mean_b).square().sum(0)
+        n = self.count + n_b
+        delta = mean_b - self.mean
+        self.mean = self.mean + delta * (n_b / n)
+        self.m2 = self.m2 + m2_b + delta.square() * (self.count * n_b / n)
+        self.count = n
+
+    def finalize(self, what: str) -> tuple[Tensor, Tensor]:
+        """``(mean, std)`` with the sample standard deviation (``ddof=1``)."""
+        if self.count < 2:
+            raise SpecTrHuMSError(f"{what}: statistics need at least 2 frames, got "
+                                  f"{self.count}")
+        return self.mean, (self.m2 / (self.count - 1)).sqrt()
+
+
+def _floored(std: Tensor) -> Tensor:
+    return torch.where(std < _STD_FLOOR, torch.ones_like(std), std)
+
+
+# ---- building blocks -------------------------------------------------------------------------
+
+class FrequencyPooling(nn.Module):
+    """A learned matrix along the frequency axis: ``(N, C, n_in) -> (N, C, n_out)``."""
+
+    def __init__(self, n_in: int, n_out: int) -> None:
+        super().__init__()
+        self.weight = nn.Parameter(torch.empty(n_in, n_out))
+        nn.init.xavier_uniform_(self.weight)
+
+    def forward(self, x: Tensor) -> Tensor:
+        return x @ self.weight
+
+    def extra_repr(self) -> str:
+        return f"{self.weight.shape[0]} -> {self.weight.shape[1]}"
+
+
+class SpectralAutoencoder(nn.Module):
+    """Per-frame autoencoder of standardised coefficients ``(N, k, 3) <-> (N, latent)``.
+
+    Encoder: for each level, ``Conv1d`` along the frequency axis (zero padding, same length),
+    learned pooling of that axis, ELU; then flatten (channel-major) and a linear layer to the
+    latent. Decoder: the mirror image (linear, then per level unpooling, ``Conv1d``, ELU), ending
+    in a ``Conv1d`` to the 3 coordinates. Published sizes: channels (32, 64), pooling (64, 32),
+    kernel 3, latent 256.
+
+    The parameters are those of these layers (``nn.Conv1d`` weights, pooling matrices), but the
+    arithmetic runs on a frequency-major layout ``(frequencies, frames, channels)`` where every
+    step is one large matrix product over all frames. Convolution and (un)pooling are both
+    linear with nothing between them, so the encoder computes ``pool(conv(x))`` as
+    ``mix_channels(pool_shifted(x))`` and the decoder ``conv(unpool(x))`` as
+    ``unpool_shifted(mix_channels(x))``: the same sums in another order, without the slow
+    convolutions over all ``k`` frequencies (3 input channels in the encoder).
+    """
+
+    def __init__(self, k: int, channels: Sequence[int], pooling: Sequence[int], kernel_size: int,
+                 latent: int) -> None:
+        super().__init__()
+        sizes = [k, *pooling]
+        enc_ch = [3, *channels]
+        self.encoder_convs = nn.ModuleList(nn.Conv1d(enc_ch[i], enc_ch[i + 1], kernel_size,
+                                                     padding=kernel_size // 2)
+                                           for i in range(len(channels)))
+        self.encoder_pools = nn.ModuleList(FrequencyPooling(sizes[i], sizes[i + 1])
+                                           for i in range(len(channels)))
+        self.bottleneck = (channels[-1], pooling[-1])
+        self.to_latent = nn.Linear(channels[-1] * pooling[-1], latent)
+        self.from_latent = nn.Linear(latent, channels[-1] * pooling[-1])
+        dec_ch = [*channels[::-1], channels[0]]  # (32, 64) -> 64 -> 32 -> 32, then 32 -> 3
+        rev = sizes[::-1]
+        self.decoder_pools = nn.ModuleList(FrequencyPooling(rev[i], rev[i + 1])
+                                           for i in range(len(channels)))
+        self.decoder_convs = nn.ModuleList(nn.Conv1d(dec_ch[i], dec_ch[i + 1], kernel_size,
+                                                     padding=kernel_size // 2)
+                                           for i in range(len(channels)))
+        self.to_coordinates = nn.Conv1d(dec_ch[-1], 3, kernel_size, padding=kernel_size // 2)
+
+    def encode(self, x: Tensor) -> Tensor:
+        """``(N, k, 3) -> (N, latent)``."""
+        h = x.transpose(0, 1)  # (k, N, 3): the coordinates are the input channels
+        for conv, pool in zip(self.encoder_convs, self.encoder_pools):
+            h = F.elu(_conv_then_pool(h, conv.weight, conv.bias, pool.weight))
+        return self.to_latent(h.permute(1, 2, 0).flatten(1))  # channel-major flatten
+
+    def decode(self, z: Tensor) -> Tensor:
+        """``(N, latent) -> (N, k, 3)``."""
+        h = self.from_latent(z).view(-1, *self.bottleneck).permute(2, 0, 1)  # (J, N, C)
+        for pool, conv in zip(self.decoder_pools, self.decoder_convs):
+            h = F.elu(_unpool_then_conv(h, pool.weight, conv.weight, conv.bias))
+        out = _conv(h, self.to_coordinates.weight, self.to_coordinates.bias)
+        return out.transpose(0, 1)  # (N, k, 3)
+
+
+def _conv_then_pool(x: Tensor, weight: Tensor, bias: Tensor, pool: Tensor) -> Tensor:
+    """``Conv1d`` (zero padding, same length) then pooling, on ``x (L, N, C)`` -> ``(M, N, O)``.
+
+    ``pool(conv(x))[j, o] = sum_{c,d} W[o,c,d] sum_g x[g,c] S_d[g,j] + b[o] sum_f P[f,j]`` with
+    ``S_d[g, j] = P[g - d + pad, j]`` (zero outside): pool the shifted inputs, then mix channels.
+    """
+    length, n, c = x.shape
+    o, _, kernel = weight.shape
+    pad, m = kernel // 2, pool.shape[1]
+    padded = F.pad(pool, (0, 0, pad, pad))  # padded[i] = P[i - pad]
+    shifted = torch.stack([padded[2 * pad - d: 2 * pad - d + length] for d in range(kernel)])
+    y = shifted.transpose(1, 2).reshape(kernel * m, length) @ x.reshape(length, n * c)
+    y = y.view(kernel, m, n, c).permute(1, 2, 3, 0).reshape(m * n, c * kernel)
+    out = (y @ weight.reshape(o, c * kernel).T).view(m, n, o)
+    return out + (pool.sum(0)[:, None] * bias)[:, None, :]
+
+
+def _unpool_then_conv(x: Tensor, pool: Tensor, weight: Tensor, bias: Tensor) -> Tensor:
+    """Unpooling with ``pool (J, L)`` then ``Conv1d`` (zero padding, same length), on
+    ``x (J, N, C)`` -> ``(L, N, O)``.
+
+    ``conv(unpool(x))[f, o] = b[o] + sum_{d,j} U_d[j, f] sum_c W[o,c,d] x[j,c]`` with
+    ``U_d[j, f] = U[j, f + d - pad]`` (zero outside): mix channels per tap, then one product
+    with the shifted unpooling matrices.
+    """
+    j, n, c = x.shape
+    o, _, kernel = weight.shape
+    pad, length = kernel // 2, pool.shape[1]
+    mixed = (x.reshape(j * n, c) @ weight.permute(1, 2, 0).reshape(c, kernel * o))
+    mixed = mixed.view(j, n, kernel, o).permute(2, 0, 1, 3).reshape(kernel * j, n * o)
+    padded = F.pad(pool, (pad, pad))  # padded[:, i] = U[:, i - pad]
+    shifted = torch.cat([padded[:, d: d + length] for d in range(kernel)])  # (K * J, L)
+    return (shifted.T @ mixed).view(length, n, o) + bias
+
+
+def _conv(x: Tensor, weight: Tensor, bias: Tensor) -> Tensor:
+    """``Conv1d`` (zero padding, same length) on ``x (L, N, C)`` -> ``(L, N, O)``: one matrix
+    product for every tap at once, then the taps' shifted sums."""
+    length, n, c = x.shape
+    o, _, kernel = weight.shape
+    pad = kernel // 2
+    taps = (x.reshape(length * n, c) @ weight.permute(1, 2, 0).reshape(c, kernel * o))
+    taps = taps.view(length, n, kernel, o)
+    out = taps[:, :, pad] + bias
+    for d in range(kernel):
+        s = d - pad  # out[f] += taps[f + s, tap d]
+        if s > 0:
+            out[: length - s] += taps[s:, :, d]
+        elif s < 0:
+            out[-s:] += taps[: length + s, :, d]
+    return out
+
+
+class EncoderLayer(nn.Module):
+    """A post-norm transformer encoder layer (as ``nn.TransformerEncoderLayer`` with
+    ``norm_first=False``, GELU): ``x = LN(x + MHA(x))``, ``x = LN(x + FF(x))``, on
+    ``(B, T, E)``, with one fused projection for queries, keys and values."""
+
+    def __init__(self, d_model: int, heads: int, ff: int, dropout: float) -> None:
+        super().__init__()
+        self.heads, self.dropout = heads, dropout
+        self.qkv = nn.Linear(d_model, 3 * d_model)
+        self.attn_out = nn.Linear(d_model, d_model)
+        self.norm1 = nn.LayerNorm(d_model)
+        self.ff1 = nn.Linear(d_model, ff)
+        self.ff2 = nn.Linear(ff, d_model)
+        self.norm2 = nn.LayerNorm(d_model)
+
+    def forward(self, x: Tensor) -> Tensor:
+        b, t, e = x.shape
+        p = self.dropout if self.training else 0.0
+        q, k, v = self.qkv(x).view(b, t, 3, self.heads, e // self.heads).permute(2, 0, 3, 1, 4)
+        a = F.scaled_dot_product_attention(q, k, v, dropout_p=p)
+        a = self.attn_out(a.transpose(1, 2).reshape(b, t, e))
+        x = self.norm1(x + F.dropout(a, p, self.training))
+        h = self.ff2(F.dropout(F.gelu(self.ff1(x)), p, self.training))
+        return self.norm2(x + F.dropout(h, p, self.training))
+
+
+class LatentTransformer(nn.Module):
+    """Linear, sinusoidal positions, post-norm transformer encoder layers, Linear."""
+
+    def __init__(self, latent: int, d_model: int, layers: int, heads: int, ff: int,
+                 dropout: float, window: int) -> None:
+        super().__init__()
+        self.inp = nn.Linear(latent, d_model)
+        self.layers = nn.ModuleList(EncoderLayer(d_model, heads, ff, dropout)
+                                    for _ in range(layers))
+        self.out = nn.Linear(d_model, latent)
+        self.register_buffer("positions", sinusoidal_positions(window, d_model), persistent=False)
+
+    def forward(self, x: Tensor) -> Tensor:
+        h = self.inp(x) + self.positions[: x.shape[1]]
+        for layer in self.layers:
+            h = layer(h)
+        return self.out(h)
+
+
+def sinusoidal_positions(length: int, dim: int) -> Tensor:
+    """``pe[t, 2i] = sin(t / 10000^(2i/dim))``, ``pe[t, 2i+1] = cos(...)``: ``(length, dim)``."""
+    t = torch.arange(length, dtype=torch.float64)[:, None]
+    freq = torch.exp(torch.arange(0, dim, 2, dtype=torch.float64) * (-math.log(10000.0) / dim))
+    pe = torch.zeros(length, dim, dtype=torch.float64)
+    pe[:, 0::2] = torch.sin(t * freq)
+    pe[:, 1::2] = torch.cos(t * freq)
+    return pe.float()
+
+
+# ---- the model -------------------------------------------------------------------------------
+
+class SpecTrHuMS(nn.Module):
+    """SpecTrHuMS for prediction (``task='prediction'``) or completion (``'completion'``).
+
+    ``basis``: the dataset's spectral basis (``vectors (V, k)`` with orthonormal columns ordered
+    by frequency, ``hash``), supplied by the benchmark (registry ``context: [basis]``). Its
+    ``V`` must equal ``num_points``; ``k`` comes from it and the window is
+    ``input_frames + output_frames``.
+    """
+
+    def __init__(self, input_frames: int, output_frames: int, num_points: int, basis: Any,
+                 task: str = "prediction", latent: int = 256,
+                 channels: Sequence[int] = (32, 64), pooling: Sequence[int] = (64, 32),
+                 kernel_size: int = 3, d_model: int = 256, layers: int = 6, heads: int = 4,
+                 ff: int = 1024, dropout: float = 0.0, autoencoder_epochs: int = 2,
+                 static_frames: int = 1, loss_unit_mm: float = 1000.0) -> None:
+        super().__init__()
+        _check_settings(input_frames, output_frames, num_points, task, latent, channels, pooling,
+                        kernel_size, d_model, layers, heads, ff, dropout, autoencoder_epochs,
+                        static_frames, loss_unit_mm)
+        phi = _basis_vectors(basis, num_points)
+        self.input_frames, self.output_frames = int(input_frames), int(output_frames)
+        self.window = self.input_frames + self.output_frames
+        if static_frames > self.window:
+            raise SpecTrHuMSError(f"static_frames={static_frames}: at most the window "
+                                  f"(input_frames + output_frames = {self.window})")
+        self.num_points, self.k = int(num_points), phi.shape[1]
+        self.task = task
+        self.autoencoder_epochs = int(autoencoder_epochs)
+        self.static_frames = int(static_frames)
+        self.loss_unit_mm = float(loss_unit_mm)
+        self.basis_hash = str(basis.hash)
+        self.topology_hash = str(getattr(basis, "topology_hash", ""))
+        self.phase = "autoencoder" if self.autoencoder_epochs > 0 else "joint"
+
+        self.autoencoder = SpectralAutoencoder(self.k, channels, pooling, kernel_size, latent)
+        self.transformer = LatentTransformer(latent, d_model, layers, heads, ff, dropout,
+                                             self.window)
+        for m in self.modules():  # the published initialisation: xavier, zero bias
+            if isinstance(m, (nn.Linear, nn.Conv1d)):
+                nn.init.xavier_uniform_(m.weight)
+                nn.init.zeros_(m.bias)
+
+        self.register_buffer("phi", torch.from_numpy(phi).float(), persistent=False)
+        self.register_buffer("basis_id", torch.tensor(
+            list(hashlib.sha256(self.basis_hash.encode()).digest()), dtype=torch.uint8))
+        self.register_buffer("coeff_mean", torch.zeros(self.k, 3))
+        self.register_buffer("coeff_std", torch.ones(self.k, 3))
+        self.register_buffer("coeff_frames", torch.zeros((), dtype=torch.int64))
+        self.register_buffer("latent_mean", torch.zeros(latent))
+        self.register_buffer("latent_std", torch.ones(latent))
+        self.register_buffer("latent_frames", torch.zeros((), dtype=torch.int64))
+
+    # ---- the basis: one matrix product for all frames ------------------------------------------
+
+    def project(self, vertices: Tensor) -> Tensor:
+        """``(..., V, 3) -> (..., k, 3)``: ``Phi^T V`` as one matrix product over all frames."""
+        lead = vertices.shape[:-2]
+        flat = vertices.transpose(-1, -2).reshape(-1, self.num_points)  # (N * 3, V)
+        return (flat @ self.phi).view(*lead, 3, self.k).transpose(-1, -2)
+
+    def reconstruct(self, coeffs: Tensor) -> Tensor:
+        """``(..., k, 3) -> (..., V, 3)``: ``Phi C`` as one matrix product over all frames."""
+        lead = coeffs.shape[:-2]
+        flat = coeffs.transpose(-1, -2).reshape(-1, self.k)  # (N * 3, k)
+        out = (flat @ self.phi.T).view(*lead, 3, self.num_points)
+        return out.transpose(-1, -2).contiguous()
+
+    # ---- standardisation and the autoencoder ---------------------------------------------------
+
+    def standardise_coefficients(self, coeffs: Tensor) -> Tensor:
+        return (coeffs - self.coeff_mean) / self.coeff_std
+
+    def destandardise_coefficients(self, coeffs: Tensor) -> Tensor:
+        return coeffs * self.coeff_std + self.coeff_mean
+
+    def standardise_latents(self, z: Tensor) -> Tensor:
+        return (z - self.latent_mean) / self.latent_std
+
+    def destandardise_latents(self, z: Tensor) -> Tensor:
+        return z * self.latent_std + self.latent_mean
+
+    def encode(self, coeffs: Tensor) -> Tensor:
+        """Coefficients ``(..., k, 3)`` (mm) -> latents ``(..., latent)`` (not standardised)."""
+        lead = coeffs.shape[:-2]
+        x = self.standardise_coefficients(coeffs).reshape(-1, self.k, 3)
+        return self.autoencoder.encode(x).view(*lead, -1)
+
+    def decode(self, z: Tensor) -> Tensor:
+        """Latents ``(..., latent)`` -> de-standardised coefficients ``(..., k, 3)`` (mm)."""
+        lead = z.shape[:-1]
+        x = self.autoencoder.decode(z.reshape(-1, z.shape[-1]))
+        return self.destandardise_coefficients(x).view(*lead, self.k, 3)
+
+    # ---- the window the transformer sees -------------------------------------------------------
+
+    @property
+    def known_frames(self) -> Tensor:
+        """Which frames of the window the transformer's input is built from (bool ``(W,)``)."""
+        known = torch.zeros(self.window, dtype=torch.bool)
+        known[: self.input_frames] = True
+        if self.task == "completion":
+            known[-1] = True
+        return known
+
+    def fill_window(self, observed: Tensor, final: Tensor | None = None) -> Tensor:
+        """The transformer's input ``(B, W, L)`` from standardised latents of the observed
+        frames ``(B, T_in, L)`` and, for completion, of the final frame ``(B, L)``."""
+        if observed.shape[1] != self.input_frames:
+            raise SpecTrHuMSError(f"observed latents: {observed.shape[1]} frames, the model "
+                                  f"observes input_frames={self.input_frames}")
+        self._check_final(final is not None)
+        last = observed[:, -1:]
+        if self.task == "prediction":
+            unknown = last.expand(-1, self.output_frames, -1)
+        else:
+            alpha = torch.arange(1, self.output_frames + 1, device=observed.device,
+                                 dtype=observed.dtype) / self.output_frames
+            # lerp is exact at both ends: the window's last latent is the final frame's
+            unknown = torch.lerp(last, final[:, None], alpha[:, None])
+        return torch.cat([observed, unknown], dim=1)
+
+    def masked_window(self, latents: Tensor) -> Tensor:
+        """The transformer's input for a full window of standardised latents ``(B, W, L)``:
+        only the frames in ``known_frames`` are used, the others are filled in (training)."""
+        if latents.shape[1] != self.window:
+            raise SpecTrHuMSError(f"latent window: {latents.shape[1]} frames, the model's window "
+                                  f"is {self.window} (input_frames {self.input_frames} + "
+                                  f"output_frames {self.output_frames})")
+        final = latents[:, -1] if self.task == "completion" else None
+        return self.fill_window(latents[:, : self.input_frames], final)
+
+    def transform_window(self, latents: Tensor) -> Tensor:
+        """The transformer on a full window of standardised latents, masked as in training."""
+        return self.transformer(self.masked_window(latents))
+
+    # ---- inference -----------------------------------------------------------------------------
+
+    def predict_coefficients(self, coeffs: Tensor, final: Tensor | None = None) -> Tensor:
+        """Observed coefficients ``(B, T_in, k, 3)`` (and, for completion, the final frame's
+        ``(B, k, 3)``) -> predicted coefficients ``(B, T_out, k, 3)``, all in mm."""
+        if coeffs.ndim != 4 or coeffs.shape[1:] != (self.input_frames, self.k, 3):
+            raise SpecTrHuMSError(f"coefficients: expected (B, {self.input_frames}, {self.k}, 3),"
+                                  f" got {tuple(coeffs.shape)}")
+        z = self.standardise_latents(self.encode(coeffs))
+        z_final = None
+        if final is not None:
+            if final.shape != (coeffs.shape[0], self.k, 3):
+                raise SpecTrHuMSError(f"final coefficients: expected (B, k, 3) = "
+                                      f"({coeffs.shape[0]}, {self.k}, 3), got "
+                                      f"{tuple(final.shape)}")
+            z_final = self.standardise_latents(self.encode(final))
+        out = self.transformer(self.fill_window(z, z_final))[:, self.input_frames:]
+        return self.decode(self.destandardise_latents(out))
+
+    def forward(self, history: Tensor, final_frame: Tensor | None = None) -> Tensor:
+        """``history (B, T_in, V, 3)`` in mm -> ``(B, T_out, V, 3)`` in mm.
+
+        Completion (``task='completion'``) also takes ``final_frame (B, V, 3)``, the frame the
+        motion must reach at the end of the window (the last of the ``T_out`` frames).
+        """
+        self._check_vertices(history, "history", self.input_frames)
+        final = None
+        if final_frame is not None:
+            if final_frame.ndim == 4 and final_frame.shape[1] == 1:
+                final_frame = final_frame[:, 0]
+            if final_frame.ndim != 3 or final_frame.shape != (history.shape[0],
+                                                              self.num_points, 3):
+                raise SpecTrHuMSError(f"final_frame: expected (B, V, 3) = ({history.shape[0]}, "
+                                      f"{self.num_points}, 3), got {tuple(final_frame.shape)}")
+            final = final_frame[:, None]
+        self._check_final(final is not None)
+        both = history if final is None else torch.cat([history, final], dim=1)
+        coeffs = self.project(both)  # one product for the observed and the final frames
+        final_coeffs = None if final is None else coeffs[:, -1]
+        return self.reconstruct(self.predict_coefficients(coeffs[:, : self.input_frames],
+                                                          final_coeffs))
+
+    @torch.no_grad()
+    def rollout(self, history: Tensor, frames: int) -> Tensor:
+        """Long-term prediction: ``frames`` future frames ``(B, frames, V, 3)`` from a history of
+        at least ``input_frames`` frames, feeding the last ``input_frames`` frames back.
+
+        Fed-back frames are re-encoded from their predicted coefficients, which equals
+        projecting their reconstructed vertices (``Phi^T Phi = I``) without the round trip.
+        """
+        if self.task != "prediction":
+            raise SpecTrHuMSError("rollout is long-term prediction; this model was trained for "
+                                  "completion (task='completion')")
+        if isinstance(frames, bool) or not isinstance(frames, (int, np.integer)) or frames < 1:
+            raise SpecTrHuMSError(f"frames: a positive integer, got {frames!r}")
+        self._check_vertices(history, "history", None)
+        if history.shape[1] < self.input_frames:
+            raise SpecTrHuMSError(f"history: {history.shape[1]} frames, shorter than the "
+                                  f"model's input_frames={self.input_frames}")
+        z = self.encode(self.project(history[:, -self.input_frames:]))
+        frames, outputs, produced = int(frames), [], 0
+        while produced < frames:
+            out = self.transformer(self.fill_window(self.standardise_latents(z)))
+            coeffs = self.decode(self.destandardise_latents(out[:, self.input_frames:]))
+            outputs.append(coeffs)
+            produced += self.output_frames
+            if produced < frames:
+                z = torch.cat([z, self.encode(coeffs)], dim=1)[:, -self.input_frames:]
+        return self.reconstruct(torch.cat(outputs, dim=1)[:, :frames])
+
+    # ---- training ------------------------------------------------------------------------------
+
+    def start_epoch(self, epoch: int, windows: Callable[[], Iterable[Tensor]]) -> None:
+        """Training-engine hook: the phase of ``epoch`` and the statistics it needs.
+
+        Coefficient statistics: in the first epoch (or whenever they were never computed);
+        latent statistics: every epoch in which the transformer trains, with the current
+        encoder. Both over every frame of every training window ``(B, W, V, 3)``.
+        """
+        self.phase = "autoencoder" if epoch < self.autoencoder_epochs else "joint"
+        if epoch == 0 or int(self.coeff_frames) == 0:
+            self.compute_coefficient_statistics(windows())
+        if self.phase == "joint":
+            self.compute_latent_statistics(windows())
+
+    @torch.no_grad()
+    def compute_coefficient_statistics(self, windows: Iterable[Tensor]) -> None:
+        stats = Welford((self.k, 3), self.coeff_mean.device)
+        for coeffs in self._window_coefficients(windows):
+            stats.update(coeffs)
+        mean, std = stats.finalize("coefficient statistics over the training windows")
+        self.coeff_mean.copy_(mean)
+        self.coeff_std.copy_(_floored(std))
+        self.coeff_frames.fill_(stats.count)
+
+    @torch.no_grad()
+    def compute_latent_statistics(self, windows: Iterable[Tensor]) -> None:
+        if int(self.coeff_frames) == 0:
+            raise SpecTrHuMSError("latent statistics need the coefficient statistics first "
+                                  "(start_epoch computes both)")
+        stats = Welford((self.latent_mean.shape[0],), self.latent_mean.device)
+        for coeffs in self._window_coefficients(windows):
+            stats.update(self.encode(coeffs))
+        mean, std = stats.finalize("latent statistics over the training windows")
+        self.latent_mean.copy_(mean)
+        self.latent_std.copy_(_floored(std))
+        self.latent_frames.fill_(stats.count)
+
+    def _window_coefficients(self, windows: Iterable[Tensor]) -> Iterator[Tensor]:
+        """Coefficients ``(N, k, 3)`` of all frames of ``windows``, a few thousand at a time."""
+        seen = 0
+        for batch in windows:
+            self._check_vertices(batch, "training windows", self.window)
+            frames = batch.to(self.phi.device, self.phi.dtype).flatten(0, 1)
+            for start in range(0, len(frames), _FRAMES_PER_CHUNK):
+                yield self.project(frames[start:start + _FRAMES_PER_CHUNK])
+            seen += len(frames)
+        if seen == 0:
+            raise SpecTrHuMSError("training windows: none given")
+
+    def loss_terms(self, history: Tensor, future: Tensor) -> dict[str, Tensor | None]:
+        """``{'static': ..., 'dynamic': ...}`` for a batch of windows (``dynamic`` is None in
+        the autoencoder phase)."""
+        self._check_vertices(history, "history", self.input_frames)
+        self._check_vertices(future, "future", self.output_frames)
+        return self.coefficient_loss_terms(self.project(torch.cat([history, future], dim=1)))
+
+    def coefficient_loss_terms(self, coeffs: Tensor) -> dict[str, Tensor | None]:
+        """The loss terms for windows of coefficients ``(B, W, k, 3)`` in mm."""
+        if coeffs.ndim != 4 or coeffs.shape[1:] != (self.window, self.k, 3):
+            raise SpecTrHuMSError(f"coefficient windows: expected (B, {self.window}, {self.k}, "
+                                  f"3), got {tuple(coeffs.shape)}")
+        if int(self.coeff_frames) == 0:
+            raise SpecTrHuMSError("training needs the coefficient statistics: call "
+                                  "start_epoch(epoch, windows) first (the training engine does)")
+        b = coeffs.shape[0]
+        if self.static_frames == self.window:
+            picked = coeffs
+        else:
+            idx = torch.rand(b, self.window, device=coeffs.device).argsort(1)
+            picked = coeffs[torch.arange(b, device=coeffs.device)[:, None],
+                            idx[:, : self.static_frames]]
+        rebuilt = self.decode(self.encode(picked))
+        static = F.mse_loss(rebuilt / self.loss_unit_mm, picked / self.loss_unit_mm)
+        if self.phase == "autoencoder":
+            return {"static": static, "dynamic": None}
+        if int(self.latent_frames) == 0:
+            raise SpecTrHuMSError("the joint phase needs the latent statistics: call "
+                                  "start_epoch(epoch, windows) first (the training engine does)")
+        with torch.no_grad():  # the dynamic loss never updates the encoder
+            target = self.standardise_latents(self.encode(coeffs))
+        dynamic = F.mse_loss(self.transform_window(target), target)
+        return {"static": static, "dynamic": dynamic}
+
+    def training_loss(self, history: Tensor, future: Tensor) -> Tensor:
+        terms = self.loss_terms(history, future)
+        if terms["dynamic"] is None:
+            return terms["static"]
+        return terms["static"] + terms["dynamic"]
+
+    # ---- checks --------------------------------------------------------------------------------
+
+    def _check_final(self, given: bool) -> None:
+        if self.task == "prediction" and given:
+            raise SpecTrHuMSError("final_frame: this model was trained for prediction "
+                                  "(task='prediction'); a final frame is for completion")
+        if self.task == "completion" and not given:
+            raise SpecTrHuMSError("final_frame is required: this model does completion "
+                                  "(task='completion'), the unknown frames are interpolated "
+                                  "towards the given final frame")
+
+    def _check_vertices(self, x: Tensor, what: str, frames: int | None) -> None:
+        if not isinstance(x, Tensor) or x.ndim != 4 or x.shape[2:] != (self.num_points, 3):
+            shape = tuple(x.shape) if isinstance(x, Tensor) else type(x).__name__
+            raise SpecTrHuMSError(f"{what}: expected vertices (B, T, {self.num_points}, 3) in mm, "
+                                  f"got {shape}")
+        if frames is not None and x.shape[1] != frames:
+            raise SpecTrHuMSError(
+                f"{what}: {x.shape[1]} frames, expected {frames} (the model's window is "
+                f"{self.window} = input_frames {self.input_frames} + output_frames "
+                f"{self.output_frames})")
+
+    def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs):
+        saved = state_dict.get(prefix + "basis_id")
+        if saved is not None and not torch.equal(saved.cpu(), self.basis_id.cpu()):
+            raise SpecTrHuMSError(f"these weights were trained with another spectral basis than "
+                                  f"this model's (hash {self.basis_hash[:12]}); a basis is never "
+                                  f"interchangeable (eigenvector signs and order are arbitrary)")
+        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
+
+
+def _basis_vectors(basis: Any, num_points: int) -> np.ndarray:
+    if basis is None or not hasattr(basis, "vectors") or not hasattr(basis, "hash"):
+        raise SpecTrHuMSError(f"basis: expected a spectral basis with 'vectors' (V, k) and "
+                              f"'hash' (the benchmark supplies it: registry context [basis]), "
+                              f"got {type(basis).__name__}")
+    phi = np.asarray(basis.vectors, dtype=np.float64)
+    if phi.ndim != 2 or phi.shape[1] < 1:
+        raise SpecTrHuMSError(f"basis: vectors must be a matrix (V, k), got shape {phi.shape}")
+    if phi.shape[0] != num_points:
+        raise SpecTrHuMSError(f"basis: {phi.shape[0]} vertices (basis {str(basis.hash)[:12]}), "
+                              f"but num_points={num_points}: the basis must belong to the "
+                              f"benchmark's mesh")
+    if phi.shape[1] > phi.shape[0]:
+        raise SpecTrHuMSError(f"basis: k={phi.shape[1]} vectors exceed V={phi.shape[0]}")
+    gram_error = np.abs(phi.T @ phi - np.eye(phi.shape[1])).max()
+    if not gram_error < 1e-4:
+        raise SpecTrHuMSError(f"basis: vectors are not orthonormal (max |Phi^T Phi - I| = "
+                              f"{gram_error:.2g}); reconstruction V = Phi C needs them to be")
+    return phi
+
+
+def _check_settings(input_frames, output_frames, num_points, task, latent, channels, pooling,
+                    kernel_size, d_model, layers, heads, ff, dropout, autoencoder_epochs,
+                    static_frames, loss_unit_mm) -> None:
+    def positive(name, value):
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+            raise SpecTrHuMSError(f"{name}: a positive integer, got {value!r}")
+
+    for name, value in (("input_frames", input_frames), ("output_frames", output_frames),
+                        ("num_points", num_points), ("latent", latent),
+                        ("kernel_size", kernel_size), ("d_model", d_model), ("layers", layers),
+                        ("heads", heads), ("ff", ff), ("static_frames", static_frames)):
+        positive(name, value)
+    if task not in TASKS:
+        raise SpecTrHuMSError(f"task: {task!r} unknown; valid: {', '.join(TASKS)}")
+    channels, pooling = list(channels), list(pooling)
+    if not channels or len(channels) != len(pooling):
+        raise SpecTrHuMSError(f"channels {channels} and pooling {pooling}: one channel count and "
+                              f"one pooled size per encoder level (published: [32, 64], [64, 32])")
+    for i, (c, p) in enumerate(zip(channels, pooling)):
+        positive(f"channels[{i}]", c)
+        positive(f"pooling[{i}]", p)
+    if kernel_size % 2 == 0:
+        raise SpecTrHuMSError(f"kernel_size: odd (the convolutions keep the frequency axis' "
+                              f"length), got {kernel_size}")
+    if d_model % 2 or d_model % heads:
+        raise SpecTrHuMSError(f"d_model={d_model}: must be even (sinusoidal positions) and "
+                              f"divisible by heads={heads}")
+    if not 0 <= dropout < 1:
+        raise SpecTrHuMSError(f"dropout: in [0, 1), got {dropout}")
+    if isinstance(autoencoder_epochs, bool) or not isinstance(autoencoder_epochs, int) \
+            or autoencoder_epochs < 0:
+        raise SpecTrHuMSError(f"autoencoder_epochs: a non-negative integer, got "
+                              f"{autoencoder_epochs!r}")
+    if not loss_unit_mm > 0:
+        raise SpecTrHuMSError(f"loss_unit_mm: positive, got {loss_unit_mm!r}")
