@@ -149,9 +149,12 @@ def test_projection_and_reconstruction_are_single_matrix_products():
                                atol=1e-3)
     torch.testing.assert_close(model.reconstruct(coeffs).double(),
                                BASIS.reconstruct(coeffs.double()), rtol=1e-5, atol=1e-3)
-    for fn, arg in ((model.project, vertices), (model.reconstruct, coeffs)):
+    torch.testing.assert_close(model._project_frames(vertices[:, :T_IN], vertices[:, T_IN:]),
+                               coeffs)
+    for fn, args in ((model.project, (vertices,)), (model.reconstruct, (coeffs,)),
+                     (model._project_frames, (vertices[:, :T_IN], vertices[:, T_IN:]))):
         with torch.profiler.profile() as prof:
-            fn(arg)
+            fn(*args)
         names = [e.name for e in prof.events()]
         assert names.count("aten::mm") == 1, names
         assert "aten::bmm" not in names

@@ -342,6 +342,13 @@ class SpecTrHuMS(nn.Module):
         flat = vertices.transpose(-1, -2).reshape(-1, self.num_points)  # (N * 3, V)
         return (flat @ self.phi).view(*lead, 3, self.k).transpose(-1, -2)
 
+    def _project_frames(self, *parts: Tensor) -> Tensor:
+        """Coefficients of ``parts (B, T_i, V, 3)`` joined along time: ``(B, sum T_i, k, 3)``,
+        with one copy into the product's layout (no separate concatenation) and one product."""
+        flat = torch.cat([p.transpose(-1, -2) for p in parts], dim=1)  # (B, T, 3, V)
+        b, t = flat.shape[:2]
+        return (flat.view(-1, self.num_points) @ self.phi).view(b, t, 3, self.k).transpose(-1, -2)
+
     def reconstruct(self, coeffs: Tensor) -> Tensor:
         """``(..., k, 3) -> (..., V, 3)``: ``Phi C`` as one matrix product over all frames."""
         lead = coeffs.shape[:-2]
@@ -453,8 +460,8 @@ class SpecTrHuMS(nn.Module):
                                       f"{self.num_points}, 3), got {tuple(final_frame.shape)}")
             final = final_frame[:, None]
         self._check_final(final is not None)
-        both = history if final is None else torch.cat([history, final], dim=1)
-        coeffs = self.project(both)  # one product for the observed and the final frames
+        parts = (history,) if final is None else (history, final)
+        coeffs = self._project_frames(*parts)  # one product for the observed and final frames
         final_coeffs = None if final is None else coeffs[:, -1]
         return self.reconstruct(self.predict_coefficients(coeffs[:, : self.input_frames],
                                                           final_coeffs))
@@ -542,7 +549,7 @@ class SpecTrHuMS(nn.Module):
         the autoencoder phase)."""
         self._check_vertices(history, "history", self.input_frames)
         self._check_vertices(future, "future", self.output_frames)
-        return self.coefficient_loss_terms(self.project(torch.cat([history, future], dim=1)))
+        return self.coefficient_loss_terms(self._project_frames(history, future))
 
     def coefficient_loss_terms(self, coeffs: Tensor) -> dict[str, Tensor | None]:
         """The loss terms for windows of coefficients ``(B, W, k, 3)`` in mm."""
