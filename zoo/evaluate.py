@@ -122,6 +122,19 @@ def _checked(pred, expected: tuple, model_name: str, start: int) -> torch.Tensor
     return pred
 
 
+def _seal(record: dict[str, Any], model_name: str, device, provenance: dict | None) -> None:
+    """Hash the comparable record into ``protocol_id`` and add who measured it, when and how."""
+    record["protocol_id"] = protocol_id(record)
+    record["provenance"] = {
+        "model": model_name,
+        "code_version": code_version(),
+        "torch": str(torch.__version__),
+        "device": str(device),
+        "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+        **(provenance or {}),
+    }
+
+
 def _task_record(task: str, frames: int) -> dict[str, Any]:
     return {"task": task, "task_rule": TASKS[task], "predicted_frames": frames}
 
@@ -210,15 +223,7 @@ def evaluate(model: torch.nn.Module, benchmark: str | Benchmark, *, model_name: 
     windows_per_action = {a: int((actions == a).sum()) for a in dataset.actions_present}
     record = protocol_record(bench, dataset, sampler, windows_per_action)
     record.update(_task_record(task, t_out))
-    record["protocol_id"] = protocol_id(record)
-    record["provenance"] = {
-        "model": model_name,
-        "code_version": code_version(),
-        "torch": torch.__version__,
-        "device": str(device),
-        "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
-        **(provenance or {}),
-    }
+    _seal(record, model_name, device, provenance)
     frame = _long_frame(accumulators, record, model_name, windows_per_action)
     return EvalResult(frame=frame, protocol=record)
 
@@ -367,18 +372,10 @@ def evaluate_mesh(model: torch.nn.Module, benchmark: str | Benchmark, *, model_n
                           if (actions == a).any()}
     record = {**mesh_protocol_record(bench, dataset, sampler, windows_per_action, ground_truth,
                                      basis), **_task_record(task, t_out)}
-    record["protocol_id"] = protocol_id(record)
     model_basis = getattr(model, "basis", None)
-    record["provenance"] = {
-        "model": model_name,
-        "code_version": code_version(),
-        "torch": torch.__version__,
-        "device": str(device),
-        "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+    _seal(record, model_name, device, {
         **({"model_basis": {"k": model_basis.k, "hash": model_basis.hash}}
-           if isinstance(model_basis, SpectralBasis) else {}),
-        **(provenance or {}),
-    }
+           if isinstance(model_basis, SpectralBasis) else {}), **(provenance or {})})
     frames = []
     for (metric, joints), acc in accumulators.items():
         frames.append(_long_frame({joints: acc}, record, model_name, windows_per_action)
