@@ -306,7 +306,10 @@ def train(model_name: str, benchmark: str | Benchmark, *, registry: Registry | N
         first_epoch, best, history = state["epoch"] + 1, state["best"], state["history"]
 
     objective = _Objective(model)
-    net = torch.nn.parallel.DistributedDataParallel(objective) if dist_info.active else objective
+    # Some phases leave parameters without gradients (SpecTrHuMS's transformer while the
+    # autoencoder trains alone), which DDP must be told to expect.
+    net = torch.nn.parallel.DistributedDataParallel(objective, find_unused_parameters=True) \
+        if dist_info.active else objective
     batch_size = recipe["batch_size"]
     if batch_size % dist_info.world:
         raise TrainingError(f"batch_size {batch_size} must divide evenly over "
@@ -317,8 +320,11 @@ def train(model_name: str, benchmark: str | Benchmark, *, registry: Registry | N
         steps_per_epoch = min(steps_per_epoch, max_batches)
     meta = _metadata(model_name, hparams, bench, dataset, recipe, seed, device, dist_info)
 
-    def training_windows(batch: int = 256):
-        """Every training window once, in a fixed order (for per-epoch statistics)."""
+    def training_windows():
+        """Every training window once, in a fixed order (for per-epoch statistics), in batches
+        of at most 2**24 values (64 MiB) so big meshes fit."""
+        points = train_pos[0][:, used].shape[1]
+        batch = max(1, min(256, 2 ** 24 // (length * points * 3)))
         for start in range(0, len(train_index), batch):
             w = gather_windows(train_pos, train_index[start:start + batch], length)[:, :, used]
             yield torch.from_numpy(w).to(device)
