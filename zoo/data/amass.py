@@ -28,6 +28,7 @@ import torch
 
 from zoo.data.expmap import DataFormatError, sha256_file
 from zoo.data.mesh import MeshDataset, MeshSequence, MeshTopology
+from zoo.data.skeleton import rodrigues
 
 AMASS_KEYS = ("poses", "betas", "trans", "gender", "mocap_framerate")
 MODEL_KEYS = ("v_template", "shapedirs", "posedirs", "J_regressor", "weights", "kintree_table",
@@ -49,23 +50,6 @@ def frame_stride(fps: float, target_fps: float = TARGET_FPS) -> int:
     if not np.isfinite(fps) or fps <= 0:
         raise ValueError(f"frame rate must be positive, got {fps}")
     return max(1, int(math.floor(fps / target_fps + 1e-9)))
-
-
-def rodrigues(rotvec: torch.Tensor) -> torch.Tensor:
-    """Rotation matrices ``(..., 3, 3)`` of axis-angle vectors ``(..., 3)`` (radians)."""
-    theta2 = (rotvec * rotvec).sum(-1, keepdim=True)
-    theta = theta2.sqrt()
-    small = theta < 1e-4
-    safe = torch.where(small, torch.ones_like(theta), theta)
-    # sin(t)/t and (1 - cos t)/t^2, with their Taylor series near 0.
-    a = torch.where(small, 1 - theta2 / 6, torch.sin(safe) / safe)
-    b = torch.where(small, 0.5 - theta2 / 24, (1 - torch.cos(safe)) / (safe * safe))
-    x, y, z = rotvec.unbind(-1)
-    zero = torch.zeros_like(x)
-    k = torch.stack([zero, -z, y, z, zero, -x, -y, x, zero], -1).reshape(rotvec.shape[:-1] +
-                                                                         (3, 3))
-    eye = torch.eye(3, dtype=rotvec.dtype, device=rotvec.device)
-    return eye + a[..., None] * k + b[..., None] * (k @ k)
 
 
 # ---- the body model --------------------------------------------------------------------------
@@ -131,7 +115,7 @@ class SMPLH:
         t = poses.shape[0]
         v_shaped = self.v_template + self.shapedirs[..., :betas.shape[0]] @ betas  # (V, 3)
         joints = self.j_regressor @ v_shaped  # (J, 3)
-        rot = rodrigues(poses.reshape(t, n_joints, 3))  # (T, J, 3, 3)
+        rot = rodrigues(poses.reshape(t, n_joints, 3), exact=True)  # (T, J, 3, 3)
         eye = torch.eye(3, dtype=dtype)
         pose_feature = (rot[:, 1:] - eye).reshape(t, -1)  # (T, 9 (J - 1))
         v_posed = v_shaped + torch.einsum("vcp,tp->tvc", self.posedirs, pose_feature)

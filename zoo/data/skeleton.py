@@ -97,17 +97,31 @@ H36M = Skeleton(
 SKELETONS = {s.name: s for s in (CMU, H36M)}
 
 
-def rodrigues(expmap: torch.Tensor) -> torch.Tensor:
-    """Rotation matrices ``(..., 3, 3)`` from exponential maps ``(..., 3)`` (SPEC section 3)."""
-    theta = torch.linalg.vector_norm(expmap, dim=-1, keepdim=True)
-    u = expmap / (theta + RODRIGUES_EPS)
-    zero = torch.zeros_like(u[..., 0])
-    x, y, z = u.unbind(-1)
-    skew = torch.stack([zero, -z, y, z, zero, -x, -y, x, zero], dim=-1).reshape(*u.shape[:-1], 3, 3)
-    eye = torch.eye(3, dtype=expmap.dtype, device=expmap.device)
-    s = torch.sin(theta)[..., None]
-    c = (1 - torch.cos(theta))[..., None]
-    return eye + s * skew + c * (skew @ skew)
+def rodrigues(rotvec: torch.Tensor, exact: bool = False) -> torch.Tensor:
+    """Rotation matrices ``(..., 3, 3)`` from exponential maps / axis-angle vectors ``(..., 3)``.
+
+    Default: the reference code's formula (SPEC section 3), unit axis ``r / (theta + eps)``
+    with eps = float32 epsilon, which the exp-map benchmarks must reproduce to the digit.
+    ``exact=True``: the exact map, with Taylor series near zero (body models, e.g. SMPL-H).
+    """
+    x, y, z = rotvec.unbind(-1)
+    zero = torch.zeros_like(x)
+    skew = torch.stack([zero, -z, y, z, zero, -x, -y, x, zero], dim=-1)
+    skew = skew.reshape(*rotvec.shape[:-1], 3, 3)
+    eye = torch.eye(3, dtype=rotvec.dtype, device=rotvec.device)
+    theta2 = (rotvec * rotvec).sum(-1, keepdim=True)
+    theta = theta2.sqrt()
+    if exact:
+        # sin(t)/t and (1 - cos t)/t^2 applied to the unnormalised skew matrix.
+        small = theta < 1e-4
+        safe = torch.where(small, torch.ones_like(theta), theta)
+        a = torch.where(small, 1 - theta2 / 6, torch.sin(safe) / safe)
+        b = torch.where(small, 0.5 - theta2 / 24, (1 - torch.cos(safe)) / (safe * safe))
+    else:
+        # The unit axis is r / (theta + eps): scale the skew of r accordingly.
+        a = torch.sin(theta) / (theta + RODRIGUES_EPS)
+        b = (1 - torch.cos(theta)) / (theta + RODRIGUES_EPS) ** 2
+    return eye + a[..., None] * skew + b[..., None] * (skew @ skew)
 
 
 def forward_kinematics(expmaps: torch.Tensor, skeleton: Skeleton) -> torch.Tensor:
