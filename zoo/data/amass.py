@@ -28,7 +28,7 @@ import torch
 
 from zoo.data.expmap import DataFormatError, sha256_file
 from zoo.data.mesh import MeshDataset, MeshSequence, MeshTopology
-from zoo.data.skeleton import rodrigues
+from zoo.data.skeleton import kinematic_chain, rodrigues
 
 AMASS_KEYS = ("poses", "betas", "trans", "gender", "mocap_framerate")
 MODEL_KEYS = ("v_template", "shapedirs", "posedirs", "J_regressor", "weights", "kintree_table",
@@ -120,14 +120,10 @@ class SMPLH:
         pose_feature = (rot[:, 1:] - eye).reshape(t, -1)  # (T, 9 (J - 1))
         v_posed = v_shaped + torch.einsum("vcp,tp->tvc", self.posedirs, pose_feature)
         # Rigid transforms down the tree: G_j = G_parent [R_j | J_j - J_parent].
-        world_rot = [rot[:, 0]]
-        world_pos = [joints[0].expand(t, 3)]
-        for j in range(1, n_joints):
-            p = self.parents[j]
-            world_rot.append(world_rot[p] @ rot[:, j])
-            world_pos.append(world_pos[p] + (world_rot[p] @ (joints[j] - joints[p])))
-        g_rot = torch.stack(world_rot, 1)  # (T, J, 3, 3)
-        g_pos = torch.stack(world_pos, 1)  # (T, J, 3)
+        parents = list(self.parents)
+        is_root = torch.tensor([p < 0 for p in parents])
+        offsets = joints - joints[[max(p, 0) for p in parents]].masked_fill(is_root[:, None], 0.0)
+        g_rot, g_pos = kinematic_chain(parents, rot, offsets)  # (T, J, 3, 3), (T, J, 3)
         # Relative to the rest pose: x -> G_rot (x - J_j) + G_pos.
         rel_pos = g_pos - (g_rot @ joints[None, :, :, None])[..., 0]
         blend_rot = torch.einsum("vj,tjab->tvab", self.weights, g_rot)

@@ -23,8 +23,10 @@ from pathlib import Path
 from typing import Iterable
 
 import numpy as np
+import torch
 
 from zoo.data.expmap import DataFormatError
+from zoo.data.skeleton import kinematic_chain
 
 ROTATION_CHANNELS = ("Xrotation", "Yrotation", "Zrotation")
 POSITION_CHANNELS = ("Xposition", "Yposition", "Zposition")
@@ -166,17 +168,12 @@ def forward_kinematics(bvh: BVH, local_rotations: np.ndarray,
     if local_rotations.ndim != 4 or local_rotations.shape[1:] != (bvh.num_joints, 3, 3):
         raise ValueError(f"{bvh.path}: local rotations must be (F, {bvh.num_joints}, 3, 3), got "
                          f"{local_rotations.shape}")
-    n = len(local_rotations)
-    world = np.empty_like(local_rotations)
-    positions = np.empty((n, bvh.num_joints, 3))
-    for j, p in enumerate(bvh.parents):  # file order is depth-first: parents come first
-        if p < 0:
-            world[:, j] = local_rotations[:, j]
-            positions[:, j] = bvh.offsets[j] + (0.0 if root_positions is None else root_positions)
-        else:
-            world[:, j] = world[:, p] @ local_rotations[:, j]
-            positions[:, j] = positions[:, p] + world[:, p] @ bvh.offsets[j]
-    return world, positions
+    # File order is depth-first: parents come first, as kinematic_chain needs.
+    world, positions = kinematic_chain(
+        list(bvh.parents), torch.from_numpy(local_rotations), torch.from_numpy(
+            np.asarray(bvh.offsets, dtype=np.float64)),
+        None if root_positions is None else torch.as_tensor(root_positions, dtype=torch.float64))
+    return world.numpy(), positions.numpy()
 
 
 def bone_directions(bvh: BVH, world_rotations: np.ndarray) -> np.ndarray:

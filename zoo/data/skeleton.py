@@ -124,6 +124,29 @@ def rodrigues(rotvec: torch.Tensor, exact: bool = False) -> torch.Tensor:
     return eye + a[..., None] * skew + b[..., None] * (skew @ skew)
 
 
+def kinematic_chain(parents, local_rotations: torch.Tensor, offsets: torch.Tensor,
+                    root_position: torch.Tensor | None = None
+                    ) -> tuple[torch.Tensor, torch.Tensor]:
+    """Standard forward kinematics (column vectors), shared by BVH files and body models.
+
+    ``local_rotations (..., J, 3, 3)``, ``offsets (J, 3)`` from each joint's parent (the root's:
+    its position), ``parents`` with the root at -1 and parents before children; returns world
+    rotations ``(..., J, 3, 3)`` and positions ``(..., J, 3)``. (The exp-map benchmarks use
+    :func:`forward_kinematics` instead: the reference code's own row-vector variant.)
+    """
+    lead = local_rotations.shape[:-3]
+    world_rot, world_pos = [], []
+    for j, p in enumerate(parents):
+        if p < 0:
+            world_rot.append(local_rotations[..., j, :, :])
+            root = offsets[j] if root_position is None else offsets[j] + root_position
+            world_pos.append(root.expand(*lead, 3))
+        else:
+            world_rot.append(world_rot[p] @ local_rotations[..., j, :, :])
+            world_pos.append(world_pos[p] + (world_rot[p] @ offsets[j, :, None])[..., 0])
+    return torch.stack(world_rot, -3), torch.stack(world_pos, -2)
+
+
 def forward_kinematics(expmaps: torch.Tensor, skeleton: Skeleton) -> torch.Tensor:
     """Joint positions ``(N, J, 3)`` in mm from per-joint exponential maps ``(N, J, 3)``.
 
