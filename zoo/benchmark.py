@@ -89,11 +89,13 @@ class Benchmark:
         kwargs = {"actions": self.actions} if self.actions else {}
         return loader(self.resolve_data_root(data_root), split or self.split, **kwargs)
 
-    def model_inputs(self, context: tuple[str, ...] = (),
-                     data_root: str | Path | None = None) -> dict[str, Any]:
-        """Constructor keywords a model gets from this benchmark (see zoo.models)."""
+    def model_inputs(self, context: tuple[str, ...] = (), data_root: str | Path | None = None,
+                     dataset=None) -> dict[str, Any]:
+        """Constructor keywords a model gets from this benchmark (see zoo.models). Mesh
+        benchmarks read them from ``dataset`` if given (any split: they share the topology),
+        else load the test split."""
         if self.representation == "mesh":
-            return self._mesh_model_inputs(context, data_root)
+            return self._mesh_model_inputs(context, data_root, dataset)
         inputs = {"input_frames": self.input_frames, "output_frames": self.output_frames,
                   "num_points": len(self.skeleton.used)}
         for name in context:
@@ -131,9 +133,9 @@ class Benchmark:
         dataset = dataset if dataset is not None else self.load_mesh(data_root)
         return SpectralBasis.load_or_compute(dataset.topology, self.spectral_k)
 
-    def _mesh_model_inputs(self, context: tuple[str, ...],
-                           data_root: str | Path | None) -> dict[str, Any]:
-        dataset = self.load_mesh(data_root)
+    def _mesh_model_inputs(self, context: tuple[str, ...], data_root: str | Path | None,
+                           dataset=None) -> dict[str, Any]:
+        dataset = dataset if dataset is not None else self.load_mesh(data_root)
         inputs = {"input_frames": self.input_frames, "output_frames": self.output_frames,
                   "num_points": dataset.topology.num_vertices}
         for name in context:

@@ -197,7 +197,6 @@ def _regenerate_one(bench, registry, dataset, sampler, truth, folder, out_root, 
     import sys
 
     from zoo.evaluate import EvalResult, evaluate
-    from zoo.registry import create_model
 
     results, stored = [], []
     for name in registry.list_models(bench.representation):
@@ -208,10 +207,12 @@ def _regenerate_one(bench, registry, dataset, sampler, truth, folder, out_root, 
         if ckpt is not None and ckpt.is_file():
             from zoo.train import load_checkpoint
 
-            model, meta = load_checkpoint(ckpt, registry=registry, benchmark=bench)
+            model, meta = load_checkpoint(ckpt, registry=registry, benchmark=bench,
+                                          dataset=dataset)
             provenance = {"checkpoint": str(ckpt), "training": meta.get("training", {})}
         elif not entry.trainable:
-            model = create_model(name, benchmark=bench, registry=registry)
+            model = registry.create_model(name, **bench.model_inputs(entry.context,
+                                                                     dataset=dataset))
         elif (run_dir / "results.csv").is_file():
             stored.append(EvalResult.read(run_dir))
             print(f"{bench.name}/{folder}: {name}: no checkpoint here, keeping {run_dir}",

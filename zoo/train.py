@@ -195,7 +195,8 @@ def read_checkpoint(path: str | Path) -> dict[str, Any]:
 
 def load_checkpoint(path: str | Path, *, registry: Registry | None = None,
                     benchmark: str | Benchmark | None = None, model_name: str | None = None,
-                    data_root: str | Path | None = None) -> tuple[nn.Module, dict[str, Any]]:
+                    data_root: str | Path | None = None, dataset=None
+                    ) -> tuple[nn.Module, dict[str, Any]]:
     """The trained model of a checkpoint, checked against the benchmark it will be evaluated on.
 
     With ``benchmark=None`` the checkpoint's own protocol is used. Data objects the model was
@@ -218,7 +219,7 @@ def load_checkpoint(path: str | Path, *, registry: Registry | None = None,
     hparams = dict(ckpt["hparams"])
     hashes = ckpt.get("context_hashes", {})
     if hashes:
-        supplied = bench.model_inputs(entry.context, data_root)
+        supplied = bench.model_inputs(entry.context, data_root, dataset)
         for key, trained_hash in hashes.items():
             if supplied[key].hash != trained_hash:
                 raise CheckpointError(f"checkpoint {path}: its {key} hash {trained_hash[:16]} "
@@ -273,7 +274,9 @@ def train(model_name: str, benchmark: str | Benchmark, *, registry: Registry | N
                                            **({"epochs": epochs} if epochs else {})})
     dist_info = _init_distributed(device)
     out_dir = Path(out_dir) if out_dir else REPO_ROOT / "checkpoints" / bench.name / model_name
-    hparams = registry.model_args(model_name, **{**bench.model_inputs(entry.context, data_root),
+    dataset = bench.load(data_root, split=bench.train_split)
+    hparams = registry.model_args(model_name, **{**bench.model_inputs(entry.context, data_root,
+                                                                      dataset),
                                                  **(overrides or {})})
 
     torch.manual_seed(seed)
@@ -282,7 +285,6 @@ def train(model_name: str, benchmark: str | Benchmark, *, registry: Registry | N
     model = registry.create_model(model_name, **hparams).to(device)
     optimizer = torch.optim.Adam(model.parameters(), lr=recipe["lr"],
                                  weight_decay=recipe["weight_decay"])
-    dataset = bench.load(data_root, split=bench.train_split)
     t_in, t_out = bench.input_frames, bench.output_frames
     length = t_in + t_out
     train_seqs, val_seqs = split_train_val(dataset, recipe["val_fraction"], length)

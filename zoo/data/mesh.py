@@ -128,6 +128,7 @@ class MeshDataset:
     recipe: dict[str, Any]
     joint_regressor: sp.csr_matrix | None = None  # (J, V); rows sum to 1
     joint_names: list[str] | None = None
+    _content_hash: str | None = field(default=None, init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         for s in self.sequences:
@@ -153,12 +154,15 @@ class MeshDataset:
         return tuple(dict.fromkeys(s.action for s in self.sequences))
 
     def content_hash(self) -> str:
-        """sha256 over topology and every sequence's vertices (the data's own identity)."""
-        digest = hashlib.sha256(self.topology.hash.encode())
-        for s in self.sequences:
-            digest.update(s.name.encode())
-            digest.update(np.ascontiguousarray(s.vertices, dtype="<f4").tobytes())
-        return digest.hexdigest()
+        """sha256 over topology and every sequence's vertices (the data's own identity);
+        computed once per dataset object (hundreds of MB for the full-resolution bodies)."""
+        if self._content_hash is None:
+            digest = hashlib.sha256(self.topology.hash.encode())
+            for s in self.sequences:
+                digest.update(s.name.encode())
+                digest.update(np.ascontiguousarray(s.vertices, dtype="<f4").tobytes())
+            self._content_hash = digest.hexdigest()
+        return self._content_hash
 
     # ---- on-disk format: one folder, arrays in an .npz, metadata in a JSON ----------------------
 
