@@ -48,14 +48,14 @@ def cmd_list(args) -> int:
     return 0
 
 
-def _load_model(args, registry, bench):
+def _load_model(args, registry, bench, dataset):
     """The model to evaluate: a registered one, or the one a checkpoint holds."""
     overrides = parse_overrides(args.set)
     if getattr(args, "checkpoint", None):
         from zoo.train import load_checkpoint
 
         model, ckpt = load_checkpoint(args.checkpoint, registry=registry, benchmark=bench,
-                                      data_root=args.data_root)
+                                      data_root=args.data_root, dataset=dataset)
         if args.model and args.model != ckpt["model"]:
             raise UsageError(f"--model {args.model} but checkpoint {args.checkpoint} holds model "
                              f"{ckpt['model']!r}")
@@ -66,17 +66,16 @@ def _load_model(args, registry, bench):
                                       "training": ckpt.get("training", {})}
     if not args.model:
         raise UsageError("give --model NAME or --checkpoint PATH")
-    model = registry.create_model(args.model, **{**bench.model_inputs(registry.get(
-        args.model).context, args.data_root), **overrides})
+    from zoo.train import _stored_hparams
+
     entry = registry.get(args.model)
+    hparams = registry.model_args(args.model, **{**bench.model_inputs(entry.context,
+                                                                       args.data_root, dataset),
+                                                 **overrides})
+    model = registry.create_model(args.model, **hparams)
     if entry.trainable:
         print(f"warning: {args.model} is trainable and no --checkpoint was given: evaluating "
               f"its untrained initialisation", file=sys.stderr)
-    from zoo.train import _stored_hparams
-
-    hparams = registry.model_args(args.model, **{**bench.model_inputs(entry.context,
-                                                                       args.data_root),
-                                                 **overrides})
     return args.model, model, {"hparams": _stored_hparams(hparams)[0]}
 
 
@@ -91,14 +90,15 @@ def cmd_eval(args) -> int:
         # A trained model is evaluated under the protocol its checkpoint records by default.
         args.benchmark = read_checkpoint(args.checkpoint)["protocol"]["benchmark"]
     bench = get_benchmark(args.benchmark or "cmu")
-    name, model, provenance = _load_model(args, registry, bench)
+    dataset = bench.load(args.data_root)
+    name, model, provenance = _load_model(args, registry, bench, dataset)
     samplers = args.sampler or [bench.sampler]
     if args.out and len(samplers) > 1:
         raise UsageError("--out takes one --sampler; omit --out to write "
                          "results/<benchmark>/<sampler>/<model>/ for each")
     for sampler in samplers:
-        result = evaluate(model, bench, model_name=name, sampler=sampler,
-                          data_root=args.data_root, batch_size=args.batch_size,
+        result = evaluate(model, bench, model_name=name, sampler=sampler, dataset=dataset,
+                          batch_size=args.batch_size,
                           device=args.device, provenance=_jsonable(provenance),
                           task=args.task, horizon=args.horizon_frames,
                           ground_truth=args.ground_truth)
@@ -138,8 +138,8 @@ def cmd_render(args) -> int:
     bench = get_benchmark(args.benchmark or "cloth")
     if bench.representation != "mesh":
         raise UsageError(f"zoo render draws meshes; benchmark {bench.name!r} is a skeleton one")
-    name, model, _ = _load_model(args, registry, bench)
     dataset = bench.load(args.data_root)
+    name, model, _ = _load_model(args, registry, bench, dataset)
     out = Path(args.out) if args.out else RESULTS_DIR / bench.name / "renders"
     written = render_windows(model, name, bench, dataset, args.windows, out, task=args.task,
                              horizon=args.horizon_frames)
