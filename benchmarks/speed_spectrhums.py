@@ -31,11 +31,13 @@ import os
 import statistics
 import time
 
+import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import nn
 from torch.utils.flop_counter import FlopCounterMode
 
+from zoo.data.spectral import SpectralBasis
 from zoo.registry import load_registry
 
 V, K, T_IN, T_OUT, BATCH = 6890, 512, 50, 25, 32
@@ -44,16 +46,12 @@ PUBLIC = {"params": 6.0e6, "latency_b1_ms": 14.0, "latency_b32_ms": 542.0,
           "train_step_ms": 536.0, "train_samples_s": 60.0, "reconstruction_loop_s": 0.7}
 
 
-class RandomBasis:
-    """A random orthonormal basis with the interface of the zoo's spectral basis."""
-
-    def __init__(self, v: int, k: int, seed: int = 0) -> None:
-        g = torch.Generator().manual_seed(seed)
-        q, _ = torch.linalg.qr(torch.randn(v, k, dtype=torch.float64, generator=g))
-        self.vectors = q.numpy()
-        self.k = k
-        self.hash = f"random-orthonormal-{v}x{k}-seed{seed}"
-        self.topology_hash = "none"
+def random_basis(v: int, k: int, seed: int = 0) -> SpectralBasis:
+    """A random orthonormal basis (same cost as a Laplacian eigenbasis of that size)."""
+    g = torch.Generator().manual_seed(seed)
+    q, _ = torch.linalg.qr(torch.randn(v, k, dtype=torch.float64, generator=g))
+    return SpectralBasis(f"random-{v}x{k}-seed{seed}", np.arange(k, dtype=float), q.numpy(),
+                         "random")
 
 
 def median_seconds(fn, repeats: int, warm_up: bool = True) -> float:
@@ -166,7 +164,7 @@ def main() -> None:
     rate0 = gemm_rate(args.repeats)
 
     t0 = time.perf_counter()
-    basis = RandomBasis(V, K)
+    basis = random_basis(V, K)
     basis_s = time.perf_counter() - t0
     model = load_registry().create_model("spectrhums", input_frames=T_IN, output_frames=T_OUT,
                                          num_points=V, basis=basis)
@@ -230,7 +228,7 @@ def main() -> None:
             lat[("vertices", b)] = median_seconds(lambda: model(history[:b]), args.repeats)
         infer_flops = flops(lambda: model.predict_coefficients(coeffs[:, :T_IN]))
         predicted = model.predict_coefficients(coeffs[:, :T_IN])  # (32, 25, 512, 3)
-        phi = model.phi
+        phi = basis.torch_vectors()
 
         frames = predicted.reshape(-1, K, 3)
         looped = torch.empty(len(frames), V, 3)

@@ -12,6 +12,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from zoo.data.spectral import SpectralBasis
 from zoo.models.spectrhums import EncoderLayer, SpecTrHuMS, SpecTrHuMSError, SpectralAutoencoder, \
     Welford
 from zoo.registry import load_registry
@@ -22,7 +23,7 @@ W = T_IN + T_OUT
 SMALL = dict(latent=16, channels=(4, 8), pooling=(6, 3), d_model=16, layers=2, heads=2, ff=32)
 
 
-class GridBasis:
+class GridBasis(SpectralBasis):
     """The ``k`` smoothest eigenvectors of the combinatorial Laplacian of a rows x cols grid."""
 
     def __init__(self, rows=6, cols=5, k=12):
@@ -35,17 +36,9 @@ class GridBasis:
                     a[i, i + 1] = a[i + 1, i] = 1
                 if r + 1 < rows:
                     a[i, i + cols] = a[i + cols, i] = 1
-        _, vecs = np.linalg.eigh(np.diag(a.sum(1)) - a)
-        self.vectors = vecs[:, :k]
-        self.k = k
-        self.topology_hash = hashlib.sha256(a.tobytes()).hexdigest()
-        self.hash = hashlib.sha256(self.vectors.tobytes()).hexdigest()
-
-    def project(self, vertices):
-        return torch.as_tensor(self.vectors.T, dtype=vertices.dtype) @ vertices
-
-    def reconstruct(self, coeffs):
-        return torch.as_tensor(self.vectors, dtype=coeffs.dtype) @ coeffs
+        values, vecs = np.linalg.eigh(np.diag(a.sum(1)) - a)
+        super().__init__(hashlib.sha256(a.tobytes()).hexdigest(), values[:k], vecs[:, :k],
+                         f"grid{rows}x{cols}")
 
 
 BASIS = GridBasis()

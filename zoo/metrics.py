@@ -29,13 +29,9 @@ def mpjpe(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     return torch.linalg.vector_norm(pred - target, dim=-1).mean(dim=-1)
 
 
-def cumulative_mean(per_frame: np.ndarray | torch.Tensor, axis: int = -1):
+def cumulative_mean(per_frame: np.ndarray, axis: int = -1) -> np.ndarray:
     """Mean of the first t values for every t (the ``cumulative`` averaging protocol)."""
     steps = np.arange(1, per_frame.shape[axis] + 1)
-    if isinstance(per_frame, torch.Tensor):
-        shape = [1] * per_frame.ndim
-        shape[axis] = -1
-        return per_frame.cumsum(axis) / torch.as_tensor(steps, dtype=per_frame.dtype).view(shape)
     shape = [1] * per_frame.ndim
     shape[axis] = -1
     return np.cumsum(per_frame, axis=axis) / steps.reshape(shape)

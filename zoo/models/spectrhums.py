@@ -324,7 +324,7 @@ class SpecTrHuMS(nn.Module):
                 nn.init.xavier_uniform_(m.weight)
                 nn.init.zeros_(m.bias)
 
-        self.register_buffer("phi", torch.from_numpy(phi).float(), persistent=False)
+        self.basis = basis  # data, not parameters: it travels with the dataset, by hash
         self.register_buffer("basis_id", torch.tensor(
             list(hashlib.sha256(self.basis_hash.encode()).digest()), dtype=torch.uint8))
         self.register_buffer("coeff_mean", torch.zeros(self.k, 3))
@@ -334,27 +334,19 @@ class SpecTrHuMS(nn.Module):
         self.register_buffer("latent_std", torch.ones(latent))
         self.register_buffer("latent_frames", torch.zeros((), dtype=torch.int64))
 
-    # ---- the basis: one matrix product for all frames ------------------------------------------
+    # ---- the basis: the dataset's own (one matrix product for all frames) ------------------------
 
     def project(self, vertices: Tensor) -> Tensor:
-        """``(..., V, 3) -> (..., k, 3)``: ``Phi^T V`` as one matrix product over all frames."""
-        lead = vertices.shape[:-2]
-        flat = vertices.transpose(-1, -2).reshape(-1, self.num_points)  # (N * 3, V)
-        return (flat @ self.phi).view(*lead, 3, self.k).transpose(-1, -2)
+        """``(..., V, 3) -> (..., k, 3)``: ``Phi^T V``, by the basis itself."""
+        return self.basis.project(vertices)
 
     def _project_frames(self, *parts: Tensor) -> Tensor:
-        """Coefficients of ``parts (B, T_i, V, 3)`` joined along time: ``(B, sum T_i, k, 3)``,
-        with one copy into the product's layout (no separate concatenation) and one product."""
-        flat = torch.cat([p.transpose(-1, -2) for p in parts], dim=1)  # (B, T, 3, V)
-        b, t = flat.shape[:2]
-        return (flat.view(-1, self.num_points) @ self.phi).view(b, t, 3, self.k).transpose(-1, -2)
+        """Coefficients of ``parts (B, T_i, V, 3)`` joined along time: ``(B, sum T_i, k, 3)``."""
+        return self.basis.project(torch.cat(parts, dim=1))
 
     def reconstruct(self, coeffs: Tensor) -> Tensor:
-        """``(..., k, 3) -> (..., V, 3)``: ``Phi C`` as one matrix product over all frames."""
-        lead = coeffs.shape[:-2]
-        flat = coeffs.transpose(-1, -2).reshape(-1, self.k)  # (N * 3, k)
-        out = (flat @ self.phi.T).view(*lead, 3, self.num_points)
-        return out.transpose(-1, -2).contiguous()
+        """``(..., k, 3) -> (..., V, 3)``: ``Phi C``, by the basis itself."""
+        return self.basis.reconstruct(coeffs)
 
     # ---- standardisation and the autoencoder ---------------------------------------------------
 
@@ -537,7 +529,7 @@ class SpecTrHuMS(nn.Module):
         seen = 0
         for batch in windows:
             self._check_vertices(batch, "training windows", self.window)
-            frames = batch.to(self.phi.device, self.phi.dtype).flatten(0, 1)
+            frames = batch.to(self.coeff_mean.device, self.coeff_mean.dtype).flatten(0, 1)
             for start in range(0, len(frames), _FRAMES_PER_CHUNK):
                 yield self.project(frames[start:start + _FRAMES_PER_CHUNK])
             seen += len(frames)
