@@ -12,8 +12,8 @@ from typing import Sequence
 import numpy as np
 import torch
 
-from zoo.data.mesh import MeshDataset, MeshError
-from zoo.data.windows import gather_windows, window_sampler
+from zoo.data.catalog import mesh_windows
+from zoo.data.mesh import MeshDataset
 from zoo.evaluate import check_task, predict
 from zoo.io import atomic_path
 
@@ -23,17 +23,11 @@ def predicted_windows(model, bench, dataset: MeshDataset, windows: Sequence[int]
     """Ground truth ``(W, T_in + T, V, 3)`` and prediction ``(W, T, V, 3)`` of chosen windows."""
     t_in = bench.input_frames
     t_out = check_task(task, horizon, bench.output_frames)
-    index = window_sampler(bench.sampler, [len(s) for s in dataset.sequences], t_in, t_out)
-    bad = [w for w in windows if not 0 <= w < len(index)]
-    if bad:
-        raise MeshError(f"--windows {bad}: {dataset.name}/{dataset.split} has {len(index)} windows "
-                        f"(valid: 0..{len(index) - 1})")
-    truth = gather_windows([s.vertices for s in dataset.sequences], index[list(windows)],
-                           t_in + t_out)
+    truth, rows = mesh_windows(dataset, bench, windows, t_out)
     with torch.no_grad():
         history = torch.from_numpy(truth[:, :t_in])
         pred = predict(model.eval(), history, task, t_out, torch.from_numpy(truth[:, -1]))
-    return truth, pred.numpy(), index[list(windows)]
+    return truth, pred.numpy(), rows
 
 
 def render_windows(model, model_name: str, bench, dataset: MeshDataset, windows: Sequence[int],

@@ -41,6 +41,23 @@ def describe(dataset: MeshDataset | MotionDataset) -> dict[str, Any]:
     return info
 
 
+def mesh_windows(dataset: MeshDataset, bench, windows, output_frames: int,
+                 sampler: str | None = None, option: str = "--windows"):
+    """Windows number ``windows`` of the benchmark's sampler: vertices ``(W, T_in + T_out, V, 3)``
+    and their ``(sequence, start)`` rows; an index out of range names ``option``."""
+    sampler = check_sampler(sampler or bench.sampler)
+    t_in = bench.input_frames
+    index = window_sampler(sampler, [len(s) for s in dataset.sequences], t_in, output_frames)
+    bad = [w for w in windows if not 0 <= w < len(index)]
+    if bad:
+        shown = bad[0] if option == "--window" else bad
+        raise MeshError(f"{option} {shown}: {dataset.name}/{dataset.split} has {len(index)} "
+                        f"windows under sampler {sampler} (valid: 0..{len(index) - 1})")
+    rows = index[list(windows)]
+    return gather_windows([s.vertices for s in dataset.sequences], rows,
+                          t_in + output_frames), rows
+
+
 def export_window(dataset: MeshDataset, bench, window: int, out: str | Path,
                   sampler: str | None = None) -> list[Path]:
     """Write window ``window`` of the benchmark's sampler through trimesh: a ``.glb`` scene with
@@ -54,14 +71,9 @@ def export_window(dataset: MeshDataset, bench, window: int, out: str | Path,
     out = Path(out)
     if out.suffix not in EXPORT_FORMATS:
         raise MeshError(f"--out {out}: expected a file ending in {' or '.join(EXPORT_FORMATS)}")
-    sampler = check_sampler(sampler or bench.sampler)
-    t_in, t_out = bench.input_frames, bench.output_frames
-    index = window_sampler(sampler, [len(s) for s in dataset.sequences], t_in, t_out)
-    if not 0 <= window < len(index):
-        raise MeshError(f"--window {window}: {dataset.name}/{dataset.split} has {len(index)} "
-                        f"windows under sampler {sampler} (valid: 0..{len(index) - 1})")
-    frames = gather_windows([s.vertices for s in dataset.sequences], index[window:window + 1],
-                            t_in + t_out)[0] / 1000.0  # mm -> m, the unit viewers expect
+    t_in = bench.input_frames
+    frames = mesh_windows(dataset, bench, [window], bench.output_frames, sampler,
+                          option="--window")[0][0] / 1000.0  # mm -> m, the unit viewers expect
     faces = dataset.topology.faces
     extent = float(np.ptp(frames[..., 0]))
     written = []
