@@ -8,7 +8,6 @@ import pytest
 from conftest import LEAF_OFFSET, write_cmu_file
 from zoo.benchmark import get_benchmark
 from zoo.cli import main
-from zoo.data.motion import load_cmu
 from zoo.evaluate import EvaluationError, evaluate
 from zoo.leaderboard import ProtocolMismatchError, markdown_tables
 from zoo.metrics import cumulative_mean

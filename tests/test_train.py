@@ -69,7 +69,7 @@ def test_seeded_runs_match_and_checkpoint_carries_its_record(setup, tmp_path):
 
 
 def test_resume_reaches_the_same_weights(setup, tmp_path):
-    full = run(setup, tmp_path / "full", epochs=3)
+    run(setup, tmp_path / "full", epochs=3)
     run(setup, tmp_path / "cut", epochs=3, stop_after_epoch=1)
     assert read_checkpoint(tmp_path / "cut" / "last.pt")["epoch"] == 0
     run(setup, tmp_path / "cut", epochs=3, resume=True)
