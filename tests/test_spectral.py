@@ -186,3 +186,18 @@ def test_corrupted_or_foreign_cache_is_an_error(tmp_path):
                 cache_path(other, 10, tmp_path), path)
     with pytest.raises(SpectralError, match="belongs to topology other"):
         SpectralBasis.load_or_compute(topo, 10, tmp_path)
+
+
+def test_basis_bytes_do_not_depend_on_blas_threads():
+    # Its hash goes into protocol records: recomputing it with other thread settings must give
+    # the same bytes (the cloth mesh's dense solve differs in the last bits otherwise).
+    from threadpoolctl import threadpool_limits
+
+    from zoo.data.cloth import ClothConfig, cloth_mesh
+
+    topology, _ = cloth_mesh(ClothConfig())
+    with threadpool_limits(limits=2, user_api="blas"):
+        two = SpectralBasis.compute(topology, 256)
+    with threadpool_limits(limits=1, user_api="blas"):
+        one = SpectralBasis.compute(topology, 256)
+    assert two.hash == one.hash

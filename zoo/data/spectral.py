@@ -81,14 +81,17 @@ class SpectralBasis:
                                 f"[1, {n}] (the number of vertices), got {k!r}")
         k = int(k)
         lap = topology.laplacian().astype(np.float64)
-        if n <= DENSE_MAX_VERTICES or k >= DENSE_FRACTION * n or k >= n - 1:
-            values, vectors = scipy.linalg.eigh(lap.toarray(), subset_by_index=[0, k - 1])
-            solver = "scipy.linalg.eigh (dense)"
-        else:
-            with _one_blas_thread():
+        # One BLAS thread for both solvers: the result is then the same to the last bit on a
+        # given machine whatever its thread settings (the dense solver's last bits, and so the
+        # basis hash, change with the thread count), and ARPACK runs faster on shared cores.
+        with _one_blas_thread():
+            if n <= DENSE_MAX_VERTICES or k >= DENSE_FRACTION * n or k >= n - 1:
+                values, vectors = scipy.linalg.eigh(lap.toarray(), subset_by_index=[0, k - 1])
+                solver = "scipy.linalg.eigh (dense)"
+            else:
                 values, vectors = _lanczos(lap, k)
-            solver = (f"scipy.sparse.linalg.eigsh (shift-invert from sigma={SIGMA:g}, slices of "
-                      f"{SLICE})")
+                solver = (f"scipy.sparse.linalg.eigsh (shift-invert from sigma={SIGMA:g}, "
+                          f"slices of {SLICE})")
         order = np.argsort(values, kind="stable")
         values, vectors = values[order], vectors[:, order]
         values[np.abs(values) < 1e-12] = 0.0  # the constant vector's eigenvalue, without noise
