@@ -50,3 +50,26 @@ def test_regenerate_with_checkpoint_and_stale_result(tmp_path, capsys):
     regenerate("cmu", registry=registry, data_root=root, out_root=out, checkpoints=checkpoints)
     assert "| tiny " not in (out / "cmu" / "all" / "leaderboard.md").read_text()
     assert "different sha256: ['test/walking/walking_1.txt']" in capsys.readouterr().err
+
+
+def test_fully_trained_checkpoint_joins_as_model_at_last(tmp_path):
+    root = tmp_path / "cmu"
+    for split, n in (("train", 2), ("test", 1)):
+        for i in range(1, n + 1):
+            write_cmu_file(root / split / "walking" / f"walking_{i}.txt",
+                           0.01 * i * np.arange(800))
+    (tmp_path / "registry.yaml").write_text(REGISTRY)
+    shutil.copy(HERE / "tiny_models.py", tmp_path / "tiny_models.py")
+    registry = Registry.from_files(HERE.parent / "registry.yaml", tmp_path / "registry.yaml")
+    checkpoints = tmp_path / "checkpoints"
+    # Two epochs that change nothing: validation never improves after epoch 1, so best.pt is
+    # epoch 1 (early-stopped) and last.pt epoch 2 (fully trained).
+    train("tiny", "cmu", registry=registry, data_root=root, epochs=2, progress=False,
+          out_dir=checkpoints / "cmu" / "tiny", train_overrides={"lr": 0.0})
+    out = tmp_path / "results"
+    regenerate("cmu", registry=registry, data_root=root, out_root=out, checkpoints=checkpoints)
+    combined = pd.read_csv(out / "cmu" / "all" / "results.csv")
+    assert set(combined.model) == {"tiny", "tiny@last", "repeat_last"}
+    record = json.loads((out / "cmu" / "all" / "tiny@last" / "protocol.json").read_text())
+    assert record["provenance"]["checkpoint"].endswith("last.pt")
+    assert record["provenance"]["training"]["epochs_run"] == 2

@@ -9,7 +9,7 @@ import yaml
 
 from zoo import benchmark as benchmark_module
 from zoo.benchmark import BenchmarkError, get_benchmark
-from zoo.data.mesh import MeshDataset, MeshSequence, MeshTopology
+from zoo.data.mesh import MeshDataset, MeshError, MeshSequence, MeshTopology
 from zoo.data.spectral import SpectralBasis, SpectralError
 from zoo.evaluate import EvaluationError, evaluate
 from zoo.metrics import melv, regress_joints, regressed_mpjpe, vertex_rmse
@@ -214,3 +214,51 @@ def test_mesh_benchmark_files_are_checked(toy_bench, tmp_path):
     assert (cloth.input_frames, cloth.output_frames) == (25, 25)
     with pytest.raises(EvaluationError, match="mesh benchmarks only"):
         evaluate(RepeatLast(10, 25, 25), "cmu", model_name="x", ground_truth="raw")
+
+
+def test_skeleton_models_see_the_regressed_joints_of_the_same_windows(toy_bench):
+    bench = toy_bench()
+    dataset = toy_dataset()
+    assert bench.view_for(("joints",)) == "joints" and bench.view_for(("joints", "mesh")) == "mesh"
+    inputs = bench.model_inputs((), dataset=dataset, view="joints")
+    assert inputs["num_points"] == 1  # one regressed joint, the centroid
+    mesh = evaluate(RepeatLast(2, 3, 4), bench, model_name="repeat_last", dataset=dataset)
+    seen = []
+
+    class JointsRepeatLast(RepeatLast):
+        def forward(self, history):
+            seen.append(history.clone())
+            return super().forward(history)
+
+    joints = evaluate(JointsRepeatLast(**inputs), bench, model_name="joints_model",
+                      dataset=dataset, view="joints")
+    # The model got the centroids of the observed frames: (5, 5, 0) scaled by 1 + rate * t.
+    first = seen[0][0, :, 0]
+    np.testing.assert_allclose(first[:, :2], 5 * np.array([[1.0, 1.0], [1.1, 1.1]]), rtol=1e-6)
+    # Same windows, same protocol: the MPJPE rows equal the mesh evaluation's (the regressor is
+    # linear, so repeating the last regressed frame is regressing the repeated mesh).
+    assert joints.protocol["protocol_id"] == mesh.protocol["protocol_id"]
+    assert set(joints.frame.metric) == {"mpjpe"} and set(joints.frame.model) == {"joints_model"}
+    np.testing.assert_allclose(rows(joints.frame, "joints_model", "mpjpe")["average"],
+                               rows(mesh.frame, "repeat_last", "mpjpe")["average"], rtol=1e-6)
+    assert joints.protocol["provenance"]["model_input"] == "regressed joints (regressor1)"
+
+    bare = MeshDataset("bare", "test", dataset.topology, dataset.sequences, recipe={})
+    with pytest.raises(EvaluationError, match="bare has no joint regressor"):
+        evaluate(JointsRepeatLast(**inputs), bench, model_name="x", dataset=bare, view="joints")
+    with pytest.raises(MeshError, match="no joint regressor"):
+        bench.model_inputs((), dataset=bare, view="joints")
+    with pytest.raises(MeshError, match="cannot tell upper from lower body"):
+        bench.model_inputs(("parts",), dataset=dataset, view="joints")
+
+
+def test_joints_view_body_parts_from_bvh_names():
+    names = ["Hips", "LeftUpLeg", "Spine", "Head", "RightUpLeg", "LeftArm"]
+    topology = MeshTopology(np.array([[0, 1, 2]]), 3)
+    regressor = sp.csr_matrix(np.full((len(names), 3), 1 / 3))
+    seq = MeshSequence("s", "a", np.arange(18, dtype=np.float32).reshape(2, 3, 3), 25.0)
+    view = MeshDataset("d", "test", topology, [seq], recipe={}, joint_regressor=regressor,
+                       joint_names=names).joints_view()
+    assert view.parts == {"upper": [2, 3, 5], "lower": [0, 1, 4]}
+    assert view.sequences[0].positions.shape == (2, 6, 3)
+    np.testing.assert_allclose(view.sequences[0].positions[1, 0], [12, 13, 14])  # the centroid

@@ -73,3 +73,32 @@ def test_mesh_model_trains_and_checkpoint_refuses_another_basis(toy_mesh, tmp_pa
     sizes["n"] = 5  # the benchmark's mesh changes: its basis hash differs
     with pytest.raises(CheckpointError, match="basis hash .* differs from benchmark 'toy'"):
         load_checkpoint(best, registry=registry, benchmark=bench)
+
+
+def test_skeleton_model_trains_on_a_mesh_benchmarks_regressed_joints(toy_mesh, tmp_path,
+                                                                     monkeypatch):
+    import scipy.sparse as sp
+
+    from zoo.evaluate import evaluate
+
+    bench, registry, _ = toy_mesh
+
+    def with_joints(root, split):
+        data = waving(grid(4), split)
+        regressor = np.zeros((3, 16))
+        regressor[0, 0] = regressor[1, 15] = 1.0
+        regressor[2] = 1 / 16
+        data.joint_regressor, data.joint_names = sp.csr_matrix(regressor), ["a", "b", "c"]
+        return data
+
+    monkeypatch.setitem(benchmark_module.MESH_DATASETS, "toy_mesh", with_joints)
+    best = train("mlp", bench, registry=registry, out_dir=tmp_path / "mlp", progress=False,
+                 epochs=2, overrides={"blocks": 2},
+                 train_overrides={"batch_size": 4, "schedule": {"type": "constant"}})
+    ckpt = read_checkpoint(best)
+    assert ckpt["protocol"]["points"] == "regressed joints"
+    assert ckpt["hparams"]["num_points"] == 3
+    assert ckpt["training_data"]["points"] == "regressor3"
+    model, _ = load_checkpoint(best, registry=registry, benchmark=bench)
+    result = evaluate(model, bench, model_name="mlp", view="joints")
+    assert set(result.frame.metric) == {"mpjpe"} and set(result.frame.joints) == {"regressor3"}

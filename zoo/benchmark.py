@@ -89,12 +89,24 @@ class Benchmark:
         kwargs = {"actions": self.actions} if self.actions else {}
         return loader(self.resolve_data_root(data_root), split or self.split, **kwargs)
 
+    def view_for(self, representations) -> str:
+        """How a model whose registry ``representation`` lists ``representations`` sees this
+        benchmark: ``mesh`` (vertices), or ``joints``: a skeleton benchmark's joints, or, for a
+        skeleton-only model on a mesh benchmark, the joints its regressor takes from the
+        vertices (those the mesh models' MPJPE is scored on)."""
+        if self.representation != "mesh":
+            return "joints"
+        return "mesh" if "mesh" in representations else "joints"
+
     def model_inputs(self, context: tuple[str, ...] = (), data_root: str | Path | None = None,
-                     dataset=None) -> dict[str, Any]:
+                     dataset=None, view: str = "mesh") -> dict[str, Any]:
         """Constructor keywords a model gets from this benchmark (see zoo.models). Mesh
         benchmarks read them from ``dataset`` if given (any split: they share the topology),
-        else load the test split."""
+        else load the test split; ``view='joints'`` gives a skeleton model's keywords for the
+        dataset's regressed joints."""
         if self.representation == "mesh":
+            if view == "joints":
+                return self._joints_view_inputs(context, data_root, dataset)
             return self._mesh_model_inputs(context, data_root, dataset)
         inputs = {"input_frames": self.input_frames, "output_frames": self.output_frames,
                   "num_points": len(self.skeleton.used)}
@@ -132,6 +144,22 @@ class Benchmark:
                                  f"it has no spectral basis")
         dataset = dataset if dataset is not None else self.load_mesh(data_root)
         return SpectralBasis.load_or_compute(dataset.topology, self.spectral_k)
+
+    def _joints_view_inputs(self, context: tuple[str, ...], data_root: str | Path | None,
+                            dataset=None) -> dict[str, Any]:
+        from zoo.data.mesh import JointsView
+
+        dataset = dataset if dataset is not None else self.load_mesh(data_root)
+        view = dataset if isinstance(dataset, JointsView) else dataset.joints_view()
+        inputs = {"input_frames": self.input_frames, "output_frames": self.output_frames,
+                  "num_points": view.num_joints}
+        for name in context:
+            if name == "parts":
+                inputs["parts"] = view.parts
+            else:
+                raise BenchmarkError(f"benchmark {self.name!r} cannot supply context {name!r} to "
+                                     f"a model of its regressed joints; it supplies: parts")
+        return inputs
 
     def _mesh_model_inputs(self, context: tuple[str, ...], data_root: str | Path | None,
                            dataset=None) -> dict[str, Any]:

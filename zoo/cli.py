@@ -69,8 +69,10 @@ def _load_model(args, registry, bench, dataset):
     from zoo.train import _stored_hparams
 
     entry = registry.get(args.model)
+    view = bench.view_for(entry.representation)
     hparams = registry.model_args(args.model, **{**bench.model_inputs(entry.context,
-                                                                       args.data_root, dataset),
+                                                                       args.data_root, dataset,
+                                                                       view),
                                                  **overrides})
     model = registry.create_model(args.model, **hparams)
     if entry.trainable:
@@ -96,8 +98,10 @@ def cmd_eval(args) -> int:
     if args.out and len(samplers) > 1:
         raise UsageError("--out takes one --sampler; omit --out to write "
                          "results/<benchmark>/<sampler>/<model>/ for each")
+    view = bench.view_for(registry.get(name).representation)
     for sampler in samplers:
         result = evaluate(model, bench, model_name=name, sampler=sampler, dataset=dataset,
+                          view=view,
                           batch_size=args.batch_size,
                           device=args.device, provenance=_jsonable(provenance),
                           task=args.task, horizon=args.horizon_frames,

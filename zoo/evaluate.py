@@ -178,18 +178,20 @@ def evaluate(model: torch.nn.Module, benchmark: str | Benchmark, *, model_name: 
              device: str | torch.device = "cpu",
              provenance: dict[str, Any] | None = None,
              ground_truth: str | None = None, task: str = "prediction",
-             horizon: int | None = None) -> EvalResult:
+             horizon: int | None = None, view: str = "mesh") -> EvalResult:
     """Evaluate ``model`` under ``benchmark`` with ``sampler`` (default: the benchmark's).
 
     ``ground_truth`` (mesh benchmarks only): ``raw`` or ``spectral``, default the benchmark's.
     ``task``: ``prediction``, ``completion`` or ``longterm`` (``horizon`` frames), see ``TASKS``.
+    ``view`` (mesh benchmarks only): ``mesh``, or ``joints`` for a skeleton model fed the
+    regressed joints (``Benchmark.view_for`` says which a registry entry needs).
     """
     bench = get_benchmark(benchmark) if isinstance(benchmark, (str, Path)) else benchmark
     if bench.representation == "mesh":
         return evaluate_mesh(model, bench, model_name=model_name, sampler=sampler,
                              data_root=data_root, dataset=dataset, batch_size=batch_size,
                              device=device, provenance=provenance, ground_truth=ground_truth,
-                             task=task, horizon=horizon)
+                             task=task, horizon=horizon, view=view)
     if ground_truth is not None:
         raise EvaluationError(f"benchmark {bench.name}: ground_truth={ground_truth!r} applies to "
                               f"mesh benchmarks only")
@@ -313,12 +315,16 @@ def evaluate_mesh(model: torch.nn.Module, benchmark: str | Benchmark, *, model_n
                   dataset=None, batch_size: int = 1024, device: str | torch.device = "cpu",
                   provenance: dict[str, Any] | None = None,
                   ground_truth: str | None = None, task: str = "prediction",
-                  horizon: int | None = None) -> EvalResult:
+                  horizon: int | None = None, view: str = "mesh") -> EvalResult:
     """Evaluate ``model`` on a mesh benchmark: windows ``(B, T_in, V, 3)`` in, ``(B, T_out, V,
-    3)`` out, rows for ``melv``, ``rmse`` and (with a joint regressor) ``mpjpe``."""
+    3)`` out, rows for ``melv``, ``rmse`` and (with a joint regressor) ``mpjpe``.
+
+    ``view='joints'``: a skeleton model sees the regressed joints ``(B, T_in, J, 3)`` of the same
+    windows and predicts ``(B, T_out, J, 3)``; it gets the ``mpjpe`` rows only, under the very
+    protocol record of the mesh models, so both share one MPJPE table."""
     from zoo.benchmark import GROUND_TRUTHS
     from zoo.data.spectral import SpectralBasis
-    from zoo.metrics import melv, regressed_mpjpe, vertex_rmse
+    from zoo.metrics import melv, mpjpe, regress_joints, regressed_mpjpe, vertex_rmse
 
     bench = get_benchmark(benchmark) if isinstance(benchmark, (str, Path)) else benchmark
     sampler = check_sampler(sampler or bench.sampler)
@@ -326,8 +332,14 @@ def evaluate_mesh(model: torch.nn.Module, benchmark: str | Benchmark, *, model_n
     if ground_truth not in GROUND_TRUTHS:
         raise EvaluationError(f"ground_truth must be one of {', '.join(GROUND_TRUTHS)}, got "
                               f"{ground_truth!r}")
+    if view not in ("mesh", "joints"):
+        raise EvaluationError(f"view must be mesh or joints, got {view!r}")
     dataset = dataset if dataset is not None else bench.load(data_root)
     topology = dataset.topology
+    regressor = dataset.joint_regressor
+    if view == "joints" and regressor is None:
+        raise EvaluationError(f"benchmark {bench.name}: {dataset.name} has no joint regressor, so "
+                              f"skeleton model {model_name!r} cannot be evaluated on it")
     basis = bench.spectral_basis(dataset) if ground_truth == "spectral" else None
     t_in = bench.input_frames
     t_out = check_task(task, horizon, bench.output_frames)
@@ -342,7 +354,6 @@ def evaluate_mesh(model: torch.nn.Module, benchmark: str | Benchmark, *, model_n
     actions = np.asarray([sequences[i].action for i in index[:, 0]])
     vertices = [s.vertices for s in sequences]
     edges = topology.edges
-    regressor = dataset.joint_regressor
     accumulators: dict[tuple[str, str], FrameErrorMean] = {}
     baseline = FrameErrorMean()
     batch = max(1, min(batch_size, MESH_BATCH_VALUES // ((t_in + t_out) * topology.num_vertices
@@ -355,6 +366,16 @@ def evaluate_mesh(model: torch.nn.Module, benchmark: str | Benchmark, *, model_n
             windows = torch.from_numpy(gather_windows(vertices, index[rows], t_in + t_out))
             if basis is not None:
                 windows = basis.reconstruct(basis.project(windows.double())).float()
+            if view == "joints":
+                joints = regress_joints(windows, regressor)
+                pred = predict(model, joints[:, :t_in].to(device), task, t_out,
+                               joints[:, -1].to(device))
+                pred = _checked(pred, (len(windows), t_out, regressor.shape[0], 3), model_name,
+                                start)
+                accumulators.setdefault(("mpjpe", f"regressor{regressor.shape[0]}"),
+                                        FrameErrorMean()).update(mpjpe(pred, joints[:, t_in:]),
+                                                                 actions[rows])
+                continue
             pred = predict(model, windows[:, :t_in].to(device), task, t_out,
                            windows[:, -1].to(device))
             pred = _checked(pred, (len(windows), *expected_tail), model_name, start)
@@ -375,11 +396,14 @@ def evaluate_mesh(model: torch.nn.Module, benchmark: str | Benchmark, *, model_n
     model_basis = getattr(model, "basis", None)
     _seal(record, model_name, device, {
         **({"model_basis": {"k": model_basis.k, "hash": model_basis.hash}}
-           if isinstance(model_basis, SpectralBasis) else {}), **(provenance or {})})
+           if isinstance(model_basis, SpectralBasis) else {}),
+        **({"model_input": f"regressed joints (regressor{regressor.shape[0]})"}
+           if view == "joints" else {}), **(provenance or {})})
     frames = []
     for (metric, joints), acc in accumulators.items():
         frames.append(_long_frame({joints: acc}, record, model_name, windows_per_action)
                       .assign(metric=metric))
-    frames.append(_long_frame({"vertices": baseline}, record, "ground_truth",
-                              windows_per_action).assign(metric="melv"))
+    if view == "mesh":  # the data's own MELV, once per mesh evaluation
+        frames.append(_long_frame({"vertices": baseline}, record, "ground_truth",
+                                  windows_per_action).assign(metric="melv"))
     return EvalResult(frame=pd.concat(frames, ignore_index=True), protocol=record)

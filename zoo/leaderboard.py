@@ -199,33 +199,40 @@ def _regenerate_one(bench, registry, dataset, sampler, truth, folder, out_root, 
     from zoo.evaluate import EvalResult, evaluate
 
     results, stored = [], []
-    for name in registry.list_models(bench.representation):
+    # Skeleton models join a mesh benchmark with a joint regressor, fed its regressed joints.
+    names = registry.list_models(bench.representation)
+    if bench.representation == "mesh" and dataset.joint_regressor is not None:
+        names += [n for n in registry.list_models("joints") if n not in names]
+    for name in names:
         entry = registry.get(name)
-        ckpt = Path(checkpoints) / bench.name / name / "best.pt" if checkpoints else None
-        run_dir = out_root / bench.name / folder / name
-        provenance = {}
-        if ckpt is not None and ckpt.is_file():
-            from zoo.train import load_checkpoint
+        view = bench.view_for(entry.representation)
+        for label, ckpt in _checkpoints_of(name, entry, bench, checkpoints):
+            run_dir = out_root / bench.name / folder / label
+            provenance = {}
+            if ckpt is not None and ckpt.is_file():
+                from zoo.train import load_checkpoint
 
-            model, meta = load_checkpoint(ckpt, registry=registry, benchmark=bench,
-                                          dataset=dataset)
-            provenance = {"checkpoint": str(ckpt), "training": meta.get("training", {})}
-        elif not entry.trainable:
-            model = registry.create_model(name, **bench.model_inputs(entry.context,
-                                                                     dataset=dataset))
-        elif (run_dir / "results.csv").is_file():
-            stored.append(EvalResult.read(run_dir))
-            print(f"{bench.name}/{folder}: {name}: no checkpoint here, keeping {run_dir}",
-                  file=sys.stderr)
-            continue
-        else:
-            print(f"{bench.name}/{folder}: {name}: skipped (trainable, no checkpoint at {ckpt})",
-                  file=sys.stderr)
-            continue
-        result = evaluate(model, bench, model_name=name, sampler=sampler, dataset=dataset,
-                          device=device, provenance=provenance, ground_truth=truth)
-        result.write(run_dir)
-        results.append(result)
+                model, meta = load_checkpoint(ckpt, registry=registry, benchmark=bench,
+                                              dataset=dataset)
+                provenance = {"checkpoint": str(ckpt), "training": meta.get("training", {})}
+            elif not entry.trainable:
+                model = registry.create_model(name, **bench.model_inputs(
+                    entry.context, dataset=dataset, view=view))
+            elif (run_dir / "results.csv").is_file():
+                stored.append(EvalResult.read(run_dir))
+                print(f"{bench.name}/{folder}: {label}: no checkpoint here, keeping {run_dir}",
+                      file=sys.stderr)
+                continue
+            else:
+                if label == name:
+                    print(f"{bench.name}/{folder}: {name}: skipped (trainable, no checkpoint at "
+                          f"{ckpt})", file=sys.stderr)
+                continue
+            result = evaluate(model, bench, model_name=label, sampler=sampler, dataset=dataset,
+                              device=device, provenance=provenance, ground_truth=truth,
+                              view=view)
+            result.write(run_dir)
+            results.append(result)
     # Freshly evaluated results come first: they define the protocol stored ones must match.
     kept = _drop_mismatched(results + stored, bench.name, folder)
     if not kept:
@@ -233,6 +240,26 @@ def _regenerate_one(bench, registry, dataset, sampler, truth, folder, out_root, 
     path = write_leaderboard(kept, out_root / bench.name / folder, bench.horizons_ms)
     print(f"wrote {path}/leaderboard.md ({len(kept)} models, {len(results)} evaluated now)")
     return path
+
+
+def _checkpoints_of(name, entry, bench, checkpoints):
+    """``(label, checkpoint path or None)`` to evaluate for a model: untrained models once;
+    trained ones by their early-stopped checkpoint (``best.pt``, labelled with the model's name)
+    and, when training went on past it, their fully trained one (``last.pt``, ``<name>@last``):
+    the two can trade accuracy for smoothness (SpecTrHuMS reports both)."""
+    if not entry.trainable or not checkpoints:
+        return [(name, None)]
+    run = Path(checkpoints) / bench.name / name
+    pairs = [(name, run / "best.pt")]
+    if (run / "last.pt").is_file():
+        from zoo.train import read_checkpoint
+
+        training = read_checkpoint(run / "last.pt").get("training", {})
+        if training.get("best", {}).get("epoch") != training.get("epochs_run"):
+            pairs.append((f"{name}@last", run / "last.pt"))
+    else:
+        pairs.append((f"{name}@last", run / "last.pt"))  # a stored result may still be kept
+    return pairs
 
 
 def _drop_mismatched(results: list, bench: str, sampler: str) -> list:

@@ -210,7 +210,8 @@ def load_checkpoint(path: str | Path, *, registry: Registry | None = None,
     entry = registry.get(ckpt["model"])
     bench = get_benchmark(benchmark or ckpt["protocol"]["benchmark"]) \
         if not isinstance(benchmark, Benchmark) else benchmark
-    expected = model_protocol(bench)
+    view = bench.view_for(entry.representation)
+    expected = model_protocol(bench, view)
     diff = [f"{k} (checkpoint {ckpt['protocol'].get(k)!r}, benchmark {v!r})"
             for k, v in expected.items() if ckpt["protocol"].get(k) != v]
     if diff:
@@ -219,7 +220,7 @@ def load_checkpoint(path: str | Path, *, registry: Registry | None = None,
     hparams = dict(ckpt["hparams"])
     hashes = ckpt.get("context_hashes", {})
     if hashes:
-        supplied = bench.model_inputs(entry.context, data_root, dataset)
+        supplied = bench.model_inputs(entry.context, data_root, dataset, view)
         for key, trained_hash in hashes.items():
             if supplied[key].hash != trained_hash:
                 raise CheckpointError(f"checkpoint {path}: its {key} hash {trained_hash[:16]} "
@@ -236,12 +237,15 @@ def load_checkpoint(path: str | Path, *, registry: Registry | None = None,
     return model.eval(), ckpt
 
 
-def model_protocol(bench: Benchmark) -> dict[str, Any]:
-    """What a trained model's weights depend on: it must match wherever they are evaluated."""
+def model_protocol(bench: Benchmark, view: str = "mesh") -> dict[str, Any]:
+    """What a trained model's weights depend on: it must match wherever they are evaluated.
+    ``view``: ``joints`` for a skeleton model trained on a mesh benchmark's regressed joints."""
     protocol = {"benchmark": bench.name, "dataset": bench.dataset,
                 "input_frames": bench.input_frames, "output_frames": bench.output_frames}
     if bench.representation == "mesh":
         protocol.update(representation="mesh", spectral_k=bench.spectral_k)
+        if view == "joints":
+            protocol["points"] = "regressed joints"
     else:
         protocol.update(skeleton=bench.skeleton.name, used_joints=list(bench.skeleton.used))
     return protocol
@@ -274,9 +278,12 @@ def train(model_name: str, benchmark: str | Benchmark, *, registry: Registry | N
                                            **({"epochs": epochs} if epochs else {})})
     dist_info = _init_distributed(device)
     out_dir = Path(out_dir) if out_dir else REPO_ROOT / "checkpoints" / bench.name / model_name
+    view = bench.view_for(entry.representation)
     dataset = bench.load(data_root, split=bench.train_split)
+    if bench.representation == "mesh" and view == "joints":
+        dataset = dataset.joints_view()  # a skeleton model on a mesh benchmark's joints
     hparams = registry.model_args(model_name, **{**bench.model_inputs(entry.context, data_root,
-                                                                      dataset),
+                                                                      dataset, view),
                                                  **(overrides or {})})
 
     torch.manual_seed(seed)
@@ -320,7 +327,7 @@ def train(model_name: str, benchmark: str | Benchmark, *, registry: Registry | N
     steps_per_epoch = max(1, len(train_index) // batch_size)
     if max_batches:
         steps_per_epoch = min(steps_per_epoch, max_batches)
-    meta = _metadata(model_name, hparams, bench, dataset, recipe, seed, device, dist_info)
+    meta = _metadata(model_name, hparams, bench, dataset, recipe, seed, device, dist_info, view)
 
     def training_windows():
         """Every training window once, in a fixed order (for per-epoch statistics), in batches
@@ -441,18 +448,20 @@ def _training_data(dataset) -> dict[str, Any]:
     if hasattr(dataset, "files"):
         return {"dataset": dataset.name, "split": dataset.split,
                 "files": [{"file": f["file"], "sha256": f["sha256"]} for f in dataset.files()]}
-    return {"dataset": dataset.name, "split": dataset.split, "recipe_hash": dataset.recipe_hash,
-            "content_hash": dataset.content_hash(), "topology_hash": dataset.topology.hash}
+    mesh = getattr(dataset, "mesh", dataset)  # a JointsView trains on its mesh's regressed joints
+    return {"dataset": mesh.name, "split": mesh.split, "recipe_hash": mesh.recipe_hash,
+            "content_hash": mesh.content_hash(), "topology_hash": mesh.topology.hash,
+            **({"points": f"regressor{dataset.num_joints}"} if mesh is not dataset else {})}
 
 
-def _metadata(model_name, hparams, bench, dataset, recipe, seed, device, dist_info):
+def _metadata(model_name, hparams, bench, dataset, recipe, seed, device, dist_info, view):
     stored, context_hashes = _stored_hparams(hparams)
     return {
         "format": CHECKPOINT_FORMAT,
         "model": model_name,
         "hparams": stored,
         "context_hashes": context_hashes,
-        "protocol": model_protocol(bench),
+        "protocol": model_protocol(bench, view),
         "training_data": _training_data(dataset),
         "recipe": _plain(recipe),
         "seed": seed,

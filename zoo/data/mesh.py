@@ -164,6 +164,10 @@ class MeshDataset:
             self._content_hash = digest.hexdigest()
         return self._content_hash
 
+    def joints_view(self) -> "JointsView":
+        """This dataset seen through its joint regressor (see :class:`JointsView`)."""
+        return JointsView(self)
+
     # ---- on-disk format: one folder, arrays in an .npz, metadata in a JSON ----------------------
 
     def save(self, folder: str | Path) -> Path:
@@ -212,3 +216,58 @@ class MeshDataset:
         return cls(name=meta["name"], split=meta["split"], topology=topology,
                    sequences=sequences, recipe=meta["recipe"], joint_regressor=regressor,
                    joint_names=meta.get("joint_names"))
+
+
+# Joints of the CMU BVH rig (zoo.data.bvh, Anny's cmu_mb) that form the lower body: the hips and
+# both legs; every other joint is upper body. SPGSN's two body parts on a regressed skeleton.
+BVH_LOWER_BODY = ("Hips", "LHipJoint", "LeftUpLeg", "LeftLeg", "LeftFoot", "LeftToeBase",
+                  "RHipJoint", "RightUpLeg", "RightLeg", "RightFoot", "RightToeBase")
+
+
+@dataclass
+class JointSequence:
+    """One sequence of a :class:`JointsView`: ``positions (T, J, 3)`` float32 in mm."""
+
+    name: str
+    action: str
+    positions: np.ndarray
+    fps: float
+
+    def __len__(self) -> int:
+        return len(self.positions)
+
+
+class JointsView:
+    """A mesh dataset seen through its sparse joint regressor: every sequence as the ``(T, J,
+    3)`` joints that the mesh benchmark's ``mpjpe`` column scores, so skeleton models train and
+    are evaluated on exactly the windows and joints the mesh models are scored on."""
+
+    def __init__(self, mesh: MeshDataset) -> None:
+        if mesh.joint_regressor is None:
+            raise MeshError(f"{mesh.name}/{mesh.split}: this mesh dataset has no joint regressor, "
+                            f"so skeleton models cannot run on it (they need joints)")
+        self.mesh = mesh
+        self.name, self.split = mesh.name, mesh.split
+        self.num_joints = mesh.joint_regressor.shape[0]
+        self.joint_names = list(mesh.joint_names or [f"joint{i}" for i in range(self.num_joints)])
+
+    @cached_property
+    def sequences(self) -> list[JointSequence]:
+        """The regressed joints, computed on first use (one sparse product per sequence)."""
+        import torch
+
+        from zoo.metrics import regress_joints
+
+        return [JointSequence(s.name, s.action, regress_joints(
+            torch.from_numpy(np.asarray(s.vertices, dtype=np.float64)),
+            self.mesh.joint_regressor).float().numpy(), s.fps) for s in self.mesh.sequences]
+
+    @property
+    def parts(self) -> dict[str, list[int]]:
+        """Body parts as joint indices (SPGSN's upper and lower body), from the joint names."""
+        lower = [i for i, n in enumerate(self.joint_names) if n in BVH_LOWER_BODY]
+        if not lower or len(lower) == self.num_joints:
+            raise MeshError(f"{self.name}: cannot tell upper from lower body from its joint names "
+                            f"{self.joint_names[:4]}...; expected the CMU BVH rig's "
+                            f"({', '.join(BVH_LOWER_BODY[:3])}, ...)")
+        return {"upper": [i for i in range(self.num_joints) if i not in lower], "lower": lower}
