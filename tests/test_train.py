@@ -115,6 +115,9 @@ def test_trained_checkpoint_evaluates_and_refuses_mismatches(setup, tmp_path, ca
 def test_recipe_errors_are_named(setup, tmp_path):
     with pytest.raises(TrainingError, match="unknown training-recipe key.*lrr"):
         run(setup, tmp_path / "r", train_overrides={"lrr": 1})
+    with pytest.raises(TrainingError, match="warmup_steps must be a non-negative integer"):
+        run(setup, tmp_path / "r", train_overrides={"schedule": {"type": "constant",
+                                                                 "warmup_steps": -1}})
     with pytest.raises(TrainingError, match="nothing to train"):
         train("repeat_last", "cmu", registry=setup[1], data_root=setup[0], out_dir=tmp_path)
 
@@ -146,3 +149,6 @@ def test_learning_rate_schedules():
     multi = {"type": "multistep", "milestones_steps": [30000], "lrs": [3e-4, 1e-5]}
     assert learning_rate(multi, 3e-4, 0, 1, 29999) == 3e-4
     assert learning_rate(multi, 3e-4, 0, 1, 30000) == 1e-5
+    warm = {**cosine, "warmup_steps": 4}
+    assert [learning_rate(warm, 1e-4, 0, 100, s) for s in range(5)] == pytest.approx(
+        [2.5e-5, 5e-5, 7.5e-5, 1e-4, 1e-4], rel=1e-12)

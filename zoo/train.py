@@ -79,6 +79,10 @@ def training_recipe(entry_train: dict[str, Any], overrides: dict[str, Any] | Non
     if schedule.get("type") not in SCHEDULES:
         raise TrainingError(f"training recipe: schedule type {schedule.get('type')!r} unknown; "
                             f"valid: {', '.join(SCHEDULES)}")
+    warmup = schedule.get("warmup_steps", 0)
+    if isinstance(warmup, bool) or not isinstance(warmup, int) or warmup < 0:
+        raise TrainingError(f"training recipe: schedule warmup_steps must be a non-negative "
+                            f"integer, got {warmup!r}")
     bad = [a for a in recipe["augment"] or () if a not in AUGMENTATIONS]
     if bad:
         raise TrainingError(f"training recipe: augmentation {bad[0]!r} unknown; valid: "
@@ -95,7 +99,14 @@ def training_recipe(entry_train: dict[str, Any], overrides: dict[str, Any] | Non
 
 def learning_rate(schedule: dict[str, Any], base_lr: float, epoch: int, epochs: int,
                   step: int = 0) -> float:
-    """The learning rate at 0-based ``epoch`` and global optimizer ``step``."""
+    """The learning rate at 0-based ``epoch`` and global optimizer ``step``.
+
+    Any schedule may add ``warmup_steps: N``: the rate grows linearly from ``lr / N`` over the
+    first N optimizer steps (a post-norm transformer trained at a high rate needs it)."""
+    warmup = schedule.get("warmup_steps", 0)
+    if warmup and step < warmup:
+        rest = {k: v for k, v in schedule.items() if k != "warmup_steps"}
+        return learning_rate(rest, base_lr, epoch, epochs, step) * (step + 1) / warmup
     kind = schedule.get("type", "constant")
     if kind == "constant":
         return base_lr
