@@ -92,3 +92,15 @@ def test_user_baseline_from_outside_zoo(tmp_path, swinging_cmu, capsys):
     assert main(["eval", "--registry", str(registry), "--model", "constant_velocity", "--set",
                  "dampng=0.5", "--data-root", str(root), "--out", str(tmp_path / "typo")]) == 2
     assert "valid: damping" in capsys.readouterr().err
+
+
+def test_command_line_overrides_read_numbers_as_numbers():
+    from zoo.cli import UsageError, parse_overrides
+
+    got = parse_overrides(["lr=1e-3", "blocks=4", "schedule={type: cosine, min_lr: 1e-6}",
+                           "name=mlp", "lrs=[3e-4, 1.0e-5]"])
+    assert got == {"lr": 1e-3, "blocks": 4, "schedule": {"type": "cosine", "min_lr": 1e-6},
+                   "name": "mlp", "lrs": [3e-4, 1e-5]}
+    assert isinstance(got["blocks"], int)
+    with pytest.raises(UsageError, match="expects key=value, got 'lr'"):
+        parse_overrides(["lr"])

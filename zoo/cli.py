@@ -25,8 +25,23 @@ def parse_overrides(items: Sequence[str] | None) -> dict[str, Any]:
         if "=" not in item:
             raise UsageError(f"--set expects key=value, got {item!r}")
         key, value = item.split("=", 1)
-        out[key.strip()] = yaml.safe_load(value)
+        out[key.strip()] = _numbers_as_numbers(yaml.safe_load(value))
     return out
+
+
+def _numbers_as_numbers(value: Any) -> Any:
+    """YAML 1.1 reads ``1e-3`` (no dot) as a string; a number is meant, in a value or nested."""
+    if isinstance(value, str):
+        try:
+            return float(value) if value.strip().lower() not in ("nan", "inf", "-inf",
+                                                                 "infinity") else value
+        except ValueError:
+            return value
+    if isinstance(value, dict):
+        return {k: _numbers_as_numbers(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_numbers_as_numbers(v) for v in value]
+    return value
 
 
 def _registry(args):
