@@ -73,3 +73,32 @@ def test_fully_trained_checkpoint_joins_as_model_at_last(tmp_path):
     record = json.loads((out / "cmu" / "all" / "tiny@last" / "protocol.json").read_text())
     assert record["provenance"]["checkpoint"].endswith("last.pt")
     assert record["provenance"]["training"]["epochs_run"] == 2
+
+
+def test_completion_models_get_their_own_tables(tmp_path, capsys):
+    root = tmp_path / "cmu"
+    for split, n in (("train", 2), ("test", 1)):
+        for i in range(1, n + 1):
+            write_cmu_file(root / split / "walking" / f"walking_{i}.txt",
+                           0.01 * i * np.arange(800))
+    (tmp_path / "registry.yaml").write_text(REGISTRY)
+    shutil.copy(HERE / "tiny_models.py", tmp_path / "tiny_models.py")
+    registry = Registry.from_files(HERE.parent / "registry.yaml", tmp_path / "registry.yaml")
+    checkpoints, out = tmp_path / "checkpoints", tmp_path / "results"
+    # Only baselines for completion: no completion table.
+    regenerate("cmu", registry=registry, data_root=root, out_root=out, checkpoints=checkpoints)
+    assert not (out / "cmu" / "all-completion").exists()
+    # Validation during training gives the model each window's final frame.
+    train("tiny_completion", "cmu", registry=registry, data_root=root, progress=False,
+          out_dir=checkpoints / "cmu" / "tiny_completion")
+    regenerate("cmu", registry=registry, data_root=root, out_root=out, checkpoints=checkpoints)
+    completion = pd.read_csv(out / "cmu" / "all-completion" / "results.csv")
+    assert set(completion.model) == {"tiny_completion", "interpolate"}
+    assert set(completion.task) == {"completion"}
+    prediction = pd.read_csv(out / "cmu" / "all" / "results.csv")
+    assert set(prediction.model) == {"repeat_last"}  # no trained predictor here
+    assert set(prediction.task) == {"prediction"}
+    # The interpolation ends exactly on the given final frame.
+    last = completion[(completion.model == "interpolate") & (completion.frame == 25) &
+                      (completion.averaging == "frame")]
+    assert (last.value.abs() < 1e-3).all()

@@ -262,3 +262,18 @@ def test_joints_view_body_parts_from_bvh_names():
     assert view.parts == {"upper": [2, 3, 5], "lower": [0, 1, 4]}
     assert view.sequences[0].positions.shape == (2, 6, 3)
     np.testing.assert_allclose(view.sequences[0].positions[1, 0], [12, 13, 14])  # the centroid
+
+
+def test_linear_interpolation_completes_a_uniform_scaling_exactly(toy_bench):
+    bench = toy_bench()
+    model = create_model("interpolate", benchmark=bench)
+    result = evaluate(model, bench, model_name="interpolate", task="completion")
+    frame = result.frame
+    # The square scales linearly in time, so the straight line to the final frame is the truth.
+    for metric in ("rmse", "mpjpe"):
+        np.testing.assert_allclose(rows(frame, "interpolate", metric)["average"], 0, atol=1e-5)
+    np.testing.assert_allclose(rows(frame, "interpolate", "melv")["average"],
+                               rows(frame, "ground_truth", "melv")["average"], rtol=1e-5)
+    assert result.protocol["task"] == "completion"
+    with pytest.raises(ValueError, match=r"final_frame: expected \(B, P, 3\)"):
+        model(torch.zeros(1, 2, 4, 3), None)

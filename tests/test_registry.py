@@ -104,3 +104,17 @@ def test_command_line_overrides_read_numbers_as_numbers():
     assert isinstance(got["blocks"], int)
     with pytest.raises(UsageError, match="expects key=value, got 'lr'"):
         parse_overrides(["lr"])
+
+
+def test_entry_task_is_checked(tmp_path):
+    from zoo.registry import Registry, RegistryError
+
+    path = tmp_path / "r.yaml"
+    path.write_text("models:\n  m:\n    class: zoo.models.repeat_last.RepeatLast\n"
+                    "    representation: joints\n    task: forecasting\n")
+    with pytest.raises(RegistryError, match="'task' must be one of prediction, completion"):
+        Registry.from_files(path)
+    path.write_text("models:\n  m:\n    class: zoo.models.repeat_last.RepeatLast\n"
+                    "    representation: joints\n    hparams: {task: completion}\n")
+    with pytest.raises(RegistryError, match="hparams task 'completion' but the entry's task"):
+        Registry.from_files(path)

@@ -12,7 +12,27 @@ models:
     reference: test model
     train: {lr: 0.001, batch_size: 8, epochs: 2, grad_clip: 1.0,
             schedule: {type: step, every_epochs: 1, gamma: 0.5}, augment: [time_reversal]}
+  tiny_completion:
+    class: tiny_models.py:TinyCompletion
+    representation: joints
+    trainable: true
+    task: completion
+    hparams: {}
+    reference: test model
+    train: {lr: 0.01, batch_size: 8, epochs: 1}
 """
+
+
+class TinyCompletion(nn.Module):
+    """In-betweening with one learned weight per output frame on the final frame."""
+
+    def __init__(self, input_frames, output_frames, num_points):
+        super().__init__()
+        self.weight = nn.Parameter(torch.zeros(output_frames))
+
+    def forward(self, history, final_frame):
+        w = self.weight.view(1, -1, 1, 1)
+        return history[:, -1:] * (1 - w) + final_frame[:, None] * w
 
 
 class TinyTemporal(nn.Module):

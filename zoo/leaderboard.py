@@ -182,18 +182,21 @@ def regenerate(benchmark, *, registry=None, data_root=None, out_root: str | Path
     written = []
     truths = (bench.ground_truths or (bench.ground_truth,)) if bench.representation == "mesh" \
         else (None,)
+    tasks = dict.fromkeys(registry.get(n).task for n in registry.list_models())
     for sampler in bench.samplers:
-        for truth in truths:
-            folder = sampler if truth in (None, "raw") else f"{sampler}-gt_{truth}"
-            path = _regenerate_one(bench, registry, dataset, sampler, truth, folder, out_root,
-                                   checkpoints, device)
-            if path is not None:
-                written.append(path)
+        for task in tasks:
+            for truth in truths:
+                folder = sampler if task == "prediction" else f"{sampler}-{task}"
+                folder += "" if truth in (None, "raw") else f"-gt_{truth}"
+                path = _regenerate_one(bench, registry, dataset, sampler, truth, folder,
+                                       out_root, checkpoints, device, task)
+                if path is not None:
+                    written.append(path)
     return written
 
 
 def _regenerate_one(bench, registry, dataset, sampler, truth, folder, out_root, checkpoints,
-                    device):
+                    device, task="prediction"):
     import sys
 
     from zoo.evaluate import EvalResult, evaluate
@@ -203,6 +206,10 @@ def _regenerate_one(bench, registry, dataset, sampler, truth, folder, out_root, 
     names = registry.list_models(bench.representation)
     if bench.representation == "mesh" and dataset.joint_regressor is not None:
         names += [n for n in registry.list_models("joints") if n not in names]
+    names = [n for n in names if registry.get(n).task == task]
+    if task != "prediction" and not any(registry.get(n).trainable and _has_run(
+            out_root / bench.name / folder / n, checkpoints, bench.name, n) for n in names):
+        return None  # a table of baselines alone says nothing about this task
     for name in names:
         entry = registry.get(name)
         view = bench.view_for(entry.representation)
@@ -230,7 +237,7 @@ def _regenerate_one(bench, registry, dataset, sampler, truth, folder, out_root, 
                 continue
             result = evaluate(model, bench, model_name=label, sampler=sampler, dataset=dataset,
                               device=device, provenance=provenance, ground_truth=truth,
-                              view=view)
+                              view=view, task=task)
             result.write(run_dir)
             results.append(result)
     # Freshly evaluated results come first: they define the protocol stored ones must match.
@@ -240,6 +247,12 @@ def _regenerate_one(bench, registry, dataset, sampler, truth, folder, out_root, 
     path = write_leaderboard(kept, out_root / bench.name / folder, bench.horizons_ms)
     print(f"wrote {path}/leaderboard.md ({len(kept)} models, {len(results)} evaluated now)")
     return path
+
+
+def _has_run(run_dir: Path, checkpoints, bench_name: str, name: str) -> bool:
+    """Whether a trained model has a checkpoint or a stored result to show."""
+    return (run_dir / "results.csv").is_file() or bool(
+        checkpoints and (Path(checkpoints) / bench_name / name / "best.pt").is_file())
 
 
 def _checkpoints_of(name, entry, bench, checkpoints):

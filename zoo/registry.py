@@ -27,7 +27,10 @@ DEFAULT_REGISTRY = REPO_ROOT / "registry.yaml"
 SHAPE_ARGS = ("input_frames", "output_frames", "num_points")
 REPRESENTATIONS = ("joints", "mesh")
 _ENTRY_KEYS = {"class", "representation", "trainable", "hparams", "reference", "context",
-               "description", "train"}
+               "description", "train", "task"}
+# What a model's forward does: prediction ``forward(history)``, or completion
+# ``forward(history, final_frame)`` (the window's last frame given). Tables keep them apart.
+ENTRY_TASKS = ("prediction", "completion")
 
 
 class RegistryError(ZooError, KeyError):
@@ -47,6 +50,7 @@ class ModelEntry:
     context: tuple[str, ...] = ()
     description: str = ""
     train: dict[str, Any] = field(default_factory=dict)  # the training recipe (zoo.train)
+    task: str = "prediction"
 
     @property
     def valid_args(self) -> list[str]:
@@ -161,7 +165,14 @@ def _parse_entry(path: Path, name: str, raw: Any) -> ModelEntry:
     clash = sorted(set(hparams) & set(SHAPE_ARGS))
     if clash:
         raise RegistryError(f"{where}: {', '.join(clash)} come from the benchmark, not hparams")
-    return ModelEntry(name=name, class_path=raw["class"], representation=rep,
+    task = raw.get("task", "prediction")
+    if task not in ENTRY_TASKS:
+        raise RegistryError(f"{where}: field 'task' must be one of {', '.join(ENTRY_TASKS)}, got "
+                            f"{task!r}")
+    if "task" in hparams and hparams["task"] != task:
+        raise RegistryError(f"{where}: hparams task {hparams['task']!r} but the entry's task is "
+                            f"{task!r} (field 'task', default prediction); they must agree")
+    return ModelEntry(name=name, class_path=raw["class"], representation=rep, task=task,
                       trainable=bool(raw.get("trainable", False)), hparams=dict(hparams),
                       reference=str(raw.get("reference", "")).strip(), source=path,
                       context=tuple(raw.get("context") or ()),
@@ -192,5 +203,7 @@ def create_model(name: str, benchmark: Any = None, registry: Registry | None = N
 
         bench = get_benchmark(benchmark) if isinstance(benchmark, (str, Path)) else benchmark
         entry = registry.get(name)
-        overrides = {**bench.model_inputs(entry.context), **overrides}
+        overrides = {**bench.model_inputs(entry.context,
+                                          view=bench.view_for(entry.representation)),
+                     **overrides}
     return registry.create_model(name, **overrides)

@@ -325,7 +325,7 @@ def train(model_name: str, benchmark: str | Benchmark, *, registry: Registry | N
         torch.set_rng_state(state["rng"])
         first_epoch, best, history = state["epoch"] + 1, state["best"], state["history"]
 
-    objective = _Objective(model)
+    objective = _Objective(model, entry.task)
     # Some phases leave parameters without gradients (SpecTrHuMS's transformer while the
     # autoencoder trains alone), which DDP must be told to expect.
     net = torch.nn.parallel.DistributedDataParallel(objective, find_unused_parameters=True) \
@@ -390,7 +390,7 @@ def train(model_name: str, benchmark: str | Benchmark, *, registry: Registry | N
                                 samples_per_s=f"{seen / (time.perf_counter() - started):.0f}")
         if bar is not None:
             bar.close()
-        val = validate(model, val_pos, val_index, t_in, t_out, used, device)
+        val = validate(model, val_pos, val_index, t_in, t_out, used, device, task=entry.task)
         record = {"epoch": epoch + 1, "lr": lr, "train_loss": loss_sum / steps_per_epoch,
                   "val_mpjpe": val, "seconds": time.perf_counter() - started,
                   "samples": seen}
@@ -416,28 +416,36 @@ def train(model_name: str, benchmark: str | Benchmark, *, registry: Registry | N
 
 class _Objective(nn.Module):
     """The training loss as a module, so DDP synchronises gradients of any model's own loss:
-    the model's ``training_loss`` if it defines one, else mean MPJPE over predicted frames."""
+    the model's ``training_loss`` if it defines one, else mean MPJPE over predicted frames (a
+    completion model is given the window's last frame)."""
 
-    def __init__(self, model: nn.Module) -> None:
+    def __init__(self, model: nn.Module, task: str = "prediction") -> None:
         super().__init__()
-        self.model = model
+        self.model, self.task = model, task
 
     def forward(self, history: torch.Tensor, future: torch.Tensor) -> torch.Tensor:
+        from zoo.evaluate import predict
+
         own = getattr(self.model, "training_loss", None)
         if own is not None:
             return own(history, future)
-        return mpjpe(self.model(history), future).mean()
+        pred = predict(self.model, history, self.task, future.shape[1], future[:, -1])
+        return mpjpe(pred, future).mean()
 
 
 @torch.no_grad()
-def validate(model, positions, index, t_in, t_out, used, device, batch_size: int = 1024) -> float:
-    """Mean MPJPE (mm) over validation windows and predicted frames, on the predicted joints."""
+def validate(model, positions, index, t_in, t_out, used, device, batch_size: int = 1024,
+             task: str = "prediction") -> float:
+    """Mean MPJPE (mm) over validation windows and predicted frames, on the predicted joints;
+    a completion model (``task``) is given each window's last frame as its final frame."""
+    from zoo.evaluate import predict
+
     model.eval()
     total, count = 0.0, 0
     for start in range(0, len(index), batch_size):
         w = torch.from_numpy(gather_windows(positions, index[start:start + batch_size],
                                             t_in + t_out)[:, :, used]).to(device)
-        err = mpjpe(model(w[:, :t_in]), w[:, t_in:])
+        err = mpjpe(predict(model, w[:, :t_in], task, t_out, w[:, -1]), w[:, t_in:])
         total += err.sum().item()
         count += err.numel()
     return total / count
