@@ -13,6 +13,8 @@ The common contract (all a model needs to be evaluated, trained and registered):
   registry entry under ``context`` and the benchmark provides them: ``parts`` (skeletons: the
   body-part split as indices into the predicted joints, SPGSN) and ``basis`` (meshes: the
   dataset's ``zoo.data.spectral.SpectralBasis``, SpecTrHuMS);
+- completion models (registry ``task: completion``) take ``forward(history, final_frame)``,
+  ``final_frame (B, P, 3)`` being the last of the ``T_out`` frames to fill in;
 - optional training hooks ``training_loss(history, future)`` and ``start_epoch(epoch, windows)``
   (see ``zoo.train``).
 """
