@@ -102,3 +102,16 @@ def test_skeleton_model_trains_on_a_mesh_benchmarks_regressed_joints(toy_mesh, t
     model, _ = load_checkpoint(best, registry=registry, benchmark=bench)
     result = evaluate(model, bench, model_name="mlp", view="joints")
     assert set(result.frame.metric) == {"mpjpe"} and set(result.frame.joints) == {"regressor3"}
+
+
+def test_a_training_sampler_that_finds_no_window_is_named(toy_mesh, tmp_path):
+    from zoo.train import TrainingError
+
+    bench, registry, _ = toy_mesh
+    whole = tmp_path / "whole.yaml"  # the window is the whole 12-frame sequence, as on cloth
+    whole.write_text(bench.read_text().replace("output_frames: 4", "output_frames: 8"))
+    with pytest.raises(TrainingError, match="training sampler 'stride5_strict' finds no window "
+                                            "of 12 frames.*longest: 12 frames.*train_sampler"):
+        train("tiny_spectral", whole, registry=registry, out_dir=tmp_path / "run",
+              progress=False, train_overrides={"train_sampler": "stride5_strict"})
+    assert not (tmp_path / "run").exists()  # nothing half-written

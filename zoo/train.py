@@ -308,9 +308,15 @@ def train(model_name: str, benchmark: str | Benchmark, *, registry: Registry | N
     train_seqs, val_seqs = split_train_val(dataset, recipe["val_fraction"], length)
     train_pos, train_index = _windows(train_seqs, length, recipe["train_sampler"], t_in, t_out)
     val_pos, val_index = _windows(val_seqs, length, "all", t_in, t_out)
-    if len(train_index) == 0 or len(val_index) == 0:
-        raise TrainingError(f"{dataset.name}/{dataset.split}: no training or validation window "
-                            f"of {length} frames")
+    if len(train_index) == 0:
+        raise TrainingError(f"{dataset.name}/{dataset.split}: training sampler "
+                            f"{recipe['train_sampler']!r} finds no window of {length} frames in "
+                            f"the training sequences (longest: "
+                            f"{max((len(a) for a in train_seqs), default=0)} frames); choose "
+                            f"another with --train-set train_sampler=NAME (e.g. all)")
+    if len(val_index) == 0:
+        raise TrainingError(f"{dataset.name}/{dataset.split}: no validation window of {length} "
+                            f"frames in the held-out sequences")
     used = _point_index(bench)
 
     first_epoch, best, history = 0, {"val_mpjpe": math.inf, "epoch": -1}, []
