@@ -182,7 +182,7 @@ def regenerate(benchmark, *, registry=None, data_root=None, out_root: str | Path
     written = []
     truths = (bench.ground_truths or (bench.ground_truth,)) if bench.representation == "mesh" \
         else (None,)
-    tasks = dict.fromkeys(registry.get(n).task for n in registry.list_models())
+    tasks = dict.fromkeys(["prediction", *(registry.get(n).task for n in registry.list_models())])
     for sampler in bench.samplers:
         for task in tasks:
             for truth in truths:
