@@ -15,7 +15,9 @@ from zoo.train import train
 HERE = Path(__file__).resolve().parent
 
 
-def test_regenerate_with_checkpoint_and_stale_result(tmp_path, capsys):
+def cmu_and_registry(tmp_path):
+    """Two training files and one test file of CMU walking, and the zoo's registry plus the
+    tiny test models."""
     root = tmp_path / "cmu"
     for split, n in (("train", 2), ("test", 1)):
         for i in range(1, n + 1):
@@ -23,7 +25,11 @@ def test_regenerate_with_checkpoint_and_stale_result(tmp_path, capsys):
                            0.01 * i * np.arange(800))
     (tmp_path / "registry.yaml").write_text(REGISTRY)
     shutil.copy(HERE / "tiny_models.py", tmp_path / "tiny_models.py")
-    registry = Registry.from_files(HERE.parent / "registry.yaml", tmp_path / "registry.yaml")
+    return root, Registry.from_files(HERE.parent / "registry.yaml", tmp_path / "registry.yaml")
+
+
+def test_regenerate_with_checkpoint_and_stale_result(tmp_path, capsys):
+    root, registry = cmu_and_registry(tmp_path)
     checkpoints = tmp_path / "checkpoints"
     train("tiny", "cmu", registry=registry, data_root=root, epochs=1, progress=False,
           out_dir=checkpoints / "cmu" / "tiny")
@@ -53,14 +59,7 @@ def test_regenerate_with_checkpoint_and_stale_result(tmp_path, capsys):
 
 
 def test_fully_trained_checkpoint_joins_as_model_at_last(tmp_path):
-    root = tmp_path / "cmu"
-    for split, n in (("train", 2), ("test", 1)):
-        for i in range(1, n + 1):
-            write_cmu_file(root / split / "walking" / f"walking_{i}.txt",
-                           0.01 * i * np.arange(800))
-    (tmp_path / "registry.yaml").write_text(REGISTRY)
-    shutil.copy(HERE / "tiny_models.py", tmp_path / "tiny_models.py")
-    registry = Registry.from_files(HERE.parent / "registry.yaml", tmp_path / "registry.yaml")
+    root, registry = cmu_and_registry(tmp_path)
     checkpoints = tmp_path / "checkpoints"
     # Two epochs that change nothing: validation never improves after epoch 1, so best.pt is
     # epoch 1 (early-stopped) and last.pt epoch 2 (fully trained).
@@ -76,14 +75,7 @@ def test_fully_trained_checkpoint_joins_as_model_at_last(tmp_path):
 
 
 def test_completion_models_get_their_own_tables(tmp_path, capsys):
-    root = tmp_path / "cmu"
-    for split, n in (("train", 2), ("test", 1)):
-        for i in range(1, n + 1):
-            write_cmu_file(root / split / "walking" / f"walking_{i}.txt",
-                           0.01 * i * np.arange(800))
-    (tmp_path / "registry.yaml").write_text(REGISTRY)
-    shutil.copy(HERE / "tiny_models.py", tmp_path / "tiny_models.py")
-    registry = Registry.from_files(HERE.parent / "registry.yaml", tmp_path / "registry.yaml")
+    root, registry = cmu_and_registry(tmp_path)
     checkpoints, out = tmp_path / "checkpoints", tmp_path / "results"
     # Only baselines for completion: no completion table.
     regenerate("cmu", registry=registry, data_root=root, out_root=out, checkpoints=checkpoints)
