@@ -6,6 +6,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 import torch
 
@@ -89,6 +90,10 @@ def test_trained_checkpoint_evaluates_and_refuses_mismatches(setup, tmp_path, ca
     assert main(["eval", "--registry", str(reg_file), "--checkpoint", str(best), "--data-root",
                  str(root), "--sampler", "all", "--out", str(out)]) == 0
     assert (out / "results.csv").is_file()
+    # the fully trained checkpoint gets its own label (and folder), never the early-stopped one's
+    assert main(["eval", "--registry", str(reg_file), "--checkpoint", str(best.parent / "last.pt"),
+                 "--data-root", str(root), "--sampler", "all", "--out", str(tmp_path / "last")]) == 0
+    assert set(pd.read_csv(tmp_path / "last" / "results.csv").model) == {"tiny@last"}
     # another model
     assert main(["eval", "--registry", str(reg_file), "--checkpoint", str(best), "--model",
                  "repeat_last", "--data-root", str(root), "--out", str(tmp_path / "x")]) == 2

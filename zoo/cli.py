@@ -109,11 +109,13 @@ def cmd_eval(args) -> int:
     bench = get_benchmark(args.benchmark or "cmu")
     dataset = bench.load(args.data_root)
     name, model, provenance = _load_model(args, registry, bench, dataset)
+    view = bench.view_for(registry.get(name).representation)
+    if args.checkpoint and Path(args.checkpoint).name == "last.pt":
+        name += "@last"  # the fully trained checkpoint, labelled as the leaderboard does
     samplers = args.sampler or [bench.sampler]
     if args.out and len(samplers) > 1:
         raise UsageError("--out takes one --sampler; omit --out to write "
                          "results/<benchmark>/<sampler>/<model>/ for each")
-    view = bench.view_for(registry.get(name).representation)
     for sampler in samplers:
         result = evaluate(model, bench, model_name=name, sampler=sampler, dataset=dataset,
                           view=view,
