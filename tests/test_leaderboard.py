@@ -94,3 +94,11 @@ def test_completion_models_get_their_own_tables(tmp_path, capsys):
     last = completion[(completion.model == "interpolate") & (completion.frame == 25) &
                       (completion.averaging == "frame")]
     assert (last.value.abs() < 1e-3).all()
+
+
+def test_results_folder_names_sampler_task_and_ground_truth():
+    from zoo.leaderboard import results_folder
+
+    assert results_folder("all") == "all"
+    assert results_folder("all", "completion", "spectral") == "all-completion-gt_spectral"
+    assert results_folder("stride5_strict", "longterm", "raw", 50) == "stride5_strict-longterm50"

@@ -99,6 +99,7 @@ def _load_model(args, registry, bench, dataset):
 def cmd_eval(args) -> int:
     from zoo.benchmark import get_benchmark
     from zoo.evaluate import evaluate
+    from zoo.leaderboard import results_folder
 
     registry = _registry(args)
     if args.benchmark is None and args.checkpoint:
@@ -123,10 +124,7 @@ def cmd_eval(args) -> int:
                           device=args.device, provenance=_jsonable(provenance),
                           task=args.task, horizon=args.horizon_frames,
                           ground_truth=args.ground_truth)
-        folder = sampler if args.task == "prediction" else \
-            f"{sampler}-{args.task}{args.horizon_frames or ''}"
-        if args.ground_truth not in (None, "raw"):
-            folder += f"-gt_{args.ground_truth}"
+        folder = results_folder(sampler, args.task, args.ground_truth, args.horizon_frames)
         out = Path(args.out) if args.out else RESULTS_DIR / bench.name / folder / name
         result.write(out)
         _print_average(result.frame, bench.horizons_ms)

@@ -186,13 +186,20 @@ def regenerate(benchmark, *, registry=None, data_root=None, out_root: str | Path
     for sampler in bench.samplers:
         for task in tasks:
             for truth in truths:
-                folder = sampler if task == "prediction" else f"{sampler}-{task}"
-                folder += "" if truth in (None, "raw") else f"-gt_{truth}"
+                folder = results_folder(sampler, task, truth)
                 path = _regenerate_one(bench, registry, dataset, sampler, truth, folder,
                                        out_root, checkpoints, device, task)
                 if path is not None:
                     written.append(path)
     return written
+
+
+def results_folder(sampler: str, task: str = "prediction", truth: str | None = None,
+                   horizon: int | None = None) -> str:
+    """The folder under ``results/<benchmark>/`` of one sampler, task and ground truth:
+    ``all``, ``all-completion``, ``all-longterm50``, ``all-gt_spectral``, ..."""
+    folder = sampler if task == "prediction" else f"{sampler}-{task}{horizon or ''}"
+    return folder if truth in (None, "raw") else f"{folder}-gt_{truth}"
 
 
 def _regenerate_one(bench, registry, dataset, sampler, truth, folder, out_root, checkpoints,
