@@ -228,7 +228,11 @@ def _regenerate_one(bench, registry, dataset, sampler, truth, folder, out_root, 
 
                 model, meta = load_checkpoint(ckpt, registry=registry, benchmark=bench,
                                               dataset=dataset)
-                provenance = {"checkpoint": str(ckpt), "training": meta.get("training", {})}
+                training = meta.get("training", {})
+                if label != name and training.get("best", {}).get("epoch") == \
+                        training.get("epochs_run"):
+                    continue  # trained no further than its best epoch: best.pt's weights
+                provenance = {"checkpoint": str(ckpt), "training": training}
             elif not entry.trainable:
                 model = registry.create_model(name, **bench.model_inputs(
                     entry.context, dataset=dataset, view=view))
@@ -265,21 +269,13 @@ def _has_run(run_dir: Path, checkpoints, bench_name: str, name: str) -> bool:
 def _checkpoints_of(name, entry, bench, checkpoints):
     """``(label, checkpoint path or None)`` to evaluate for a model: untrained models once;
     trained ones by their early-stopped checkpoint (``best.pt``, labelled with the model's name)
-    and, when training went on past it, their fully trained one (``last.pt``, ``<name>@last``):
-    the two can trade accuracy for smoothness (SpecTrHuMS reports both)."""
+    and their fully trained one (``last.pt``, ``<name>@last``), which is shown only when training
+    went on past the best epoch: the two can trade accuracy for smoothness (SpecTrHuMS reports
+    both)."""
     if not entry.trainable or not checkpoints:
         return [(name, None)]
     run = Path(checkpoints) / bench.name / name
-    pairs = [(name, run / "best.pt")]
-    if (run / "last.pt").is_file():
-        from zoo.train import read_checkpoint
-
-        training = read_checkpoint(run / "last.pt").get("training", {})
-        if training.get("best", {}).get("epoch") != training.get("epochs_run"):
-            pairs.append((f"{name}@last", run / "last.pt"))
-    else:
-        pairs.append((f"{name}@last", run / "last.pt"))  # a stored result may still be kept
-    return pairs
+    return [(name, run / "best.pt"), (f"{name}@last", run / "last.pt")]
 
 
 def _drop_mismatched(results: list, bench: str, sampler: str) -> list:

@@ -34,6 +34,7 @@ from torch import nn
 from zoo.benchmark import Benchmark, get_benchmark
 from zoo.data.windows import gather_windows, window_sampler
 from zoo.errors import ZooError
+from zoo.evaluate import predict
 from zoo.io import atomic_path, code_version
 from zoo.metrics import mpjpe
 from zoo.registry import REPO_ROOT, Registry, load_registry
@@ -430,8 +431,6 @@ class _Objective(nn.Module):
         self.model, self.task = model, task
 
     def forward(self, history: torch.Tensor, future: torch.Tensor) -> torch.Tensor:
-        from zoo.evaluate import predict
-
         own = getattr(self.model, "training_loss", None)
         if own is not None:
             return own(history, future)
@@ -444,8 +443,6 @@ def validate(model, positions, index, t_in, t_out, used, device, batch_size: int
              task: str = "prediction") -> float:
     """Mean MPJPE (mm) over validation windows and predicted frames, on the predicted joints;
     a completion model (``task``) is given each window's last frame as its final frame."""
-    from zoo.evaluate import predict
-
     model.eval()
     total, count = 0.0, 0
     for start in range(0, len(index), batch_size):

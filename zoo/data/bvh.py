@@ -39,6 +39,9 @@ CMU_BVH_JOINTS = (
     "LeftHandIndex1", "LThumb", "RightShoulder", "RightArm", "RightForeArm", "RightHand",
     "RightFingerBase", "RightHandIndex1", "RThumb",
 )
+# The lower body (hips and both legs): the first 11 joints in file order; the rest is upper body
+# (SPGSN's two parts on this skeleton).
+CMU_BVH_LOWER_BODY = CMU_BVH_JOINTS[:CMU_BVH_JOINTS.index("LowerBack")]
 # Tail offsets shorter than this (in the file's units) give a bone no direction.
 MIN_BONE_LENGTH = 1e-9
 

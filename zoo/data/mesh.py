@@ -218,12 +218,6 @@ class MeshDataset:
                    joint_names=meta.get("joint_names"))
 
 
-# Joints of the CMU BVH rig (zoo.data.bvh, Anny's cmu_mb) that form the lower body: the hips and
-# both legs; every other joint is upper body. SPGSN's two body parts on a regressed skeleton.
-BVH_LOWER_BODY = ("Hips", "LHipJoint", "LeftUpLeg", "LeftLeg", "LeftFoot", "LeftToeBase",
-                  "RHipJoint", "RightUpLeg", "RightLeg", "RightFoot", "RightToeBase")
-
-
 @dataclass
 class JointSequence:
     """One sequence of a :class:`JointsView`: ``positions (T, J, 3)`` float32 in mm."""
@@ -264,10 +258,13 @@ class JointsView:
 
     @property
     def parts(self) -> dict[str, list[int]]:
-        """Body parts as joint indices (SPGSN's upper and lower body), from the joint names."""
-        lower = [i for i, n in enumerate(self.joint_names) if n in BVH_LOWER_BODY]
+        """Body parts as joint indices (SPGSN's upper and lower body), from the joint names of
+        the CMU BVH rig (zoo.data.bvh; Anny's cmu_mb uses the same names)."""
+        from zoo.data.bvh import CMU_BVH_LOWER_BODY
+
+        lower = [i for i, n in enumerate(self.joint_names) if n in CMU_BVH_LOWER_BODY]
         if not lower or len(lower) == self.num_joints:
             raise MeshError(f"{self.name}: cannot tell upper from lower body from its joint names "
                             f"{self.joint_names[:4]}...; expected the CMU BVH rig's "
-                            f"({', '.join(BVH_LOWER_BODY[:3])}, ...)")
+                            f"({', '.join(CMU_BVH_LOWER_BODY[:3])}, ...)")
         return {"upper": [i for i in range(self.num_joints) if i not in lower], "lower": lower}
