@@ -153,6 +153,25 @@ def test_projection_and_reconstruction_are_single_matrix_products():
         assert "aten::bmm" not in names
 
 
+def test_bfloat16_autocast_keeps_the_basis_products_and_decoder_output_in_float32():
+    model = trained_stats(make())
+    vertices = motion(2)
+    with torch.no_grad():
+        coeffs, rebuilt = model.project(vertices), model.reconstruct(model.project(vertices))
+        plain = model.predict_coefficients(coeffs[:, :T_IN])
+        with torch.autocast("cpu", dtype=torch.bfloat16):
+            # millimetre coordinates: bfloat16 would round them by up to 2**-8 of their size
+            assert model.project(vertices).dtype == torch.float32
+            torch.testing.assert_close(model.project(vertices), coeffs)
+            torch.testing.assert_close(model.reconstruct(coeffs), rebuilt)
+            mixed = model.predict_coefficients(coeffs[:, :T_IN])
+            terms = model.coefficient_loss_terms(model.project(vertices))
+    assert mixed.dtype == torch.float32  # the decoder's last layer and de-standardisation
+    assert not torch.equal(mixed, plain)  # the layers in between did run in bfloat16
+    torch.testing.assert_close(mixed, plain, rtol=0.05, atol=0.05 * float(plain.abs().max()))
+    assert all(torch.isfinite(t) and t.dtype == torch.float32 for t in terms.values())
+
+
 # ---- the architecture ----------------------------------------------------------------------------
 
 def test_autoencoder_equals_its_layers_applied_one_after_the_other():

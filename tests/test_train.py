@@ -69,6 +69,17 @@ def test_seeded_runs_match_and_checkpoint_carries_its_record(setup, tmp_path):
     assert ckpt["training"]["epochs_run"] >= 1
 
 
+def test_bfloat16_precision_trains_under_autocast_with_float32_weights(setup, tmp_path):
+    plain = run(setup, tmp_path / "fp32")
+    mixed = run(setup, tmp_path / "bf16", train_overrides={"precision": "bfloat16"})
+    ckpt = read_checkpoint(mixed)
+    assert ckpt["recipe"]["precision"] == "bfloat16"
+    assert read_checkpoint(plain)["recipe"]["precision"] == "float32"
+    assert all(v.dtype == torch.float32 for v in ckpt["state_dict"].values())
+    # The same seed and data: only the forward's bfloat16 products differ.
+    assert digest(mixed) != digest(plain)
+
+
 def test_resume_reaches_the_same_weights(setup, tmp_path):
     run(setup, tmp_path / "full", epochs=3)
     run(setup, tmp_path / "cut", epochs=3, stop_after_epoch=1)
@@ -123,6 +134,9 @@ def test_recipe_errors_are_named(setup, tmp_path):
     with pytest.raises(TrainingError, match="warmup_steps must be a non-negative integer"):
         run(setup, tmp_path / "r", train_overrides={"schedule": {"type": "constant",
                                                                  "warmup_steps": -1}})
+    with pytest.raises(TrainingError, match="precision 'float16' unknown; valid: float32, "
+                                            "bfloat16"):
+        run(setup, tmp_path / "r", train_overrides={"precision": "float16"})
     with pytest.raises(TrainingError, match="nothing to train"):
         train("repeat_last", "cmu", registry=setup[1], data_root=setup[0], out_dir=tmp_path)
 

@@ -51,7 +51,12 @@ DEFAULT_RECIPE: dict[str, Any] = {
     "augment": [],
     "val_fraction": 0.1,
     "train_sampler": "all",
+    # "bfloat16": the training loss (forward) under torch.autocast; weights, optimiser,
+    # validation and evaluation stay float32. Models keep their precision-critical sums (mm
+    # positions, spectral products) in float32 themselves.
+    "precision": "float32",
 }
+PRECISIONS = {"float32": None, "bfloat16": torch.bfloat16}
 SCHEDULES = ("constant", "step", "cosine", "multistep")
 AUGMENTATIONS = ("time_reversal",)
 
@@ -88,6 +93,9 @@ def training_recipe(entry_train: dict[str, Any], overrides: dict[str, Any] | Non
     if bad:
         raise TrainingError(f"training recipe: augmentation {bad[0]!r} unknown; valid: "
                             f"{', '.join(AUGMENTATIONS)}")
+    if recipe["precision"] not in PRECISIONS:
+        raise TrainingError(f"training recipe: precision {recipe['precision']!r} unknown; "
+                            f"valid: {', '.join(PRECISIONS)}")
     for key in ("batch_size", "epochs"):
         if not isinstance(recipe[key], int) or recipe[key] < 1:
             raise TrainingError(f"training recipe: {key} must be a positive integer, got "
@@ -356,6 +364,7 @@ def train(model_name: str, benchmark: str | Benchmark, *, registry: Registry | N
             w = gather_windows(train_pos, train_index[start:start + batch], length)[:, :, used]
             yield torch.from_numpy(w).to(device)
 
+    autocast = PRECISIONS[recipe["precision"]] is not None
     for epoch in range(first_epoch, recipe["epochs"]):
         if hasattr(model, "start_epoch"):  # e.g. warm-up phases, statistics over the data
             model.start_epoch(epoch, training_windows)
@@ -379,7 +388,9 @@ def train(model_name: str, benchmark: str | Benchmark, *, registry: Registry | N
                 windows[flip] = windows[flip, ::-1]
             windows = torch.from_numpy(np.ascontiguousarray(windows)).to(device)
             history_, future = windows[:, :t_in], windows[:, t_in:]
-            loss = net(history_, future)
+            with torch.autocast(torch.device(device).type, dtype=torch.bfloat16,
+                                enabled=autocast):
+                loss = net(history_, future)
             if not torch.isfinite(loss):
                 raise TrainingError(f"{model_name}: loss is {loss.item()} at epoch {epoch + 1}, "
                                     f"batch {step + 1}: training stopped (lower the lr or check "

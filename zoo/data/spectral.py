@@ -187,7 +187,8 @@ class SpectralBasis:
         """Spectral coefficients ``Phi^T X``: ``(..., V, 3)`` -> ``(..., k, 3)``.
 
         One matrix product over all leading dimensions. Torch tensors stay on their device and
-        dtype; a numpy array is projected in float64 and returned as numpy.
+        dtype, also under an autocast (coefficients of vertices in mm would lose millimetres in
+        bfloat16); a numpy array is projected in float64 and returned as numpy.
         """
         if isinstance(vertices, np.ndarray):
             return self.project(torch.from_numpy(np.asarray(vertices, np.float64))).numpy()
@@ -197,18 +198,21 @@ class SpectralBasis:
         # (..., V, 3) -> (N*3, V) @ (V, k) -> (N, 3, k) -> (..., k, 3)
         flat = vertices.reshape(-1, self.num_vertices, 3).transpose(1, 2).reshape(-1,
                                                                                  self.num_vertices)
-        coeffs = (flat @ phi).reshape(-1, 3, self.k).transpose(1, 2)
+        with torch.autocast(vertices.device.type, enabled=False):
+            coeffs = (flat @ phi).reshape(-1, 3, self.k).transpose(1, 2)
         return coeffs.reshape(*lead, self.k, 3)
 
     def reconstruct(self, coeffs: torch.Tensor) -> torch.Tensor:
-        """Vertices ``Phi C``: ``(..., k, 3)`` -> ``(..., V, 3)``, one matrix product."""
+        """Vertices ``Phi C``: ``(..., k, 3)`` -> ``(..., V, 3)``, one matrix product (in the
+        coefficients' dtype, also under an autocast)."""
         if isinstance(coeffs, np.ndarray):
             return self.reconstruct(torch.from_numpy(np.asarray(coeffs, np.float64))).numpy()
         self._check_last(coeffs, self.k, "reconstruct", "coefficients (..., k, 3)")
         phi = self.torch_vectors(coeffs.device, coeffs.dtype)
         lead = coeffs.shape[:-2]
         flat = coeffs.reshape(-1, self.k, 3).transpose(1, 2).reshape(-1, self.k)
-        out = (flat @ phi.T).reshape(-1, 3, self.num_vertices).transpose(1, 2)
+        with torch.autocast(coeffs.device.type, enabled=False):
+            out = (flat @ phi.T).reshape(-1, 3, self.num_vertices).transpose(1, 2)
         return out.reshape(*lead, self.num_vertices, 3)
 
     def _check_last(self, x: torch.Tensor, n: int, what: str, expected: str) -> None:
