@@ -72,6 +72,7 @@ def test_fully_trained_checkpoint_joins_as_model_at_last(tmp_path):
     record = json.loads((out / "cmu" / "all" / "tiny@last" / "protocol.json").read_text())
     assert record["provenance"]["checkpoint"].endswith("last.pt")
     assert record["provenance"]["training"]["epochs_run"] == 2
+    assert record["provenance"]["hparams"]["hidden"] == 16  # as zoo eval --checkpoint records
 
 
 def test_completion_models_get_their_own_tables(tmp_path, capsys):

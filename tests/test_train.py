@@ -80,6 +80,17 @@ def test_bfloat16_precision_trains_under_autocast_with_float32_weights(setup, tm
     assert digest(mixed) != digest(plain)
 
 
+def test_checkpoint_provenance_names_repository_files_relative_to_it(tmp_path):
+    from zoo.registry import REPO_ROOT
+    from zoo.train import checkpoint_provenance
+    meta = {"hparams": {"hidden": 16}, "training": {"epochs_run": 3}}
+    inside = checkpoint_provenance(REPO_ROOT / "checkpoints" / "cmu" / "mlp" / "best.pt", meta)
+    assert inside == {"checkpoint": "checkpoints/cmu/mlp/best.pt", "hparams": {"hidden": 16},
+                      "training": {"epochs_run": 3}}
+    outside = checkpoint_provenance(tmp_path / "best.pt", meta)
+    assert outside["checkpoint"] == str((tmp_path / "best.pt").resolve())
+
+
 def test_resume_reaches_the_same_weights(setup, tmp_path):
     run(setup, tmp_path / "full", epochs=3)
     run(setup, tmp_path / "cut", epochs=3, stop_after_epoch=1)

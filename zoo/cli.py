@@ -67,7 +67,7 @@ def _load_model(args, registry, bench, dataset):
     """The model to evaluate: a registered one, or the one a checkpoint holds."""
     overrides = parse_overrides(args.set)
     if getattr(args, "checkpoint", None):
-        from zoo.train import load_checkpoint
+        from zoo.train import checkpoint_provenance, load_checkpoint
 
         model, ckpt = load_checkpoint(args.checkpoint, registry=registry, benchmark=bench,
                                       data_root=args.data_root, dataset=dataset)
@@ -76,9 +76,7 @@ def _load_model(args, registry, bench, dataset):
                              f"{ckpt['model']!r}")
         if overrides:
             raise UsageError("--set cannot change a trained checkpoint's hyper-parameters")
-        return ckpt["model"], model, {"checkpoint": str(args.checkpoint),
-                                      "hparams": ckpt["hparams"],
-                                      "training": ckpt.get("training", {})}
+        return ckpt["model"], model, checkpoint_provenance(args.checkpoint, ckpt)
     if not args.model:
         raise UsageError("give --model NAME or --checkpoint PATH")
     from zoo.train import _stored_hparams

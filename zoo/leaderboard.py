@@ -224,7 +224,7 @@ def _regenerate_one(bench, registry, dataset, sampler, truth, folder, out_root, 
             run_dir = out_root / bench.name / folder / label
             provenance = {}
             if ckpt is not None and ckpt.is_file():
-                from zoo.train import load_checkpoint
+                from zoo.train import checkpoint_provenance, load_checkpoint
 
                 model, meta = load_checkpoint(ckpt, registry=registry, benchmark=bench,
                                               dataset=dataset)
@@ -232,7 +232,7 @@ def _regenerate_one(bench, registry, dataset, sampler, truth, folder, out_root, 
                 if label != name and training.get("best", {}).get("epoch") == \
                         training.get("epochs_run"):
                     continue  # trained no further than its best epoch: best.pt's weights
-                provenance = {"checkpoint": str(ckpt), "training": training}
+                provenance = checkpoint_provenance(ckpt, meta)
             elif not entry.trainable:
                 model = registry.create_model(name, **bench.model_inputs(
                     entry.context, dataset=dataset, view=view))

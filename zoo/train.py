@@ -257,6 +257,16 @@ def load_checkpoint(path: str | Path, *, registry: Registry | None = None,
     return model.eval(), ckpt
 
 
+def checkpoint_provenance(path: str | Path, checkpoint: dict[str, Any]) -> dict[str, Any]:
+    """What a result computed from ``checkpoint`` records about it: the file (relative to the
+    repository when inside it, so stored results name no machine's folders), the
+    hyper-parameters and the training summary."""
+    path = Path(path).resolve()
+    shown = path.relative_to(REPO_ROOT) if path.is_relative_to(REPO_ROOT) else path
+    return {"checkpoint": str(shown), "hparams": checkpoint["hparams"],
+            "training": checkpoint.get("training", {})}
+
+
 def model_protocol(bench: Benchmark, view: str = "mesh") -> dict[str, Any]:
     """What a trained model's weights depend on: it must match wherever they are evaluated.
     ``view``: ``joints`` for a skeleton model trained on a mesh benchmark's regressed joints."""
