@@ -374,7 +374,7 @@ def train(model_name: str, benchmark: str | Benchmark, *, registry: Registry | N
             w = gather_windows(train_pos, train_index[start:start + batch], length)[:, :, used]
             yield torch.from_numpy(w).to(device)
 
-    autocast = PRECISIONS[recipe["precision"]] is not None
+    autocast = PRECISIONS[recipe["precision"]]  # the forward's dtype, None: as the weights
     for epoch in range(first_epoch, recipe["epochs"]):
         if hasattr(model, "start_epoch"):  # e.g. warm-up phases, statistics over the data
             model.start_epoch(epoch, training_windows)
@@ -398,8 +398,8 @@ def train(model_name: str, benchmark: str | Benchmark, *, registry: Registry | N
                 windows[flip] = windows[flip, ::-1]
             windows = torch.from_numpy(np.ascontiguousarray(windows)).to(device)
             history_, future = windows[:, :t_in], windows[:, t_in:]
-            with torch.autocast(torch.device(device).type, dtype=torch.bfloat16,
-                                enabled=autocast):
+            with torch.autocast(torch.device(device).type, dtype=autocast,
+                                enabled=autocast is not None):
                 loss = net(history_, future)
             if not torch.isfinite(loss):
                 raise TrainingError(f"{model_name}: loss is {loss.item()} at epoch {epoch + 1}, "
