@@ -8,7 +8,8 @@ import pandas as pd
 
 from conftest import write_cmu_file
 from tiny_models import REGISTRY
-from zoo.leaderboard import regenerate
+from zoo.evaluate import EvalResult
+from zoo.leaderboard import regenerate, write_leaderboard
 from zoo.registry import Registry
 from zoo.train import train
 
@@ -44,10 +45,17 @@ def test_regenerate_with_checkpoint_and_stale_result(tmp_path, capsys):
     assert set(combined.model) == {"tiny", "repeat_last"}
     assert combined.protocol_id.nunique() == 1
 
-    # Without its checkpoint the trained model's stored result is kept while it still matches...
+    # Without its checkpoint the trained model's stored result is kept while it still matches
+    # (the same table, rows in the same order: a fresh clone rewrites no stored number)...
     shutil.rmtree(checkpoints)
     regenerate("cmu", registry=registry, data_root=root, out_root=out, checkpoints=checkpoints)
     assert "| tiny " in (out / "cmu" / "all" / "leaderboard.md").read_text()
+    assert (out / "cmu" / "all" / "results.csv").read_text() == combined.to_csv(index=False)
+    runs = [EvalResult.read(out / "cmu" / "all" / name) for name in ("tiny", "repeat_last")]
+    for order, folder in ((runs, "a"), (runs[::-1], "b")):
+        write_leaderboard(order, tmp_path / folder)
+    for name in ("results.csv", "leaderboard.md"):
+        assert (tmp_path / "a" / name).read_text() == (tmp_path / "b" / name).read_text()
     # ...and left out, with the difference named, once the data under it changed.
     stored = out / "cmu" / "all" / "tiny" / "protocol.json"
     record = json.loads(stored.read_text())

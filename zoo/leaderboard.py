@@ -118,6 +118,9 @@ def write_leaderboard(results: list, out_dir: str | Path,
     """Combine :class:`zoo.evaluate.EvalResult` objects of one protocol into ``out_dir``:
     ``results.csv``, ``leaderboard.md``, ``protocol.json`` and ``mpjpe.png``."""
     out_dir = Path(out_dir)
+    # Rows and runs in model order, whichever models were evaluated now and which were stored:
+    # regenerating then rewrites no unchanged table.
+    results = sorted(results, key=lambda r: str(r.frame["model"].iloc[0]))
     records = {r.protocol["protocol_id"]: r.protocol for r in results}
     check_comparable(records)
     frame = pd.concat([r.frame for r in results], ignore_index=True)
