@@ -40,6 +40,7 @@ from torch.utils.flop_counter import FlopCounterMode
 
 from zoo.data.spectral import SpectralBasis
 from zoo.registry import load_registry
+from zoo.train import forward_precision
 
 V, K, T_IN, T_OUT, BATCH = 6890, 512, 50, 25, 32
 # The public SpecTrHuMS code on this machine type (figures given with the task).
@@ -209,8 +210,8 @@ def main() -> None:
                              args.repeats)
     train_flops = flops(step(coeff_loss))
 
-    def coeff_loss_bf16():  # as zoo.train runs the loss for recipe precision: bfloat16
-        with torch.autocast("cpu", dtype=torch.bfloat16):
+    def coeff_loss_bf16():
+        with forward_precision("bfloat16", "cpu"):  # as zoo.train runs the recipe's loss
             return coeff_loss()
 
     train_bf16 = median_seconds(step(coeff_loss_bf16), args.repeats)

@@ -257,6 +257,13 @@ def load_checkpoint(path: str | Path, *, registry: Registry | None = None,
     return model.eval(), ckpt
 
 
+def forward_precision(precision: str, device) -> torch.autocast:
+    """The context a training loss runs in for recipe ``precision`` (``PRECISIONS``): an
+    autocast to its dtype, or a disabled one for float32."""
+    dtype = PRECISIONS[precision]
+    return torch.autocast(torch.device(device).type, dtype=dtype, enabled=dtype is not None)
+
+
 def checkpoint_provenance(path: str | Path, checkpoint: dict[str, Any]) -> dict[str, Any]:
     """What a result computed from ``checkpoint`` records about it: the file (relative to the
     repository when inside it, so stored results name no machine's folders), the
@@ -374,7 +381,6 @@ def train(model_name: str, benchmark: str | Benchmark, *, registry: Registry | N
             w = gather_windows(train_pos, train_index[start:start + batch], length)[:, :, used]
             yield torch.from_numpy(w).to(device)
 
-    autocast = PRECISIONS[recipe["precision"]]  # the forward's dtype, None: as the weights
     for epoch in range(first_epoch, recipe["epochs"]):
         if hasattr(model, "start_epoch"):  # e.g. warm-up phases, statistics over the data
             model.start_epoch(epoch, training_windows)
@@ -398,8 +404,7 @@ def train(model_name: str, benchmark: str | Benchmark, *, registry: Registry | N
                 windows[flip] = windows[flip, ::-1]
             windows = torch.from_numpy(np.ascontiguousarray(windows)).to(device)
             history_, future = windows[:, :t_in], windows[:, t_in:]
-            with torch.autocast(torch.device(device).type, dtype=autocast,
-                                enabled=autocast is not None):
+            with forward_precision(recipe["precision"], device):
                 loss = net(history_, future)
             if not torch.isfinite(loss):
                 raise TrainingError(f"{model_name}: loss is {loss.item()} at epoch {epoch + 1}, "
