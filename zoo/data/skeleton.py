@@ -90,8 +90,9 @@ H36M = Skeleton(
     ignored=(0, 1, 6, 11, 16, 20, 23, 24, 28, 31),
     copy_to=(16, 20, 23, 24, 28, 31),
     copy_from=(13, 19, 22, 13, 27, 30),
-    # Used joints 0..7 are the legs, 8..21 spine, head and arms.
-    parts={"upper": tuple(range(8, 22)), "lower": tuple(range(0, 8))},
+    # SPGSN's H3.6M split as the authors' code makes it: used joints 0..9 (the legs, 0..7, and
+    # the two lowest spine joints) are the lower body, 10..21 (upper spine, head, arms) the upper.
+    parts={"upper": tuple(range(10, 22)), "lower": tuple(range(0, 10))},
 )
 
 SKELETONS = {s.name: s for s in (CMU, H36M)}

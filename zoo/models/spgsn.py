@@ -10,6 +10,10 @@ Data flow (``N = 3P`` nodes, one per joint coordinate; ``T = T_in + T_out``):
 4. a per-node linear readout to ``dct_n`` coefficients, added to the input's coefficients, so the
    network learns the departure from the padded input; the inverse DCT gives all ``T`` frames.
 
+Two choices are the zoo's own, each an option so that an ablation can weigh it: the network
+sees the coefficients in metres (``metre_inputs``; its output is scaled back to mm), and the
+readout starts at zero (``zero_readout``), so the untrained model is nearly repeat-last.
+
 A block: for each body part (whole body, upper, lower; each its own learned graph ``A``, all other
 parameters shared by the parts) an adaptive graph scattering tree of ``L`` layers, ``K + 1``
 filters at every tree node, ``(K + 1) ** L`` leaf channels; the filters are polynomials of
@@ -20,7 +24,11 @@ filters at every tree node, ``(K + 1) ** L`` leaf channels; the filters are poly
 channels of ``f2(tanh(f1([H_sp, H_k])))`` with ``H_sp = ReLU(mean_k(H_k) W_sp)``. Bipartite fusion
 lets the upper body update the lower one through the affinity
 ``softmax(f_up(H_up) f_low(H_low)^T)`` and vice versa; then ``H' = MLP(H + (H_up' (+) H_low'))``
-where ``(+)`` places each part's nodes back at their body positions.
+where ``(+)`` places each part's nodes back at their body positions. The paper gives no widths
+for these maps; the authors' code does, and they are taken from it: ``f_up`` and ``f_low`` are
+two bias-free layers ``hidden -> fusion_dim -> fusion_dim`` with a ReLU between (64 wide), and
+the block ends in one ``hidden x hidden`` layer with a ReLU (the code's last transform of a
+block), which is the MLP here.
 
 Implementation: features are node-major ``(N, B, C)``, so every graph filter is one plain matrix
 product over the node axis and every weight one product over the channel axis, batched over
@@ -122,7 +130,7 @@ class ScatteringBlock(nn.Module):
     """One multi-part graph scattering block; its graphs' filter banks come from :class:`SPGSN`."""
 
     def __init__(self, hidden: int, layers: int, order: int, aggregation_dim: int,
-                 dropout: float, fuse_parts: bool) -> None:
+                 fusion_dim: int, dropout: float, fuse_parts: bool) -> None:
         super().__init__()
         filters = order + 1
         self.hidden, self.layers, self.filters = hidden, layers, filters
@@ -139,10 +147,12 @@ class ScatteringBlock(nn.Module):
         self.attention_leaf = nn.Linear(hidden, aggregation_dim, bias=False)
         self.attention_out = nn.Linear(aggregation_dim, 1)  # f2
         self.fuse_parts = fuse_parts
-        if fuse_parts:
-            self.embed_upper = nn.Linear(hidden, hidden)  # f_up
-            self.embed_lower = nn.Linear(hidden, hidden)  # f_low
-        self.mlp = nn.Sequential(nn.Linear(hidden, hidden), nn.ReLU(), nn.Linear(hidden, hidden))
+        if fuse_parts:  # f_up, f_low: the authors' code's two bias-free layers
+            self.embed_upper = nn.Sequential(nn.Linear(hidden, fusion_dim, bias=False), nn.ReLU(),
+                                             nn.Linear(fusion_dim, fusion_dim, bias=False))
+            self.embed_lower = nn.Sequential(nn.Linear(hidden, fusion_dim, bias=False), nn.ReLU(),
+                                             nn.Linear(fusion_dim, fusion_dim, bias=False))
+        self.mlp = nn.Sequential(nn.Linear(hidden, hidden), nn.ReLU())
         self.dropout = nn.Dropout(dropout)
 
     def forward(self, x: torch.Tensor, banks: dict[str, torch.Tensor],
@@ -221,7 +231,8 @@ class SPGSN(nn.Module):
                  parts: Mapping[str, Sequence[int]] | None = None, body_parts: bool = True,
                  blocks: int = 10, hidden: int = 256, scattering_layers: int = 2,
                  filter_order: int = 2, dct_n: int = 30, aggregation_dim: int = 64,
-                 dropout: float = 0.5) -> None:
+                 fusion_dim: int = 64, dropout: float = 0.5, metre_inputs: bool = True,
+                 zero_readout: bool = True) -> None:
         super().__init__()
         self.input_frames = _integer("input_frames", input_frames, 1)
         self.output_frames = _integer("output_frames", output_frames, 1)
@@ -231,6 +242,7 @@ class SPGSN(nn.Module):
         _integer("scattering_layers", scattering_layers, 1)
         _integer("filter_order", filter_order, 0)
         _integer("aggregation_dim", aggregation_dim, 1)
+        _integer("fusion_dim", fusion_dim, 1)
         frames = input_frames + output_frames
         if _integer("dct_n", dct_n, 1) > frames:
             raise ValueError(f"SPGSN: dct_n = {dct_n} exceeds the {frames} frames "
@@ -238,8 +250,12 @@ class SPGSN(nn.Module):
         if isinstance(dropout, bool) or not isinstance(dropout, (int, float)) \
                 or not 0 <= dropout < 1:
             raise ValueError(f"SPGSN: dropout must be a probability in [0, 1), got {dropout!r}")
-        if not isinstance(body_parts, bool):
-            raise ValueError(f"SPGSN: body_parts must be true or false, got {body_parts!r}")
+        for name, flag in (("body_parts", body_parts), ("metre_inputs", metre_inputs),
+                           ("zero_readout", zero_readout)):
+            if not isinstance(flag, bool):
+                raise ValueError(f"SPGSN: {name} must be true or false, got {flag!r}")
+        # The network's coefficient unit: metres (inputs of order one) or the data's mm.
+        self.unit = MM_PER_M if metre_inputs else 1.0
         self.dct_n = dct_n
         self.body_parts = body_parts
         nodes = 3 * num_points
@@ -275,13 +291,14 @@ class SPGSN(nn.Module):
         self.embed = nn.Linear(dct_n, hidden)
         self.embed_dropout = nn.Dropout(dropout)
         self.blocks = nn.ModuleList(
-            ScatteringBlock(hidden, scattering_layers, filter_order, aggregation_dim, dropout,
-                            fuse_parts=body_parts) for _ in range(blocks))
+            ScatteringBlock(hidden, scattering_layers, filter_order, aggregation_dim, fusion_dim,
+                            dropout, fuse_parts=body_parts) for _ in range(blocks))
         self.readout = nn.Linear(hidden, dct_n)
-        # Zero readout: the untrained model returns the padded input's truncated DCT, i.e.
-        # nearly repeat-last, and learns the departure from it.
-        nn.init.zeros_(self.readout.weight)
-        nn.init.zeros_(self.readout.bias)
+        if zero_readout:
+            # The untrained model returns the padded input's truncated DCT, i.e. nearly
+            # repeat-last, and learns the departure from it.
+            nn.init.zeros_(self.readout.weight)
+            nn.init.zeros_(self.readout.bias)
 
     def filter_banks(self) -> dict[str, torch.Tensor]:
         """Every block's filters per part: ``{part: (blocks, K+1, N_p, N_p)}``."""
@@ -316,8 +333,7 @@ class SPGSN(nn.Module):
         # autocast (which would cost millimetres); the network in between may use it.
         with torch.autocast(history.device.type, enabled=False):
             coefficients = torch.einsum("kt,btn->nbk", self.dct, padded)  # (N, B, dct_n), mm
-        # Metres inside the network, so the first layer's inputs are of order one.
-        h = self.embed_dropout(tanh(self.embed(coefficients / MM_PER_M)))
+        h = self.embed_dropout(tanh(self.embed(coefficients / self.unit)))
         banks = self.filter_banks()
         index = {name: getattr(self, f"{name}_nodes") for name in self.part_names}
         if self.body_parts:
@@ -326,14 +342,15 @@ class SPGSN(nn.Module):
             h = h + block(h, {name: bank[i] for name, bank in banks.items()}, index)
         delta = self.readout(h).float()
         with torch.autocast(history.device.type, enabled=False):
-            sequence = torch.einsum("tk,nbk->btn", self.idct, coefficients + MM_PER_M * delta)
+            sequence = torch.einsum("tk,nbk->btn", self.idct, coefficients + self.unit * delta)
         return sequence.reshape(batch, frames, self.num_points, 3)
 
     def forward(self, history: torch.Tensor) -> torch.Tensor:
         return self.reconstruct(history)[:, self.input_frames:]
 
     def training_loss(self, history: torch.Tensor, future: torch.Tensor) -> torch.Tensor:
-        """Mean per-joint L2 error (mm) over all ``T_in + T_out`` frames, as in the paper."""
+        """Mean per-joint L2 error (mm) over all ``T_in + T_out`` frames: the authors' code's
+        loss. The paper prints another (equation 9: a squared error over the future frames)."""
         expected = (self.output_frames, self.num_points, 3)
         if future.ndim != 4 or tuple(future.shape[1:]) != expected:
             raise ValueError(f"SPGSN: future must have shape (B, {self.output_frames}, "
