@@ -328,7 +328,7 @@ class SPGSN(nn.Module):
         batch = history.shape[0]
         frames = self.input_frames + self.output_frames
         padded = torch.cat([history, history[:, -1:].expand(-1, self.output_frames, -1, -1)],
-                           dim=1).reshape(batch, frames, -1).float()
+                           dim=1).reshape(batch, frames, -1).to(self.dct.dtype)
         # The DCT of positions in mm and the residual sum stay float32 even under a bf16
         # autocast (which would cost millimetres); the network in between may use it.
         with torch.autocast(history.device.type, enabled=False):
@@ -340,7 +340,8 @@ class SPGSN(nn.Module):
             index["placement"] = self.placement_nodes
         for i, block in enumerate(self.blocks):
             h = h + block(h, {name: bank[i] for name, bank in banks.items()}, index)
-        delta = self.readout(h).float()
+        # the model's own dtype: float32, or float64 where a test runs it so
+        delta = self.readout(h).to(self.dct.dtype)
         with torch.autocast(history.device.type, enabled=False):
             sequence = torch.einsum("tk,nbk->btn", self.idct, coefficients + self.unit * delta)
         return sequence.reshape(batch, frames, self.num_points, 3)
