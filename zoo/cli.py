@@ -64,8 +64,22 @@ def cmd_list(args) -> int:
 
 
 def _load_model(args, registry, bench, dataset):
-    """The model to evaluate: a registered one, or the one a checkpoint holds."""
+    """The model to evaluate: a registered one, or the one a checkpoint or shipped weights
+    hold."""
     overrides = parse_overrides(args.set)
+    if getattr(args, "weights", None):
+        from zoo.weights import load_weights, weights_provenance
+
+        if getattr(args, "checkpoint", None):
+            raise UsageError("give --weights or --checkpoint, not both")
+        if overrides:
+            raise UsageError("--set cannot change shipped weights' hyper-parameters")
+        model, record = load_weights(args.weights, registry=registry, benchmark=bench,
+                                     data_root=args.data_root, dataset=dataset)
+        if args.model and args.model != record["model"]:
+            raise UsageError(f"--model {args.model} but weights {args.weights} hold model "
+                             f"{record['model']!r}")
+        return record["model"], model, weights_provenance(args.weights, record)
     if getattr(args, "checkpoint", None):
         from zoo.train import checkpoint_provenance, load_checkpoint
 
@@ -105,12 +119,18 @@ def cmd_eval(args) -> int:
 
         # A trained model is evaluated under the protocol its checkpoint records by default.
         args.benchmark = read_checkpoint(args.checkpoint)["protocol"]["benchmark"]
+    if args.benchmark is None and args.weights:
+        from zoo.weights import read_weights
+
+        args.benchmark = read_weights(args.weights)[1]["protocol"]["benchmark"]
     bench = get_benchmark(args.benchmark or "cmu")
     dataset = bench.load(args.data_root)
     name, model, provenance = _load_model(args, registry, bench, dataset)
     view = bench.view_for(registry.get(name).representation)
     if args.checkpoint and Path(args.checkpoint).name == "last.pt":
         name += "@last"  # the fully trained checkpoint, labelled as the leaderboard does
+    if args.weights:
+        name = Path(args.weights).stem  # the shipped label: <model> or <model>@last
     samplers = args.sampler or [bench.sampler]
     if args.out and len(samplers) > 1:
         raise UsageError("--out takes one --sampler; omit --out to write "
@@ -130,6 +150,33 @@ def cmd_eval(args) -> int:
     return 0
 
 
+def cmd_weights(args) -> int:
+    from tabulate import tabulate
+
+    from zoo.weights import available_weights, export_weights, read_weights, weights_file
+
+    root = Path(args.root)
+    if args.action == "export":
+        if not args.checkpoint:
+            raise UsageError("zoo weights export needs a CHECKPOINT (e.g. "
+                             "checkpoints/cmu/spgsn/best.pt)")
+        path = export_weights(args.checkpoint, label=args.label, root=root, dtype=args.dtype)
+        print(f"wrote {path} and {path.with_suffix('.json').name}")
+        return 0
+    if args.checkpoint or args.label:
+        raise UsageError("zoo weights list takes no CHECKPOINT or --label")
+    rows = []
+    for bench, label in available_weights(root):
+        record = read_weights(weights_file(bench, label, root))[1]
+        training = record.get("training", {})
+        rows.append([bench, label, record["model"], f"{record['parameters'] / 1e6:.2f} M",
+                     record["dtype"], training.get("samples_seen"),
+                     f"{training.get('seconds', 0) / 60:.0f}", training.get("device_name")])
+    print(tabulate(rows, headers=["benchmark", "label", "model", "parameters", "stored as",
+                                  "training samples", "minutes", "device"], tablefmt="github"))
+    return 0
+
+
 def cmd_leaderboard(args) -> int:
     from zoo.leaderboard import regenerate
 
@@ -139,7 +186,7 @@ def cmd_leaderboard(args) -> int:
     for bench in args.benchmark:
         regenerate(bench, registry=registry, data_root=args.data_root,
                    out_root=Path(args.out), checkpoints=Path(args.checkpoints),
-                   device=args.device)
+                   weights=Path(args.weights), device=args.device)
     return 0
 
 
@@ -268,6 +315,7 @@ def build_parser() -> argparse.ArgumentParser:
     common(p)
     p.add_argument("--model", help="registered model name")
     p.add_argument("--checkpoint", help="trained checkpoint (from zoo train)")
+    p.add_argument("--weights", help="shipped weights (weights/<benchmark>/<label>.safetensors)")
     p.add_argument("--benchmark", help="benchmark name or YAML path (default: the "
                    "checkpoint's, else cmu)")
     p.add_argument("--sampler", action="append",
@@ -289,6 +337,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--benchmark", action="append",
                    help="benchmark(s); default cloth, and cmu where its data is present")
     p.add_argument("--out", default=str(RESULTS_DIR), help="results root (default results/)")
+    p.add_argument("--weights", default=str(REPO_ROOT / "weights"),
+                   help="folder of shipped weights <benchmark>/<label>.safetensors (default "
+                        "weights/); a trained row with shipped weights is computed from them")
     p.add_argument("--checkpoints", default=str(REPO_ROOT / "checkpoints"),
                    help="folder of trained checkpoints <benchmark>/<model>/best.pt "
                         "(default checkpoints/, where zoo train writes)")
@@ -317,6 +368,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", help="export: FILE.glb (all frames side by side) or FILE.ply "
                                  "(one file per frame)")
     p.set_defaults(func=cmd_data)
+
+    p = sub.add_parser("weights", help="export a checkpoint's weights for shipping, or list "
+                                       "the shipped ones")
+    p.add_argument("action", choices=["export", "list"])
+    p.add_argument("checkpoint", nargs="?", help="export: the checkpoint (best.pt or last.pt)")
+    p.add_argument("--label", help="export: label (default <model>, or <model>@last for last.pt)")
+    p.add_argument("--dtype", default="float16", choices=["float16", "float32"],
+                   help="export: storage precision (default float16: half the size)")
+    p.add_argument("--root", default=str(REPO_ROOT / "weights"),
+                   help="weights folder (default weights/)")
+    p.set_defaults(func=cmd_weights)
 
     p = sub.add_parser("train", help="train a model on a benchmark's training split")
     common(p)

@@ -164,12 +164,15 @@ def plot_average(frame: pd.DataFrame, path: str | Path, title: str = "") -> None
 
 
 def regenerate(benchmark, *, registry=None, data_root=None, out_root: str | Path = "results",
-               checkpoints: str | Path | None = None, device: str = "cpu") -> list[Path]:
+               checkpoints: str | Path | None = None, weights: str | Path | None = None,
+               device: str = "cpu") -> list[Path]:
     """Re-evaluate every model that can be evaluated on ``benchmark`` under each of its samplers
     (and, for mesh benchmarks, each ground truth: ``<sampler>-gt_spectral`` beside ``<sampler>``)
     and rebuild ``<out_root>/<benchmark>/<sampler>/``.
 
-    A model is evaluated if it needs no training or if its best checkpoint
+    A model is evaluated if it needs no training, if shipped weights
+    ``<weights>/<benchmark>/<label>.safetensors`` exist (they take precedence: a published row
+    is always computed from the published weights), or if its checkpoint
     ``<checkpoints>/<benchmark>/<model>/best.pt`` (where ``zoo train`` writes it) exists;
     otherwise a result folder already under ``out_root`` (from an earlier ``zoo eval
     --checkpoint``) is kept if its protocol still matches, and skipped with a warning naming the
@@ -191,7 +194,7 @@ def regenerate(benchmark, *, registry=None, data_root=None, out_root: str | Path
             for truth in truths:
                 folder = results_folder(sampler, task, truth)
                 path = _regenerate_one(bench, registry, dataset, sampler, truth, folder,
-                                       out_root, checkpoints, device, task)
+                                       out_root, checkpoints, device, task, weights)
                 if path is not None:
                     written.append(path)
     return written
@@ -206,7 +209,7 @@ def results_folder(sampler: str, task: str = "prediction", truth: str | None = N
 
 
 def _regenerate_one(bench, registry, dataset, sampler, truth, folder, out_root, checkpoints,
-                    device, task="prediction"):
+                    device, task="prediction", weights=None):
     import sys
 
     from zoo.evaluate import EvalResult, evaluate
@@ -218,7 +221,8 @@ def _regenerate_one(bench, registry, dataset, sampler, truth, folder, out_root, 
         names += [n for n in registry.list_models("joints") if n not in names]
     names = [n for n in names if registry.get(n).task == task]
     if task != "prediction" and not any(registry.get(n).trainable and _has_run(
-            out_root / bench.name / folder / n, checkpoints, bench.name, n) for n in names):
+            out_root / bench.name / folder / n, checkpoints, bench.name, n, weights)
+            for n in names):
         return None  # a table of baselines alone says nothing about this task
     for name in names:
         entry = registry.get(name)
@@ -226,7 +230,18 @@ def _regenerate_one(bench, registry, dataset, sampler, truth, folder, out_root, 
         for label, ckpt in _checkpoints_of(name, entry, bench, checkpoints):
             run_dir = out_root / bench.name / folder / label
             provenance = {}
-            if ckpt is not None and ckpt.is_file():
+            shipped = _shipped(weights, bench.name, label) if entry.trainable else None
+            if shipped is not None:
+                from zoo.weights import load_weights, weights_provenance
+
+                model, record = load_weights(shipped, registry=registry, benchmark=bench,
+                                             dataset=dataset)
+                provenance = weights_provenance(shipped, record)
+                if ckpt is not None and ckpt.is_file():
+                    print(f"{bench.name}/{folder}: {label}: evaluating the shipped weights "
+                          f"{shipped}, not {ckpt} (zoo weights export publishes a checkpoint)",
+                          file=sys.stderr)
+            elif ckpt is not None and ckpt.is_file():
                 from zoo.train import checkpoint_provenance, load_checkpoint
 
                 model, meta = load_checkpoint(ckpt, registry=registry, benchmark=bench,
@@ -263,10 +278,21 @@ def _regenerate_one(bench, registry, dataset, sampler, truth, folder, out_root, 
     return path
 
 
-def _has_run(run_dir: Path, checkpoints, bench_name: str, name: str) -> bool:
-    """Whether a trained model has a checkpoint or a stored result to show."""
+def _has_run(run_dir: Path, checkpoints, bench_name: str, name: str, weights=None) -> bool:
+    """Whether a trained model has shipped weights, a checkpoint or a stored result to show."""
     return (run_dir / "results.csv").is_file() or bool(
-        checkpoints and (Path(checkpoints) / bench_name / name / "best.pt").is_file())
+        checkpoints and (Path(checkpoints) / bench_name / name / "best.pt").is_file()) or \
+        _shipped(weights, bench_name, name) is not None
+
+
+def _shipped(weights, bench_name: str, label: str) -> Path | None:
+    """The shipped weights of ``label`` on a benchmark, if any."""
+    if not weights:
+        return None
+    from zoo.weights import weights_file
+
+    path = weights_file(bench_name, label, weights)
+    return path if path.is_file() else None
 
 
 def _checkpoints_of(name, entry, bench, checkpoints):
@@ -275,9 +301,9 @@ def _checkpoints_of(name, entry, bench, checkpoints):
     and their fully trained one (``last.pt``, ``<name>@last``), which is shown only when training
     went on past the best epoch: the two can trade accuracy for smoothness (SpecTrHuMS reports
     both)."""
-    if not entry.trainable or not checkpoints:
+    if not entry.trainable:
         return [(name, None)]
-    run = Path(checkpoints) / bench.name / name
+    run = Path(checkpoints or "checkpoints") / bench.name / name
     return [(name, run / "best.pt"), (f"{name}@last", run / "last.pt")]
 
 

@@ -223,38 +223,49 @@ def load_checkpoint(path: str | Path, *, registry: Registry | None = None,
     built with (a spectral basis) come from the benchmark again and must hash the same.
     """
     ckpt = read_checkpoint(path)
-    registry = registry or load_registry()
     if model_name is not None and model_name != ckpt["model"]:
         raise CheckpointError(f"checkpoint {path} holds model {ckpt['model']!r}, not "
                               f"{model_name!r}")
-    entry = registry.get(ckpt["model"])
-    bench = get_benchmark(benchmark or ckpt["protocol"]["benchmark"]) \
+    model = trained_model(ckpt, ckpt["state_dict"], f"checkpoint {path}", registry=registry,
+                          benchmark=benchmark, data_root=data_root, dataset=dataset)
+    return model, ckpt
+
+
+def trained_model(meta: dict[str, Any], state_dict: dict[str, torch.Tensor], source: str, *,
+                  registry: Registry | None = None, benchmark: str | Benchmark | None = None,
+                  data_root: str | Path | None = None, dataset=None) -> nn.Module:
+    """The model that ``meta`` (a checkpoint's or shipped weights' record: model, hparams,
+    protocol, context_hashes) describes, holding ``state_dict``, in eval mode; refused with an
+    error naming ``source`` if it was trained for another protocol or data than ``benchmark``."""
+    registry = registry or load_registry()
+    entry = registry.get(meta["model"])
+    bench = get_benchmark(benchmark or meta["protocol"]["benchmark"]) \
         if not isinstance(benchmark, Benchmark) else benchmark
     view = bench.view_for(entry.representation)
     expected = model_protocol(bench, view)
-    diff = [f"{k} (checkpoint {ckpt['protocol'].get(k)!r}, benchmark {v!r})"
-            for k, v in expected.items() if ckpt["protocol"].get(k) != v]
+    diff = [f"{k} ({source.split()[0]} {meta['protocol'].get(k)!r}, benchmark {v!r})"
+            for k, v in expected.items() if meta["protocol"].get(k) != v]
     if diff:
-        raise CheckpointError(f"checkpoint {path} was trained for another protocol than "
-                              f"benchmark {bench.name!r}: " + "; ".join(diff))
-    hparams = dict(ckpt["hparams"])
-    hashes = ckpt.get("context_hashes", {})
+        raise CheckpointError(f"{source} was trained for another protocol than benchmark "
+                              f"{bench.name!r}: " + "; ".join(diff))
+    hparams = dict(meta["hparams"])
+    hashes = meta.get("context_hashes", {})
     if hashes:
         supplied = bench.model_inputs(entry.context, data_root, dataset, view)
         for key, trained_hash in hashes.items():
             if supplied[key].hash != trained_hash:
-                raise CheckpointError(f"checkpoint {path}: its {key} hash {trained_hash[:16]} "
+                raise CheckpointError(f"{source}: its {key} hash {trained_hash[:16]} "
                                       f"differs from benchmark {bench.name!r}'s "
                                       f"{supplied[key].hash[:16]} (another basis or mesh); "
                                       f"never silently recomputed, retrain for this data")
             hparams[key] = supplied[key]
     model = registry.create_model(entry.name, **hparams)
     try:
-        model.load_state_dict(ckpt["state_dict"])
+        model.load_state_dict(state_dict)
     except RuntimeError as e:
-        raise CheckpointError(f"checkpoint {path}: weights do not fit model {entry.name!r} "
+        raise CheckpointError(f"{source}: weights do not fit model {entry.name!r} "
                               f"({str(e).splitlines()[0]})") from e
-    return model.eval(), ckpt
+    return model.eval()
 
 
 def forward_precision(precision: str, device) -> torch.autocast:

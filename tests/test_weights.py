@@ -1,0 +1,110 @@
+"""Shipped weights: export from a checkpoint, sha256-checked loading, ``pretrained=True``, and
+``zoo eval`` / ``zoo leaderboard`` computing a trained row from exactly the stored tensors."""
+import json
+
+import pandas as pd
+import pytest
+import torch
+
+import zoo
+import zoo.weights
+from test_train import run, setup  # noqa: F401  (setup is a fixture)
+from zoo.cli import main
+from zoo.evaluate import EvalResult
+from zoo.leaderboard import regenerate
+from zoo.train import read_checkpoint
+from zoo.weights import WeightsError, export_weights, load_weights, read_weights
+
+
+@pytest.fixture
+def trained(setup, tmp_path):  # noqa: F811
+    """A trained tiny model's run folder (best.pt, last.pt) on a written CMU data root."""
+    run(setup, tmp_path / "run", epochs=2)
+    return tmp_path / "run"
+
+
+@pytest.mark.parametrize("dtype", ["float32", "float16"])
+def test_exported_weights_are_the_checkpoint_s_and_carry_its_record(trained, tmp_path, dtype):
+    path = export_weights(trained / "last.pt", root=tmp_path / "weights", dtype=dtype)
+    assert path == tmp_path / "weights" / "cmu" / "tiny@last.safetensors"
+    state, record = read_weights(path)
+    ckpt = read_checkpoint(trained / "last.pt")
+    for name, tensor in ckpt["state_dict"].items():
+        stored = tensor.to(getattr(torch, dtype)).float()  # exactly the stored values
+        assert state[name].dtype == torch.float32 and torch.equal(state[name], stored)
+    assert record["label"] == "tiny@last" and record["model"] == "tiny"
+    assert record["dtype"] == dtype and len(record["sha256"]) == 64
+    # what a reader needs to judge and reproduce the row: budget, device, data, code
+    assert record["training"]["samples_seen"] > 0 and record["training"]["device_name"]
+    assert record["recipe"]["epochs"] == 2 and record["seed"] == 0
+    assert record["training_data"]["files"][0]["sha256"]
+    assert record["hparams"] == ckpt["hparams"] and record["protocol"] == ckpt["protocol"]
+    assert len(record["history"]) == 2
+    assert export_weights(trained / "best.pt", root=tmp_path / "weights").stem == "tiny"
+
+
+def test_a_changed_weights_file_is_refused_naming_it(trained, tmp_path):
+    path = export_weights(trained / "best.pt", root=tmp_path / "w")
+    data = bytearray(path.read_bytes())
+    data[-1] ^= 1  # one bit of one weight
+    path.write_bytes(bytes(data))
+    with pytest.raises(WeightsError, match=r"tiny\.safetensors: sha256 .* differs from its "
+                                           r"record"):
+        read_weights(path)
+    path.with_suffix(".json").unlink()
+    with pytest.raises(WeightsError, match=r"tiny\.json does not exist"):
+        read_weights(path)
+
+
+def test_weights_for_another_protocol_are_refused(trained, tmp_path, setup):  # noqa: F811
+    path = export_weights(trained / "best.pt", root=tmp_path / "w")
+    record = json.loads(path.with_suffix(".json").read_text())
+    record["protocol"]["output_frames"] = 10
+    path.with_suffix(".json").write_text(json.dumps(record))
+    with pytest.raises(zoo.train.CheckpointError, match="weights .* another protocol.*"
+                                                        "output_frames"):
+        load_weights(path, registry=setup[1], benchmark="cmu")
+
+
+def test_pretrained_model_comes_from_the_shipped_weights(trained, tmp_path, setup,  # noqa: F811
+                                                          monkeypatch):
+    monkeypatch.setattr(zoo.weights, "WEIGHTS_DIR", tmp_path / "weights")
+    export_weights(trained / "last.pt")
+    model = zoo.create_model("tiny@last", benchmark="cmu", registry=setup[1], pretrained=True)
+    expected = read_checkpoint(trained / "last.pt")["state_dict"]
+    assert not model.training
+    for name, tensor in model.state_dict().items():
+        torch.testing.assert_close(tensor, expected[name].half().float(), rtol=0, atol=0)
+    with pytest.raises(WeightsError, match=r"no shipped weights for 'tiny' on benchmark 'cmu'.*"
+                                           r"shipped: cmu/tiny@last"):
+        zoo.create_model("tiny", benchmark="cmu", registry=setup[1], pretrained=True)
+    with pytest.raises(zoo.registry.RegistryError, match="needs benchmark"):
+        zoo.create_model("tiny@last", registry=setup[1], pretrained=True)
+
+
+def test_eval_and_leaderboard_compute_the_row_from_the_weights(trained, tmp_path, setup,  # noqa: F811
+                                                               capsys):
+    root, registry, reg_file = setup
+    weights = tmp_path / "weights"
+    assert main(["weights", "export", str(trained / "last.pt"), "--root", str(weights)]) == 0
+    assert main(["weights", "list", "--root", str(weights)]) == 0
+    assert "tiny@last" in capsys.readouterr().out
+    out = tmp_path / "eval"
+    assert main(["eval", "--weights", str(weights / "cmu" / "tiny@last.safetensors"),
+                 "--registry", str(reg_file), "--data-root", str(root), "--sampler", "ltd8",
+                 "--out", str(out)]) == 0
+    evaluated = EvalResult.read(out)
+    assert evaluated.protocol["provenance"]["weights_sha256"] == \
+        read_weights(weights / "cmu" / "tiny@last.safetensors")[1]["sha256"]
+    # No checkpoints at all: the leaderboard still computes the row, from the weights.
+    regenerate("cmu", registry=registry, data_root=root, out_root=tmp_path / "results",
+               checkpoints=tmp_path / "no-checkpoints", weights=weights)
+    board = pd.read_csv(tmp_path / "results" / "cmu" / "ltd8" / "results.csv")
+    row = board[board["model"] == "tiny@last"]
+    assert len(row) > 0
+    ltd8 = EvalResult.read(tmp_path / "results" / "cmu" / "ltd8" / "tiny@last")
+    assert ltd8.protocol["provenance"]["weights"].endswith("tiny@last.safetensors")
+    same = evaluated.frame.merge(row, on=["action", "metric", "averaging", "joints",
+                                          "horizon_ms"], suffixes=("", "_board"))
+    assert len(same) == len(row)  # the same sampler in both: the same numbers
+    pd.testing.assert_series_equal(same["value"], same["value_board"], check_names=False)

@@ -1,0 +1,177 @@
+"""Shipped weights: trained models that a fresh clone evaluates without training.
+
+``weights/<benchmark>/<label>.safetensors`` holds a trained model's tensors (safetensors: loading
+runs no pickled code), and ``<label>.json`` beside it its record: model, hyper-parameters,
+protocol, training recipe and budget, device, training data and basis hashes, code version, the
+checkpoint it came from, and the sha256 of the tensor file, checked on every load. The label is
+the model's name for an early-stopped checkpoint (``best.pt``) and ``<model>@last`` for a fully
+trained one, as in the leaderboard. Tensors may be stored as float16 to keep the repository
+small; they are loaded back into the model's float32, and every committed result of a label is
+computed from exactly these stored values.
+
+    zoo weights export checkpoints/cmu/spgsn/last.pt      # -> weights/cmu/spgsn@last.*
+    zoo.create_model("spgsn", benchmark="cmu", pretrained=True)
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from zoo.errors import ZooError
+from zoo.io import atomic_path, atomic_write_json
+from zoo.registry import REPO_ROOT
+
+WEIGHTS_DIR = REPO_ROOT / "weights"
+RECORD_FORMAT = "motion-zoo-weights/1"
+STORAGE_DTYPES = {"float32": torch.float32, "float16": torch.float16}
+
+
+class WeightsError(ZooError, ValueError):
+    pass
+
+
+def weights_file(benchmark: str, label: str, root: str | Path | None = None) -> Path:
+    return Path(root or WEIGHTS_DIR) / benchmark / f"{label}.safetensors"
+
+
+def record_file(weights: str | Path) -> Path:
+    return Path(weights).with_suffix(".json")
+
+
+def sha256_of(path: str | Path) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            digest.update(chunk)
+    return digest.hexdigest()
+
+
+def checkpoint_label(checkpoint: str | Path, model: str) -> str:
+    """``<model>@last`` for a fully trained checkpoint (``last.pt``), else the model's name."""
+    return f"{model}@last" if Path(checkpoint).name == "last.pt" else model
+
+
+def export_weights(checkpoint: str | Path, *, label: str | None = None,
+                   root: str | Path | None = None, dtype: str = "float16") -> Path:
+    """Write a checkpoint's weights and record under ``<root>/<benchmark>/``; returns the
+    ``.safetensors`` path. Both files are written atomically, the record last."""
+    from safetensors.torch import save_file
+
+    from zoo.train import read_checkpoint
+
+    if dtype not in STORAGE_DTYPES:
+        raise WeightsError(f"weights dtype {dtype!r} unknown; valid: "
+                           f"{', '.join(STORAGE_DTYPES)}")
+    ckpt = read_checkpoint(checkpoint)
+    label = label or checkpoint_label(checkpoint, ckpt["model"])
+    if not label or "/" in label or label.startswith("."):
+        raise WeightsError(f"weights label {label!r} must be a plain file name "
+                           f"(e.g. {ckpt['model']!r} or {ckpt['model'] + '@last'!r})")
+    benchmark = ckpt["protocol"]["benchmark"]
+    path = weights_file(benchmark, label, root)
+    tensors = {name: (t.to(STORAGE_DTYPES[dtype]) if t.is_floating_point() else t)
+               .detach().cpu().contiguous() for name, t in ckpt["state_dict"].items()}
+    with atomic_path(path) as tmp:
+        save_file(tensors, str(tmp), metadata={"format": RECORD_FORMAT, "model": ckpt["model"]})
+        digest = sha256_of(tmp)
+    source = Path(checkpoint).resolve()
+    record = {
+        "format": RECORD_FORMAT,
+        "label": label,
+        "model": ckpt["model"],
+        "benchmark": benchmark,
+        "file": path.name,
+        "sha256": digest,
+        "dtype": dtype,
+        "parameters": int(sum(t.numel() for t in ckpt["state_dict"].values())),
+        "hparams": ckpt["hparams"],
+        "context_hashes": ckpt.get("context_hashes", {}),
+        "protocol": ckpt["protocol"],
+        "recipe": ckpt.get("recipe"),
+        "seed": ckpt.get("seed"),
+        # budget (epochs, samples, seconds), device and the validation curve
+        "training": ckpt.get("training", {}),
+        "history": ckpt.get("history"),
+        "training_data": ckpt.get("training_data"),
+        "code_version": ckpt.get("code_version"),
+        "torch": ckpt.get("torch"),
+        "checkpoint": str(source.relative_to(REPO_ROOT) if source.is_relative_to(REPO_ROOT)
+                          else source),
+    }
+    atomic_write_json(record_file(path), record)
+    return path
+
+
+def read_weights(path: str | Path) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
+    """The float32 state dict and the record of shipped weights, after checking the file's
+    sha256 against its record."""
+    from safetensors import SafetensorError
+    from safetensors.torch import load_file
+
+    path = Path(path)
+    record_path = record_file(path)
+    for p in (path, record_path):
+        if not p.is_file():
+            raise WeightsError(f"weights {path}: {p} does not exist (a shipped model needs its "
+                               f".safetensors file and the .json record beside it)")
+    try:
+        record = json.loads(record_path.read_text())
+    except (OSError, ValueError) as e:
+        raise WeightsError(f"weights record {record_path} is not readable JSON ({e})") from e
+    if not isinstance(record, dict) or record.get("format") != RECORD_FORMAT:
+        raise WeightsError(f"weights record {record_path}: format "
+                           f"{record.get('format') if isinstance(record, dict) else None!r}, "
+                           f"expected {RECORD_FORMAT!r}")
+    digest = sha256_of(path)
+    if digest != record.get("sha256"):
+        raise WeightsError(f"weights {path}: sha256 {digest[:16]}... differs from its record's "
+                           f"{str(record.get('sha256'))[:16]}... ({record_path}): the file was "
+                           f"changed or damaged; restore it (git checkout) or export it again")
+    try:
+        tensors = load_file(str(path))
+    except (SafetensorError, OSError) as e:
+        raise WeightsError(f"weights {path} is not a readable safetensors file ({e})") from e
+    state = {name: t.float() if t.is_floating_point() else t for name, t in tensors.items()}
+    return state, record
+
+
+def load_weights(path: str | Path, *, registry=None, benchmark=None, data_root=None,
+                 dataset=None) -> tuple[torch.nn.Module, dict[str, Any]]:
+    """The model of shipped weights, checked against ``benchmark`` (default: its own)."""
+    from zoo.train import trained_model
+
+    state, record = read_weights(path)
+    model = trained_model(record, state, f"weights {path}", registry=registry,
+                          benchmark=benchmark, data_root=data_root, dataset=dataset)
+    return model, record
+
+
+def available_weights(root: str | Path | None = None) -> list[tuple[str, str]]:
+    """``(benchmark, label)`` of every shipped model under ``root``."""
+    return sorted((p.parent.name, p.stem)
+                  for p in Path(root or WEIGHTS_DIR).glob("*/*.safetensors"))
+
+
+def pretrained_path(name: str, benchmark: str, root: str | Path | None = None) -> Path:
+    """The shipped weights of ``name`` (a model or ``<model>@last``) on ``benchmark``; an error
+    listing what exists if there are none."""
+    path = weights_file(benchmark, name, root)
+    if not path.is_file():
+        shipped = [f"{b}/{label}" for b, label in available_weights(root)]
+        raise WeightsError(f"no shipped weights for {name!r} on benchmark {benchmark!r} "
+                           f"({path} does not exist); shipped: "
+                           f"{', '.join(shipped) if shipped else 'none'}")
+    return path
+
+
+def weights_provenance(path: str | Path, record: dict[str, Any]) -> dict[str, Any]:
+    """What a result computed from shipped weights records about them."""
+    path = Path(path).resolve()
+    shown = path.relative_to(REPO_ROOT) if path.is_relative_to(REPO_ROOT) else path
+    return {"weights": str(shown), "weights_sha256": record["sha256"],
+            "weights_dtype": record["dtype"], "hparams": record["hparams"],
+            "training": record.get("training", {})}
