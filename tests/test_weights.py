@@ -106,5 +106,6 @@ def test_eval_and_leaderboard_compute_the_row_from_the_weights(trained, tmp_path
     assert ltd8.protocol["provenance"]["weights"].endswith("tiny@last.safetensors")
     same = evaluated.frame.merge(row, on=["action", "metric", "averaging", "joints",
                                           "horizon_ms"], suffixes=("", "_board"))
+    assert (tmp_path / "results" / "cmu" / "training.png").stat().st_size > 0  # its curve
     assert len(same) == len(row)  # the same sampler in both: the same numbers
     pd.testing.assert_series_equal(same["value"], same["value_board"], check_names=False)

@@ -163,6 +163,52 @@ def plot_average(frame: pd.DataFrame, path: str | Path, title: str = "") -> None
     plt.close(fig)
 
 
+def training_curves(weights_root: str | Path | None, benchmark: str
+                    ) -> dict[str, list[tuple[int, float]]]:
+    """``{label: [(optimizer steps, validation MPJPE mm), ...]}`` of every shipped model of
+    ``benchmark`` whose record holds its training history (exported from a ``last.pt``)."""
+    from zoo.weights import available_weights, read_weights, weights_file
+
+    curves = {}
+    for bench, label in available_weights(weights_root):
+        if bench != benchmark:
+            continue
+        record = read_weights(weights_file(bench, label, weights_root))[1]
+        history, batch = record.get("history"), (record.get("recipe") or {}).get("batch_size")
+        if not history or not batch:
+            continue
+        steps, points = 0, []
+        for epoch in history:
+            steps += epoch["samples"] // batch
+            points.append((steps, epoch["val_mpjpe"]))
+        curves[label] = points
+    return curves
+
+
+def plot_training_curves(curves: dict[str, list[tuple[int, float]]], path: str | Path,
+                         title: str = "") -> None:
+    """Validation MPJPE against optimizer steps, one line per trained model."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6.5, 4))
+    for label, points in sorted(curves.items()):
+        steps, errors = zip(*points)
+        ax.plot(steps, errors, marker=".", label=label)
+    ax.set_xlabel("optimizer steps")
+    ax.set_ylabel("validation MPJPE (mm)")
+    ax.set_yscale("log")
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(fontsize=8)
+    ax.set_title(title, fontsize=9)
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png", dpi=110)
+    plt.close(fig)
+
+
 def regenerate(benchmark, *, registry=None, data_root=None, out_root: str | Path = "results",
                checkpoints: str | Path | None = None, weights: str | Path | None = None,
                device: str = "cpu") -> list[Path]:
@@ -197,6 +243,11 @@ def regenerate(benchmark, *, registry=None, data_root=None, out_root: str | Path
                                        out_root, checkpoints, device, task, weights)
                 if path is not None:
                     written.append(path)
+    curves = training_curves(weights, bench.name) if weights else {}
+    if curves:
+        plot_training_curves(curves, out_root / bench.name / "training.png",
+                             title=f"{bench.name}: validation MPJPE (held-out end of each "
+                                   f"training recording) while training, shipped models")
     return written
 
 
