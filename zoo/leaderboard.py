@@ -157,10 +157,7 @@ def plot_average(frame: pd.DataFrame, path: str | Path, title: str = "") -> None
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
     fig.suptitle(title, fontsize=9)
-    fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png", dpi=110)
-    plt.close(fig)
+    _save_figure(fig, path)
 
 
 def training_curves(weights_root: str | Path | None, benchmark: str
@@ -203,6 +200,12 @@ def plot_training_curves(curves: dict[str, list[tuple[int, float]]], path: str |
     ax.grid(alpha=0.3, which="both")
     ax.legend(fontsize=8)
     ax.set_title(title, fontsize=9)
+    _save_figure(fig, path)
+
+
+def _save_figure(fig, path: str | Path) -> None:
+    import matplotlib.pyplot as plt
+
     fig.tight_layout()
     with atomic_path(path) as tmp:
         fig.savefig(tmp, format="png", dpi=110)

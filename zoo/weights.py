@@ -14,7 +14,6 @@ computed from exactly these stored values.
 """
 from __future__ import annotations
 
-import hashlib
 import json
 from pathlib import Path
 from typing import Any
@@ -22,7 +21,7 @@ from typing import Any
 import torch
 
 from zoo.errors import ZooError
-from zoo.io import atomic_path, atomic_write_json
+from zoo.io import atomic_path, atomic_write_json, sha256_file
 from zoo.registry import REPO_ROOT
 
 WEIGHTS_DIR = REPO_ROOT / "weights"
@@ -40,14 +39,6 @@ def weights_file(benchmark: str, label: str, root: str | Path | None = None) -> 
 
 def record_file(weights: str | Path) -> Path:
     return Path(weights).with_suffix(".json")
-
-
-def sha256_of(path: str | Path) -> str:
-    digest = hashlib.sha256()
-    with open(path, "rb") as f:
-        for chunk in iter(lambda: f.read(1 << 20), b""):
-            digest.update(chunk)
-    return digest.hexdigest()
 
 
 def checkpoint_label(checkpoint: str | Path, model: str) -> str:
@@ -77,7 +68,7 @@ def export_weights(checkpoint: str | Path, *, label: str | None = None,
                .detach().cpu().contiguous() for name, t in ckpt["state_dict"].items()}
     with atomic_path(path) as tmp:
         save_file(tensors, str(tmp), metadata={"format": RECORD_FORMAT, "model": ckpt["model"]})
-        digest = sha256_of(tmp)
+        digest = sha256_file(tmp)
     source = Path(checkpoint).resolve()
     record = {
         "format": RECORD_FORMAT,
@@ -126,7 +117,7 @@ def read_weights(path: str | Path) -> tuple[dict[str, torch.Tensor], dict[str, A
         raise WeightsError(f"weights record {record_path}: format "
                            f"{record.get('format') if isinstance(record, dict) else None!r}, "
                            f"expected {RECORD_FORMAT!r}")
-    digest = sha256_of(path)
+    digest = sha256_file(path)
     if digest != record.get("sha256"):
         raise WeightsError(f"weights {path}: sha256 {digest[:16]}... differs from its record's "
                            f"{str(record.get('sha256'))[:16]}... ({record_path}): the file was "

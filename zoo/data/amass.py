@@ -26,7 +26,8 @@ import numpy as np
 import scipy.sparse as sp
 import torch
 
-from zoo.data.expmap import DataFormatError, sha256_file
+from zoo.data.expmap import DataFormatError
+from zoo.io import sha256_file
 from zoo.data.mesh import MeshDataset, MeshSequence, MeshTopology
 from zoo.data.skeleton import kinematic_chain, rodrigues
 

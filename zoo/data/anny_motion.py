@@ -59,7 +59,8 @@ from scipy.spatial.transform import Rotation, Slerp
 
 from zoo.data.bvh import (BVH, CMU_BVH_JOINTS, bone_directions, forward_kinematics,
                           read_bvh)
-from zoo.data.expmap import DataFormatError, sha256_file
+from zoo.data.expmap import DataFormatError
+from zoo.io import sha256_file
 from zoo.data.mesh import MeshDataset, MeshSequence, MeshTopology, cache_root
 from zoo.errors import DataNotFoundError
 from zoo.io import atomic_path

@@ -4,7 +4,6 @@ One frame per line, comma separated: root position (3) then 3 numbers per joint.
 """
 from __future__ import annotations
 
-import hashlib
 from pathlib import Path
 
 import numpy as np
@@ -16,14 +15,6 @@ from zoo.errors import ZooError
 
 class DataFormatError(ZooError, ValueError):
     """A data file does not have the expected format; the message names file, line and field."""
-
-
-def sha256_file(path: str | Path) -> str:
-    digest = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
 
 
 def read_expmap_file(path: str | Path, skeleton: Skeleton) -> np.ndarray:

@@ -11,7 +11,8 @@ from pathlib import Path
 
 import numpy as np
 
-from zoo.data.expmap import DataFormatError, expmap_to_positions, read_expmap_file, sha256_file
+from zoo.data.expmap import DataFormatError, expmap_to_positions, read_expmap_file
+from zoo.io import sha256_file
 from zoo.data.skeleton import CMU, H36M, Skeleton
 from zoo.errors import DataNotFoundError
 
