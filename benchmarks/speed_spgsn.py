@@ -36,7 +36,19 @@ from zoo.benchmark import get_benchmark
 from zoo.metrics import mpjpe
 
 TRAINING_SPEED_AIM = 1.0  # times the public code's float32 training samples/s
+PAPER_TABLE9_PARAMS_M = 5.66  # SPGSN paper, Table 9: H3.6M, 10 in / 10 out, dct_n 15
 TRAIN_BATCH = 32
+
+
+def table9_params_m(name: str) -> float:
+    """Parameters (M) of registry model ``name`` in the paper's Table 9 setting: Human3.6M's 22
+    used joints and body parts, 10 frames in and 10 out, 15 DCT coefficients."""
+    from zoo.data.skeleton import H36M
+
+    parts = {k: list(v) for k, v in H36M.parts.items()}
+    model = zoo.create_model(name, input_frames=10, output_frames=10, num_points=len(H36M.used),
+                             parts=parts, dct_n=15)
+    return sum(p.numel() for p in model.parameters()) / 1e6
 
 
 def timed(fn: Callable[[], object], repeats: int, warmup: int = 1) -> tuple[float, float]:
@@ -104,6 +116,8 @@ def measure(name: str, repeats: int, bf16: bool) -> tuple[dict[str, float], dict
         public_input = public_batch(history, future)[0]
         public = {"params_m": sum(p.numel() for p in public_model.parameters()) / 1e6,
                   "gflop_per_sample": forward_gflop_per_sample(public_model)}
+        if name == "spgsn":
+            ours["table9_params_m"] = table9_params_m(name)
 
     model.eval()
     with torch.no_grad():
@@ -204,6 +218,10 @@ def report(name: str, f: dict[str, float], reference: dict[str, float] | None,
             ratio = f["bf16_train_samples_per_s"] / reference["train_samples_per_s"]
             line += f"{reference['train_samples_per_s']:>14.2f}{ratio:>9.2f}x  (ours/public)"
         print(line)
+    if "table9_params_m" in f:
+        print(f"{'parameters (M), paper Table 9 setting':42s}{f['table9_params_m']:>12.3f}"
+              f"{PAPER_TABLE9_PARAMS_M:>14.2f}"
+              f"{f['table9_params_m'] / PAPER_TABLE9_PARAMS_M:>9.2f}x  (ours/paper)")
     if reference:
         speed = f["train_samples_per_s"] / reference["train_samples_per_s"]
         flops = f["gflop_per_sample"] / reference["gflop_per_sample"]

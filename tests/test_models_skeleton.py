@@ -130,6 +130,23 @@ def test_mlp_is_the_published_architecture():
                    for m in model.modules())
 
 
+def test_spgsn_is_paper_sized():
+    """Paper Table 9 (H3.6M, 10 in / 10 out, dct_n 15): 5.66 M parameters. The widths the paper
+    does not give (f_up / f_low, the block MLP) come from the authors' code; within 10%."""
+    from zoo.data.skeleton import H36M
+
+    parts = {k: list(v) for k, v in H36M.parts.items()}
+    assert parts == {"upper": list(range(10, 22)), "lower": list(range(10))}  # the code's split
+    model = zoo.create_model("spgsn", input_frames=10, output_frames=10, num_points=22,
+                             parts=parts, dct_n=15)
+    params = sum(p.numel() for p in model.parameters())
+    assert abs(params / 5.66e6 - 1) < 0.10, params
+    block = model.blocks[0]
+    assert [tuple(m.weight.shape) for m in block.embed_upper if hasattr(m, "weight")] == \
+        [(64, 256), (64, 64)]  # f_up: 256 -> 64 -> 64, bias-free
+    assert block.embed_upper[0].bias is None
+
+
 @pytest.mark.parametrize("kwargs, message", [
     ({"chunk": 0}, "chunk"), ({"blocks": -1}, "blocks"), ({"hidden_dim": 0}, "hidden_dim"),
     ({"init_gain": -1.0}, "init_gain")])
