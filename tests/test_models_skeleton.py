@@ -293,11 +293,13 @@ def test_relabelling_the_joints_relabels_spgsn_output_and_nothing_else():
 def test_spgsn_with_all_coefficients_and_zero_readout_is_repeat_last():
     # Untrained (zero readout) SPGSN returns the inverse DCT of the padded input's kept
     # coefficients; with every coefficient kept that is exactly repeat-last.
-    model = SPGSN(10, 25, 25, parts=CMU_PARTS, blocks=1, hidden=8, dct_n=35).eval()
+    model = SPGSN(10, 25, 25, parts=CMU_PARTS, blocks=1, hidden=8, dct_n=35,
+                  zero_readout=True).eval()
     history = motion(3, 10)
     with torch.no_grad():
         assert torch.allclose(model(history), history[:, -1:].expand(-1, 25, -1, -1), atol=1e-3)
-        truncated = SPGSN(10, 25, 25, parts=CMU_PARTS, blocks=1, hidden=8, dct_n=30).eval()
+        truncated = SPGSN(10, 25, 25, parts=CMU_PARTS, blocks=1, hidden=8, dct_n=30,
+                          zero_readout=True).eval()
         padded = torch.cat([history, history[:, -1:].expand(-1, 25, -1, -1)], dim=1)
         d = dct_matrix(35)[:30]
         expected = d.T @ (d @ padded[0].reshape(35, 75))
