@@ -9,6 +9,7 @@ from typing import Any, Sequence
 import yaml
 
 from zoo.errors import ZooError
+from zoo.evaluate import EVAL_BATCH
 from zoo.registry import REPO_ROOT, load_registry
 
 RESULTS_DIR = REPO_ROOT / "results"
@@ -324,7 +325,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", help="output folder (default results/<benchmark>/<sampler>/<model>)")
     p.add_argument("--set", action="append", metavar="KEY=VALUE",
                    help="override a hyper-parameter; repeatable")
-    p.add_argument("--batch-size", type=int, default=1024)
+    p.add_argument("--batch-size", type=int, default=EVAL_BATCH,
+                   help=f"windows per forward pass (default {EVAL_BATCH})")
     p.add_argument("--task", default="prediction", choices=["prediction", "completion",
                                                              "longterm"])
     p.add_argument("--horizon-frames", type=int, help="frames to predict for --task longterm")

@@ -34,7 +34,7 @@ from torch import nn
 from zoo.benchmark import Benchmark, get_benchmark
 from zoo.data.windows import gather_windows, window_sampler
 from zoo.errors import ZooError
-from zoo.evaluate import predict
+from zoo.evaluate import EVAL_BATCH, predict
 from zoo.io import atomic_path, code_version
 from zoo.metrics import mpjpe
 from zoo.registry import REPO_ROOT, Registry, load_registry
@@ -476,7 +476,7 @@ class _Objective(nn.Module):
 
 
 @torch.no_grad()
-def validate(model, positions, index, t_in, t_out, used, device, batch_size: int = 1024,
+def validate(model, positions, index, t_in, t_out, used, device, batch_size: int = EVAL_BATCH,
              task: str = "prediction") -> float:
     """Mean MPJPE (mm) over validation windows and predicted frames, on the predicted joints;
     a completion model (``task``) is given each window's last frame as its final frame."""
