@@ -249,8 +249,8 @@ def regenerate(benchmark, *, registry=None, data_root=None, out_root: str | Path
     curves = training_curves(weights, bench.name) if weights else {}
     if curves:
         plot_training_curves(curves, out_root / bench.name / "training.png",
-                             title=f"{bench.name}: validation MPJPE (held-out end of each "
-                                   f"training recording) while training, shipped models")
+                             title=f"{bench.name}: validation MPJPE while training "
+                                   f"(shipped models)")
     return written
 
 
