@@ -33,7 +33,7 @@ from zoo.metrics import ACTION_AVERAGING, AVERAGING, FrameErrorMean, cumulative_
 
 # Windows per forward pass. Small batches keep a model's intermediate tensors in the CPU's
 # caches: SPGSN evaluates 3.4 times faster per window at 64 than at 1024 (77 against 262 ms a
-# window, one thread), and no model here needs more than 64 to run at full speed.
+# window, one thread).
 EVAL_BATCH = 64
 RESULT_COLUMNS = ["model", "benchmark", "action", "metric", "averaging", "joints", "horizon_ms",
                   "frame", "value", "windows", "dataset", "split", "sampler", "task",

@@ -315,8 +315,9 @@ def _regenerate_one(bench, registry, dataset, sampler, truth, folder, out_root, 
                 continue
             else:
                 if label == name:
-                    print(f"{bench.name}/{folder}: {name}: skipped (trainable, no checkpoint at "
-                          f"{ckpt})", file=sys.stderr)
+                    print(f"{bench.name}/{folder}: {name}: skipped (trainable; no shipped "
+                          f"weights, no checkpoint{f' at {ckpt}' if ckpt else ''})",
+                          file=sys.stderr)
                 continue
             result = evaluate(model, bench, model_name=label, sampler=sampler, dataset=dataset,
                               device=device, provenance=provenance, ground_truth=truth,
@@ -357,8 +358,8 @@ def _checkpoints_of(name, entry, bench, checkpoints):
     both)."""
     if not entry.trainable:
         return [(name, None)]
-    run = Path(checkpoints or "checkpoints") / bench.name / name
-    return [(name, run / "best.pt"), (f"{name}@last", run / "last.pt")]
+    run = Path(checkpoints) / bench.name / name if checkpoints else None
+    return [(name, run and run / "best.pt"), (f"{name}@last", run and run / "last.pt")]
 
 
 def _drop_mismatched(results: list, bench: str, sampler: str) -> list:

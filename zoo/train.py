@@ -35,7 +35,7 @@ from zoo.benchmark import Benchmark, get_benchmark
 from zoo.data.windows import gather_windows, window_sampler
 from zoo.errors import ZooError
 from zoo.evaluate import EVAL_BATCH, predict
-from zoo.io import atomic_path, code_version
+from zoo.io import atomic_path, code_version, repo_relative
 from zoo.metrics import mpjpe
 from zoo.registry import REPO_ROOT, Registry, load_registry
 
@@ -226,24 +226,27 @@ def load_checkpoint(path: str | Path, *, registry: Registry | None = None,
     if model_name is not None and model_name != ckpt["model"]:
         raise CheckpointError(f"checkpoint {path} holds model {ckpt['model']!r}, not "
                               f"{model_name!r}")
-    model = trained_model(ckpt, ckpt["state_dict"], f"checkpoint {path}", registry=registry,
+    model = trained_model(ckpt, ckpt["state_dict"], "checkpoint", path, registry=registry,
                           benchmark=benchmark, data_root=data_root, dataset=dataset)
     return model, ckpt
 
 
-def trained_model(meta: dict[str, Any], state_dict: dict[str, torch.Tensor], source: str, *,
+def trained_model(meta: dict[str, Any], state_dict: dict[str, torch.Tensor], kind: str,
+                  path: str | Path, *,
                   registry: Registry | None = None, benchmark: str | Benchmark | None = None,
                   data_root: str | Path | None = None, dataset=None) -> nn.Module:
     """The model that ``meta`` (a checkpoint's or shipped weights' record: model, hparams,
     protocol, context_hashes) describes, holding ``state_dict``, in eval mode; refused with an
-    error naming ``source`` if it was trained for another protocol or data than ``benchmark``."""
+    error naming the ``kind`` ("checkpoint", "weights") and ``path`` it came from if it was
+    trained for another protocol or data than ``benchmark``."""
+    source = f"{kind} {path}"
     registry = registry or load_registry()
     entry = registry.get(meta["model"])
     bench = get_benchmark(benchmark or meta["protocol"]["benchmark"]) \
         if not isinstance(benchmark, Benchmark) else benchmark
     view = bench.view_for(entry.representation)
     expected = model_protocol(bench, view)
-    diff = [f"{k} ({source.split()[0]} {meta['protocol'].get(k)!r}, benchmark {v!r})"
+    diff = [f"{k} ({kind} {meta['protocol'].get(k)!r}, benchmark {v!r})"
             for k, v in expected.items() if meta["protocol"].get(k) != v]
     if diff:
         raise CheckpointError(f"{source} was trained for another protocol than benchmark "
@@ -279,9 +282,7 @@ def checkpoint_provenance(path: str | Path, checkpoint: dict[str, Any]) -> dict[
     """What a result computed from ``checkpoint`` records about it: the file (relative to the
     repository when inside it, so stored results name no machine's folders), the
     hyper-parameters and the training summary."""
-    path = Path(path).resolve()
-    shown = path.relative_to(REPO_ROOT) if path.is_relative_to(REPO_ROOT) else path
-    return {"checkpoint": str(shown), "hparams": checkpoint["hparams"],
+    return {"checkpoint": repo_relative(path), "hparams": checkpoint["hparams"],
             "training": checkpoint.get("training", {})}
 
 

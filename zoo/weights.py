@@ -21,7 +21,7 @@ from typing import Any
 import torch
 
 from zoo.errors import ZooError
-from zoo.io import atomic_path, atomic_write_json, sha256_file
+from zoo.io import atomic_path, atomic_write_json, repo_relative, sha256_file
 from zoo.registry import REPO_ROOT
 
 WEIGHTS_DIR = REPO_ROOT / "weights"
@@ -69,7 +69,6 @@ def export_weights(checkpoint: str | Path, *, label: str | None = None,
     with atomic_path(path) as tmp:
         save_file(tensors, str(tmp), metadata={"format": RECORD_FORMAT, "model": ckpt["model"]})
         digest = sha256_file(tmp)
-    source = Path(checkpoint).resolve()
     record = {
         "format": RECORD_FORMAT,
         "label": label,
@@ -90,8 +89,7 @@ def export_weights(checkpoint: str | Path, *, label: str | None = None,
         "training_data": ckpt.get("training_data"),
         "code_version": ckpt.get("code_version"),
         "torch": ckpt.get("torch"),
-        "checkpoint": str(source.relative_to(REPO_ROOT) if source.is_relative_to(REPO_ROOT)
-                          else source),
+        "checkpoint": repo_relative(checkpoint),
     }
     atomic_write_json(record_file(path), record)
     return path
@@ -136,7 +134,7 @@ def load_weights(path: str | Path, *, registry=None, benchmark=None, data_root=N
     from zoo.train import trained_model
 
     state, record = read_weights(path)
-    model = trained_model(record, state, f"weights {path}", registry=registry,
+    model = trained_model(record, state, "weights", path, registry=registry,
                           benchmark=benchmark, data_root=data_root, dataset=dataset)
     return model, record
 
@@ -161,8 +159,6 @@ def pretrained_path(name: str, benchmark: str, root: str | Path | None = None) -
 
 def weights_provenance(path: str | Path, record: dict[str, Any]) -> dict[str, Any]:
     """What a result computed from shipped weights records about them."""
-    path = Path(path).resolve()
-    shown = path.relative_to(REPO_ROOT) if path.is_relative_to(REPO_ROOT) else path
-    return {"weights": str(shown), "weights_sha256": record["sha256"],
+    return {"weights": repo_relative(path), "weights_sha256": record["sha256"],
             "weights_dtype": record["dtype"], "hparams": record["hparams"],
             "training": record.get("training", {})}
