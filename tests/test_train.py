@@ -182,3 +182,51 @@ def test_learning_rate_schedules():
     warm = {**cosine, "warmup_steps": 4}
     assert [learning_rate(warm, 1e-4, 0, 100, s) for s in range(5)] == pytest.approx(
         [2.5e-5, 5e-5, 7.5e-5, 1e-4, 1e-4], rel=1e-12)
+
+
+def test_resume_refuses_another_recipe_and_records_a_larger_budget(setup, tmp_path):
+    out = tmp_path / "run"
+    run(setup, out, epochs=2, max_batches=2)
+    for kw, field in (({"seed": 1}, "seed"),
+                      ({"train_overrides": {"batch_size": 16}}, "batch_size"),
+                      ({"train_overrides": {"lr": 0.5}}, "lr"),
+                      ({"train_overrides": {"schedule": {"type": "step", "every_epochs": 1,
+                                                         "gamma": 0.9}}}, "schedule")):
+        with pytest.raises(CheckpointError, match=f"cannot resume with another recipe .*{field}"):
+            run(setup, out, epochs=3, max_batches=2, resume=True, **kw)
+    with pytest.raises(CheckpointError, match="already trained 2 epochs"):
+        run(setup, out, epochs=1, max_batches=2, resume=True)
+    run(setup, out, epochs=4, max_batches=3, resume=True)
+    ckpt = read_checkpoint(out / "last.pt")
+    assert ckpt["recipe"]["epochs"] == 4 and ckpt["max_batches"] == 3
+    assert ckpt["recipe_changes"] == [
+        {"field": "epochs", "from": 2, "to": 4, "from_epoch": 3},
+        {"field": "max_batches", "from": 2, "to": 3, "from_epoch": 3}]
+    assert [h["samples"] for h in ckpt["history"]][1:3] == [2 * 8, 3 * 8]
+    # changes accumulate over resumes
+    run(setup, out, epochs=5, max_batches=3, resume=True)
+    assert read_checkpoint(out / "last.pt")["recipe_changes"][-1] == \
+        {"field": "epochs", "from": 4, "to": 5, "from_epoch": 5}
+
+
+@pytest.mark.parametrize("overrides, message", [
+    ({"grad_clip": -1}, "grad_clip must be a number > 0 or null"),
+    ({"grad_clip": 0}, "grad_clip must be a number > 0 or null"),
+    ({"lr": -0.1}, "lr must be a number > 0"),
+    ({"lr": "fast"}, "lr must be a number > 0"),
+    ({"weight_decay": -1e-4}, "weight_decay must be a number >= 0"),
+    ({"batch_size": 0}, "batch_size must be a positive integer"),
+    ({"schedule": {"type": "step", "gamma": 0.9}}, "step schedule needs every_epochs"),
+    ({"schedule": {"type": "multistep", "lrs": [1e-3]}}, "multistep schedule needs"),
+    ({"schedule": {"type": "multistep", "milestones_steps": [5], "lrs": [1e-3, 1e-4]},
+      "lr": 0.5}, "lr 0.5 is not what runs"),
+])
+def test_recipe_values_are_checked_before_training(setup, tmp_path, overrides, message):
+    with pytest.raises(TrainingError, match=message):
+        run(setup, tmp_path / "bad", train_overrides=overrides)
+    assert not (tmp_path / "bad").exists()
+
+
+def test_zero_epochs_is_an_error_not_the_full_recipe(setup, tmp_path):
+    with pytest.raises(TrainingError, match="epochs must be a positive integer, got 0"):
+        run(setup, tmp_path / "zero", epochs=0)

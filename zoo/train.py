@@ -97,13 +97,47 @@ def training_recipe(entry_train: dict[str, Any], overrides: dict[str, Any] | Non
         raise TrainingError(f"training recipe: precision {recipe['precision']!r} unknown; "
                             f"valid: {', '.join(PRECISIONS)}")
     for key in ("batch_size", "epochs"):
-        if not isinstance(recipe[key], int) or recipe[key] < 1:
+        if isinstance(recipe[key], bool) or not isinstance(recipe[key], int) or recipe[key] < 1:
             raise TrainingError(f"training recipe: {key} must be a positive integer, got "
                                 f"{recipe[key]!r}")
+    if not _positive_number(recipe["lr"]):
+        raise TrainingError(f"training recipe: lr must be a number > 0, got {recipe['lr']!r}")
+    if not _positive_number(recipe["weight_decay"], allow_zero=True):
+        raise TrainingError(f"training recipe: weight_decay must be a number >= 0, got "
+                            f"{recipe['weight_decay']!r}")
+    # A negative limit would flip the gradients' sign inside clip_grad_norm_.
+    if recipe["grad_clip"] is not None and not _positive_number(recipe["grad_clip"]):
+        raise TrainingError(f"training recipe: grad_clip must be a number > 0 or null (no "
+                            f"clipping), got {recipe['grad_clip']!r}")
+    if schedule["type"] == "step" and not (
+            isinstance(schedule.get("every_epochs"), int) and schedule["every_epochs"] >= 1
+            and _positive_number(schedule.get("gamma"))):
+        raise TrainingError(f"training recipe: a step schedule needs every_epochs (an integer "
+                            f">= 1) and gamma (a number > 0), got {schedule!r}")
+    if schedule["type"] == "multistep":
+        lrs, milestones = schedule.get("lrs"), schedule.get("milestones_steps")
+        if not isinstance(lrs, list) or not isinstance(milestones, list) or not lrs \
+                or len(lrs) != len(milestones) + 1:
+            raise TrainingError(f"training recipe: a multistep schedule needs milestones_steps "
+                                f"[s1, ...] and one more rate in lrs [lr0, lr1, ...], got "
+                                f"{schedule!r}")
+        # The schedule's own rates are what runs; a different lr would be recorded, not used.
+        if recipe["lr"] != lrs[0]:
+            raise TrainingError(f"training recipe: lr {recipe['lr']!r} is not what runs: the "
+                                f"multistep schedule sets its own rates lrs = {lrs}; change "
+                                f"the schedule instead (--train-set 'schedule={{type: "
+                                f"multistep, milestones_steps: [...], lrs: [...]}}') and give "
+                                f"lr equal to its first rate")
     if not 0 < recipe["val_fraction"] < 0.5:
         raise TrainingError(f"training recipe: val_fraction must lie in (0, 0.5), got "
                             f"{recipe['val_fraction']}")
     return recipe
+
+
+def _positive_number(value, allow_zero: bool = False) -> bool:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        return False
+    return value >= 0 if allow_zero else value > 0
 
 
 def learning_rate(schedule: dict[str, Any], base_lr: float, epoch: int, epochs: int,
@@ -324,7 +358,7 @@ def train(model_name: str, benchmark: str | Benchmark, *, registry: Registry | N
         raise TrainingError(f"model {model_name!r} has nothing to train (registry: trainable: "
                             f"false)")
     recipe = training_recipe(entry.train, {**(train_overrides or {}),
-                                           **({"epochs": epochs} if epochs else {})})
+                                           **({"epochs": epochs} if epochs is not None else {})})
     dist_info = _init_distributed(device)
     out_dir = Path(out_dir) if out_dir else REPO_ROOT / "checkpoints" / bench.name / model_name
     view = bench.view_for(entry.representation)
@@ -358,12 +392,14 @@ def train(model_name: str, benchmark: str | Benchmark, *, registry: Registry | N
     used = _point_index(bench)
 
     first_epoch, best, history = 0, {"val_mpjpe": math.inf, "epoch": -1}, []
+    recipe_changes: list[dict[str, Any]] = []
     last_path, best_path = out_dir / "last.pt", out_dir / "best.pt"
     if resume:
         state = read_checkpoint(last_path)
         if state["model"] != model_name or state["hparams"] != _stored_hparams(hparams)[0]:
             raise CheckpointError(f"{last_path}: cannot resume: it holds {state['model']!r} with "
                                   f"other hyper-parameters")
+        recipe_changes = resume_changes(last_path, state, recipe, seed, max_batches)
         model.load_state_dict(state["state_dict"])
         optimizer.load_state_dict(state["optimizer"])
         torch.set_rng_state(state["rng"])
@@ -382,7 +418,8 @@ def train(model_name: str, benchmark: str | Benchmark, *, registry: Registry | N
     steps_per_epoch = max(1, len(train_index) // batch_size)
     if max_batches:
         steps_per_epoch = min(steps_per_epoch, max_batches)
-    meta = _metadata(model_name, hparams, bench, dataset, recipe, seed, device, dist_info, view)
+    meta = {**_metadata(model_name, hparams, bench, dataset, recipe, seed, device, dist_info,
+                        view), "max_batches": max_batches, "recipe_changes": recipe_changes}
 
     def training_windows():
         """Every training window once, in a fixed order (for per-epoch statistics), in batches
@@ -457,6 +494,43 @@ def train(model_name: str, benchmark: str | Benchmark, *, registry: Registry | N
     if dist_info.active:
         _write_rank_digest(out_dir, model, dist_info)
     return best_path
+
+
+# The run's budget may grow when it is resumed (each change is recorded with the epoch it took
+# effect); every other field of the recipe must stay what the checkpoint says was run.
+BUDGET_FIELDS = ("epochs", "max_batches")
+
+
+def resume_changes(path: Path, state: dict[str, Any], recipe: dict[str, Any], seed: int,
+                   max_batches: int | None) -> list[dict[str, Any]]:
+    """The checkpoint's recorded recipe changes plus this resume's; refuses any change that is
+    not the budget, naming the fields."""
+    stored = state.get("recipe") or {}
+    given = _plain(recipe)
+    differ = [f"{key}: {stored.get(key)!r} in the checkpoint, {given.get(key)!r} now"
+              for key in sorted(set(stored) | set(given))
+              if key not in BUDGET_FIELDS and stored.get(key) != given.get(key)]
+    if state.get("seed") != seed:
+        differ.append(f"seed: {state.get('seed')!r} in the checkpoint, {seed!r} now")
+    if differ:
+        raise CheckpointError(f"{path}: cannot resume with another recipe ({'; '.join(differ)}); "
+                              f"only the budget (--epochs, --max-batches) may change on "
+                              f"resume. Resume with the checkpoint's values, or start a new "
+                              f"run with another --out")
+    done = state["epoch"] + 1
+    if recipe["epochs"] < done:
+        raise CheckpointError(f"{path}: cannot resume with --epochs {recipe['epochs']}: the run "
+                              f"has already trained {done} epochs")
+    changes = list(state.get("recipe_changes") or [])
+    now = {"epochs": recipe["epochs"], "max_batches": max_batches}
+    before = {"epochs": stored.get("epochs"), "max_batches": state.get("max_batches")}
+    for field in BUDGET_FIELDS:
+        # Checkpoints written before max_batches was recorded cannot say what it was.
+        if field in stored or field in state:
+            if before[field] != now[field]:
+                changes.append({"field": field, "from": before[field], "to": now[field],
+                                "from_epoch": done + 1})
+    return changes
 
 
 class _Objective(nn.Module):

@@ -83,6 +83,9 @@ def export_weights(checkpoint: str | Path, *, label: str | None = None,
         "protocol": ckpt["protocol"],
         "recipe": ckpt.get("recipe"),
         "seed": ckpt.get("seed"),
+        # batches per epoch when capped, and budget changes made on resume (epoch they began)
+        "max_batches": ckpt.get("max_batches"),
+        "recipe_changes": ckpt.get("recipe_changes", []),
         # budget (epochs, samples, seconds), device and the validation curve
         "training": ckpt.get("training", {}),
         "history": ckpt.get("history"),
