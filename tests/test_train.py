@@ -212,8 +212,8 @@ def test_resume_refuses_another_recipe_and_records_a_larger_budget(setup, tmp_pa
 @pytest.mark.parametrize("overrides, message", [
     ({"grad_clip": -1}, "grad_clip must be a number > 0 or null"),
     ({"grad_clip": 0}, "grad_clip must be a number > 0 or null"),
-    ({"lr": -0.1}, "lr must be a number > 0"),
-    ({"lr": "fast"}, "lr must be a number > 0"),
+    ({"lr": -0.1}, "lr must be a number >= 0"),
+    ({"lr": "fast"}, "lr must be a number >= 0"),
     ({"weight_decay": -1e-4}, "weight_decay must be a number >= 0"),
     ({"batch_size": 0}, "batch_size must be a positive integer"),
     ({"schedule": {"type": "step", "gamma": 0.9}}, "step schedule needs every_epochs"),

@@ -147,7 +147,7 @@ def cmd_eval(args) -> int:
         out = Path(args.out) if args.out else RESULTS_DIR / bench.name / folder / name
         result.write(out)
         _print_average(result.frame, bench.horizons_ms)
-        print(f"wrote {out}/results.csv, protocol.json, tables.md")
+        print(f"wrote {out}/results.csv, protocol.json, tables.md, windows.npz")
     return 0
 
 
@@ -188,6 +188,38 @@ def cmd_leaderboard(args) -> int:
         regenerate(bench, registry=registry, data_root=args.data_root,
                    out_root=Path(args.out), checkpoints=Path(args.checkpoints),
                    weights=Path(args.weights), device=args.device)
+    return 0
+
+
+def cmd_compare(args) -> int:
+    from zoo.compare import compare
+
+    folders = []
+    for name in (args.a, args.b):
+        if Path(name).is_dir():
+            folders.append(Path(name))
+            continue
+        if not args.benchmark:
+            raise UsageError(f"{name!r} is not a result folder; give --benchmark to find "
+                             f"results/<benchmark>/<sampler>/{name}")
+        from zoo.benchmark import get_benchmark
+        from zoo.leaderboard import results_folder
+
+        bench = get_benchmark(args.benchmark)
+        folder = Path(args.results) / bench.name / results_folder(
+            args.sampler or bench.sampler, truth=args.ground_truth) / name
+        if not (folder / "results.csv").is_file():
+            raise UsageError(f"{folder}: no result of {name!r} there (zoo eval or zoo "
+                             f"leaderboard writes it)")
+        folders.append(folder)
+    comparison = compare(folders[0], folders[1], metric=args.metric, joints=args.joints,
+                         averaging=args.averaging, block_frames=args.block_frames,
+                         confidence=args.confidence, replicates=args.replicates,
+                         seed=args.seed)
+    print(comparison.markdown())
+    if args.out:
+        comparison.write(args.out)
+        print(f"wrote {args.out}/comparison.md, comparison.png")
     return 0
 
 
@@ -297,6 +329,16 @@ def _jsonable(value):
     return repr(value)
 
 
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {value}")
+    return value
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="zoo", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
@@ -346,6 +388,26 @@ def build_parser() -> argparse.ArgumentParser:
                    help="folder of trained checkpoints <benchmark>/<model>/best.pt "
                         "(default checkpoints/, where zoo train writes)")
     p.set_defaults(func=cmd_leaderboard)
+
+    p = sub.add_parser("compare", help="is A better than B? paired differences per horizon "
+                                       "with block-bootstrap intervals")
+    p.add_argument("a", help="model label (with --benchmark) or result folder")
+    p.add_argument("b", help="model label (with --benchmark) or result folder")
+    p.add_argument("--benchmark", help="benchmark whose results/<benchmark>/<sampler>/ to read")
+    p.add_argument("--sampler", help="window sampler (default: the benchmark's)")
+    p.add_argument("--ground-truth", choices=["raw", "spectral"],
+                   help="mesh benchmarks: the results scored against this ground truth")
+    p.add_argument("--results", default=str(RESULTS_DIR), help="results root (default results/)")
+    p.add_argument("--metric", help="default: the benchmark's headline (mpjpe; rmse on meshes)")
+    p.add_argument("--joints", help="joint protocol (default: the official one, e.g. all38)")
+    p.add_argument("--averaging", default="frame", choices=["frame", "cumulative"])
+    p.add_argument("--block-frames", type=_positive_int,
+                   help="bootstrap block length in frames (default: two window lengths)")
+    p.add_argument("--confidence", type=float, default=0.95)
+    p.add_argument("--replicates", type=_positive_int, default=2000)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--out", help="also write comparison.md and comparison.png here")
+    p.set_defaults(func=cmd_compare)
 
     p = sub.add_parser("render", help="ground truth and prediction side by side (PNG, .glb)")
     common(p)

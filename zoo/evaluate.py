@@ -51,13 +51,89 @@ class EvaluationError(ZooError, RuntimeError):
     pass
 
 
+WINDOWS_FILE = "windows.npz"
+
+
+@dataclass
+class WindowErrors:
+    """Every scored window's per-frame error, beside the averages (``windows.npz``): where each
+    window comes from (``sequence`` index into ``sequences``, first frame ``start``, ``action``)
+    and, per ``(model, metric, joints)``, its errors ``(W, T_out)`` at every predicted frame
+    (float32; the averages in ``results.csv`` are summed in float64 from the exact values)."""
+    sequences: list[str]
+    sequence: np.ndarray
+    start: np.ndarray
+    action: np.ndarray
+    errors: dict[tuple[str, str, str], np.ndarray]
+    protocol_id: str
+    window_frames: int
+
+    def get(self, model: str, metric: str, joints: str) -> np.ndarray:
+        key = (model, metric, joints)
+        if key not in self.errors:
+            raise EvaluationError(f"no per-window errors for model {model!r}, metric "
+                                  f"{metric!r}, joints {joints!r}; stored: "
+                                  f"{', '.join('/'.join(k) for k in self.errors)}")
+        return self.errors[key]
+
+    def write(self, path: str | Path) -> None:
+        from zoo.io import atomic_path
+
+        arrays = {"sequences": np.asarray(self.sequences, dtype=str),
+                  "sequence": self.sequence.astype(np.int32), "start": self.start.astype(np.int32),
+                  "action": np.asarray(self.action, dtype=str),
+                  "protocol_id": np.asarray(self.protocol_id),
+                  "window_frames": np.asarray(self.window_frames)}
+        for (model, metric, joints), values in self.errors.items():
+            arrays[f"errors/{model}/{metric}/{joints}"] = values.astype(np.float32)
+        with atomic_path(path) as tmp, open(tmp, "wb") as f:
+            np.savez_compressed(f, **arrays)
+
+    @classmethod
+    def read(cls, path: str | Path) -> "WindowErrors":
+        try:
+            with np.load(path, allow_pickle=False) as data:
+                keys = [k for k in data.files if k.startswith("errors/")]
+                return cls(sequences=[str(x) for x in data["sequences"]],
+                           sequence=data["sequence"].astype(np.int64),
+                           start=data["start"].astype(np.int64),
+                           action=data["action"].astype(str),
+                           errors={tuple(k.split("/", 3)[1:]): data[k] for k in keys},
+                           protocol_id=str(data["protocol_id"]),
+                           window_frames=int(data["window_frames"]))
+        except (OSError, ValueError, KeyError) as exc:
+            raise EvaluationError(f"{path}: not a readable per-window error file ({exc}); "
+                                  f"re-evaluate to rebuild it (zoo eval / zoo leaderboard)") \
+                from exc
+
+
+class _WindowLog:
+    """Collects per-window errors batch by batch, in window order."""
+
+    def __init__(self) -> None:
+        self.errors: dict[tuple[str, str, str], list[np.ndarray]] = {}
+
+    def update(self, model: str, metric: str, joints: str, errors: torch.Tensor) -> None:
+        self.errors.setdefault((model, metric, joints), []).append(
+            errors.detach().to("cpu", torch.float32).numpy())
+
+    def compute(self, sequences, index: np.ndarray, actions: np.ndarray, protocol_id: str,
+                window_frames: int) -> WindowErrors:
+        return WindowErrors(sequences=[s.name for s in sequences], sequence=index[:, 0],
+                            start=index[:, 1], action=actions,
+                            errors={k: np.concatenate(v) for k, v in self.errors.items()},
+                            protocol_id=protocol_id, window_frames=window_frames)
+
+
 @dataclass
 class EvalResult:
     frame: pd.DataFrame
     protocol: dict[str, Any]
+    windows: WindowErrors | None = None
 
     def write(self, out_dir: str | Path) -> Path:
-        """``results.csv``, ``protocol.json`` and ``tables.md`` in ``out_dir``, each atomically."""
+        """``results.csv``, ``protocol.json``, ``tables.md`` and ``windows.npz`` in ``out_dir``,
+        each atomically."""
         from zoo.leaderboard import markdown_tables
 
         out_dir = Path(out_dir)
@@ -65,6 +141,8 @@ class EvalResult:
         atomic_write_text(out_dir / "results.csv", self.frame.to_csv(index=False))
         atomic_write_json(out_dir / "protocol.json", self.protocol)
         atomic_write_text(out_dir / "tables.md", tables)
+        if self.windows is not None:
+            self.windows.write(out_dir / WINDOWS_FILE)
         return out_dir
 
     @classmethod
@@ -74,7 +152,14 @@ class EvalResult:
             if not (out_dir / name).is_file():
                 raise EvaluationError(f"{out_dir / name}: missing (not an evaluation folder)")
         protocol = json.loads((out_dir / "protocol.json").read_text())
-        return cls(frame=pd.read_csv(out_dir / "results.csv"), protocol=protocol)
+        windows = WindowErrors.read(out_dir / WINDOWS_FILE) \
+            if (out_dir / WINDOWS_FILE).is_file() else None
+        if windows is not None and windows.protocol_id != protocol["protocol_id"]:
+            raise EvaluationError(f"{out_dir / WINDOWS_FILE}: measured under protocol "
+                                  f"{windows.protocol_id}, but {out_dir / 'protocol.json'} says "
+                                  f"{protocol['protocol_id']}; re-evaluate the folder")
+        return cls(frame=pd.read_csv(out_dir / "results.csv"), protocol=protocol,
+                   windows=windows)
 
 
 def check_task(task: str, horizon: int | None, output_frames: int) -> int:
@@ -215,6 +300,7 @@ def evaluate(model: torch.nn.Module, benchmark: str | Benchmark, *, model_name: 
     positions = [s.positions for s in sequences]
     used = list(skeleton.used)
     accumulators: dict[str, FrameErrorMean] = {}
+    log = _WindowLog()
     model = model.to(device).eval()
     with torch.no_grad():
         for start in range(0, len(index), batch_size):
@@ -225,13 +311,15 @@ def evaluate(model: torch.nn.Module, benchmark: str | Benchmark, *, model_name: 
             pred = _checked(pred, (len(history), t_out, len(used), 3), model_name, start)
             for joints, errors in skeleton_errors(pred, windows[:, t_in:], skeleton).items():
                 accumulators.setdefault(joints, FrameErrorMean()).update(errors, actions[rows])
+                log.update(model_name, "mpjpe", joints, errors)
 
     windows_per_action = {a: int((actions == a).sum()) for a in dataset.actions_present}
     record = protocol_record(bench, dataset, sampler, windows_per_action)
     record.update(_task_record(task, t_out))
     _seal(record, model_name, device, provenance)
     frame = _long_frame(accumulators, record, model_name, windows_per_action)
-    return EvalResult(frame=frame, protocol=record)
+    return EvalResult(frame=frame, protocol=record, windows=log.compute(
+        sequences, index, actions, record["protocol_id"], t_in + t_out))
 
 
 def _long_frame(accumulators: dict[str, FrameErrorMean], record: dict[str, Any], model_name: str,
@@ -360,6 +448,7 @@ def evaluate_mesh(model: torch.nn.Module, benchmark: str | Benchmark, *, model_n
     edges = topology.edges
     accumulators: dict[tuple[str, str], FrameErrorMean] = {}
     baseline = FrameErrorMean()
+    log = _WindowLog()
     batch = max(1, min(batch_size, MESH_BATCH_VALUES // ((t_in + t_out) * topology.num_vertices
                                                          * 3)))
     expected_tail = (t_out, topology.num_vertices, 3)
@@ -376,9 +465,10 @@ def evaluate_mesh(model: torch.nn.Module, benchmark: str | Benchmark, *, model_n
                                joints[:, -1].to(device))
                 pred = _checked(pred, (len(windows), t_out, regressor.shape[0], 3), model_name,
                                 start)
-                accumulators.setdefault(("mpjpe", f"regressor{regressor.shape[0]}"),
-                                        FrameErrorMean()).update(mpjpe(pred, joints[:, t_in:]),
-                                                                 actions[rows])
+                errors = mpjpe(pred, joints[:, t_in:])
+                key = ("mpjpe", f"regressor{regressor.shape[0]}")
+                accumulators.setdefault(key, FrameErrorMean()).update(errors, actions[rows])
+                log.update(model_name, *key, errors)
                 continue
             pred = predict(model, windows[:, :t_in].to(device), task, t_out,
                            windows[:, -1].to(device))
@@ -391,7 +481,10 @@ def evaluate_mesh(model: torch.nn.Module, benchmark: str | Benchmark, *, model_n
                     pred, target, regressor)
             for key, value in errors.items():
                 accumulators.setdefault(key, FrameErrorMean()).update(value, actions[rows])
-            baseline.update(melv(target, reference, edges), actions[rows])
+                log.update(model_name, *key, value)
+            truth_melv = melv(target, reference, edges)
+            baseline.update(truth_melv, actions[rows])
+            log.update("ground_truth", "melv", "vertices", truth_melv)
 
     windows_per_action = {a: int((actions == a).sum()) for a in dataset.actions_present
                           if (actions == a).any()}
@@ -410,4 +503,6 @@ def evaluate_mesh(model: torch.nn.Module, benchmark: str | Benchmark, *, model_n
     if view == "mesh":  # the data's own MELV, once per mesh evaluation
         frames.append(_long_frame({"vertices": baseline}, record, "ground_truth",
                                   windows_per_action).assign(metric="melv"))
-    return EvalResult(frame=pd.concat(frames, ignore_index=True), protocol=record)
+    return EvalResult(frame=pd.concat(frames, ignore_index=True), protocol=record,
+                      windows=log.compute(sequences, index, actions, record["protocol_id"],
+                                          t_in + t_out))

@@ -9,6 +9,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any, Iterable
 
+import numpy as np
 import pandas as pd
 from tabulate import tabulate
 
@@ -67,8 +68,9 @@ def check_comparable(records: dict[str, dict[str, Any]]) -> None:
 
 
 def markdown_tables(frame: pd.DataFrame, records: dict[str, dict[str, Any]],
-                    horizons_ms: Iterable[int] | None = None) -> str:
-    """One Markdown table per (metric, averaging, joints), horizons as columns."""
+                    horizons_ms: Iterable[int] | None = None, headline: str = "") -> str:
+    """One Markdown table per (metric, averaging, joints), horizons as columns, after the
+    ``headline`` table if given."""
     ids = sorted(frame["protocol_id"].unique())
     missing = [i for i in ids if i not in records]
     if missing:
@@ -81,6 +83,8 @@ def markdown_tables(frame: pd.DataFrame, records: dict[str, dict[str, Any]],
            f"{record['output_frames']} out at {record['fps']:g} fps",
            "", f"Protocol {ids[0]}; actions present: {', '.join(record['actions_present'])}; "
            f"{record['action_averaging']}.", ""]
+    if headline:
+        out += [headline, ""]
     for (metric, averaging, joints), group in frame.groupby(["metric", "averaging", "joints"],
                                                             sort=True):
         table = (group[group["horizon_ms"].isin(horizons)]
@@ -124,7 +128,8 @@ def write_leaderboard(results: list, out_dir: str | Path,
     records = {r.protocol["protocol_id"]: r.protocol for r in results}
     check_comparable(records)
     frame = pd.concat([r.frame for r in results], ignore_index=True)
-    tables = markdown_tables(frame, records, horizons_ms)
+    tables = markdown_tables(frame, records, horizons_ms,
+                             headline=headline_table(results, horizons_ms))
     protocol = dict(results[0].protocol)
     protocol["provenance"] = {"runs": [r.protocol.get("provenance", {}) for r in results]}
     atomic_write_text(out_dir / "results.csv", frame.to_csv(index=False))
@@ -132,6 +137,78 @@ def write_leaderboard(results: list, out_dir: str | Path,
     atomic_write_json(out_dir / "protocol.json", protocol)
     plot_average(frame, out_dir / "mpjpe.png", title=tables.splitlines()[0].lstrip("# "))
     return out_dir
+
+
+def headline_table(results: list, horizons_ms: Iterable[int] | None = None) -> str:
+    """Models as rows, horizons as columns: the benchmark's headline metric (frame averaging,
+    action average) with half its 95% block-bootstrap interval, in bold where a model is the
+    best at that horizon or not distinguishable from it (their paired interval holds zero)."""
+    from zoo.compare import block_frames_default, headline_key, window_errors
+    from zoo.intervals import REPLICATES, block_bootstrap, percentile_interval, \
+        short_recordings
+
+    record = results[0].protocol
+    metric, joints = headline_key(record)
+    frame = pd.concat([r.frame for r in results], ignore_index=True)
+    rows = frame[(frame["metric"] == metric) & (frame["joints"] == joints) &
+                 (frame["averaging"] == "frame") & (frame["action"] == "average")]
+    if rows.empty:
+        return ""
+    horizons = [h for h in (horizons_ms or _default_horizons(frame)) if h in set(rows.horizon_ms)]
+    values = rows.pivot_table(index="model", columns="horizon_ms", values="value")[horizons]
+    frame_of = dict(zip(rows["horizon_ms"], rows["frame"]))
+    columns = [int(frame_of[h]) - 1 for h in horizons]  # 0-based predicted frame of each
+    errors = {str(r.frame["model"].iloc[0]): r for r in results if r.windows is not None
+              and (str(r.frame["model"].iloc[0]), metric, joints) in r.windows.errors}
+    errors = {m: window_errors(r, m, metric, joints)[:, columns] for m, r in errors.items()}
+    windows = next((r.windows for r in results if r.windows is not None), None)
+    block = block_frames_default(windows) if windows is not None else None
+
+    def interval(values_: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return percentile_interval(block_bootstrap(values_, windows.sequence, windows.start,
+                                                   windows.action, block, REPLICATES))
+
+    half = {}
+    for m, e in errors.items():
+        lo, hi = interval(e)
+        half[m] = (hi - lo) / 2
+    fmt = metric_unit(metric)[1]
+    best = values.idxmin()
+    tied: dict[tuple[str, int], bool] = {}
+    paired: dict[tuple[str, str], tuple[np.ndarray, np.ndarray]] = {}
+    for i, h in enumerate(horizons):
+        for m in errors:
+            if m != best[h] and best[h] in errors:
+                if (m, best[h]) not in paired:
+                    paired[m, best[h]] = interval(errors[m] - errors[best[h]])
+                lo, hi = paired[m, best[h]]
+                tied[m, h] = bool(lo[i] <= 0 <= hi[i])
+    table = []
+    for m in values.index:
+        cells = []
+        for i, h in enumerate(horizons):
+            text = f"{values.loc[m, h]:{fmt}}" + (f" ±{half[m][i]:{fmt}}" if m in half else "")
+            cells.append(f"**{text}**" if tied.get((m, h), m == best[h]) else text)
+        table.append([m, *cells])
+    unit = metric_unit(metric)[0]
+    if windows is None:
+        how = "no per-window errors stored, so no intervals"
+    else:
+        short = short_recordings(windows.sequence, windows.start, block)
+        how = (f"± is half the 95% block-bootstrap interval (circular blocks of {block} frames "
+               f"within each recording, {REPLICATES} replicates, seed 0); **bold**: the lowest "
+               f"error at that horizon and every model whose paired 95% interval against it "
+               f"holds zero (not distinguishable from the best)")
+        if short:
+            names = [windows.sequences[i] for i in short]
+            how += (f". {len(names)} recording(s) hold fewer than two blocks of overlapping "
+                    f"windows ({', '.join(names[:6])}{', ...' if len(names) > 6 else ''}): the "
+                    f"bootstrap cannot see their full variance, so these intervals are too "
+                    f"narrow")
+    return "\n".join([f"## Headline: {metric.upper()} ({unit}), averaging `frame`, joints "
+                      f"`{joints}`, mean over actions", "", how + ".", "",
+                      tabulate(table, headers=["model"] + [f"{h} ms" for h in horizons],
+                               tablefmt="github", disable_numparse=True)])
 
 
 def plot_average(frame: pd.DataFrame, path: str | Path, title: str = "") -> None:

@@ -100,8 +100,9 @@ def training_recipe(entry_train: dict[str, Any], overrides: dict[str, Any] | Non
         if isinstance(recipe[key], bool) or not isinstance(recipe[key], int) or recipe[key] < 1:
             raise TrainingError(f"training recipe: {key} must be a positive integer, got "
                                 f"{recipe[key]!r}")
-    if not _positive_number(recipe["lr"]):
-        raise TrainingError(f"training recipe: lr must be a number > 0, got {recipe['lr']!r}")
+    # lr 0 is allowed: it runs the whole pipeline with frozen weights (tests use it).
+    if not _positive_number(recipe["lr"], allow_zero=True):
+        raise TrainingError(f"training recipe: lr must be a number >= 0, got {recipe['lr']!r}")
     if not _positive_number(recipe["weight_decay"], allow_zero=True):
         raise TrainingError(f"training recipe: weight_decay must be a number >= 0, got "
                             f"{recipe['weight_decay']!r}")
