@@ -186,6 +186,24 @@ def test_ground_truth_edge_length_changes_at_low_resolution(low_model, short_mot
     assert 10 < np.percentile(change, 99) < 30 and change.max() < 100
 
 
+def test_built_meshes_do_not_depend_on_the_thread_count(low_model, tmp_path):
+    import torch
+
+    before = torch.get_num_threads()
+    hashes = []
+    try:
+        for threads in (3, 1):
+            torch.set_num_threads(threads)
+            hashes.append(am.build_cmu_anny(CMU_BVH, identities="one", topology="low",
+                                            split="train", trials=[SHORT], progress=False,
+                                            cache_dir=tmp_path / f"threads{threads}")
+                          .content_hash())
+            assert torch.get_num_threads() == threads  # the caller's setting is restored
+    finally:
+        torch.set_num_threads(before)
+    assert hashes[0] == hashes[1]
+
+
 @needs_anny
 @needs_data
 def test_build_one_identity_low(low_model, cache):

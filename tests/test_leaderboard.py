@@ -111,3 +111,41 @@ def test_results_folder_names_sampler_task_and_ground_truth():
     assert results_folder("all") == "all"
     assert results_folder("all", "completion", "spectral") == "all-completion-gt_spectral"
     assert results_folder("stride5_strict", "longterm", "raw", 50) == "stride5_strict-longterm50"
+
+
+def test_check_recomputes_every_row_and_names_what_differs(tmp_path, capsys):
+    from zoo.cli import main
+
+    root, _ = cmu_and_registry(tmp_path)
+    checkpoints, out = tmp_path / "checkpoints", tmp_path / "results"
+    common = ["--registry", str(tmp_path / "registry.yaml"), "--data-root", str(root),
+              "--out", str(out), "--checkpoints", str(checkpoints), "--weights",
+              str(tmp_path / "weights")]
+    train("tiny", "cmu", registry=Registry.from_files(HERE.parent / "registry.yaml",
+                                                      tmp_path / "registry.yaml"),
+          data_root=root, epochs=1, progress=False, out_dir=checkpoints / "cmu" / "tiny")
+    assert main(["leaderboard", "--benchmark", "cmu", *common]) == 0
+    before = {p: p.stat().st_mtime_ns for p in out.rglob("*") if p.is_file()}
+    capsys.readouterr()
+    assert main(["leaderboard", "--check", *common]) == 0  # every committed benchmark: cmu
+    summary = capsys.readouterr().out.strip().splitlines()[-1]
+    assert summary.startswith("checked 800 rows of 2 models in 2 tables: max |difference| 0 ")
+    assert {p: p.stat().st_mtime_ns for p in out.rglob("*") if p.is_file()} == before
+
+    table = out / "cmu" / "all" / "results.csv"
+    frame = pd.read_csv(table)
+    frame.loc[(frame.model == "tiny") & (frame.horizon_ms == 400) & (frame.action == "average")
+              & (frame.averaging == "frame") & (frame.joints == "all38"), "value"] *= 1.001
+    frame.to_csv(table, index=False)
+    (out / "cmu" / "ltd8" / "repeat_last" / "windows.npz").unlink()
+    assert main(["leaderboard", "--check", "--benchmark", "cmu", *common]) == 1
+    captured = capsys.readouterr()
+    assert "all/results.csv: model=tiny, action=average, metric=mpjpe, averaging=frame, " \
+           "joints=all38, horizon_ms=400: committed" in captured.err
+    assert "ltd8/repeat_last/windows.npz: missing" in captured.err
+    assert "2 problem(s) above" in captured.out
+
+    # a trained row whose checkpoint is gone cannot be recomputed: a problem, never kept
+    shutil.rmtree(checkpoints)
+    assert main(["leaderboard", "--check", "--benchmark", "cmu", *common]) == 1
+    assert "all/tiny: cannot be recomputed" in capsys.readouterr().err

@@ -179,16 +179,40 @@ def cmd_weights(args) -> int:
 
 
 def cmd_leaderboard(args) -> int:
-    from zoo.leaderboard import regenerate
+    import time
+
+    from zoo.leaderboard import CheckReport, regenerate
 
     registry = _registry(args)
+    check = CheckReport() if args.check else None
     if not args.benchmark:
-        args.benchmark = list(default_benchmarks())
+        args.benchmark = committed_benchmarks(Path(args.out)) if check else \
+            list(default_benchmarks())
+    started = time.perf_counter()
     for bench in args.benchmark:
         regenerate(bench, registry=registry, data_root=args.data_root,
                    out_root=Path(args.out), checkpoints=Path(args.checkpoints),
-                   weights=Path(args.weights), device=args.device)
-    return 0
+                   weights=Path(args.weights), device=args.device, check=check)
+    if check is None:
+        return 0
+    for problem in check.problems:
+        print(f"zoo leaderboard --check: {problem}", file=sys.stderr)
+    print(f"{check.summary()} ({', '.join(args.benchmark)}; {time.perf_counter() - started:.0f} "
+          f"s){'' if not check.problems else f'; {len(check.problems)} problem(s) above'}")
+    return 1 if check.problems else 0
+
+
+def committed_benchmarks(results: Path) -> list[str]:
+    """Every benchmark with a table under ``results`` (what ``--check`` checks by default)."""
+    from zoo.benchmark import list_benchmarks
+
+    known = set(list_benchmarks())
+    found = sorted(p.parent.parent.name for p in results.glob("*/*/results.csv"))
+    unknown = sorted({b for b in found if b not in known})
+    if unknown:
+        raise UsageError(f"{results}: tables of unknown benchmark(s) {', '.join(unknown)} "
+                         f"(known: {', '.join(sorted(known))})")
+    return list(dict.fromkeys(found))
 
 
 def cmd_compare(args) -> int:
@@ -387,6 +411,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--checkpoints", default=str(REPO_ROOT / "checkpoints"),
                    help="folder of trained checkpoints <benchmark>/<model>/best.pt "
                         "(default checkpoints/, where zoo train writes)")
+    p.add_argument("--check", action="store_true",
+                   help="write nothing: recompute every row of every committed table (default: "
+                        "every benchmark under --out) and exit 1 naming each row that differs "
+                        "by more than 1e-6 relative")
     p.set_defaults(func=cmd_leaderboard)
 
     p = sub.add_parser("compare", help="is A better than B? paired differences per horizon "

@@ -6,6 +6,7 @@ come from the same protocol record. Rows whose records differ raise
 """
 from __future__ import annotations
 
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable
 
@@ -289,9 +290,26 @@ def _save_figure(fig, path: str | Path) -> None:
     plt.close(fig)
 
 
+@dataclass
+class CheckReport:
+    """What ``zoo leaderboard --check`` found: rows and tables recomputed, the largest
+    difference from the committed values, and every problem (a row that differs, a row or
+    table missing on either side, a row that cannot be recomputed)."""
+    tolerance: float = 1e-6
+    rows: int = 0
+    tables: int = 0
+    models: set = field(default_factory=set)
+    max_difference: float = 0.0
+    problems: list = field(default_factory=list)
+
+    def summary(self) -> str:
+        return (f"checked {self.rows} rows of {len(self.models)} models in {self.tables} tables: "
+                f"max |difference| {self.max_difference:.3g}")
+
+
 def regenerate(benchmark, *, registry=None, data_root=None, out_root: str | Path = "results",
                checkpoints: str | Path | None = None, weights: str | Path | None = None,
-               device: str = "cpu") -> list[Path]:
+               device: str = "cpu", check: CheckReport | None = None) -> list[Path]:
     """Re-evaluate every model that can be evaluated on ``benchmark`` under each of its samplers
     (and, for mesh benchmarks, each ground truth: ``<sampler>-gt_spectral`` beside ``<sampler>``)
     and rebuild ``<out_root>/<benchmark>/<sampler>/``.
@@ -303,6 +321,10 @@ def regenerate(benchmark, *, registry=None, data_root=None, out_root: str | Path
     otherwise a result folder already under ``out_root`` (from an earlier ``zoo eval
     --checkpoint``) is kept if its protocol still matches, and skipped with a warning naming the
     difference if not.
+
+    ``check``: write nothing; recompute every row and compare it with the committed tables
+    under ``out_root``, recording every difference in the report (a row that cannot be
+    recomputed is a problem, never kept).
     """
     from zoo.benchmark import get_benchmark
     from zoo.registry import load_registry
@@ -320,9 +342,16 @@ def regenerate(benchmark, *, registry=None, data_root=None, out_root: str | Path
             for truth in truths:
                 folder = results_folder(sampler, task, truth)
                 path = _regenerate_one(bench, registry, dataset, sampler, truth, folder,
-                                       out_root, checkpoints, device, task, weights)
+                                       out_root, checkpoints, device, task, weights, check)
                 if path is not None:
                     written.append(path)
+    if check is not None:
+        produced = {p.name for p in written}
+        for table in sorted((out_root / bench.name).glob("*/results.csv")):
+            if table.parent.name not in produced:
+                check.problems.append(f"{table}: a committed table that the leaderboard no "
+                                      f"longer produces")
+        return written
     curves = training_curves(weights, bench.name) if weights else {}
     if curves:
         plot_training_curves(curves, out_root / bench.name / "training.png",
@@ -340,7 +369,7 @@ def results_folder(sampler: str, task: str = "prediction", truth: str | None = N
 
 
 def _regenerate_one(bench, registry, dataset, sampler, truth, folder, out_root, checkpoints,
-                    device, task="prediction", weights=None):
+                    device, task="prediction", weights=None, check=None):
     import sys
 
     from zoo.evaluate import EvalResult, evaluate
@@ -386,6 +415,10 @@ def _regenerate_one(bench, registry, dataset, sampler, truth, folder, out_root, 
                 model = registry.create_model(name, **bench.model_inputs(
                     entry.context, dataset=dataset, view=view))
             elif (run_dir / "results.csv").is_file():
+                if check is not None:
+                    check.problems.append(f"{run_dir}: cannot be recomputed (no shipped weights "
+                                          f"{bench.name}/{label}.safetensors, no checkpoint)")
+                    continue
                 stored.append(EvalResult.read(run_dir))
                 print(f"{bench.name}/{folder}: {label}: no checkpoint here, keeping {run_dir}",
                       file=sys.stderr)
@@ -399,15 +432,77 @@ def _regenerate_one(bench, registry, dataset, sampler, truth, folder, out_root, 
             result = evaluate(model, bench, model_name=label, sampler=sampler, dataset=dataset,
                               device=device, provenance=provenance, ground_truth=truth,
                               view=view, task=task)
-            result.write(run_dir)
+            if check is None:
+                result.write(run_dir)
             results.append(result)
     # Freshly evaluated results come first: they define the protocol stored ones must match.
     kept = _drop_mismatched(results + stored, bench.name, folder)
     if not kept:
         return None
+    if check is not None:
+        _check_table(kept, out_root / bench.name / folder, check)
+        return out_root / bench.name / folder
     path = write_leaderboard(kept, out_root / bench.name / folder, bench.horizons_ms)
     print(f"wrote {path}/leaderboard.md ({len(kept)} models, {len(results)} evaluated now)")
     return path
+
+
+KEY_COLUMNS = ["model", "action", "metric", "averaging", "joints", "horizon_ms"]
+
+
+def _check_table(results: list, folder: Path, check: CheckReport) -> None:
+    """Compare freshly computed results with the committed table in ``folder`` (and each
+    model's per-window errors with its ``windows.npz``)."""
+    from zoo.evaluate import WINDOWS_FILE, WindowErrors
+
+    check.tables += 1
+    fresh = pd.concat([r.frame for r in results], ignore_index=True)
+    check.rows += len(fresh)
+    check.models |= set(fresh["model"])
+    if not (folder / "results.csv").is_file():
+        check.problems.append(f"{folder}/results.csv: missing; the leaderboard makes this table")
+        return
+    committed = pd.read_csv(folder / "results.csv")
+    both = fresh.merge(committed, on=KEY_COLUMNS, how="outer", suffixes=("", "_committed"),
+                       indicator="side")
+    for row in both[both["side"] != "both"].itertuples():
+        where = "committed only" if row.side == "right_only" else "recomputed only"
+        check.problems.append(f"{folder}/results.csv: {where}: " + ", ".join(
+            f"{k}={getattr(row, k)}" for k in KEY_COLUMNS))
+    matched = both[both["side"] == "both"]
+    difference = (matched["value"] - matched["value_committed"]).abs()
+    relative = difference / matched["value_committed"].abs().clip(lower=1e-12)
+    if len(matched):
+        check.max_difference = max(check.max_difference, float(difference.max()))
+    for row, rel in zip(matched[relative > check.tolerance].itertuples(),
+                        relative[relative > check.tolerance]):
+        check.problems.append(f"{folder}/results.csv: " + ", ".join(
+            f"{k}={getattr(row, k)}" for k in KEY_COLUMNS) + f": committed "
+            f"{row.value_committed!r}, recomputed {row.value!r} (relative {rel:.2g})")
+    for row in matched[matched["protocol_id"] != matched["protocol_id_committed"]] \
+            .drop_duplicates("model").itertuples():
+        check.problems.append(f"{folder}/results.csv: {row.model}: protocol "
+                              f"{row.protocol_id_committed} committed, {row.protocol_id} now")
+    for r in results:
+        if r.windows is None:
+            continue
+        label = str(r.frame["model"].iloc[0])
+        path = folder / label / WINDOWS_FILE
+        if not path.is_file():
+            check.problems.append(f"{path}: missing (per-window errors of {label})")
+            continue
+        stored = WindowErrors.read(path)
+        for key, values in r.windows.errors.items():
+            old = stored.errors.get(key)
+            if old is None or old.shape != values.shape or not (
+                    np.array_equal(stored.start, r.windows.start)
+                    and np.array_equal(stored.sequence, r.windows.sequence)):
+                check.problems.append(f"{path}: {'/'.join(key)}: missing or for other windows")
+                continue
+            gap = np.abs(old.astype(np.float64) - values) / np.maximum(np.abs(old), 1e-12)
+            if gap.max() > check.tolerance:
+                check.problems.append(f"{path}: {'/'.join(key)}: per-window errors differ "
+                                      f"(relative up to {gap.max():.2g})")
 
 
 def _has_run(run_dir: Path, checkpoints, bench_name: str, name: str, weights=None) -> bool:

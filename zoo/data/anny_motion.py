@@ -47,6 +47,7 @@ from __future__ import annotations
 import hashlib
 import importlib.metadata
 import math
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterable, Literal, Sequence
@@ -96,6 +97,19 @@ SKIN_BATCH = 256
 
 class AnnyUnavailable(ImportError):
     """The ``anny`` package is not installed (``pip install anny==0.6.2``)."""
+
+
+@contextmanager
+def one_thread():
+    """Torch on one thread while a dataset or regressor is computed: its float sums follow the
+    thread count (two threads and one built CMU-on-Anny meshes differing by up to 1e-4 mm, so
+    different content hashes), and one thread gives the same bytes on every machine."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(before)
 
 
 def anny_version() -> str:
@@ -582,7 +596,8 @@ def joint_regressor(bvh_root: str | Path, topology: str, *, cache_dir: str | Pat
         raise ValueError(f"{bvh_root}: the joint regressor is fitted on trials "
                          f"{list(REGRESSOR_TRIALS)}; missing {missing}")
     files = [by_key[k] for k in REGRESSOR_TRIALS]
-    recipe = {"method": "nnls-posed-v1", "anny_version": anny_version(), "rig": "cmu_mb",
+    recipe = {"method": "nnls-posed-v1", "threads": 1, "anny_version": anny_version(),
+              "rig": "cmu_mb",
               "topology": TOPOLOGIES[topology], "seed": 0, **REGRESSOR_SETTINGS[topology],
               "trials": [{"trial": t.key, "sha256": sha256_file(t.path)} for t in files]}
     path = cache_root(cache_dir) / "anny" / f"joint_regressor-{topology}-{_recipe_hash(recipe)}.npz"
@@ -593,8 +608,9 @@ def joint_regressor(bvh_root: str | Path, topology: str, *, cache_dir: str | Pat
             stats = {k: float(z[k]) for k in ("fit_mean_mm", "fit_p99_mm", "fit_frames")}
     else:
         model = _model(topology) if model is None else model
-        matrix, stats = fit_joint_regressor(model, [t.path for t in files],
-                                            seed=0, **REGRESSOR_SETTINGS[topology])
+        with one_thread():
+            matrix, stats = fit_joint_regressor(model, [t.path for t in files],
+                                                seed=0, **REGRESSOR_SETTINGS[topology])
         with atomic_path(path) as tmp:
             with open(tmp, "wb") as f:
                 np.savez(f, data=matrix.data, indices=matrix.indices, indptr=matrix.indptr,
@@ -648,7 +664,7 @@ def build_cmu_anny(bvh_root: str | Path, *, identities: Literal["one", "many"],
         "resampling": "drop frame 0 (T-pose); slerp of local rotations to 25 Hz",
         "mapping": "SPEC section 7: Z-Y-X local rotations, M (x,y,z)->(x,-z,y), rest "
                    "correction C per bone, pose [[C_parent^T R' C, 0], [0, 1]]",
-        "units": "mm", "dtype": "float32",
+        "units": "mm", "dtype": "float32", "threads": 1,
         "phenotypes": (DEFAULT_PHENOTYPE if identities == "one" else
                        {"ranges": MI_PHENOTYPE_RANGES, "draw": "mi_phenotype(seed, trial)"}),
         "trials": [{"trial": t.key, "sha256": sha256_file(t.path)} for t in chosen],
@@ -673,8 +689,9 @@ def build_cmu_anny(bvh_root: str | Path, *, identities: Literal["one", "many"],
         bvh = read_bvh(trial.path, CMU_BVH_JOINTS)
         rots = motion_rotations(bvh)
         pheno = DEFAULT_PHENOTYPE if identities == "one" else mi_phenotype(seed, trial.key)
-        target = retarget(model, bvh, pheno)
-        out = skin(model, target.pose_parameters(rots, root), pheno, return_bone_ends=True)
+        with one_thread():
+            target = retarget(model, bvh, pheno)
+            out = skin(model, target.pose_parameters(rots, root), pheno, return_bone_ends=True)
         frames_done += len(rots)
         bar.set_postfix(frames=frames_done)
         sequences.append(MeshSequence(
