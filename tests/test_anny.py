@@ -15,7 +15,7 @@ from zoo.data import anny_motion as am
 from zoo.data.bvh import CMU_BVH_JOINTS, read_bvh
 from zoo.data.expmap import DataFormatError
 from zoo.data.mesh import MeshDataset, MeshTopology
-from zoo.registry import REPO_ROOT
+from zoo.paths import REPO_ROOT
 
 CMU_BVH = REPO_ROOT.parent / "shared" / "data" / "cmu_bvh"
 SHORT = "09_03"  # train split, 27 frames at 25 Hz

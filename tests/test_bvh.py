@@ -5,7 +5,7 @@ from scipy.spatial.transform import Rotation
 from zoo.data.bvh import (BVH, CMU_BVH_JOINTS, bone_directions, euler_to_matrix,
                           forward_kinematics, parse_bvh, read_bvh)
 from zoo.data.expmap import DataFormatError
-from zoo.registry import REPO_ROOT
+from zoo.paths import REPO_ROOT
 
 CMU_BVH = REPO_ROOT.parent / "shared" / "data" / "cmu_bvh"
 

@@ -140,7 +140,7 @@ def test_cloth_benchmark_on_a_small_cloth(tmp_path):
 def test_default_cloth_benchmark_end_to_end(tmp_path, monkeypatch):
     """Builds the default test split (100 sequences) and evaluates repeat_last on it."""
     from zoo.evaluate import evaluate
-    from zoo.registry import create_model
+    from zoo import create_model
 
     monkeypatch.setenv("ZOO_CACHE_DIR", str(tmp_path))
     model = create_model("repeat_last", benchmark="cloth")

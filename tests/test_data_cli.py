@@ -52,7 +52,7 @@ def test_data_list_and_missing_benchmark(capsys):
 
 
 def test_render_writes_picture_and_meshes(tmp_path):
-    from zoo.registry import create_model
+    from zoo import create_model
     from zoo.render import render_windows
 
     ds, bench = toy_dataset(), get_benchmark("cloth")

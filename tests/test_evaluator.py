@@ -9,9 +9,9 @@ from conftest import LEAF_OFFSET, write_cmu_file
 from zoo.benchmark import get_benchmark
 from zoo.cli import main
 from zoo.evaluate import EvaluationError, evaluate
-from zoo.leaderboard import ProtocolMismatchError, markdown_tables
+from zoo.tables import ProtocolMismatchError, markdown_tables
 from zoo.metrics import cumulative_mean
-from zoo.registry import create_model
+from zoo import create_model
 
 
 def expected_repeat_last(omega, t):

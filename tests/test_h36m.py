@@ -8,7 +8,7 @@ from zoo.data.motion import load_h36m
 from zoo.data.windows import window_sampler
 from zoo.errors import DataNotFoundError
 from zoo.evaluate import evaluate
-from zoo.registry import create_model
+from zoo import create_model
 
 ACTIONS = ("walking", "eating")
 

@@ -11,8 +11,8 @@ from zoo.compare import ComparisonError, compare
 from zoo.evaluate import EvalResult, EvaluationError, WindowErrors, evaluate
 from zoo.intervals import block_bootstrap, naive_interval, percentile_interval, protocol_mean, \
     short_recordings
-from zoo.leaderboard import ProtocolMismatchError, headline_table
-from zoo.registry import create_model
+from zoo.tables import ProtocolMismatchError, headline_table
+from zoo import create_model
 
 WINDOW = 35  # CMU: 10 observed + 25 predicted frames
 

@@ -14,7 +14,7 @@ from zoo.data.spectral import SpectralBasis, SpectralError
 from zoo.evaluate import EvaluationError, evaluate
 from zoo.metrics import melv, regress_joints, regressed_mpjpe, vertex_rmse
 from zoo.models.repeat_last import RepeatLast
-from zoo.registry import create_model
+from zoo import create_model
 
 # One 3-4-5 right triangle: its edges (0,1), (0,2), (1,2) have lengths 3, 4 and 5.
 TRIANGLE = torch.tensor([[0.0, 0, 0], [3, 0, 0], [0, 4, 0]])

@@ -11,7 +11,8 @@ from zoo.evaluate import evaluate
 from zoo.models.dct import dct_matrix, idct_matrix
 from zoo.models.mlp import SiMLPe
 from zoo.models.spgsn import SPGSN
-from zoo.registry import REPO_ROOT, RegistryError
+from zoo.paths import REPO_ROOT
+from zoo.registry import RegistryError
 
 CMU_ROOT = (REPO_ROOT / "../shared/data/cmu_mocap").resolve()
 SKELETON_MODELS = ["mlp", "spgsn", "spgsn_1body"]

@@ -15,7 +15,7 @@ import pytest
 from zoo.benchmark import get_benchmark
 from zoo.data.skeleton import CMU
 from zoo.evaluate import evaluate
-from zoo.registry import create_model
+from zoo import create_model
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "cmu_mocap"
 needs_cmu = pytest.mark.skipif(not DATA.is_dir(), reason=f"CMU data not found at {DATA}")

@@ -7,7 +7,7 @@ from test_evaluator import expected_repeat_last
 from zoo.benchmark import get_benchmark
 from zoo.cli import main
 from zoo.evaluate import EvaluationError, evaluate, predict
-from zoo.registry import create_model
+from zoo import create_model
 
 
 class LastTwoFramesModel(torch.nn.Module):

@@ -81,7 +81,7 @@ def test_bfloat16_precision_trains_under_autocast_with_float32_weights(setup, tm
 
 
 def test_checkpoint_provenance_names_repository_files_relative_to_it(tmp_path):
-    from zoo.registry import REPO_ROOT
+    from zoo.paths import REPO_ROOT
     from zoo.train import checkpoint_provenance
     meta = {"hparams": {"hidden": 16}, "training": {"epochs_run": 3}}
     inside = checkpoint_provenance(REPO_ROOT / "checkpoints" / "cmu" / "mlp" / "best.pt", meta)

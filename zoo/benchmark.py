@@ -20,7 +20,7 @@ from zoo.data.motion import DATASETS, MotionDataset
 from zoo.data.skeleton import CMU, H36M, Skeleton
 from zoo.data.windows import check_sampler
 from zoo.errors import ZooError
-from zoo.registry import REPO_ROOT
+from zoo.paths import REPO_ROOT
 
 BENCHMARK_DIR = REPO_ROOT / "benchmarks"
 SKELETON_OF = {"cmu_mocap": CMU, "h36m": H36M}

@@ -10,7 +10,8 @@ import yaml
 
 from zoo.errors import ZooError
 from zoo.evaluate import EVAL_BATCH
-from zoo.registry import REPO_ROOT, load_registry
+from zoo.paths import REPO_ROOT
+from zoo.registry import load_registry
 
 RESULTS_DIR = REPO_ROOT / "results"
 

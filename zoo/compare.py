@@ -24,26 +24,13 @@ from zoo.errors import ZooError
 from zoo.evaluate import EvalResult
 from zoo.intervals import CONFIDENCE, REPLICATES, block_bootstrap, percentile_interval, \
     protocol_mean
-from zoo.leaderboard import ProtocolMismatchError, metric_unit, protocol_differences
 from zoo.metrics import AVERAGING, cumulative_mean
+from zoo.tables import ProtocolMismatchError, block_frames_default, headline_key, \
+    metric_unit, protocol_differences
 
 
 class ComparisonError(ZooError, ValueError):
     pass
-
-
-def headline_key(protocol: dict[str, Any]) -> tuple[str, str]:
-    """The ``(metric, joints)`` a benchmark's headline reports: skeletons, MPJPE under the first
-    (official) joint protocol; meshes, the normalised vertex RMSE."""
-    if protocol.get("representation") == "mesh":
-        return "rmse", "vertices"
-    return "mpjpe", next(iter(protocol["joint_protocols"]))
-
-
-def block_frames_default(windows) -> int:
-    """Blocks of two window lengths: on synthetic errors that overlap as CMU's do, 95% intervals
-    covered the truth 90% of the time with them (README, tests/test_intervals.py)."""
-    return 2 * windows.window_frames
 
 
 def window_errors(result: EvalResult, model: str, metric: str, joints: str,
@@ -136,7 +123,7 @@ class Comparison:
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
 
-        from zoo.leaderboard import _save_figure
+        from zoo.io import save_figure
 
         t = self.table
         fig, ax = plt.subplots(figsize=(6.5, 3.8))
@@ -150,7 +137,7 @@ class Comparison:
         ax.legend(fontsize=8)
         ax.set_title(f"{self.a} - {self.b}: {self.protocol['benchmark']}, sampler "
                      f"{self.protocol['sampler']} (below zero: {self.a} better)", fontsize=9)
-        _save_figure(fig, path)
+        save_figure(fig, path)
 
     def write(self, out_dir: str | Path) -> Path:
         """``comparison.md`` and ``comparison.png`` in ``out_dir``."""

@@ -30,6 +30,7 @@ from zoo.errors import ZooError
 from zoo.io import atomic_write_json, atomic_write_text, canonical_json, code_version
 from zoo.metrics import ACTION_AVERAGING, AVERAGING, FrameErrorMean, cumulative_mean, \
     joint_protocols, skeleton_errors
+from zoo.tables import markdown_tables
 
 # Windows per forward pass. Small batches keep a model's intermediate tensors in the CPU's
 # caches: SPGSN evaluates 3.4 times faster per window at 64 than at 1024 (77 against 262 ms a
@@ -134,8 +135,6 @@ class EvalResult:
     def write(self, out_dir: str | Path) -> Path:
         """``results.csv``, ``protocol.json``, ``tables.md`` and ``windows.npz`` in ``out_dir``,
         each atomically."""
-        from zoo.leaderboard import markdown_tables
-
         out_dir = Path(out_dir)
         tables = markdown_tables(self.frame, {self.protocol["protocol_id"]: self.protocol})
         atomic_write_text(out_dir / "results.csv", self.frame.to_csv(index=False))

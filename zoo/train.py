@@ -37,7 +37,8 @@ from zoo.errors import ZooError
 from zoo.evaluate import EVAL_BATCH, predict
 from zoo.io import atomic_path, code_version, repo_relative
 from zoo.metrics import mpjpe
-from zoo.registry import REPO_ROOT, Registry, load_registry
+from zoo.paths import REPO_ROOT
+from zoo.registry import Registry, load_registry
 
 CHECKPOINT_FORMAT = "motion-zoo-checkpoint/1"
 DEFAULT_RECIPE: dict[str, Any] = {

@@ -22,7 +22,7 @@ import torch
 
 from zoo.errors import ZooError
 from zoo.io import atomic_path, atomic_write_json, repo_relative, sha256_file
-from zoo.registry import REPO_ROOT
+from zoo.paths import REPO_ROOT
 
 WEIGHTS_DIR = REPO_ROOT / "weights"
 RECORD_FORMAT = "motion-zoo-weights/1"

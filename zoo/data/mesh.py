@@ -23,7 +23,7 @@ import scipy.sparse as sp
 
 from zoo.errors import ZooError
 from zoo.io import atomic_path, atomic_write_json, canonical_json
-from zoo.registry import REPO_ROOT
+from zoo.paths import REPO_ROOT
 
 
 def cache_root(cache_dir: str | Path | None = None) -> Path:
