@@ -16,9 +16,12 @@ from zoo.tables import check_comparable, headline_table, markdown_tables, metric
 
 
 def write_leaderboard(results: list, out_dir: str | Path,
-                      horizons_ms: Iterable[int] | None = None) -> Path:
+                      horizons_ms: Iterable[int] | None = None,
+                      efficiency: dict[str, dict] | None = None) -> Path:
     """Combine :class:`zoo.evaluate.EvalResult` objects of one protocol into ``out_dir``:
-    ``results.csv``, ``leaderboard.md``, ``protocol.json`` and ``mpjpe.png``."""
+    ``results.csv``, ``leaderboard.md``, ``protocol.json`` and ``mpjpe.png``; ``efficiency``
+    (per model, :func:`zoo.efficiency.measure`) fills the headline's cost columns and
+    ``efficiency.csv``."""
     out_dir = Path(out_dir)
     # Rows and runs in model order, whichever models were evaluated now and which were stored:
     # regenerating then rewrites no unchanged table.
@@ -27,12 +30,16 @@ def write_leaderboard(results: list, out_dir: str | Path,
     check_comparable(records)
     frame = pd.concat([r.frame for r in results], ignore_index=True)
     tables = markdown_tables(frame, records, horizons_ms,
-                             headline=headline_table(results, horizons_ms))
+                             headline=headline_table(results, horizons_ms, efficiency))
     protocol = dict(results[0].protocol)
     protocol["provenance"] = {"runs": [r.protocol.get("provenance", {}) for r in results]}
     atomic_write_text(out_dir / "results.csv", frame.to_csv(index=False))
     atomic_write_text(out_dir / "leaderboard.md", tables)
     atomic_write_json(out_dir / "protocol.json", protocol)
+    if efficiency:
+        labels = sorted(set(frame["model"]) & set(efficiency))
+        atomic_write_text(out_dir / "efficiency.csv", pd.DataFrame(
+            [{"model": m, **efficiency[m]} for m in labels]).to_csv(index=False))
     plot_average(frame, out_dir / "mpjpe.png", title=tables.splitlines()[0].lstrip("# "))
     return out_dir
 
@@ -150,6 +157,7 @@ def regenerate(benchmark, *, registry=None, data_root=None, out_root: str | Path
     dataset = bench.load(data_root)
     out_root = Path(out_root)
     written = []
+    costs: dict = {}  # one measurement per architecture and benchmark, shared by its tables
     truths = (bench.ground_truths or (bench.ground_truth,)) if bench.representation == "mesh" \
         else (None,)
     tasks = dict.fromkeys(["prediction", *(registry.get(n).task for n in registry.list_models())])
@@ -158,7 +166,8 @@ def regenerate(benchmark, *, registry=None, data_root=None, out_root: str | Path
             for truth in truths:
                 folder = results_folder(sampler, task, truth)
                 path = _regenerate_one(bench, registry, dataset, sampler, truth, folder,
-                                       out_root, checkpoints, device, task, weights, check)
+                                       out_root, checkpoints, device, task, weights, check,
+                                       costs)
                 if path is not None:
                     written.append(path)
     if check is not None:
@@ -185,12 +194,13 @@ def results_folder(sampler: str, task: str = "prediction", truth: str | None = N
 
 
 def _regenerate_one(bench, registry, dataset, sampler, truth, folder, out_root, checkpoints,
-                    device, task="prediction", weights=None, check=None):
+                    device, task="prediction", weights=None, check=None, costs=None):
     import sys
 
     from zoo.evaluate import EvalResult, evaluate
 
-    results, stored = [], []
+    results, stored, efficiency = [], [], {}
+    costs = {} if costs is None else costs
     # Skeleton models join a mesh benchmark with a joint regressor, fed its regressed joints.
     names = registry.list_models(bench.representation)
     if bench.representation == "mesh" and dataset.joint_regressor is not None:
@@ -213,6 +223,7 @@ def _regenerate_one(bench, registry, dataset, sampler, truth, folder, out_root, 
                 model, record = load_weights(shipped, registry=registry, benchmark=bench,
                                              dataset=dataset)
                 provenance = weights_provenance(shipped, record)
+                recipe = record.get("recipe")
                 if ckpt is not None and ckpt.is_file():
                     print(f"{bench.name}/{folder}: {label}: evaluating the shipped weights "
                           f"{shipped}, not {ckpt} (zoo weights export publishes a checkpoint)",
@@ -227,9 +238,11 @@ def _regenerate_one(bench, registry, dataset, sampler, truth, folder, out_root, 
                         training.get("epochs_run"):
                     continue  # trained no further than its best epoch: best.pt's weights
                 provenance = checkpoint_provenance(ckpt, meta)
+                recipe = meta.get("recipe")
             elif not entry.trainable:
                 model = registry.create_model(name, **bench.model_inputs(
                     entry.context, dataset=dataset, view=view))
+                recipe = None
             elif (run_dir / "results.csv").is_file():
                 if check is not None:
                     check.problems.append(f"{run_dir}: cannot be recomputed (no shipped weights "
@@ -250,6 +263,8 @@ def _regenerate_one(bench, registry, dataset, sampler, truth, folder, out_root, 
                               view=view, task=task)
             if check is None:
                 result.write(run_dir)
+                efficiency[label] = _cost(costs, name, provenance.get("hparams"), model, bench,
+                                          dataset, view, task, recipe, device)
             results.append(result)
     # Freshly evaluated results come first: they define the protocol stored ones must match.
     kept = _drop_mismatched(results + stored, bench.name, folder)
@@ -258,9 +273,29 @@ def _regenerate_one(bench, registry, dataset, sampler, truth, folder, out_root, 
     if check is not None:
         _check_table(kept, out_root / bench.name / folder, check)
         return out_root / bench.name / folder
-    path = write_leaderboard(kept, out_root / bench.name / folder, bench.horizons_ms)
+    path = write_leaderboard(kept, out_root / bench.name / folder, bench.horizons_ms,
+                             efficiency)
     print(f"wrote {path}/leaderboard.md ({len(kept)} models, {len(results)} evaluated now)")
     return path
+
+
+def _cost(costs, name, hparams, model, bench, dataset, view, task, recipe, device):
+    """The efficiency columns of a model, measured once per architecture on a benchmark."""
+    import json
+
+    from zoo.efficiency import measure
+
+    key = (name, json.dumps(hparams, sort_keys=True, default=str), view, task)
+    if key not in costs:
+        if bench.representation == "mesh":
+            points = dataset.joint_regressor.shape[0] if view == "joints" else \
+                dataset.topology.num_vertices
+        else:
+            points = len(dataset.skeleton.used)
+        costs[key] = measure(model, input_frames=bench.input_frames,
+                             output_frames=bench.output_frames, points=points, task=task,
+                             recipe=recipe, device=device)
+    return costs[key]
 
 
 KEY_COLUMNS = ["model", "action", "metric", "averaging", "joints", "horizon_ms"]

@@ -84,8 +84,12 @@ def markdown_tables(frame: pd.DataFrame, records: dict[str, dict[str, Any]],
            f"{record['action_averaging']}.", ""]
     if headline:
         out += [headline, ""]
-    for (metric, averaging, joints), group in frame.groupby(["metric", "averaging", "joints"],
-                                                            sort=True):
+    # The headline's protocol first (per action), then the others.
+    headline_metric, headline_joints = headline_key(record)
+    first = (headline_metric, "frame", headline_joints)
+    groups = sorted(frame.groupby(["metric", "averaging", "joints"], sort=True),
+                    key=lambda item: item[0] != first)
+    for (metric, averaging, joints), group in groups:
         table = (group[group["horizon_ms"].isin(horizons)]
                  .pivot_table(index=["model", "action"], columns="horizon_ms", values="value",
                               sort=False))
@@ -121,7 +125,7 @@ def headline_key(protocol: dict[str, Any]) -> tuple[str, str]:
     (official) joint protocol; meshes, the normalised vertex RMSE."""
     if protocol.get("representation") == "mesh":
         return "rmse", "vertices"
-    return "mpjpe", next(iter(protocol["joint_protocols"]))
+    return "mpjpe", next(iter(protocol.get("joint_protocols") or {"all": ""}))
 
 
 def block_frames_default(windows) -> int:
@@ -130,10 +134,17 @@ def block_frames_default(windows) -> int:
     return 2 * windows.window_frames
 
 
-def headline_table(results: list, horizons_ms: Iterable[int] | None = None) -> str:
+def headline_table(results: list, horizons_ms: Iterable[int] | None = None,
+                   efficiency: dict[str, dict[str, Any]] | None = None,
+                   published: list | None = None) -> str:
     """Models as rows, horizons as columns: the benchmark's headline metric (frame averaging,
     action average) with half its 95% block-bootstrap interval, in bold where a model is the
-    best at that horizon or not distinguishable from it (their paired interval holds zero)."""
+    best at that horizon or not distinguishable from it (their paired interval holds zero).
+
+    ``efficiency``: per model, the columns of :func:`zoo.efficiency.measure`. ``published``:
+    :func:`zoo.published.place` of this table (default: from ``zoo/published.yaml``); matching
+    figures become ``reported`` rows, the others are listed below with their differences."""
+    from zoo.published import place
     from zoo.intervals import REPLICATES, block_bootstrap, percentile_interval, \
         short_recordings
 
@@ -174,13 +185,21 @@ def headline_table(results: list, horizons_ms: Iterable[int] | None = None) -> s
                     paired[m, best[h]] = interval(errors[m] - errors[best[h]])
                 lo, hi = paired[m, best[h]]
                 tied[m, h] = bool(lo[i] <= 0 <= hi[i])
+    efficiency = efficiency or {}
+    cost_headers = ["parameters", "GFLOP / window", "latency (ms)", "training windows / s"]
     table = []
     for m in values.index:
         cells = []
         for i, h in enumerate(horizons):
             text = f"{values.loc[m, h]:{fmt}}" + (f" ±{half[m][i]:{fmt}}" if m in half else "")
             cells.append(f"**{text}**" if tied.get((m, h), m == best[h]) else text)
-        table.append([m, *cells])
+        table.append([m, *cells, *_cost_cells(efficiency.get(m))])
+    placed = place(record, metric, "frame", joints) if published is None else published
+    for p in placed:
+        if not p.differences:
+            table.append([f"{p.entry.label} ({p.entry.source})",
+                          *[f"{p.values[h]:{fmt}}" if h in p.values else "–" for h in horizons],
+                          *_cost_cells(None)])
     unit = metric_unit(metric)[0]
     if windows is None:
         how = "no per-window errors stored, so no intervals"
@@ -196,7 +215,45 @@ def headline_table(results: list, horizons_ms: Iterable[int] | None = None) -> s
                     f"windows ({', '.join(names[:6])}{', ...' if len(names) > 6 else ''}): the "
                     f"bootstrap cannot see their full variance, so these intervals are too "
                     f"narrow")
-    return "\n".join([f"## Headline: {metric.upper()} ({unit}), averaging `frame`, joints "
-                      f"`{joints}`, mean over actions", "", how + ".", "",
-                      tabulate(table, headers=["model"] + [f"{h} ms" for h in horizons],
-                               tablefmt="github", disable_numparse=True)])
+    devices = sorted({e["device"] for e in efficiency.values() if e})
+    if devices:
+        how += (f". Costs measured by the machine that wrote this table ({'; '.join(devices)}): "
+                f"parameters; forward GFLOPs per window (torch's FlopCounterMode, a multiply-add "
+                f"counts 2); median latency of one window (batch 1); training windows per "
+                f"second (forward, backward, clip and Adam at the recipe's batch size and "
+                f"precision)")
+    if any(not p.differences for p in placed):
+        how += (". Rows marked (reported) are the papers' figures under this very protocol, "
+                "averaged over the actions present here")
+    out = [f"## Headline: {metric.upper()} ({unit}), averaging `frame`, joints `{joints}`, mean "
+           f"over actions", "", how + ".", "",
+           tabulate(table, headers=["model"] + [f"{h} ms" for h in horizons] + cost_headers,
+                    tablefmt="github", disable_numparse=True)]
+    for p in placed:
+        if not p.differences and p.entry.per_action:
+            actions = list(record["actions_present"])
+            rows = [[a, *[f"{p.entry.per_action[a][h]:{fmt}}" if h in p.entry.per_action[a]
+                          else "–" for h in horizons]] for a in actions]
+            out += ["", f"### {p.entry.label}: per action ({p.entry.source})", "",
+                    tabulate(rows, headers=["action"] + [f"{h} ms" for h in horizons],
+                             tablefmt="github", disable_numparse=True)]
+    others = [p for p in placed if p.differences]
+    if others:
+        out += ["", "### Published under other protocols (not comparable with the rows above)",
+                ""]
+        for p in others:
+            figures = ", ".join(f"{h} ms {v:{fmt}}" for h, v in sorted(p.values.items()))
+            out.append(f"- {p.entry.label}, {p.entry.source}: {figures or 'no average'}; "
+                       f"differs: {'; '.join(p.differences)}.")
+    return "\n".join(out)
+
+
+def _cost_cells(row: dict[str, Any] | None) -> list[str]:
+    if not row:
+        return ["–"] * 4
+    gflop, latency, train = (row.get(k) for k in ("gflop_per_sample", "latency_ms",
+                                                  "train_samples_per_s"))
+    return [f"{row['parameters'] / 1e6:.3f} M" if row["parameters"] else "0",
+            "–" if gflop is None else f"{gflop:.3g}",
+            "–" if latency is None else f"{latency:.3g}",
+            "–" if train is None else f"{train:.3g}"]

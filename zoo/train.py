@@ -407,7 +407,7 @@ def train(model_name: str, benchmark: str | Benchmark, *, registry: Registry | N
         torch.set_rng_state(state["rng"])
         first_epoch, best, history = state["epoch"] + 1, state["best"], state["history"]
 
-    objective = _Objective(model, entry.task)
+    objective = TrainingObjective(model, entry.task)
     # Some phases leave parameters without gradients (SpecTrHuMS's transformer while the
     # autoencoder trains alone), which DDP must be told to expect.
     net = torch.nn.parallel.DistributedDataParallel(objective, find_unused_parameters=True) \
@@ -535,7 +535,7 @@ def resume_changes(path: Path, state: dict[str, Any], recipe: dict[str, Any], se
     return changes
 
 
-class _Objective(nn.Module):
+class TrainingObjective(nn.Module):
     """The training loss as a module, so DDP synchronises gradients of any model's own loss:
     the model's ``training_loss`` if it defines one, else mean MPJPE over predicted frames (a
     completion model is given the window's last frame)."""
@@ -611,11 +611,11 @@ def _training_summary(recipe, history, best, device) -> dict[str, Any]:
     return {"epochs_run": len(history), "epochs_planned": recipe["epochs"],
             "samples_seen": int(sum(h["samples"] for h in history)),
             "seconds": float(sum(h["seconds"] for h in history)), "device": str(device),
-            "device_name": _device_name(device), "best": best,
+            "device_name": device_name(device), "best": best,
             "final_val_mpjpe": history[-1]["val_mpjpe"] if history else None}
 
 
-def _device_name(device) -> str:
+def device_name(device) -> str:
     if str(device).startswith("cuda") and torch.cuda.is_available():
         return torch.cuda.get_device_name(torch.device(device))
     import platform
