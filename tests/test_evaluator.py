@@ -112,3 +112,44 @@ def test_cli_contract_writes_results_and_protocol(swinging_cmu, tmp_path):
     assert len(protocol["files"][0]["sha256"]) == 64
     assert protocol["provenance"]["code_version"]
     assert set(df.protocol_id) == {protocol["protocol_id"]}
+
+
+def test_two_process_evaluation_equals_one_to_the_last_digit(tmp_path):
+    """torchrun splits the windows (every other batch) and gathers every process's errors; the
+    sums are then added in one order, so the files are the single process's, byte for byte."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from zoo.evaluate import EvalResult
+
+    root = tmp_path / "cmu"
+    for action, speed in (("walking", 0.01), ("running", 0.03)):
+        write_cmu_file(root / "test" / action / f"{action}_1.txt",
+                       speed * np.sin(np.arange(500) / 15.0))
+    args = ["eval", "--model", "repeat_last", "--data-root", str(root), "--sampler", "all",
+            "--batch-size", "16"]
+    assert main([*args, "--out", str(tmp_path / "one")]) == 0
+    torchrun = Path(sys.executable).parent / "torchrun"
+    proc = subprocess.run([str(torchrun), "--standalone", "--nproc_per_node", "2", "-m",
+                           "zoo.cli", *args, "--out", str(tmp_path / "two")],
+                          env={**os.environ, "OMP_NUM_THREADS": "1"}, capture_output=True,
+                          text=True, timeout=240)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert proc.stdout.count("wrote ") == 1  # the first process writes, the other does not
+    one, two = (tmp_path / "one" / "results.csv"), (tmp_path / "two" / "results.csv")
+    assert one.read_bytes() == two.read_bytes()
+    a, b = EvalResult.read(tmp_path / "one").windows, EvalResult.read(tmp_path / "two").windows
+    assert a.errors.keys() == b.errors.keys()
+    assert all(np.array_equal(a.errors[k], b.errors[k]) for k in a.errors)
+    assert np.array_equal(a.start, b.start) and len(a.start) > 3 * 16  # several batches each
+
+
+def test_processes_score_disjoint_batches_that_cover_every_window():
+    from zoo.distributed import DistInfo
+    from zoo.evaluate import _my_batches
+
+    shares = [list(_my_batches(100, 16, DistInfo(rank, 3))) for rank in range(3)]
+    assert shares == [[0, 48, 96], [16, 64], [32, 80]]
+    assert list(_my_batches(100, 16, DistInfo())) == sorted(sum(shares, []))

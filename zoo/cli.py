@@ -112,6 +112,7 @@ def _load_model(args, registry, bench, dataset):
 
 def cmd_eval(args) -> int:
     from zoo.benchmark import get_benchmark
+    from zoo.distributed import init_distributed
     from zoo.evaluate import evaluate
     from zoo.leaderboard import results_folder
 
@@ -137,6 +138,9 @@ def cmd_eval(args) -> int:
     if args.out and len(samplers) > 1:
         raise UsageError("--out takes one --sampler; omit --out to write "
                          "results/<benchmark>/<sampler>/<model>/ for each")
+    # Under torchrun every process scores its share of the windows and all get the whole
+    # result; the first writes it.
+    writer = init_distributed(args.device).rank == 0
     for sampler in samplers:
         result = evaluate(model, bench, model_name=name, sampler=sampler, dataset=dataset,
                           view=view,
@@ -144,6 +148,8 @@ def cmd_eval(args) -> int:
                           device=args.device, provenance=_jsonable(provenance),
                           task=args.task, horizon=args.horizon_frames,
                           ground_truth=args.ground_truth)
+        if not writer:
+            continue
         folder = results_folder(sampler, args.task, args.ground_truth, args.horizon_frames)
         out = Path(args.out) if args.out else RESULTS_DIR / bench.name / folder / name
         result.write(out)

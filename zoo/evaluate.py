@@ -26,6 +26,7 @@ import torch
 from zoo.benchmark import Benchmark, get_benchmark
 from zoo.data.motion import MotionDataset
 from zoo.data.windows import check_sampler, gather_windows, window_sampler
+from zoo.distributed import DistInfo, gather_shares, init_distributed
 from zoo.errors import ZooError
 from zoo.io import atomic_write_json, atomic_write_text, canonical_json, code_version
 from zoo.metrics import ACTION_AVERAGING, AVERAGING, FrameErrorMean, cumulative_mean, \
@@ -114,9 +115,8 @@ class _WindowLog:
     def __init__(self) -> None:
         self.errors: dict[tuple[str, str, str], list[np.ndarray]] = {}
 
-    def update(self, model: str, metric: str, joints: str, errors: torch.Tensor) -> None:
-        self.errors.setdefault((model, metric, joints), []).append(
-            errors.detach().to("cpu", torch.float32).numpy())
+    def update(self, model: str, metric: str, joints: str, errors: np.ndarray) -> None:
+        self.errors.setdefault((model, metric, joints), []).append(errors.astype(np.float32))
 
     def compute(self, sequences, index: np.ndarray, actions: np.ndarray, protocol_id: str,
                 window_frames: int) -> WindowErrors:
@@ -298,27 +298,59 @@ def evaluate(model: torch.nn.Module, benchmark: str | Benchmark, *, model_name: 
     actions = np.asarray([sequences[i].action for i in index[:, 0]])
     positions = [s.positions for s in sequences]
     used = list(skeleton.used)
-    accumulators: dict[str, FrameErrorMean] = {}
-    log = _WindowLog()
+    dist_info = init_distributed(device)
+    scored = {}
     model = model.to(device).eval()
     with torch.no_grad():
-        for start in range(0, len(index), batch_size):
+        for start in _my_batches(len(index), batch_size, dist_info):
             rows = slice(start, start + batch_size)
             windows = torch.from_numpy(gather_windows(positions, index[rows], t_in + t_out))
             history = windows[:, :t_in, used].to(device)
             pred = predict(model, history, task, t_out, windows[:, -1, used].to(device))
             pred = _checked(pred, (len(history), t_out, len(used), 3), model_name, start)
-            for joints, errors in skeleton_errors(pred, windows[:, t_in:], skeleton).items():
-                accumulators.setdefault(joints, FrameErrorMean()).update(errors, actions[rows])
-                log.update(model_name, "mpjpe", joints, errors)
+            scored[start] = {(model_name, "mpjpe", joints): _float64(errors) for joints, errors
+                             in skeleton_errors(pred, windows[:, t_in:], skeleton).items()}
+    accumulators, log = _accumulate(gather_shares(scored, dist_info), actions)
 
     windows_per_action = {a: int((actions == a).sum()) for a in dataset.actions_present}
     record = protocol_record(bench, dataset, sampler, windows_per_action)
     record.update(_task_record(task, t_out))
     _seal(record, model_name, device, provenance)
-    frame = _long_frame(accumulators, record, model_name, windows_per_action)
-    return EvalResult(frame=frame, protocol=record, windows=log.compute(
-        sequences, index, actions, record["protocol_id"], t_in + t_out))
+    return EvalResult(frame=_frame(accumulators, record, windows_per_action), protocol=record,
+                      windows=log.compute(sequences, index, actions, record["protocol_id"],
+                                          t_in + t_out))
+
+
+def _my_batches(windows: int, batch_size: int, dist_info: DistInfo) -> range:
+    """First windows of this process's batches: every ``world``-th batch (all of them alone)."""
+    return range(dist_info.rank * batch_size, windows, dist_info.world * batch_size)
+
+
+def _float64(errors: torch.Tensor) -> np.ndarray:
+    return errors.detach().to("cpu", torch.float64).numpy()
+
+
+def _accumulate(scored: dict[int, dict[tuple[str, str, str], np.ndarray]], actions: np.ndarray
+                ) -> tuple[dict[tuple[str, str, str], FrameErrorMean], "_WindowLog"]:
+    """Per-action sums and per-window errors from ``{first window: {(model, metric, joints):
+    errors (B, T)}}``, batch after batch in window order: one process or several (each scoring
+    every ``world``-th batch), the sums are added in the same order, to the last digit."""
+    accumulators: dict[tuple[str, str, str], FrameErrorMean] = {}
+    log = _WindowLog()
+    for start, batch in scored.items():
+        for key, errors in batch.items():
+            groups = actions[start:start + len(errors)]
+            accumulators.setdefault(key, FrameErrorMean()).update(errors, groups)
+            log.update(*key, errors)
+    return accumulators, log
+
+
+def _frame(accumulators: dict[tuple[str, str, str], FrameErrorMean], record: dict[str, Any],
+           windows_per_action: dict[str, int]) -> pd.DataFrame:
+    return pd.concat([_long_frame({joints: acc}, record, model, windows_per_action)
+                      .assign(metric=metric)
+                      for (model, metric, joints), acc in accumulators.items()],
+                     ignore_index=True)
 
 
 def _long_frame(accumulators: dict[str, FrameErrorMean], record: dict[str, Any], model_name: str,
@@ -445,15 +477,14 @@ def evaluate_mesh(model: torch.nn.Module, benchmark: str | Benchmark, *, model_n
     actions = np.asarray([sequences[i].action for i in index[:, 0]])
     vertices = [s.vertices for s in sequences]
     edges = topology.edges
-    accumulators: dict[tuple[str, str], FrameErrorMean] = {}
-    baseline = FrameErrorMean()
-    log = _WindowLog()
+    dist_info = init_distributed(device)
+    scored = {}
     batch = max(1, min(batch_size, MESH_BATCH_VALUES // ((t_in + t_out) * topology.num_vertices
                                                          * 3)))
     expected_tail = (t_out, topology.num_vertices, 3)
     model = model.to(device).eval()
     with torch.no_grad():
-        for start in range(0, len(index), batch):
+        for start in _my_batches(len(index), batch, dist_info):
             rows = slice(start, start + batch)
             windows = torch.from_numpy(gather_windows(vertices, index[rows], t_in + t_out))
             if basis is not None:
@@ -464,26 +495,22 @@ def evaluate_mesh(model: torch.nn.Module, benchmark: str | Benchmark, *, model_n
                                joints[:, -1].to(device))
                 pred = _checked(pred, (len(windows), t_out, regressor.shape[0], 3), model_name,
                                 start)
-                errors = mpjpe(pred, joints[:, t_in:])
-                key = ("mpjpe", f"regressor{regressor.shape[0]}")
-                accumulators.setdefault(key, FrameErrorMean()).update(errors, actions[rows])
-                log.update(model_name, *key, errors)
+                scored[start] = {(model_name, "mpjpe", f"regressor{regressor.shape[0]}"):
+                                 _float64(mpjpe(pred, joints[:, t_in:]))}
                 continue
             pred = predict(model, windows[:, :t_in].to(device), task, t_out,
                            windows[:, -1].to(device))
             pred = _checked(pred, (len(windows), *expected_tail), model_name, start)
             target, reference = windows[:, t_in:], windows[:, t_in - 1]
-            errors = {("melv", "vertices"): melv(pred, reference, edges),
-                      ("rmse", "vertices"): vertex_rmse(pred, target)}
+            errors = {(model_name, "melv", "vertices"): melv(pred, reference, edges),
+                      (model_name, "rmse", "vertices"): vertex_rmse(pred, target)}
             if regressor is not None:
-                errors[("mpjpe", f"regressor{regressor.shape[0]}")] = regressed_mpjpe(
-                    pred, target, regressor)
-            for key, value in errors.items():
-                accumulators.setdefault(key, FrameErrorMean()).update(value, actions[rows])
-                log.update(model_name, *key, value)
-            truth_melv = melv(target, reference, edges)
-            baseline.update(truth_melv, actions[rows])
-            log.update("ground_truth", "melv", "vertices", truth_melv)
+                errors[(model_name, "mpjpe", f"regressor{regressor.shape[0]}")] = \
+                    regressed_mpjpe(pred, target, regressor)
+            # the data's own MELV, once per mesh evaluation: the ground-truth rows
+            errors[("ground_truth", "melv", "vertices")] = melv(target, reference, edges)
+            scored[start] = {key: _float64(value) for key, value in errors.items()}
+    accumulators, log = _accumulate(gather_shares(scored, dist_info), actions)
 
     windows_per_action = {a: int((actions == a).sum()) for a in dataset.actions_present
                           if (actions == a).any()}
@@ -495,13 +522,6 @@ def evaluate_mesh(model: torch.nn.Module, benchmark: str | Benchmark, *, model_n
            if isinstance(model_basis, SpectralBasis) else {}),
         **({"model_input": f"regressed joints (regressor{regressor.shape[0]})"}
            if view == "joints" else {}), **(provenance or {})})
-    frames = []
-    for (metric, joints), acc in accumulators.items():
-        frames.append(_long_frame({joints: acc}, record, model_name, windows_per_action)
-                      .assign(metric=metric))
-    if view == "mesh":  # the data's own MELV, once per mesh evaluation
-        frames.append(_long_frame({"vertices": baseline}, record, "ground_truth",
-                                  windows_per_action).assign(metric="melv"))
-    return EvalResult(frame=pd.concat(frames, ignore_index=True), protocol=record,
+    return EvalResult(frame=_frame(accumulators, record, windows_per_action), protocol=record,
                       windows=log.compute(sequences, index, actions, record["protocol_id"],
                                           t_in + t_out))

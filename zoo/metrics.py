@@ -78,8 +78,9 @@ class FrameErrorMean:
         self.sums: dict[str, np.ndarray] = {}
         self.counts: dict[str, int] = defaultdict(int)
 
-    def update(self, errors: torch.Tensor, groups: Sequence[str]) -> None:
-        errors = errors.detach().to("cpu", torch.float64).numpy()
+    def update(self, errors: torch.Tensor | np.ndarray, groups: Sequence[str]) -> None:
+        errors = errors.detach().to("cpu", torch.float64).numpy() \
+            if isinstance(errors, torch.Tensor) else np.asarray(errors, dtype=np.float64)
         if errors.ndim != 2 or len(errors) != len(groups):
             raise ValueError(f"FrameErrorMean.update: expected errors (B, T) with one group per "
                              f"window, got {errors.shape} and {len(groups)} groups")

@@ -23,7 +23,6 @@ import hashlib
 import math
 import os
 import time
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -33,6 +32,7 @@ from torch import nn
 
 from zoo.benchmark import Benchmark, get_benchmark
 from zoo.data.windows import gather_windows, window_sampler
+from zoo.distributed import DistInfo, init_distributed
 from zoo.errors import ZooError
 from zoo.evaluate import EVAL_BATCH, predict
 from zoo.io import atomic_path, code_version, repo_relative
@@ -197,27 +197,6 @@ def _windows(arrays, length: int, sampler: str, t_in: int, t_out: int):
     return usable, index
 
 
-@dataclass
-class _DistInfo:
-    rank: int = 0
-    world: int = 1
-
-    @property
-    def active(self) -> bool:
-        return self.world > 1
-
-
-def _init_distributed(device: str) -> _DistInfo:
-    world = int(os.environ.get("WORLD_SIZE", "1"))
-    if world <= 1:
-        return _DistInfo()
-    import torch.distributed as dist
-
-    if not dist.is_initialized():
-        dist.init_process_group(backend="nccl" if str(device).startswith("cuda") else "gloo")
-    return _DistInfo(rank=dist.get_rank(), world=dist.get_world_size())
-
-
 # ---- checkpoints -----------------------------------------------------------------------------
 
 def weights_digest(model: nn.Module) -> str:
@@ -361,7 +340,7 @@ def train(model_name: str, benchmark: str | Benchmark, *, registry: Registry | N
                             f"false)")
     recipe = training_recipe(entry.train, {**(train_overrides or {}),
                                            **({"epochs": epochs} if epochs is not None else {})})
-    dist_info = _init_distributed(device)
+    dist_info = init_distributed(device)
     out_dir = Path(out_dir) if out_dir else REPO_ROOT / "checkpoints" / bench.name / model_name
     view = bench.view_for(entry.representation)
     dataset = bench.load(data_root, split=bench.train_split)
@@ -636,7 +615,7 @@ def _plain(value):
     return value
 
 
-def _write_rank_digest(out_dir: Path, model: nn.Module, dist_info: _DistInfo) -> None:
+def _write_rank_digest(out_dir: Path, model: nn.Module, dist_info: DistInfo) -> None:
     from zoo.io import atomic_write_text
 
     atomic_write_text(out_dir / "ranks" / f"rank{dist_info.rank}.sha256",
