@@ -56,6 +56,28 @@ def test_a_changed_weights_file_is_refused_naming_it(trained, tmp_path):
         read_weights(path)
 
 
+def test_foreign_weights_are_refused_naming_what_differs(trained, tmp_path, setup):  # noqa: F811
+    from safetensors.torch import save_file
+
+    from zoo.io import sha256_file
+
+    path = export_weights(trained / "best.pt", root=tmp_path / "w")
+    # another model's tensors under this record, the record's checksum brought up to date
+    save_file({"encoder.weight": torch.zeros(4, 4)}, str(path))
+    record = json.loads(path.with_suffix(".json").read_text())
+    record["sha256"] = sha256_file(path)
+    path.with_suffix(".json").write_text(json.dumps(record))
+    with pytest.raises(zoo.train.CheckpointError,
+                       match=r"tiny\.safetensors: weights do not fit model 'tiny' "
+                             r"\(Error\(s\) in loading state_dict"):
+        load_weights(path, registry=setup[1], data_root=setup[0])
+    path.write_bytes(b"not safetensors")
+    record["sha256"] = sha256_file(path)
+    path.with_suffix(".json").write_text(json.dumps(record))
+    with pytest.raises(WeightsError, match=r"tiny\.safetensors is not a readable safetensors"):
+        read_weights(path)
+
+
 def test_weights_for_another_protocol_are_refused(trained, tmp_path, setup):  # noqa: F811
     path = export_weights(trained / "best.pt", root=tmp_path / "w")
     record = json.loads(path.with_suffix(".json").read_text())
