@@ -149,3 +149,17 @@ def test_check_recomputes_every_row_and_names_what_differs(tmp_path, capsys):
     shutil.rmtree(checkpoints)
     assert main(["leaderboard", "--check", "--benchmark", "cmu", *common]) == 1
     assert "all/tiny: cannot be recomputed" in capsys.readouterr().err
+
+
+def test_results_index_lists_every_table_with_its_headline(tmp_path):
+    from zoo.leaderboard import write_index
+
+    root, registry = cmu_and_registry(tmp_path)
+    out = tmp_path / "results"
+    regenerate("cmu", registry=registry, data_root=root, out_root=out)
+    text = write_index(out).read_text()
+    assert text.startswith("# Results") and "zoo leaderboard --check" in text
+    for folder in ("cmu/all", "cmu/ltd8"):
+        assert f"### {folder}\n" in text and f"]({folder}/leaderboard.md)" in text
+    assert text.count("#### Headline: MPJPE (mm), averaging `frame`, joints `all38`") == 2
+    assert "| repeat_last" in text

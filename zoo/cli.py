@@ -201,6 +201,9 @@ def cmd_leaderboard(args) -> int:
                    out_root=Path(args.out), checkpoints=Path(args.checkpoints),
                    weights=Path(args.weights), device=args.device, check=check)
     if check is None:
+        from zoo.leaderboard import write_index
+
+        print(f"wrote {write_index(Path(args.out))}")
         return 0
     for problem in check.problems:
         print(f"zoo leaderboard --check: {problem}", file=sys.stderr)
