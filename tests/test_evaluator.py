@@ -153,3 +153,36 @@ def test_processes_score_disjoint_batches_that_cover_every_window():
     shares = [list(_my_batches(100, 16, DistInfo(rank, 3))) for rank in range(3)]
     assert shares == [[0, 48, 96], [16, 64], [32, 80]]
     assert list(_my_batches(100, 16, DistInfo())) == sorted(sum(shares, []))
+
+
+def test_result_folders_are_replaced_whole_and_refuse_a_second_writer(swinging_cmu, tmp_path,
+                                                                      monkeypatch):
+    from zoo.evaluate import EvalResult
+    from zoo.io import FolderBusyError, folder_lock
+
+    root, _ = swinging_cmu
+    bench = get_benchmark("cmu")
+    result = evaluate(create_model("repeat_last", benchmark=bench), bench,
+                      model_name="repeat_last", sampler="ltd8", data_root=root)
+    out = tmp_path / "run"
+    result.write(out)
+    (out / "stale.txt").write_text("from an older run")
+    result.write(out)
+    assert sorted(p.name for p in out.iterdir()) == ["protocol.json", "results.csv",
+                                                     "tables.md", "windows.npz"]
+    with folder_lock(out):
+        with pytest.raises(FolderBusyError, match="run: another zoo process is writing"):
+            result.write(out)
+    # interrupted while writing: the old folder stays whole, nothing half-written is left
+    before = (out / "results.csv").read_bytes()
+
+    def broken(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr("zoo.evaluate.atomic_write_json", broken)
+    with pytest.raises(KeyboardInterrupt):
+        result.write(out)
+    assert (out / "results.csv").read_bytes() == before
+    assert EvalResult.read(out).windows is not None
+    assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".run.")
+            and not p.name.endswith(".lock")] == []

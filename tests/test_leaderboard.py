@@ -5,6 +5,7 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+import pytest
 
 from conftest import write_cmu_file
 from tiny_models import REGISTRY
@@ -163,3 +164,23 @@ def test_results_index_lists_every_table_with_its_headline(tmp_path):
         assert f"### {folder}\n" in text and f"]({folder}/leaderboard.md)" in text
     assert text.count("#### Headline: MPJPE (mm), averaging `frame`, joints `all38`") == 2
     assert "| repeat_last" in text
+
+
+def test_an_interrupted_leaderboard_leaves_the_old_folder_whole(tmp_path, monkeypatch):
+    root, registry = cmu_and_registry(tmp_path)
+    out = tmp_path / "results"
+    regenerate("cmu", registry=registry, data_root=root, out_root=out)
+    folder = out / "cmu" / "all"
+    before = {p.relative_to(folder): p.read_bytes() for p in folder.rglob("*") if p.is_file()}
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr("zoo.leaderboard.plot_average", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        regenerate("cmu", registry=registry, data_root=root, out_root=out)
+    after = {p.relative_to(folder): p.read_bytes() for p in folder.rglob("*") if p.is_file()}
+    assert after == before and (folder / "mpjpe.png").is_file()
+    leftovers = [p.name for p in (out / "cmu").iterdir()
+                 if p.name.startswith(".") and not p.name.endswith(".lock")]
+    assert leftovers == []

@@ -15,6 +15,7 @@ import datetime as _dt
 import hashlib
 import inspect
 import json
+from contextlib import nullcontext
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -28,7 +29,8 @@ from zoo.data.motion import MotionDataset
 from zoo.data.windows import check_sampler, gather_windows, window_sampler
 from zoo.distributed import DistInfo, gather_shares, init_distributed
 from zoo.errors import ZooError
-from zoo.io import atomic_write_json, atomic_write_text, canonical_json, code_version
+from zoo.io import atomic_write_json, atomic_write_text, canonical_json, code_version, \
+    replace_folder
 from zoo.metrics import ACTION_AVERAGING, AVERAGING, FrameErrorMean, cumulative_mean, \
     joint_protocols, skeleton_errors
 from zoo.tables import markdown_tables
@@ -132,16 +134,19 @@ class EvalResult:
     protocol: dict[str, Any]
     windows: WindowErrors | None = None
 
-    def write(self, out_dir: str | Path) -> Path:
-        """``results.csv``, ``protocol.json``, ``tables.md`` and ``windows.npz`` in ``out_dir``,
-        each atomically."""
+    def write(self, out_dir: str | Path, replace: bool = True) -> Path:
+        """``results.csv``, ``protocol.json``, ``tables.md`` and ``windows.npz`` in ``out_dir``.
+        The folder is replaced as a whole (filled beside it, then renamed into place) under a
+        lock that refuses a second writer; ``replace=False`` writes into a fresh folder that the
+        caller replaces as a whole itself."""
         out_dir = Path(out_dir)
         tables = markdown_tables(self.frame, {self.protocol["protocol_id"]: self.protocol})
-        atomic_write_text(out_dir / "results.csv", self.frame.to_csv(index=False))
-        atomic_write_json(out_dir / "protocol.json", self.protocol)
-        atomic_write_text(out_dir / "tables.md", tables)
-        if self.windows is not None:
-            self.windows.write(out_dir / WINDOWS_FILE)
+        with replace_folder(out_dir) if replace else nullcontext(out_dir) as folder:
+            atomic_write_text(folder / "results.csv", self.frame.to_csv(index=False))
+            atomic_write_json(folder / "protocol.json", self.protocol)
+            atomic_write_text(folder / "tables.md", tables)
+            if self.windows is not None:
+                self.windows.write(folder / WINDOWS_FILE)
         return out_dir
 
     @classmethod

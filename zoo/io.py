@@ -10,6 +10,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, Iterator
 
+from zoo.errors import ZooError
 from zoo.paths import REPO_ROOT
 
 
@@ -27,6 +28,61 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
         os.replace(tmp, path)
     finally:
         tmp.unlink(missing_ok=True)
+
+
+class FolderBusyError(ZooError, RuntimeError):
+    pass
+
+
+@contextmanager
+def folder_lock(path: str | Path) -> Iterator[None]:
+    """Hold ``.<name>.lock`` beside ``path`` while writing it; a second writer is refused at
+    once, naming the folder (two runs writing one folder would mix their files)."""
+    import fcntl
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    lock = path.parent / f".{path.name}.lock"
+    with open(lock, "a") as handle:
+        try:
+            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            raise FolderBusyError(f"{path}: another zoo process is writing this folder (lock "
+                                  f"{lock}); wait for it, or write elsewhere with --out") \
+                from None
+        try:
+            yield
+        finally:
+            fcntl.flock(handle, fcntl.LOCK_UN)
+
+
+@contextmanager
+def replace_folder(path: str | Path, lock: bool = True) -> Iterator[Path]:
+    """Yield an empty sibling folder to fill; on success it replaces ``path`` as a whole (the
+    old folder is renamed away first, then removed), so readers see the old folder or the new
+    one, never a mix; on failure or interruption it is removed and ``path`` is untouched.
+    ``lock=False``: the caller already holds :func:`folder_lock` of ``path``."""
+    import shutil
+    from contextlib import nullcontext
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with folder_lock(path) if lock else nullcontext():
+        tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))
+        try:
+            yield tmp
+            os.chmod(tmp, 0o777 & ~_umask())
+            old = None
+            if path.exists():
+                old = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".old",
+                                            dir=path.parent))
+                os.replace(path, old / path.name)
+            os.replace(tmp, path)
+            if old is not None:
+                shutil.rmtree(old)
+        finally:
+            if tmp.exists():
+                shutil.rmtree(tmp)
 
 
 def repo_relative(path: str | Path) -> str:

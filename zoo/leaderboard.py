@@ -10,7 +10,8 @@ from typing import Iterable
 import numpy as np
 import pandas as pd
 
-from zoo.io import atomic_write_json, atomic_write_text, save_figure
+from zoo.io import atomic_write_json, atomic_write_text, folder_lock, replace_folder, \
+    save_figure
 from zoo.tables import check_comparable, headline_table, markdown_tables, metric_unit, \
     protocol_differences
 
@@ -251,11 +252,24 @@ def results_folder(sampler: str, task: str = "prediction", truth: str | None = N
 
 def _regenerate_one(bench, registry, dataset, sampler, truth, folder, out_root, checkpoints,
                     device, task="prediction", weights=None, check=None, costs=None):
+    """One table: checked, or rebuilt under a lock and replaced as a whole (an interrupted
+    regeneration leaves the old folder, never a half-written one)."""
+    args = (bench, registry, dataset, sampler, truth, folder, out_root, checkpoints, device,
+            task, weights, check, costs)
+    if check is not None:
+        return _table(*args)
+    with folder_lock(out_root / bench.name / folder):
+        return _table(*args)
+
+
+def _table(bench, registry, dataset, sampler, truth, folder, out_root, checkpoints, device,
+           task, weights, check, costs):
+    import shutil
     import sys
 
     from zoo.evaluate import EvalResult, evaluate
 
-    results, stored, efficiency = [], [], {}
+    results, stored, stored_dirs, efficiency = [], [], [], {}
     costs = {} if costs is None else costs
     # Skeleton models join a mesh benchmark with a joint regressor, fed its regressed joints.
     names = registry.list_models(bench.representation)
@@ -305,6 +319,7 @@ def _regenerate_one(bench, registry, dataset, sampler, truth, folder, out_root, 
                                           f"{bench.name}/{label}.safetensors, no checkpoint)")
                     continue
                 stored.append(EvalResult.read(run_dir))
+                stored_dirs.append(run_dir)
                 print(f"{bench.name}/{folder}: {label}: no checkpoint here, keeping {run_dir}",
                       file=sys.stderr)
                 continue
@@ -318,7 +333,6 @@ def _regenerate_one(bench, registry, dataset, sampler, truth, folder, out_root, 
                               device=device, provenance=provenance, ground_truth=truth,
                               view=view, task=task)
             if check is None:
-                result.write(run_dir)
                 efficiency[label] = _cost(costs, name, provenance.get("hparams"), model, bench,
                                           dataset, view, task, recipe, device)
             results.append(result)
@@ -329,8 +343,13 @@ def _regenerate_one(bench, registry, dataset, sampler, truth, folder, out_root, 
     if check is not None:
         _check_table(kept, out_root / bench.name / folder, check)
         return out_root / bench.name / folder
-    path = write_leaderboard(kept, out_root / bench.name / folder, bench.horizons_ms,
-                             efficiency)
+    path = out_root / bench.name / folder
+    with replace_folder(path, lock=False) as tmp:
+        for result in results:
+            result.write(tmp / str(result.frame["model"].iloc[0]), replace=False)
+        for source in stored_dirs:  # kept on disk even when left out of the table
+            shutil.copytree(source, tmp / source.name)
+        write_leaderboard(kept, tmp, bench.horizons_ms, efficiency)
     print(f"wrote {path}/leaderboard.md ({len(kept)} models, {len(results)} evaluated now)")
     return path
 
