@@ -118,3 +118,39 @@ def test_entry_task_is_checked(tmp_path):
                     "    representation: joints\n    hparams: {task: completion}\n")
     with pytest.raises(RegistryError, match="hparams task 'completion' but the entry's task"):
         Registry.from_files(path)
+
+
+def test_a_known_name_needs_an_explicit_override_that_results_record(tmp_path, swinging_cmu,
+                                                                     capsys):
+    import json
+
+    root, _ = swinging_cmu
+    (tmp_path / "my_baselines.py").write_text(BASELINE)
+    registry = tmp_path / "registry.yaml"
+    entry = """\
+        models:
+          repeat_last:
+            class: my_baselines.py:ConstantVelocity
+            representation: joints
+            hparams: {damping: 1.0}
+            reference: not the zoo's repeat_last
+        """
+    registry.write_text(textwrap.dedent(entry))
+    args = ["eval", "--registry", str(registry), "--model", "repeat_last", "--sampler", "ltd8",
+            "--data-root", str(root), "--out", str(tmp_path / "out")]
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert f"{registry}: model 'repeat_last' is already defined in " in err
+    assert "registry.yaml; choose another name, or add 'override: true'" in err
+    registry.write_text(textwrap.dedent(entry) + "    override: true\n")
+    assert main(args) == 0
+    provenance = json.loads((tmp_path / "out" / "protocol.json").read_text())["provenance"]
+    assert provenance["class"] == "my_baselines.py:ConstantVelocity"
+    assert provenance["registry"] == str(registry) and provenance["replaces"].endswith(
+        "registry.yaml")
+    # the zoo's own entries record theirs too
+    assert main(["eval", "--model", "repeat_last", "--sampler", "ltd8", "--data-root", str(root),
+                 "--out", str(tmp_path / "zoo")]) == 0
+    provenance = json.loads((tmp_path / "zoo" / "protocol.json").read_text())["provenance"]
+    assert provenance["class"] == "zoo.models.repeat_last.RepeatLast"
+    assert provenance["registry"] == "registry.yaml" and "replaces" not in provenance

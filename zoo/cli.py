@@ -130,6 +130,7 @@ def cmd_eval(args) -> int:
     dataset = bench.load(args.data_root)
     name, model, provenance = _load_model(args, registry, bench, dataset)
     view = bench.view_for(registry.get(name).representation)
+    provenance = {**registry.get(name).provenance(), **provenance}
     if args.checkpoint and Path(args.checkpoint).name == "last.pt":
         name += "@last"  # the fully trained checkpoint, labelled as the leaderboard does
     if args.weights:

@@ -329,6 +329,7 @@ def _table(bench, registry, dataset, sampler, truth, folder, out_root, checkpoin
                           f"weights, no checkpoint{f' at {ckpt}' if ckpt else ''})",
                           file=sys.stderr)
                 continue
+            provenance = {**entry.provenance(), **provenance}
             result = evaluate(model, bench, model_name=label, sampler=sampler, dataset=dataset,
                               device=device, provenance=provenance, ground_truth=truth,
                               view=view, task=task)

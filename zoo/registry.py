@@ -12,6 +12,7 @@ import importlib
 import importlib.util
 import inspect
 import os
+import dataclasses
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -27,7 +28,7 @@ DEFAULT_REGISTRY = REPO_ROOT / "registry.yaml"
 SHAPE_ARGS = ("input_frames", "output_frames", "num_points")
 REPRESENTATIONS = ("joints", "mesh")
 _ENTRY_KEYS = {"class", "representation", "trainable", "hparams", "reference", "context",
-               "description", "train", "task"}
+               "description", "train", "task", "override"}
 # What a model's forward does: prediction ``forward(history)``, or completion
 # ``forward(history, final_frame)`` (the window's last frame given). Tables keep them apart.
 ENTRY_TASKS = ("prediction", "completion")
@@ -51,6 +52,14 @@ class ModelEntry:
     description: str = ""
     train: dict[str, Any] = field(default_factory=dict)  # the training recipe (zoo.train)
     task: str = "prediction"
+    replaces: str = ""  # the registry file whose entry of this name it overrides, if any
+
+    def provenance(self) -> dict[str, str]:
+        """What every result of this model records about where it came from."""
+        from zoo.io import repo_relative
+
+        return {"class": self.class_path, "registry": repo_relative(self.source),
+                **({"replaces": self.replaces} if self.replaces else {})}
 
     @property
     def valid_args(self) -> list[str]:
@@ -104,7 +113,17 @@ class Registry:
         if not isinstance(models, dict):
             raise RegistryError(f"{path}: expected a top-level mapping 'models: {{name: entry}}'")
         for name, raw in models.items():
-            self.entries[name] = _parse_entry(path, name, raw)
+            entry = _parse_entry(path, name, raw)
+            previous = self.entries.get(name)
+            if previous is not None:
+                # A second model under a known name would publish rows under the first one's
+                # name and protocol: only an explicit override may, and its results say so.
+                if not (isinstance(raw, dict) and raw.get("override") is True):
+                    raise RegistryError(f"{path}: model {name!r} is already defined in "
+                                        f"{previous.source}; choose another name, or add "
+                                        f"'override: true' to this entry to replace it")
+                entry = dataclasses.replace(entry, replaces=str(previous.source))
+            self.entries[name] = entry
 
     def list_models(self, representation: str | None = None) -> list[str]:
         return sorted(n for n, e in self.entries.items()
@@ -165,6 +184,9 @@ def _parse_entry(path: Path, name: str, raw: Any) -> ModelEntry:
     clash = sorted(set(hparams) & set(SHAPE_ARGS))
     if clash:
         raise RegistryError(f"{where}: {', '.join(clash)} come from the benchmark, not hparams")
+    if "override" in raw and not isinstance(raw["override"], bool):
+        raise RegistryError(f"{where}: field 'override' must be true or false, got "
+                            f"{raw['override']!r}")
     task = raw.get("task", "prediction")
     if task not in ENTRY_TASKS:
         raise RegistryError(f"{where}: field 'task' must be one of {', '.join(ENTRY_TASKS)}, got "
