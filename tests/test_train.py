@@ -134,7 +134,7 @@ def test_trained_checkpoint_evaluates_and_refuses_mismatches(setup, tmp_path, ca
     # corrupted file
     broken = tmp_path / "broken.pt"
     broken.write_bytes(best.read_bytes()[:200])
-    with pytest.raises(CheckpointError, match="broken.pt is corrupted"):
+    with pytest.raises(CheckpointError, match="broken.pt is empty, truncated or not a motion-zoo"):
         load_checkpoint(broken, registry=registry)
     assert not (tmp_path / "x").exists()
 

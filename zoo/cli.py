@@ -139,6 +139,12 @@ def cmd_eval(args) -> int:
     if args.out and len(samplers) > 1:
         raise UsageError("--out takes one --sampler; omit --out to write "
                          "results/<benchmark>/<sampler>/<model>/ for each")
+    from zoo.io import check_output_folder
+
+    for sampler in samplers:  # every output folder checked before any evaluation
+        folder = results_folder(sampler, args.task, args.ground_truth, args.horizon_frames)
+        check_output_folder(Path(args.out) if args.out else
+                            RESULTS_DIR / bench.name / folder / name)
     # Under torchrun every process scores its share of the windows and all get the whole
     # result; the first writes it.
     writer = init_distributed(args.device).rank == 0
@@ -196,6 +202,12 @@ def cmd_leaderboard(args) -> int:
     if not args.benchmark:
         args.benchmark = committed_benchmarks(Path(args.out)) if check else \
             list(default_benchmarks())
+    if check:
+        for bench in args.benchmark:
+            name = Path(bench).stem
+            if not list((Path(args.out) / name).glob("*/results.csv")):
+                raise UsageError(f"--check: no committed table of {name} under {args.out} "
+                                 f"(expected {args.out}/{name}/<sampler>/results.csv)")
     started = time.perf_counter()
     for bench in args.benchmark:
         regenerate(bench, registry=registry, data_root=args.data_root,
@@ -297,6 +309,12 @@ def default_benchmarks():
 def cmd_train(args) -> int:
     from zoo.train import train
 
+    if args.out and Path(args.out).exists() and not Path(args.out).is_dir():
+        raise UsageError(f"--out {args.out}: exists and is not a folder")
+    if args.out:
+        from zoo.io import check_writable
+
+        check_writable(args.out, what=f"--out {args.out}")
     registry = _registry(args)
     train(args.model, args.benchmark, registry=registry, epochs=args.epochs, out_dir=args.out,
           data_root=args.data_root, overrides=parse_overrides(args.set),
@@ -324,6 +342,9 @@ def cmd_data(args) -> int:
     if not args.benchmark:
         raise UsageError(f"zoo data {args.action} needs a benchmark name (see zoo data list)")
     bench = get_benchmark(args.benchmark)
+    if args.split not in (None, "all", bench.split, bench.train_split):
+        raise UsageError(f"--split {args.split!r}: benchmark {bench.name} has splits "
+                         f"{bench.split} (test) and {bench.train_split} (train), or 'all'")
     splits = [bench.split, bench.train_split] if args.split == "all" else \
         [args.split or bench.split]
     if args.action in ("build", "describe"):
@@ -402,7 +423,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", help="output folder (default results/<benchmark>/<sampler>/<model>)")
     p.add_argument("--set", action="append", metavar="KEY=VALUE",
                    help="override a hyper-parameter; repeatable")
-    p.add_argument("--batch-size", type=int, default=EVAL_BATCH,
+    p.add_argument("--batch-size", type=_positive_int, default=EVAL_BATCH,
                    help=f"windows per forward pass (default {EVAL_BATCH})")
     p.add_argument("--task", default="prediction", choices=["prediction", "completion",
                                                              "longterm"])
@@ -500,14 +521,48 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def check_device(device: str) -> None:
+    """An unknown device, or one this machine lacks, is a usage error before any work."""
+    import torch
+
+    try:
+        kind = torch.device(device).type
+    except (RuntimeError, ValueError):
+        raise UsageError(f"--device {device!r}: not a torch device; e.g. cpu, cuda, cuda:1") \
+            from None
+    if kind == "cuda" and not torch.cuda.is_available():
+        raise UsageError(f"--device {device}: this machine has no CUDA device (torch "
+                         f"{torch.__version__}); use --device cpu")
+    if kind not in ("cpu", "cuda"):
+        raise UsageError(f"--device {device}: the zoo runs on cpu or cuda, not {kind}")
+
+
+def _shape_overrides(overrides: dict[str, Any], benchmark: str | None) -> None:
+    from zoo.registry import SHAPE_ARGS
+
+    fixed = sorted(set(overrides) & set(SHAPE_ARGS))
+    if fixed:
+        raise UsageError(f"--set {', '.join(fixed)}: fixed by the benchmark "
+                         f"({benchmark or 'cmu'}), not a hyper-parameter; use a benchmark YAML "
+                         f"file with other input_frames / output_frames to change them")
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
+        if getattr(args, "device", None) is not None:
+            check_device(args.device)
+        if getattr(args, "set", None):
+            _shape_overrides(parse_overrides(args.set), getattr(args, "benchmark", None))
         return args.func(args)
     except ZooError as e:
         print(f"zoo {args.command}: error: {e}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        print(f"zoo {args.command}: interrupted (nothing half-written is left; a training run "
+              f"continues with --resume)", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":

@@ -56,6 +56,43 @@ def folder_lock(path: str | Path) -> Iterator[None]:
             fcntl.flock(handle, fcntl.LOCK_UN)
 
 
+# A folder the zoo wrote (zoo eval, zoo leaderboard) holds one of these; only such a folder,
+# or an empty one, is ever replaced.
+RESULT_MARKERS = ("results.csv", "protocol.json")
+
+
+def check_output_folder(path: str | Path) -> None:
+    """Refuse, before any work, an output folder that cannot be written or that is not the
+    zoo's to replace (a file, or a folder of other things: never deleted)."""
+    path = Path(path)
+    if path.exists():
+        if not path.is_dir():
+            raise OutputError(f"--out {path}: exists and is not a folder; choose a new or empty "
+                              f"folder")
+        if any(path.iterdir()) and not any((path / m).is_file() for m in RESULT_MARKERS):
+            raise OutputError(f"--out {path}: a folder of other files, not a zoo result folder "
+                              f"(no {' or '.join(RESULT_MARKERS)}); it would be replaced "
+                              f"whole, so choose a new or empty folder")
+    check_writable(path.parent, what=f"--out {path}")
+
+
+def check_writable(folder: str | Path, what: str | None = None) -> None:
+    """Refuse a folder that cannot be created or written in, before any work."""
+    folder = Path(folder)
+    parent = next((p for p in [folder, *folder.parents] if p.exists()), None)
+    try:  # really try: permissions alone do not tell (root, read-only or virtual file systems)
+        if parent is None or not parent.is_dir():
+            raise OSError(f"{parent} is not a folder")
+        os.rmdir(tempfile.mkdtemp(prefix=".zoo-write-test-", dir=parent))
+    except OSError as e:
+        raise OutputError(f"{what or folder}: cannot be written ({parent}: "
+                          f"{e.strerror or e})") from None
+
+
+class OutputError(ZooError, ValueError):
+    pass
+
+
 @contextmanager
 def replace_folder(path: str | Path, lock: bool = True) -> Iterator[Path]:
     """Yield an empty sibling folder to fill; on success it replaces ``path`` as a whole (the
@@ -66,6 +103,7 @@ def replace_folder(path: str | Path, lock: bool = True) -> Iterator[Path]:
     from contextlib import nullcontext
 
     path = Path(path)
+    check_output_folder(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     with folder_lock(path) if lock else nullcontext():
         tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))

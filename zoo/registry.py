@@ -8,11 +8,12 @@ relative to the registry file that names it).
 """
 from __future__ import annotations
 
+import dataclasses
 import importlib
 import importlib.util
 import inspect
 import os
-import dataclasses
+import re
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -160,11 +161,24 @@ class Registry:
         if unused:
             raise RegistryError(f"{entry.source}: model {name!r}: class {entry.class_path} does "
                                 f"not accept {', '.join(unused)}")
-        return cls(**args)
+        try:
+            return cls(**args)
+        except (ValueError, TypeError) as e:
+            if cls.__module__.split(".")[0] == "zoo":
+                # the zoo's own models check their arguments: the message is the answer
+                raise RegistryError(f"model {name!r}: {e}") from e
+            # a user's model keeps its traceback (it is their code), introduced by one line
+            print(f"zoo: model {name!r} ({entry.class_path}, registry {entry.source}) raised "
+                  f"while being built:", file=sys.stderr)
+            raise
 
 
 def _parse_entry(path: Path, name: str, raw: Any) -> ModelEntry:
     where = f"{path}: model {name!r}"
+    # Names become folder and file names (results/<benchmark>/<sampler>/<name>/).
+    if not isinstance(name, str) or not re.fullmatch(r"[A-Za-z0-9_][A-Za-z0-9_.-]*", name):
+        raise RegistryError(f"{where}: a model name is letters, digits, '_', '.' and '-', not "
+                            f"starting with '.' or '-' (it names result folders)")
     if not isinstance(raw, dict):
         raise RegistryError(f"{where}: entry must be a mapping")
     unknown = sorted(set(raw) - _ENTRY_KEYS)

@@ -83,9 +83,10 @@ def training_recipe(entry_train: dict[str, Any], overrides: dict[str, Any] | Non
         raise TrainingError(f"training recipe: optimizer {recipe['optimizer']!r} unknown; "
                             f"valid: adam")
     schedule = recipe["schedule"] or {"type": "constant"}
-    if schedule.get("type") not in SCHEDULES:
-        raise TrainingError(f"training recipe: schedule type {schedule.get('type')!r} unknown; "
-                            f"valid: {', '.join(SCHEDULES)}")
+    if not isinstance(schedule, dict) or schedule.get("type") not in SCHEDULES:
+        raise TrainingError(f"training recipe: schedule {schedule!r} has no known type; valid: "
+                            f"{', '.join(SCHEDULES)} (YAML needs a space after each colon: "
+                            f"'{{type: step, every_epochs: 2, gamma: 0.96}}')")
     warmup = schedule.get("warmup_steps", 0)
     if isinstance(warmup, bool) or not isinstance(warmup, int) or warmup < 0:
         raise TrainingError(f"training recipe: schedule warmup_steps must be a non-negative "
@@ -219,8 +220,10 @@ def read_checkpoint(path: str | Path) -> dict[str, Any]:
     try:
         payload = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as e:  # torch raises several types for truncated or foreign files
-        raise CheckpointError(f"checkpoint {path} is corrupted or not a motion-zoo checkpoint "
-                              f"({type(e).__name__}: {str(e).splitlines()[0][:200]})") from e
+        first = (str(e).splitlines() or [""])[0][:200]
+        raise CheckpointError(f"checkpoint {path} is empty, truncated or not a motion-zoo "
+                              f"checkpoint ({type(e).__name__}: {first}); train again, or "
+                              f"restore the file") from e
     if not isinstance(payload, dict) or payload.get("format") != CHECKPOINT_FORMAT:
         raise CheckpointError(f"checkpoint {path} is not a motion-zoo checkpoint (format "
                               f"{payload.get('format') if isinstance(payload, dict) else None!r},"
@@ -338,6 +341,12 @@ def train(model_name: str, benchmark: str | Benchmark, *, registry: Registry | N
     if not entry.trainable:
         raise TrainingError(f"model {model_name!r} has nothing to train (registry: trainable: "
                             f"false)")
+    if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed < 2 ** 32:
+        raise TrainingError(f"seed must be an integer in 0..2**32-1, got {seed!r}")
+    if max_batches is not None and (isinstance(max_batches, bool)
+                                    or not isinstance(max_batches, int) or max_batches < 1):
+        raise TrainingError(f"max_batches (--max-batches) must be a positive integer, got "
+                            f"{max_batches!r}")
     recipe = training_recipe(entry.train, {**(train_overrides or {}),
                                            **({"epochs": epochs} if epochs is not None else {})})
     dist_info = init_distributed(device)
