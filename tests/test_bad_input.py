@@ -57,7 +57,7 @@ def test_unknown_sampler_lists_valid_ones(swinging_cmu, tmp_path, capsys):
     root, _ = swinging_cmu
     assert run_eval(root, tmp_path / "out", "--sampler", "random9") == 2
     err = capsys.readouterr().err
-    assert "unknown sampler 'random9'" in err and "ltd8, rand256, all, strideK" in err
+    assert "unknown sampler 'random9'" in err and "ltd8, rand256, all, allK, strideK" in err
     assert not (tmp_path / "out").exists()
 
 

@@ -16,14 +16,17 @@ from typing import Any
 
 import yaml
 
-from zoo.data.motion import DATASETS, MotionDataset
-from zoo.data.skeleton import CMU, H36M, Skeleton
+from zoo.data.motion import MotionDataset, load_cmu, load_h36m
+from zoo.data.skeleton import CMU, H36M, THREEDPW, Skeleton
+from zoo.data.threedpw import load_3dpw
 from zoo.data.windows import check_sampler
 from zoo.errors import ZooError
 from zoo.paths import REPO_ROOT
 
 BENCHMARK_DIR = REPO_ROOT / "benchmarks"
-SKELETON_OF = {"cmu_mocap": CMU, "h36m": H36M}
+# Skeleton datasets: name -> (loader (root, split, actions=...) -> MotionDataset, skeleton).
+DATASETS = {"cmu_mocap": load_cmu, "h36m": load_h36m, "3dpw": load_3dpw}
+SKELETON_OF = {"cmu_mocap": CMU, "h36m": H36M, "3dpw": THREEDPW}
 _REQUIRED = ("name", "dataset", "split", "input_frames", "output_frames", "sampler")
 _OPTIONAL = ("train_split", "data_root", "samplers", "actions", "horizons_ms", "averaging",
              "description", "representation", "spectral_k", "ground_truth", "ground_truths")

@@ -40,16 +40,21 @@ def cumulative_mean(per_frame: np.ndarray, axis: int = -1) -> np.ndarray:
 # ---- joint protocols of the skeleton benchmarks (SPEC section 3) ----------------------------
 
 def joint_protocols(skeleton: Skeleton) -> dict[str, str]:
-    """Named joint protocols of a skeleton and what each means."""
-    return {
+    """Named joint protocols of a skeleton and what each means, the one the literature reports
+    first (``skeleton.official``) first."""
+    protocols = {
         f"all{skeleton.num_joints}": (
-            f"official scoring: the {len(skeleton.used)} predicted joints written into the "
+            f"{'official scoring: ' if skeleton.official == 'all' else ''}the "
+            f"{len(skeleton.used)} predicted joints written into the "
             f"ground-truth {skeleton.num_joints}-joint pose, joints {list(skeleton.copy_to)} "
             f"overwritten by predicted joints {list(skeleton.copy_from)}, L2 error averaged over "
             f"all {skeleton.num_joints} joints (static joints count as zero)"),
         f"used{len(skeleton.used)}": (
             f"plain mean L2 error over the {len(skeleton.used)} predicted joints"),
     }
+    if skeleton.official == "used":
+        protocols = dict(reversed(list(protocols.items())))
+    return protocols
 
 
 def skeleton_errors(pred_used: torch.Tensor, target: torch.Tensor,
@@ -62,8 +67,9 @@ def skeleton_errors(pred_used: torch.Tensor, target: torch.Tensor,
     full = target.clone()
     full[:, :, used] = pred_used
     full[:, :, list(skeleton.copy_to)] = full[:, :, list(skeleton.copy_from)]
-    all_name, used_name = joint_protocols(skeleton)
-    return {all_name: mpjpe(full, target), used_name: mpjpe(pred_used, target[:, :, used])}
+    errors = {f"all{skeleton.num_joints}": mpjpe(full, target),
+              f"used{len(skeleton.used)}": mpjpe(pred_used, target[:, :, used])}
+    return {name: errors[name] for name in joint_protocols(skeleton)}
 
 
 # ---- accumulation ------------------------------------------------------------------------------

@@ -151,5 +151,3 @@ def _file_number(path: Path) -> tuple[int, str]:
     stem = path.stem.rsplit("_", 1)[-1]
     return (int(stem), path.name) if stem.isdigit() else (1 << 30, path.name)
 
-
-DATASETS = {"cmu_mocap": load_cmu, "h36m": load_h36m}

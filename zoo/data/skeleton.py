@@ -30,6 +30,9 @@ class Skeleton:
     copy_to: tuple[int, ...]
     copy_from: tuple[int, ...]
     parts: dict[str, tuple[int, ...]] = field(default_factory=dict)  # indices into `used`
+    # Which joint protocol the literature reports first: "all" (the predicted joints written
+    # into the ground-truth pose, averaged over all joints) or "used" (the predicted ones).
+    official: str = "all"
 
     @property
     def num_joints(self) -> int:
@@ -171,3 +174,21 @@ def forward_kinematics(expmaps: torch.Tensor, skeleton: Skeleton) -> torch.Tenso
             rotations.append(local[:, i])
             positions.append(offsets[i].expand(expmaps.shape[0], 3))
     return torch.stack(positions, dim=1)
+
+
+# 3DPW (SMPL's 24 joints, ``jointPositions``): positions are given, so there is no FK and no
+# offset. The root is subtracted, so it is never predicted; LTD's and SPGSN's 3DPW code scores
+# the 23 other joints, hence ``official = "used"``. Body parts for SPGSN (the zoo's choice; the
+# authors publish no 3DPW split): hips, knees, ankles and feet below, spine, head and arms above.
+_SMPL_LOWER = (1, 2, 4, 5, 7, 8, 10, 11)
+THREEDPW = Skeleton(
+    name="smpl24",
+    parents=(-1, 0, 0, 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 9, 9, 12, 13, 14, 16, 17, 18, 19, 20, 21),
+    offsets=np.zeros((24, 3)),
+    ignored=(0,),
+    copy_to=(),
+    copy_from=(),
+    parts={"upper": tuple(j - 1 for j in range(1, 24) if j not in _SMPL_LOWER),
+           "lower": tuple(j - 1 for j in _SMPL_LOWER)},
+    official="used",
+)

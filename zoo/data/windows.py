@@ -27,6 +27,9 @@ LTD_SOURCE, LTD_TARGET = 50, 25
 
 SAMPLERS = ("ltd8", "rand256", "all", "strideK", "strideK_strict")
 _STRIDE = re.compile(r"^stride([1-9][0-9]*)(_strict)?$")
+# allK: every window, cut as if K frames were observed (3DPW in LTD / SPGSN: all50), so the
+# predicted frames of the windows do not depend on T_in.
+_ALL_AS_IF = re.compile(r"^all([1-9][0-9]*)$")
 
 
 class SamplerError(ZooError, ValueError):
@@ -34,10 +37,10 @@ class SamplerError(ZooError, ValueError):
 
 
 def check_sampler(name: str) -> str:
-    if name in ("ltd8", "rand256", "all") or _STRIDE.match(name):
+    if name in ("ltd8", "rand256", "all") or _STRIDE.match(name) or _ALL_AS_IF.match(name):
         return name
-    raise SamplerError(f"unknown sampler {name!r}; valid samplers: ltd8, rand256, all, strideK, "
-                       f"strideK_strict (K a positive integer, e.g. stride5)")
+    raise SamplerError(f"unknown sampler {name!r}; valid samplers: ltd8, rand256, all, allK, "
+                       f"strideK, strideK_strict (K a positive integer, e.g. stride5, all50)")
 
 
 def window_sampler(name: str, lengths: Sequence[int], input_frames: int, output_frames: int,
@@ -65,6 +68,17 @@ def window_sampler(name: str, lengths: Sequence[int], input_frames: int, output_
                                "action), not for this dataset")
         rounds = 4 if name == "ltd8" else 128
         return _ltd_per_action_pair(lengths, groups, subactions, input_frames, rounds)
+    as_if = _ALL_AS_IF.match(name)
+    if as_if:
+        observed = int(as_if.group(1))
+        if observed < input_frames:
+            raise SamplerError(f"sampler {name} cuts windows as if {observed} frames were "
+                               f"observed; T_in = {input_frames} is more")
+        out = []
+        for i, n in enumerate(lengths):
+            starts = np.arange(observed - input_frames, n - input_frames - output_frames + 1)
+            out.append(np.stack([np.full_like(starts, i), starts], axis=1))
+        return np.concatenate(out).astype(np.int64) if out else np.zeros((0, 2), np.int64)
     match = _STRIDE.match(name)
     stride = 1 if name == "all" else int(match.group(1))
     strict = bool(match and match.group(2))
