@@ -118,3 +118,31 @@ def test_model_names_cannot_escape_the_results_folder(capsys, tmp_path):
     registry.write_text("models:\n  ../../evil: {class: x.py:X, representation: joints}\n")
     code, last = run(capsys, "list", "--registry", str(registry))
     assert code == 2 and "model '../../evil': a model name is letters, digits" in last
+
+
+def test_binary_data_skipped_files_and_damaged_caches_are_named(capsys, root, tmp_path):
+    (root / "test" / "walking" / "README.md").write_text("about these files")
+    (root / "test" / "dancing").mkdir()
+    code, _ = run(capsys, "eval", "--model", "repeat_last", "--sampler", "all", "--data-root",
+                  str(root), "--out", str(tmp_path / "ok"))
+    assert code == 0
+    code = main(["eval", "--model", "repeat_last", "--sampler", "all", "--data-root", str(root),
+                 "--out", str(tmp_path / "ok")])
+    err = capsys.readouterr().err
+    assert "note: test/walking: skipped README.md (not walking_<n>.txt)" in err
+    assert "note: test: skipped dancing (not among the benchmark's actions" in err
+    (root / "test" / "walking" / "walking_2.txt").write_bytes(bytes(range(128, 256)) * 8)
+    code, last = run(capsys, "eval", "--model", "repeat_last", "--data-root", str(root))
+    assert code == 2 and "walking_2.txt: not a text file" in last
+
+    from zoo.data.mesh import MeshDataset, MeshError, MeshSequence, MeshTopology
+
+    mesh = MeshDataset(name="tiny", split="test", recipe={"builder": "test"},
+                       topology=MeshTopology(np.array([[0, 1, 2]]), 3),
+                       sequences=[MeshSequence("s", "a", np.zeros((4, 3, 3), np.float32), 25.0)])
+    mesh.save(tmp_path / "cache")
+    (tmp_path / "cache" / "meshes.npz").write_bytes(
+        (tmp_path / "cache" / "meshes.npz").read_bytes()[:100])
+    with pytest.raises(MeshError, match="cache: damaged or truncated dataset cache .*delete the "
+                                        "folder and it is rebuilt on next use"):
+        MeshDataset.load(tmp_path / "cache")

@@ -25,6 +25,9 @@ def read_expmap_file(path: str | Path, skeleton: Skeleton) -> np.ndarray:
         text = path.read_text()
     except OSError as e:
         raise DataFormatError(f"{path}: cannot read exp-map file ({e.strerror})") from e
+    except UnicodeDecodeError as e:
+        raise DataFormatError(f"{path}: not a text file (byte {e.start} is not UTF-8); an "
+                              f"exp-map file holds comma-separated numbers") from None
     lines = [(n, line) for n, line in enumerate(text.splitlines(), start=1) if line.strip()]
     if not lines:
         raise DataFormatError(f"{path}: file holds no frames")

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import zipfile
 import os
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -200,6 +201,15 @@ class MeshDataset:
         for p in (meta_path, npz_path):
             if not p.is_file():
                 raise MeshError(f"{p}: mesh dataset file missing (build it with `zoo data build`)")
+        try:
+            return cls._read(folder, meta_path, npz_path)
+        except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as e:
+            raise MeshError(f"{folder}: damaged or truncated dataset cache ({type(e).__name__}: "
+                            f"{e}); delete the folder and it is rebuilt on next use (zoo data "
+                            f"build <benchmark>)") from None
+
+    @classmethod
+    def _read(cls, folder: Path, meta_path: Path, npz_path: Path) -> "MeshDataset":
         meta = json.loads(meta_path.read_text())
         with np.load(npz_path) as z:
             topology = MeshTopology(z["faces"], int(z["num_vertices"]), name=meta["name"])

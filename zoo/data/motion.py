@@ -110,13 +110,32 @@ def load_cmu(root: str | Path | None, split: str = "test",
         files = sorted(folder.glob(f"{action}_*.txt"), key=_file_number)
         if not files:
             raise DataFormatError(f"{folder}: action folder holds no {action}_<n>.txt file")
+        others = sorted(p.name for p in folder.iterdir() if p not in files)
+        if others:
+            notes.append(f"{folder.relative_to(root)}: skipped {', '.join(others)} (not "
+                         f"{action}_<n>.txt)")
         # The field treats these files as 50 Hz, so 25 Hz after halving (SPEC section 2).
         sequences += [_load_sequence(f, root, action, CMU, 50.0, 2) for f in files]
     if not sequences:
         raise DataFormatError(f"{split_dir}: none of the actions {', '.join(actions)} has a file")
+    unknown = sorted(p.name for p in split_dir.iterdir() if p.name not in actions)
+    if unknown:
+        notes.append(f"{split_dir.relative_to(root)}: skipped {', '.join(unknown)} (not among the "
+                     f"benchmark's actions {', '.join(actions)})")
+    _report(notes, "skipped")
     return MotionDataset(name="cmu_mocap", split=split, root=root, skeleton=CMU,
                          sequences=sequences, actions_requested=tuple(actions),
                          ltd_rule="per_file", source_fps=50.0, notes=notes)
+
+
+def _report(notes: list[str], word: str) -> None:
+    """Say on stderr what an adapter skipped (absent actions are a protocol fact, recorded in
+    ``actions_present``; files it passed over are something a user should hear about)."""
+    import sys
+
+    for note in notes:
+        if word in note:
+            print(f"note: {note}", file=sys.stderr)
 
 
 def load_h36m(root: str | Path | None, split: str = "test",
