@@ -197,7 +197,7 @@ def headline_table(results: list, horizons_ms: Iterable[int] | None = None,
     placed = place(record, metric, "frame", joints) if published is None else published
     for p in placed:
         if not p.differences:
-            table.append([f"{p.entry.label} ({p.entry.source})",
+            table.append([f"{p.entry.label}: {p.entry.source}",
                           *[f"{p.values[h]:{fmt}}" if h in p.values else "–" for h in horizons],
                           *_cost_cells(None)])
     unit = metric_unit(metric)[0]
