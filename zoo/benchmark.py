@@ -24,7 +24,8 @@ from zoo.errors import ZooError
 from zoo.paths import REPO_ROOT
 
 BENCHMARK_DIR = REPO_ROOT / "benchmarks"
-# Skeleton datasets: name -> (loader (root, split, actions=...) -> MotionDataset, skeleton).
+# Skeleton datasets: name -> loader (root, split, actions=...) -> MotionDataset, and its
+# skeleton.
 DATASETS = {"cmu_mocap": load_cmu, "h36m": load_h36m, "3dpw": load_3dpw}
 SKELETON_OF = {"cmu_mocap": CMU, "h36m": H36M, "3dpw": THREEDPW}
 _REQUIRED = ("name", "dataset", "split", "input_frames", "output_frames", "sampler")

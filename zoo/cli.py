@@ -309,9 +309,7 @@ def default_benchmarks():
 def cmd_train(args) -> int:
     from zoo.train import train
 
-    if args.out and Path(args.out).exists() and not Path(args.out).is_dir():
-        raise UsageError(f"--out {args.out}: exists and is not a folder")
-    if args.out:
+    if args.out:  # a file there, or an unwritable place, is refused before training
         from zoo.io import check_writable
 
         check_writable(args.out, what=f"--out {args.out}")

@@ -25,8 +25,8 @@ from zoo.evaluate import EvalResult
 from zoo.intervals import CONFIDENCE, REPLICATES, block_bootstrap, percentile_interval, \
     protocol_mean
 from zoo.metrics import AVERAGING, cumulative_mean
-from zoo.tables import ProtocolMismatchError, block_frames_default, headline_key, \
-    metric_unit, protocol_differences
+from zoo.tables import ProtocolMismatchError, block_frames_default, default_horizons, \
+    headline_key, metric_unit, protocol_differences
 
 
 class ComparisonError(ZooError, ValueError):
@@ -180,8 +180,7 @@ def compare(a, b, *, metric: str | None = None, joints: str | None = None,
     mean_a, mean_b = protocol_mean(ea, wa.action), protocol_mean(eb, wb.action)
     frame_ms = 1000.0 / ra.protocol["fps"]
     horizon = np.rint(np.arange(1, ea.shape[1] + 1) * frame_ms).astype(int)
-    wanted = list(horizons_ms) if horizons_ms is not None else \
-        [h for h in (80, 160, 320, 400, 560, 720, 880, 1000) if h in horizon] or list(horizon)
+    wanted = list(horizons_ms) if horizons_ms is not None else default_horizons(ra.frame)
     missing = [h for h in wanted if h not in horizon]
     if missing:
         raise ComparisonError(f"horizons {missing} ms are not predicted frames of this protocol "

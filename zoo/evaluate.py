@@ -29,8 +29,8 @@ from zoo.data.motion import MotionDataset
 from zoo.data.windows import check_sampler, gather_windows, window_sampler
 from zoo.distributed import DistInfo, gather_shares, init_distributed
 from zoo.errors import ZooError
-from zoo.io import atomic_write_json, atomic_write_text, canonical_json, code_version, \
-    replace_folder
+from zoo.io import atomic_path, atomic_write_json, atomic_write_text, canonical_json, \
+    code_version, replace_folder
 from zoo.metrics import ACTION_AVERAGING, AVERAGING, FrameErrorMean, cumulative_mean, \
     joint_protocols, skeleton_errors
 from zoo.tables import markdown_tables
@@ -81,8 +81,6 @@ class WindowErrors:
         return self.errors[key]
 
     def write(self, path: str | Path) -> None:
-        from zoo.io import atomic_path
-
         arrays = {"sequences": np.asarray(self.sequences, dtype=str),
                   "sequence": self.sequence.astype(np.int32), "start": self.start.astype(np.int32),
                   "action": np.asarray(self.action, dtype=str),
@@ -352,23 +350,16 @@ def _accumulate(scored: dict[int, dict[tuple[str, str, str], np.ndarray]], actio
 
 def _frame(accumulators: dict[tuple[str, str, str], FrameErrorMean], record: dict[str, Any],
            windows_per_action: dict[str, int]) -> pd.DataFrame:
-    return pd.concat([_long_frame({joints: acc}, record, model, windows_per_action)
-                      .assign(metric=metric)
-                      for (model, metric, joints), acc in accumulators.items()],
-                     ignore_index=True)
-
-
-def _long_frame(accumulators: dict[str, FrameErrorMean], record: dict[str, Any], model_name: str,
-                windows_per_action: dict[str, int]) -> pd.DataFrame:
+    """The long-format rows of every (model, metric, joints), both averagings."""
     frame_ms = 1000.0 / record["fps"]
     total = sum(windows_per_action.values())
     rows = []
-    for joints, acc in accumulators.items():
+    for (model, metric, joints), acc in accumulators.items():
         for action, per_frame in acc.compute().items():
             for averaging, values in (("frame", per_frame), ("cumulative",
                                                              cumulative_mean(per_frame))):
                 for t, value in enumerate(values, start=1):
-                    rows.append((model_name, record["benchmark"], action, "mpjpe", averaging,
+                    rows.append((model, record["benchmark"], action, metric, averaging,
                                  joints, int(round(t * frame_ms)), t, float(value),
                                  windows_per_action.get(action, total), record["dataset"],
                                  record["split"], record["sampler"], record["task"],

@@ -2,9 +2,10 @@
 
 Windows of one recording overlap (CMU's ``all`` sampler: neighbouring windows share 34 of their 35
 frames), so their errors are strongly correlated and a standard error over windows is far too
-small. The moving-block bootstrap keeps that dependence: it resamples runs of consecutive windows
-of one recording (a block: the windows starting within ``block_frames`` of the block's first, by
-default one window length), never pieces of two recordings. Each action's windows are rebuilt
+small. The circular block bootstrap keeps that dependence: it resamples runs of consecutive
+windows of one recording (a block: the windows starting within ``block_frames`` of the block's
+first; :func:`zoo.tables.block_frames_default` takes two window lengths), never pieces of two
+recordings, a run past a recording's end continuing at its start. Each action's windows are rebuilt
 from blocks drawn among all its recordings' blocks (with one recording per action, as on CMU,
 that is the plain moving-block bootstrap of it; with one window per recording, as on cloth, it is
 the ordinary bootstrap of independent recordings), to as many windows as the action has. Then
@@ -68,15 +69,16 @@ def _action_blocks(sequence: np.ndarray, start: np.ndarray, rows: np.ndarray,
     recording's last window continues at its first, so every window is drawn equally often
     (the plain moving blocks under-draw both ends and bias the variance down)."""
     order = rows[np.lexsort((start[rows], sequence[rows]))]
-    extended, offsets, lengths = [], [], []
+    extended, offsets, lengths, position = [], [], [], 0
     for rec in np.unique(sequence[order]):
         own = order[sequence[order] == rec]
         # At least two blocks per recording: one block the whole recording long would make
         # every replicate a rotation of it, and its variance zero.
         length = min(block_windows(start[own], block_frames), max(1, math.ceil(len(own) / 2)))
-        offsets.append(sum(map(len, extended)) + np.arange(len(own)))
+        offsets.append(position + np.arange(len(own)))
         lengths.append(np.full(len(own), length))
         extended.append(np.concatenate([own, own[:length - 1]]))
+        position += len(extended[-1])
     return _ActionBlocks(np.concatenate(extended), np.concatenate(offsets),
                          np.concatenate(lengths))
 

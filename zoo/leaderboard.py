@@ -3,6 +3,7 @@
 committed ones without writing (``CheckReport``)."""
 from __future__ import annotations
 
+from contextlib import nullcontext
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterable
@@ -254,12 +255,9 @@ def _regenerate_one(bench, registry, dataset, sampler, truth, folder, out_root, 
                     device, task="prediction", weights=None, check=None, costs=None):
     """One table: checked, or rebuilt under a lock and replaced as a whole (an interrupted
     regeneration leaves the old folder, never a half-written one)."""
-    args = (bench, registry, dataset, sampler, truth, folder, out_root, checkpoints, device,
-            task, weights, check, costs)
-    if check is not None:
-        return _table(*args)
-    with folder_lock(out_root / bench.name / folder):
-        return _table(*args)
+    with folder_lock(out_root / bench.name / folder) if check is None else nullcontext():
+        return _table(bench, registry, dataset, sampler, truth, folder, out_root, checkpoints,
+                      device, task, weights, check, costs)
 
 
 def _table(bench, registry, dataset, sampler, truth, folder, out_root, checkpoints, device,
@@ -363,11 +361,7 @@ def _cost(costs, name, hparams, model, bench, dataset, view, task, recipe, devic
 
     key = (name, json.dumps(hparams, sort_keys=True, default=str), view, task)
     if key not in costs:
-        if bench.representation == "mesh":
-            points = dataset.joint_regressor.shape[0] if view == "joints" else \
-                dataset.topology.num_vertices
-        else:
-            points = len(dataset.skeleton.used)
+        points = bench.model_inputs(dataset=dataset, view=view)["num_points"]
         costs[key] = measure(model, input_frames=bench.input_frames,
                              output_frames=bench.output_frames, points=points, task=task,
                              recipe=recipe, device=device)
@@ -419,11 +413,11 @@ def _check_table(results: list, folder: Path, check: CheckReport) -> None:
             check.problems.append(f"{path}: missing (per-window errors of {label})")
             continue
         stored = WindowErrors.read(path)
+        same_windows = np.array_equal(stored.start, r.windows.start) and \
+            np.array_equal(stored.sequence, r.windows.sequence)
         for key, values in r.windows.errors.items():
             old = stored.errors.get(key)
-            if old is None or old.shape != values.shape or not (
-                    np.array_equal(stored.start, r.windows.start)
-                    and np.array_equal(stored.sequence, r.windows.sequence)):
+            if old is None or not same_windows:
                 check.problems.append(f"{path}: {'/'.join(key)}: missing or for other windows")
                 continue
             gap = np.abs(old.astype(np.float64) - values) / np.maximum(np.abs(old), 1e-12)

@@ -76,7 +76,7 @@ def markdown_tables(frame: pd.DataFrame, records: dict[str, dict[str, Any]],
         raise ProtocolMismatchError(f"rows carry protocol ids {missing} with no protocol record")
     check_comparable({i: records[i] for i in ids})
     record = records[ids[0]]
-    horizons = list(horizons_ms or _default_horizons(frame))
+    horizons = list(horizons_ms or default_horizons(frame))
     out = [f"# {record['benchmark']}: {record['dataset']} {record['split']}, "
            f"sampler {record['sampler']}, {record['input_frames']} in / "
            f"{record['output_frames']} out at {record['fps']:g} fps",
@@ -107,7 +107,7 @@ def markdown_tables(frame: pd.DataFrame, records: dict[str, dict[str, Any]],
     return "\n".join(out)
 
 
-def _default_horizons(frame: pd.DataFrame) -> list[int]:
+def default_horizons(frame: pd.DataFrame) -> list[int]:
     standard = [80, 160, 320, 400, 560, 720, 880, 1000]
     present = set(frame["horizon_ms"])
     chosen = [h for h in standard if h in present]
@@ -155,7 +155,7 @@ def headline_table(results: list, horizons_ms: Iterable[int] | None = None,
                  (frame["averaging"] == "frame") & (frame["action"] == "average")]
     if rows.empty:
         return ""
-    horizons = [h for h in (horizons_ms or _default_horizons(frame)) if h in set(rows.horizon_ms)]
+    horizons = [h for h in (horizons_ms or default_horizons(frame)) if h in set(rows.horizon_ms)]
     values = rows.pivot_table(index="model", columns="horizon_ms", values="value")[horizons]
     frame_of = dict(zip(rows["horizon_ms"], rows["frame"]))
     columns = [int(frame_of[h]) - 1 for h in horizons]  # 0-based predicted frame of each

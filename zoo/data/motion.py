@@ -6,6 +6,7 @@ carry their action, file, hash and fps.
 """
 from __future__ import annotations
 
+import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -101,7 +102,7 @@ def load_cmu(root: str | Path | None, split: str = "test",
     if not split_dir.is_dir():
         raise DataNotFoundError(f"{split_dir}: CMU split folder missing (expected "
                                 f"<data-root>/{split}/<action>/<action>_<n>.txt)")
-    sequences, notes = [], []
+    sequences, notes, skipped = [], [], []
     for action in actions:
         folder = split_dir / action
         if not folder.is_dir():
@@ -112,30 +113,23 @@ def load_cmu(root: str | Path | None, split: str = "test",
             raise DataFormatError(f"{folder}: action folder holds no {action}_<n>.txt file")
         others = sorted(p.name for p in folder.iterdir() if p not in files)
         if others:
-            notes.append(f"{folder.relative_to(root)}: skipped {', '.join(others)} (not "
-                         f"{action}_<n>.txt)")
+            skipped.append(f"{folder.relative_to(root)}: skipped {', '.join(others)} (not "
+                           f"{action}_<n>.txt)")
         # The field treats these files as 50 Hz, so 25 Hz after halving (SPEC section 2).
         sequences += [_load_sequence(f, root, action, CMU, 50.0, 2) for f in files]
     if not sequences:
         raise DataFormatError(f"{split_dir}: none of the actions {', '.join(actions)} has a file")
     unknown = sorted(p.name for p in split_dir.iterdir() if p.name not in actions)
     if unknown:
-        notes.append(f"{split_dir.relative_to(root)}: skipped {', '.join(unknown)} (not among the "
-                     f"benchmark's actions {', '.join(actions)})")
-    _report(notes, "skipped")
+        skipped.append(f"{split_dir.relative_to(root)}: skipped {', '.join(unknown)} (not among "
+                       f"the benchmark's actions {', '.join(actions)})")
+    # Files passed over are something a user should hear about (absent actions are a protocol
+    # fact, recorded in actions_present).
+    for note in skipped:
+        print(f"note: {note}", file=sys.stderr)
     return MotionDataset(name="cmu_mocap", split=split, root=root, skeleton=CMU,
                          sequences=sequences, actions_requested=tuple(actions),
-                         ltd_rule="per_file", source_fps=50.0, notes=notes)
-
-
-def _report(notes: list[str], word: str) -> None:
-    """Say on stderr what an adapter skipped (absent actions are a protocol fact, recorded in
-    ``actions_present``; files it passed over are something a user should hear about)."""
-    import sys
-
-    for note in notes:
-        if word in note:
-            print(f"note: {note}", file=sys.stderr)
+                         ltd_rule="per_file", source_fps=50.0, notes=notes + skipped)
 
 
 def load_h36m(root: str | Path | None, split: str = "test",

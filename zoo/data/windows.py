@@ -68,27 +68,22 @@ def window_sampler(name: str, lengths: Sequence[int], input_frames: int, output_
                                "action), not for this dataset")
         rounds = 4 if name == "ltd8" else 128
         return _ltd_per_action_pair(lengths, groups, subactions, input_frames, rounds)
-    as_if = _ALL_AS_IF.match(name)
+    as_if, match = _ALL_AS_IF.match(name), _STRIDE.match(name)
+    first, stride, strict = 0, 1, False  # all
     if as_if:
         observed = int(as_if.group(1))
         if observed < input_frames:
             raise SamplerError(f"sampler {name} cuts windows as if {observed} frames were "
                                f"observed; T_in = {input_frames} is more")
-        out = []
-        for i, n in enumerate(lengths):
-            starts = np.arange(observed - input_frames, n - input_frames - output_frames + 1)
-            out.append(np.stack([np.full_like(starts, i), starts], axis=1))
-        return np.concatenate(out).astype(np.int64) if out else np.zeros((0, 2), np.int64)
-    match = _STRIDE.match(name)
-    stride = 1 if name == "all" else int(match.group(1))
-    strict = bool(match and match.group(2))
+        first = observed - input_frames
+    elif match:
+        stride, strict = int(match.group(1)), bool(match.group(2))
     out = []
     for i, n in enumerate(lengths):
         last = n - length - (1 if strict else 0)
-        starts = np.arange(0, last + 1, stride)
+        starts = np.arange(first, last + 1, stride)
         out.append(np.stack([np.full_like(starts, i), starts], axis=1))
     return np.concatenate(out).astype(np.int64) if out else np.zeros((0, 2), np.int64)
-
 
 def _ltd_per_file(lengths: Sequence[int], input_frames: int) -> np.ndarray:
     out = []
