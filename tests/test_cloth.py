@@ -122,8 +122,9 @@ def test_cloth_benchmark_on_a_small_cloth(tmp_path):
 
     small = ClothConfig(grid=(10, 10), substeps=5, test_sequences=2)  # 50 frames, like the default
     dataset = load_cloth("test", small, cache_dir=tmp_path)
+    # MELV on the raw frames: this 100-vertex cloth has no room for the benchmark's k = 256
     result = evaluate(RepeatLast(25, 25, 100), "cloth", dataset=dataset,
-                      model_name="repeat_last")
+                      model_name="repeat_last", melv_frames="raw")
     frame = result.frame[(result.frame.action == "average") & (result.frame.averaging == "frame")]
     value = {(m, metric): g.sort_values("frame").value.to_numpy()
              for (m, metric), g in frame.groupby(["model", "metric"])}
@@ -148,3 +149,90 @@ def test_default_cloth_benchmark_end_to_end(tmp_path, monkeypatch):
     assert result.protocol["windows_per_action"] == {"fall": 100}
     assert result.protocol["num_vertices"] == 484
     assert (tmp_path / "datasets" / f"cloth-{result.protocol['recipe_hash']}").is_dir()
+
+
+def test_only_the_pins_are_random_by_default(tiny):
+    """As in the paper: the cloth starts flat and level; heading and tilt are options."""
+    vertices, metas = tiny
+    assert all(m["heading_deg"] == 0 and m["tilt_deg"] == 0 for m in metas)
+    np.testing.assert_allclose(vertices[:, 0, :, 2], 0, atol=1e-3)  # flat and level at rest
+    posed = ClothConfig(**{**TINY.__dict__, "max_tilt_deg": 30.0, "random_heading": True})
+    posed_vertices, posed_metas = simulate_cloth(posed, "test", [0, 1, 2])
+    assert [m["pinned"] for m in posed_metas] == [m["pinned"] for m in metas]  # same pins
+    assert all(m["heading_deg"] != 0 and m["tilt_deg"] != 0 for m in posed_metas)
+    assert np.abs(posed_vertices[:, 0, :, 2]).max() > 10  # tilted: not flat in z
+    assert TINY.recipe("test")["random_heading"] is False
+    assert cloth_dir("test", posed) != cloth_dir("test", TINY)
+
+
+def test_parallel_generation_and_int16_storage(tmp_path):
+    """Processes and batch sizes change nothing; int16 storage loads back what was generated,
+    within 1/64 mm of the float32 simulation, in half the bytes."""
+    compact = ClothConfig(**{**TINY.__dict__, "test_sequences": 5, "position_step_mm": 1 / 32})
+    alone = cloth.generate_cloth("test", compact, batch=5, workers=1)
+    spread = cloth.generate_cloth("test", compact, batch=2, workers=2)
+    assert all(np.array_equal(a.vertices, b.vertices)
+               for a, b in zip(alone.sequences, spread.sequences))
+    exact = cloth.generate_cloth("test", ClothConfig(**{**TINY.__dict__, "test_sequences": 5}))
+    gap = max(np.abs(a.vertices - b.vertices).max()
+              for a, b in zip(alone.sequences, exact.sequences))
+    assert 0 < gap <= 1 / 64 + 1e-4
+    saved = load_cloth("test", compact, cache_dir=tmp_path, workers=2)
+    loaded = load_cloth("test", compact, cache_dir=tmp_path)
+    assert loaded.content_hash() == saved.content_hash() == alone.content_hash()
+    plain = ClothConfig(**{**TINY.__dict__, "test_sequences": 5})
+    load_cloth("test", plain, cache_dir=tmp_path)
+
+    def stored_bytes(config):
+        return (cloth_dir("test", config, tmp_path) / "meshes.npz").stat().st_size
+
+    assert stored_bytes(compact) < 0.6 * stored_bytes(plain)
+    with pytest.raises(MeshError, match="workers must be a positive integer"):
+        cloth.generate_cloth("test", compact, workers=0)
+
+
+def test_int16_storage_refuses_what_it_cannot_hold(tmp_path):
+    from zoo.data.mesh import MeshDataset, MeshSequence, MeshTopology, quantise_vertices
+
+    topology = MeshTopology(np.array([[0, 1, 2]]), 3, name="tri")
+    wide = np.array([[[0, 0, 0], [5000, 0, 0], [0, 1, 0]]], np.float32)  # 5 m > 2 km / 1024
+    off_grid = quantise_vertices(wide[:, :, :] / 10, 1 / 32) + 0.01
+    for vertices, message in ((wide, "spans 5000 mm, more than int16 steps"),
+                              (off_grid, "not on the 0.03125 mm grid")):
+        dataset = MeshDataset("tri", "test", topology, [MeshSequence("s", "a", vertices, 25.0)],
+                              recipe={})
+        with pytest.raises(MeshError, match=message):
+            dataset.save(tmp_path / "tri", step_mm=1 / 32)
+        assert not (tmp_path / "tri" / "meshes.npz").exists()
+
+
+def test_cloth_full_and_weights_from(monkeypatch):
+    """cloth_full is the paper-sized cloth; cloth scores cloth_full's trained models."""
+    from zoo.benchmark import get_benchmark
+
+    full, small = get_benchmark("cloth_full"), get_benchmark("cloth")
+    assert cloth.CLOTH_FULL.train_sequences == 16000 and cloth.CLOTH_FULL.test_sequences == 4000
+    assert small.weights_from == "cloth_full" and full.weights_from is None
+    # sequence i of a split is the same simulation in both, whatever their sizes
+    assert {k: v for k, v in cloth.CLOTH_FULL.recipe("test").items()
+            if k not in ("sequences", "position_step_mm")} == \
+        {k: v for k, v in ClothConfig().recipe("test").items()
+         if k not in ("sequences", "position_step_mm")}
+    monkeypatch.setenv("ZOO_WORKERS", "two")
+    with pytest.raises(MeshError, match="ZOO_WORKERS must be a positive integer, got 'two'"):
+        cloth.cloth_full_dataset(None, "test")
+
+
+def test_weights_from_must_fit(tmp_path):
+    import yaml
+
+    from zoo.benchmark import BenchmarkError, get_benchmark
+
+    spec = yaml.safe_load(open(get_benchmark("cloth").source))
+    for change, message in (({"weights_from": "cloth"}, "must name another benchmark"),
+                            ({"weights_from": "nosuch"}, "field 'weights_from': unknown"),
+                            ({"output_frames": 20}, "output_frames 20 here, 25 there")):
+        path = tmp_path / "b.yaml"
+        path.write_text(yaml.safe_dump({**spec, **change}))
+        with pytest.raises(BenchmarkError, match=message):
+            get_benchmark(path)

@@ -112,6 +112,7 @@ def test_results_folder_names_sampler_task_and_ground_truth():
     assert results_folder("all") == "all"
     assert results_folder("all", "completion", "spectral") == "all-completion-gt_spectral"
     assert results_folder("stride5_strict", "longterm", "raw", 50) == "stride5_strict-longterm50"
+    assert results_folder("all", truth="spectral", melv="raw") == "all-gt_spectral-melv_raw"
 
 
 def test_check_recomputes_every_row_and_names_what_differs(tmp_path, capsys):
@@ -137,14 +138,19 @@ def test_check_recomputes_every_row_and_names_what_differs(tmp_path, capsys):
     frame = pd.read_csv(table)
     frame.loc[(frame.model == "tiny") & (frame.horizon_ms == 400) & (frame.action == "average")
               & (frame.averaging == "frame") & (frame.joints == "all38"), "value"] += 0.01
+    frame.loc[(frame.model == "repeat_last") & (frame.horizon_ms == 80) &
+              (frame.action == "average") & (frame.averaging == "cumulative") &
+              (frame.joints == "all38"), "std"] *= 2
     frame.to_csv(table, index=False)
     (out / "cmu" / "ltd8" / "repeat_last" / "windows.npz").unlink()
     assert main(["leaderboard", "--check", "--benchmark", "cmu", *common]) == 1
     captured = capsys.readouterr()
     assert "all/results.csv: model=tiny, action=average, metric=mpjpe, averaging=frame, " \
-           "joints=all38, horizon_ms=400: committed" in captured.err
+           "joints=all38, horizon_ms=400: value committed" in captured.err
+    assert "all/results.csv: model=repeat_last, action=average, metric=mpjpe, averaging=" \
+           "cumulative, joints=all38, horizon_ms=80: std committed" in captured.err
     assert "ltd8/repeat_last/windows.npz: missing" in captured.err
-    assert "2 problem(s) above" in captured.out
+    assert "3 problem(s) above" in captured.out
 
     # a trained row whose checkpoint is gone cannot be recomputed: a problem, never kept
     shutil.rmtree(checkpoints)

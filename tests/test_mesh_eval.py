@@ -12,6 +12,7 @@ from zoo.benchmark import BenchmarkError, get_benchmark
 from zoo.data.mesh import MeshDataset, MeshError, MeshSequence, MeshTopology
 from zoo.data.spectral import SpectralBasis, SpectralError
 from zoo.evaluate import EvaluationError, evaluate
+from zoo.tables import markdown_tables
 from zoo.metrics import melv, regress_joints, regressed_mpjpe, vertex_rmse
 from zoo.models.repeat_last import RepeatLast
 from zoo import create_model
@@ -108,7 +109,7 @@ def rows(frame, model, metric, averaging="frame"):
 
 
 def test_mesh_evaluation_by_hand(toy_bench, tmp_path):
-    bench = toy_bench(spectral_k=2, ground_truths=["raw", "spectral"])
+    bench = toy_bench(spectral_k=2, ground_truths=["raw", "spectral"], melv_frames="raw")
     model = create_model("repeat_last", benchmark=bench)
     assert model.num_points == 4
     result = evaluate(model, bench, model_name="repeat_last")
@@ -150,7 +151,7 @@ def test_mesh_evaluation_by_hand(toy_bench, tmp_path):
 
 
 def test_spectral_ground_truth(toy_bench):
-    full = toy_bench(spectral_k=4, ground_truths=["raw", "spectral"])
+    full = toy_bench(spectral_k=4, ground_truths=["raw", "spectral"], melv_frames="raw")
     raw = evaluate(RepeatLast(2, 3, 4), full, model_name="repeat_last")
     spectral = evaluate(RepeatLast(2, 3, 4), full, model_name="repeat_last",
                         ground_truth="spectral")
@@ -162,7 +163,8 @@ def test_spectral_ground_truth(toy_bench):
     np.testing.assert_allclose(spectral.frame.value, raw.frame.value, rtol=1e-4, atol=1e-5)
     # k = 1 keeps only the mean of each coordinate: nothing moves but the centroid.
     low = evaluate(RepeatLast(2, 3, 4), toy_bench(spectral_k=1, ground_truth="spectral",
-                                                  ground_truths=["spectral"]),
+                                                  ground_truths=["spectral"],
+                                                  melv_frames="raw"),
                    model_name="repeat_last")
     np.testing.assert_allclose(rows(low.frame, "ground_truth", "melv")["a"], 0, atol=1e-5)
     np.testing.assert_allclose(rows(low.frame, "repeat_last", "mpjpe")["a"],
@@ -277,3 +279,87 @@ def test_linear_interpolation_completes_a_uniform_scaling_exactly(toy_bench):
     assert result.protocol["task"] == "completion"
     with pytest.raises(ValueError, match=r"final_frame: expected \(B, P, 3\)"):
         model(torch.zeros(1, 2, 4, 3), None)
+
+
+def test_melv_on_spectral_frames_by_default(toy_bench):
+    """MELV measures edges of the k-coefficient reconstructions (reference and scored frames),
+    as SpecTrHuMS does, wherever the benchmark has a basis; raw stays an option."""
+    assert toy_bench().melv_on == "raw" and toy_bench(spectral_k=2).melv_on == "spectral"
+    full = toy_bench(spectral_k=4)
+    spectral = evaluate(RepeatLast(2, 3, 4), full, model_name="repeat_last")
+    raw = evaluate(RepeatLast(2, 3, 4), full, model_name="repeat_last", melv_frames="raw")
+    assert spectral.protocol["melv_frames"].startswith("spectral4")
+    assert raw.protocol["melv_frames"].startswith("raw")
+    assert spectral.protocol["protocol_id"] != raw.protocol["protocol_id"]
+    # k = V: the reconstruction is the data itself
+    np.testing.assert_allclose(spectral.frame.value, raw.frame.value, rtol=1e-4, atol=1e-5)
+    # k = 1 keeps only each coordinate's mean: every edge collapses, the ground truth's MELV is
+    # 0, while RMSE (scored against the raw ground truth) does not change.
+    low = evaluate(RepeatLast(2, 3, 4), toy_bench(spectral_k=1), model_name="repeat_last")
+    np.testing.assert_allclose(rows(low.frame, "ground_truth", "melv")["a"], 0, atol=1e-5)
+    assert (rows(raw.frame, "ground_truth", "melv")["a"] > 0.5).all()
+    np.testing.assert_allclose(rows(low.frame, "repeat_last", "rmse")["a"],
+                               rows(raw.frame, "repeat_last", "rmse")["a"], rtol=1e-6)
+    with pytest.raises(BenchmarkError, match="'melv_frames: spectral' needs field 'spectral_k'"):
+        toy_bench(melv_frames="spectral")
+    with pytest.raises(BenchmarkError, match="field 'melv_frames' must be one of raw, spectral"):
+        toy_bench(spectral_k=2, melv_frames="smooth")
+    with pytest.raises(EvaluationError, match="melv_frames must be one of raw, spectral"):
+        evaluate(RepeatLast(2, 3, 4), full, model_name="x", melv_frames="smooth")
+
+
+def test_every_row_carries_its_standard_deviation_over_windows(toy_bench):
+    result = evaluate(RepeatLast(2, 3, 4), toy_bench(melv_frames="raw"), model_name="repeat_last")
+    frame = result.frame
+    rmse = frame[(frame.model == "repeat_last") & (frame.metric == "rmse")]
+    by = {(r.action, r.averaging, r.frame): r for r in rmse.itertuples()}
+    k = np.arange(1, 4)
+    per_window = {a: rate * k / ((1 + rate * (1 + k)) * math.sqrt(2))
+                  for a, rate in (("a", 0.1), ("b", 0.2))}
+    for t in k:
+        assert by["a", "frame", t].std == pytest.approx(0, abs=1e-7)  # two equal windows
+        assert math.isnan(by["b", "frame", t].std)  # one window: no spread
+        pooled = [per_window["a"][t - 1]] * 2 + [per_window["b"][t - 1]]
+        assert by["average", "frame", t].std == pytest.approx(np.std(pooled, ddof=1), rel=1e-5)
+        cumulative = [np.mean(per_window["a"][:t])] * 2 + [np.mean(per_window["b"][:t])]
+        assert by["average", "cumulative", t].std == pytest.approx(np.std(cumulative, ddof=1),
+                                                                   rel=1e-5)
+    tables = markdown_tables(frame, {result.protocol["protocol_id"]: result.protocol})
+    melv_table = tables[tables.index("## MELV (mm), averaging `frame`"):]
+    assert "Each cell: mean (standard deviation over windows)." in melv_table
+    assert "(0.000)" in melv_table.split("| ground_truth | a")[1].split("\n")[0]
+    assert "## RMSE (per vertex, normalised by the ground-truth frame's bounding-box diagonal)" \
+        in tables
+
+
+def test_autoencoder_floor_rows_beside_the_model(toy_bench, tmp_path):
+    """A model with ``autoencoder_floor`` gets ``<name>:autoencoder`` rows: the ground-truth
+    future through it, scored like a prediction, shown in the headline but never the best."""
+    from zoo.leaderboard import write_leaderboard
+
+    class Blurred(RepeatLast):
+        def autoencoder_floor(self, frames):
+            return frames + 1.0  # every vertex 1 mm off along x, y and z
+
+    bench = toy_bench(melv_frames="raw")
+    result = evaluate(Blurred(2, 3, 4), bench, model_name="blurred")
+    frame = result.frame
+    assert set(frame.model) == {"blurred", "blurred:autoencoder", "ground_truth"}
+    assert frame.model.iloc[0] == "blurred"  # the result folder is named after the model
+    floor_rmse = rows(frame, "blurred:autoencoder", "rmse")
+    for action, rate in (("a", 0.1), ("b", 0.2)):
+        diagonal = 10 * math.sqrt(2) * (1 + rate * (1 + np.arange(1, 4)))
+        np.testing.assert_allclose(floor_rmse[action], math.sqrt(3) / diagonal, rtol=1e-5)
+    # a rigid shift keeps every edge: the floor's MELV is the ground truth's own
+    np.testing.assert_allclose(rows(frame, "blurred:autoencoder", "melv")["a"],
+                               rows(frame, "ground_truth", "melv")["a"], rtol=1e-5)
+    assert "floor" in result.protocol["metrics"]
+    out = write_leaderboard([result], tmp_path / "board")
+    headline = (out / "leaderboard.md").read_text().split("## RMSE")[0]
+    floor_line = next(line for line in headline.splitlines() if line.startswith("| blurred:"))
+    model_line = next(line for line in headline.splitlines() if line.startswith("| blurred "))
+    assert "**" not in floor_line and "**" in model_line
+    assert "`blurred:autoencoder`: the ground-truth future through the model's autoencoder" \
+        in headline
+    plain = evaluate(RepeatLast(2, 3, 4), bench, model_name="repeat_last")
+    assert not any(m.endswith(":autoencoder") for m in plain.frame.model)

@@ -154,7 +154,7 @@ def test_projection_and_reconstruction_are_single_matrix_products():
 
 
 def test_bfloat16_autocast_keeps_the_basis_products_and_decoder_output_in_float32():
-    model = trained_stats(make())
+    model = trained_stats(make()).eval()  # no dropout: the two passes differ by precision only
     vertices = motion(2)
     with torch.no_grad():
         coeffs, rebuilt = model.project(vertices), model.reconstruct(model.project(vertices))
@@ -458,3 +458,32 @@ def test_registry_entries_and_recipe():
         assert (recipe["lr"], recipe["batch_size"], recipe["epochs"]) == (1e-4, 32, 100)
         assert learning_rate(recipe["schedule"], recipe["lr"], 0, 100) == pytest.approx(1e-4)
         assert learning_rate(recipe["schedule"], recipe["lr"], 100, 100) == pytest.approx(1e-6)
+
+
+def test_position_dropout_as_in_the_public_code():
+    """Dropout 0.1 after the sinusoidal positions by default: active while training, never at
+    evaluation; 0 turns it off; anything outside [0, 1) is refused by name."""
+    model = trained_stats(make())
+    assert model.transformer.position_dropout == 0.1
+    z = model.standardise_latents(model.encode(model.project(motion(2))))
+    model.train()
+    assert not torch.equal(model.transform_window(z), model.transform_window(z))
+    model.eval()
+    assert torch.equal(model.transform_window(z), model.transform_window(z))
+    off = trained_stats(make(position_dropout=0.0)).train()
+    assert torch.equal(off.transform_window(z), off.transform_window(z))  # dropout 0.0 elsewhere
+    for bad in (1.0, -0.1, "0.1", True):
+        with pytest.raises(SpecTrHuMSError, match=r"position_dropout: a probability in \[0, 1\)"):
+            make(position_dropout=bad)
+
+
+def test_autoencoder_floor_is_the_round_trip_of_the_given_frames():
+    model = trained_stats(make()).eval()
+    frames = motion(3)
+    floor = model.autoencoder_floor(frames)
+    with torch.no_grad():
+        expected = model.reconstruct(model.decode(model.encode(model.project(frames))))
+    torch.testing.assert_close(floor, expected)
+    assert floor.shape == frames.shape
+    with pytest.raises(SpecTrHuMSError, match=r"frames: expected vertices \(B, T, "):
+        model.autoencoder_floor(frames[0])

@@ -30,7 +30,8 @@ DATASETS = {"cmu_mocap": load_cmu, "h36m": load_h36m, "3dpw": load_3dpw}
 SKELETON_OF = {"cmu_mocap": CMU, "h36m": H36M, "3dpw": THREEDPW}
 _REQUIRED = ("name", "dataset", "split", "input_frames", "output_frames", "sampler")
 _OPTIONAL = ("train_split", "data_root", "samplers", "actions", "horizons_ms", "averaging",
-             "description", "representation", "spectral_k", "ground_truth", "ground_truths")
+             "description", "representation", "spectral_k", "ground_truth", "ground_truths",
+             "melv_frames", "weights_from")
 # Mesh datasets: name -> a loader ``(root: Path | None, split) -> MeshDataset`` or the
 # "module:function" that names one (``root``: where the data, or the cache of generated data,
 # lives; None: the loader's default).
@@ -38,6 +39,7 @@ _OPTIONAL = ("train_split", "data_root", "samplers", "actions", "horizons_ms", "
 _ANNY = "zoo.data.anny_motion:cmu_anny_dataset"
 MESH_DATASETS: dict[str, Any] = {
     "cloth": "zoo.data.cloth:cloth_dataset",
+    "cloth_full": "zoo.data.cloth:cloth_full_dataset",
     "cmu_anny_oi": (_ANNY, {"identities": "one", "topology": "full"}),
     "cmu_anny_mi": (_ANNY, {"identities": "many", "topology": "full"}),
     "cmu_anny_oi_low": (_ANNY, {"identities": "one", "topology": "low"}),
@@ -70,6 +72,15 @@ class Benchmark:
     spectral_k: int | None = None
     ground_truth: str = "raw"
     ground_truths: tuple[str, ...] = ()
+    melv_frames: str | None = None  # None: spectral where there is a basis, else raw
+    # A benchmark whose trained models are also scored here (same mesh, basis and frames).
+    weights_from: str | None = None
+
+    @property
+    def melv_on(self) -> str:
+        """Frames MELV measures edges on: ``spectral`` (reference and scored frames
+        reconstructed from the k coefficients, as SpecTrHuMS measures) or ``raw``."""
+        return self.melv_frames or ("spectral" if self.spectral_k else "raw")
 
     @property
     def skeleton(self) -> Skeleton:
@@ -225,8 +236,29 @@ def get_benchmark(name_or_path: str | Path) -> Benchmark:
               if k in _OPTIONAL and k not in ("description", "samplers")}
     if mesh:
         kwargs["representation"] = "mesh"
-    return Benchmark(source=path, samplers=samplers, extra={"description": raw.get("description")},
-                     **{k: raw[k] for k in _REQUIRED}, **kwargs)
+    bench = Benchmark(source=path, samplers=samplers, extra={"description": raw.get("description")},
+                      **{k: raw[k] for k in _REQUIRED}, **kwargs)
+    if bench.weights_from is not None:
+        _check_weights_from(path, bench)
+    return bench
+
+
+def _check_weights_from(path: Path, bench: Benchmark) -> None:
+    """``weights_from: OTHER``: OTHER's trained models are scored here, so what they were built
+    for must be this benchmark's too (the basis itself is compared by hash when they load)."""
+    if not isinstance(bench.weights_from, str) or bench.weights_from == bench.name:
+        raise BenchmarkError(f"{path}: field 'weights_from' must name another benchmark, got "
+                             f"{bench.weights_from!r}")
+    try:
+        other = get_benchmark(bench.weights_from)
+    except BenchmarkError as e:
+        raise BenchmarkError(f"{path}: field 'weights_from': {e}") from None
+    fields = ("representation", "input_frames", "output_frames", "spectral_k")
+    differ = [f"{f} {getattr(bench, f)!r} here, {getattr(other, f)!r} there" for f in fields
+              if getattr(bench, f) != getattr(other, f)]
+    if differ:
+        raise BenchmarkError(f"{path}: field 'weights_from: {other.name}': its models cannot be "
+                             f"scored here ({'; '.join(differ)})")
 
 
 def _check_mesh_fields(path: Path, raw: dict[str, Any]) -> bool:
@@ -237,7 +269,8 @@ def _check_mesh_fields(path: Path, raw: dict[str, Any]) -> bool:
         raise BenchmarkError(f"{path}: field 'representation' must be joints or mesh, got "
                              f"{representation!r}")
     if representation != "mesh":
-        extra = [k for k in ("spectral_k", "ground_truth", "ground_truths") if k in raw]
+        extra = [k for k in ("spectral_k", "ground_truth", "ground_truths", "melv_frames")
+                 if k in raw]
         if extra:
             raise BenchmarkError(f"{path}: field(s) {', '.join(extra)} belong to mesh benchmarks "
                                  f"(representation: mesh)")
@@ -255,4 +288,10 @@ def _check_mesh_fields(path: Path, raw: dict[str, Any]) -> bool:
                                  f"{', '.join(GROUND_TRUTHS)}")
         if gt == "spectral" and k is None:
             raise BenchmarkError(f"{path}: ground truth 'spectral' needs field 'spectral_k'")
+    melv_frames = raw.get("melv_frames")
+    if melv_frames is not None and melv_frames not in GROUND_TRUTHS:
+        raise BenchmarkError(f"{path}: field 'melv_frames' must be one of "
+                             f"{', '.join(GROUND_TRUTHS)}, got {melv_frames!r}")
+    if melv_frames == "spectral" and k is None:
+        raise BenchmarkError(f"{path}: field 'melv_frames: spectral' needs field 'spectral_k'")
     return True

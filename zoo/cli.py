@@ -141,8 +141,14 @@ def cmd_eval(args) -> int:
                          "results/<benchmark>/<sampler>/<model>/ for each")
     from zoo.io import check_output_folder
 
+    if args.melv_frames is not None and bench.representation != "mesh":
+        raise UsageError(f"--melv-frames: benchmark {bench.name} is not a mesh benchmark")
+    # Only a MELV other than the benchmark's default gets a folder of its own.
+    melv = args.melv_frames if args.melv_frames not in (None, getattr(bench, "melv_on", None)) \
+        else None
     for sampler in samplers:  # every output folder checked before any evaluation
-        folder = results_folder(sampler, args.task, args.ground_truth, args.horizon_frames)
+        folder = results_folder(sampler, args.task, args.ground_truth, args.horizon_frames,
+                                melv)
         check_output_folder(Path(args.out) if args.out else
                             RESULTS_DIR / bench.name / folder / name)
     # Under torchrun every process scores its share of the windows and all get the whole
@@ -154,10 +160,11 @@ def cmd_eval(args) -> int:
                           batch_size=args.batch_size,
                           device=args.device, provenance=_jsonable(provenance),
                           task=args.task, horizon=args.horizon_frames,
-                          ground_truth=args.ground_truth)
+                          ground_truth=args.ground_truth, melv_frames=args.melv_frames)
         if not writer:
             continue
-        folder = results_folder(sampler, args.task, args.ground_truth, args.horizon_frames)
+        folder = results_folder(sampler, args.task, args.ground_truth, args.horizon_frames,
+                                melv)
         out = Path(args.out) if args.out else RESULTS_DIR / bench.name / folder / name
         result.write(out)
         _print_average(result.frame, bench.horizons_ms)
@@ -428,6 +435,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--horizon-frames", type=int, help="frames to predict for --task longterm")
     p.add_argument("--ground-truth", choices=["raw", "spectral"],
                    help="mesh benchmarks: score against raw or k-coefficient vertices")
+    p.add_argument("--melv-frames", choices=["raw", "spectral"],
+                   help="mesh benchmarks: MELV on the frames as they are (raw) or on their "
+                        "k-coefficient reconstructions (spectral, the default where the "
+                        "benchmark has a basis; as SpecTrHuMS measures)")
     p.set_defaults(func=cmd_eval)
 
     p = sub.add_parser("leaderboard", help="re-evaluate and rebuild results/<benchmark>/")

@@ -33,14 +33,14 @@ from zoo.io import atomic_path, atomic_write_json, atomic_write_text, canonical_
     code_version, replace_folder
 from zoo.metrics import ACTION_AVERAGING, AVERAGING, FrameErrorMean, cumulative_mean, \
     joint_protocols, skeleton_errors
-from zoo.tables import markdown_tables
+from zoo.tables import FLOOR_SUFFIX, markdown_tables
 
 # Windows per forward pass. Small batches keep a model's intermediate tensors in the CPU's
 # caches: SPGSN evaluates 3.4 times faster per window at 64 than at 1024 (77 against 262 ms a
 # window, one thread).
 EVAL_BATCH = 64
 RESULT_COLUMNS = ["model", "benchmark", "action", "metric", "averaging", "joints", "horizon_ms",
-                  "frame", "value", "windows", "dataset", "split", "sampler", "task",
+                  "frame", "value", "std", "windows", "dataset", "split", "sampler", "task",
                   "input_frames", "output_frames", "fps", "protocol_id"]
 TASKS = {
     "prediction": "the T_out frames after the observed ones",
@@ -269,10 +269,12 @@ def evaluate(model: torch.nn.Module, benchmark: str | Benchmark, *, model_name: 
              device: str | torch.device = "cpu",
              provenance: dict[str, Any] | None = None,
              ground_truth: str | None = None, task: str = "prediction",
-             horizon: int | None = None, view: str = "mesh") -> EvalResult:
+             horizon: int | None = None, view: str = "mesh",
+             melv_frames: str | None = None) -> EvalResult:
     """Evaluate ``model`` under ``benchmark`` with ``sampler`` (default: the benchmark's).
 
-    ``ground_truth`` (mesh benchmarks only): ``raw`` or ``spectral``, default the benchmark's.
+    ``ground_truth`` and ``melv_frames`` (mesh benchmarks only): ``raw`` or ``spectral``,
+    default the benchmark's.
     ``task``: ``prediction``, ``completion`` or ``longterm`` (``horizon`` frames), see ``TASKS``.
     ``view`` (mesh benchmarks only): ``mesh``, or ``joints`` for a skeleton model fed the
     regressed joints (``Benchmark.view_for`` says which a registry entry needs).
@@ -282,10 +284,11 @@ def evaluate(model: torch.nn.Module, benchmark: str | Benchmark, *, model_name: 
         return evaluate_mesh(model, bench, model_name=model_name, sampler=sampler,
                              data_root=data_root, dataset=dataset, batch_size=batch_size,
                              device=device, provenance=provenance, ground_truth=ground_truth,
-                             task=task, horizon=horizon, view=view)
-    if ground_truth is not None:
-        raise EvaluationError(f"benchmark {bench.name}: ground_truth={ground_truth!r} applies to "
-                              f"mesh benchmarks only")
+                             task=task, horizon=horizon, view=view, melv_frames=melv_frames)
+    for name, value in (("ground_truth", ground_truth), ("melv_frames", melv_frames)):
+        if value is not None:
+            raise EvaluationError(f"benchmark {bench.name}: {name}={value!r} applies to mesh "
+                                  f"benchmarks only")
     sampler = check_sampler(sampler or bench.sampler)
     dataset = dataset if dataset is not None else bench.load(data_root)
     skeleton = dataset.skeleton
@@ -355,12 +358,14 @@ def _frame(accumulators: dict[tuple[str, str, str], FrameErrorMean], record: dic
     total = sum(windows_per_action.values())
     rows = []
     for (model, metric, joints), acc in accumulators.items():
+        spread = {averaging: acc.std(averaging) for averaging in ("frame", "cumulative")}
         for action, per_frame in acc.compute().items():
             for averaging, values in (("frame", per_frame), ("cumulative",
                                                              cumulative_mean(per_frame))):
                 for t, value in enumerate(values, start=1):
                     rows.append((model, record["benchmark"], action, metric, averaging,
                                  joints, int(round(t * frame_ms)), t, float(value),
+                                 float(spread[averaging][action][t - 1]),
                                  windows_per_action.get(action, total), record["dataset"],
                                  record["split"], record["sampler"], record["task"],
                                  record["input_frames"],
@@ -375,7 +380,7 @@ MESH_BATCH_VALUES = 2 ** 24  # float32 values of ground-truth windows held at on
 
 def mesh_protocol_record(bench: Benchmark, dataset, sampler: str,
                          windows_per_action: dict[str, int], ground_truth: str,
-                         basis=None) -> dict[str, Any]:
+                         basis=None, melv_frames: str = "raw") -> dict[str, Any]:
     """The protocol record of a mesh evaluation (SPEC sections 2 and 4)."""
     topology = dataset.topology
     joints = {"vertices": f"all {topology.num_vertices} vertices (MELV: their "
@@ -413,14 +418,23 @@ def mesh_protocol_record(bench: Benchmark, dataset, sampler: str,
         "ground_truth": truth,
         "ground_truth_rule": truth_rule,
         "spectral_basis": ({"k": basis.k, "hash": basis.hash, "topology_hash":
-                            basis.topology_hash} if ground_truth == "spectral" else None),
+                            basis.topology_hash} if basis is not None else None),
+        "melv_frames": (f"spectral{basis.k}: the reference frame and the scored frames "
+                        f"reconstructed from their k={basis.k} lowest-frequency Laplacian "
+                        f"coefficients (as SpecTrHuMS measures)" if melv_frames == "spectral"
+                        else "raw: the frames as scored"),
         "joint_protocols": joints,
         "metrics": {
             "melv": "mean over unique edges of |len_t - len_ref| (mm), reference = last observed "
-                    "ground-truth frame; model `ground_truth` rows: the same for the "
-                    "ground-truth future (the data baseline)",
+                    "ground-truth frame, on the frames of `melv_frames`; model `ground_truth` "
+                    "rows: the same for the ground-truth future (the data baseline)",
             "rmse": "sqrt(mean_v |v_hat - v|^2) / |max_v v - min_v v| of the ground-truth frame "
                     "(the zoo's own definition; SpecTrHuMS publishes none)",
+            "std": "standard deviation over windows (ddof 1) of the row's error; `average` "
+                   "rows pool the windows of every action",
+            "floor": f"model `<name>{FLOOR_SUFFIX}` rows: the ground-truth future through the "
+                     f"model's autoencoder alone (it sees the future: a bound, not a "
+                     f"prediction)",
             "mpjpe": "mean L2 error of the regressed joints (mm)",
         },
         "averaging": AVERAGING,
@@ -434,9 +448,18 @@ def evaluate_mesh(model: torch.nn.Module, benchmark: str | Benchmark, *, model_n
                   dataset=None, batch_size: int = EVAL_BATCH, device: str | torch.device = "cpu",
                   provenance: dict[str, Any] | None = None,
                   ground_truth: str | None = None, task: str = "prediction",
-                  horizon: int | None = None, view: str = "mesh") -> EvalResult:
+                  horizon: int | None = None, view: str = "mesh",
+                  melv_frames: str | None = None) -> EvalResult:
     """Evaluate ``model`` on a mesh benchmark: windows ``(B, T_in, V, 3)`` in, ``(B, T_out, V,
     3)`` out, rows for ``melv``, ``rmse`` and (with a joint regressor) ``mpjpe``.
+
+    ``melv_frames``: ``spectral`` (the default of benchmarks with a basis) measures MELV on the
+    k-coefficient reconstruction of the reference frame and of the scored frames, as SpecTrHuMS
+    does; ``raw`` on the frames as they are.
+
+    A model with an ``autoencoder_floor(frames)`` method (SpecTrHuMS) also gets the rows of
+    ``<name>:autoencoder``: the ground-truth future passed through its autoencoder alone, scored
+    like a prediction; what the model could reach if its transformer were perfect.
 
     ``view='joints'``: a skeleton model sees the regressed joints ``(B, T_in, J, 3)`` of the same
     windows and predicts ``(B, T_out, J, 3)``; it gets the ``mpjpe`` rows only, under the very
@@ -453,13 +476,29 @@ def evaluate_mesh(model: torch.nn.Module, benchmark: str | Benchmark, *, model_n
                               f"{ground_truth!r}")
     if view not in ("mesh", "joints"):
         raise EvaluationError(f"view must be mesh or joints, got {view!r}")
+    melv_frames = melv_frames or bench.melv_on
+    if melv_frames not in GROUND_TRUTHS:
+        raise EvaluationError(f"melv_frames must be one of {', '.join(GROUND_TRUTHS)}, got "
+                              f"{melv_frames!r}")
+    if "spectral" in (ground_truth, melv_frames) and bench.spectral_k is None:
+        raise EvaluationError(f"benchmark {bench.name}: spectral ground truth or MELV needs a "
+                              f"spectral basis (field spectral_k in {bench.source})")
     dataset = dataset if dataset is not None else bench.load(data_root)
     topology = dataset.topology
     regressor = dataset.joint_regressor
     if view == "joints" and regressor is None:
         raise EvaluationError(f"benchmark {bench.name}: {dataset.name} has no joint regressor, so "
                               f"skeleton model {model_name!r} cannot be evaluated on it")
-    basis = bench.spectral_basis(dataset) if ground_truth == "spectral" else None
+    basis = bench.spectral_basis(dataset) if "spectral" in (ground_truth, melv_frames) else None
+    truth_basis = basis if ground_truth == "spectral" else None
+
+    def melv_of(frames: torch.Tensor, reference: torch.Tensor) -> torch.Tensor:
+        if melv_frames == "spectral":  # both reconstructed from k coefficients (SpecTrHuMS)
+            frames, reference = (basis.reconstruct(basis.project(x.double())).float()
+                                 for x in (frames, reference))
+        return melv(frames, reference, edges)
+
+    floor = getattr(model, "autoencoder_floor", None) if view == "mesh" else None
     t_in = bench.input_frames
     t_out = check_task(task, horizon, bench.output_frames)
     sequences = dataset.sequences
@@ -483,8 +522,8 @@ def evaluate_mesh(model: torch.nn.Module, benchmark: str | Benchmark, *, model_n
         for start in _my_batches(len(index), batch, dist_info):
             rows = slice(start, start + batch)
             windows = torch.from_numpy(gather_windows(vertices, index[rows], t_in + t_out))
-            if basis is not None:
-                windows = basis.reconstruct(basis.project(windows.double())).float()
+            if truth_basis is not None:
+                windows = truth_basis.reconstruct(truth_basis.project(windows.double())).float()
             if view == "joints":
                 joints = regress_joints(windows, regressor)
                 pred = predict(model, joints[:, :t_in].to(device), task, t_out,
@@ -498,20 +537,27 @@ def evaluate_mesh(model: torch.nn.Module, benchmark: str | Benchmark, *, model_n
                            windows[:, -1].to(device))
             pred = _checked(pred, (len(windows), *expected_tail), model_name, start)
             target, reference = windows[:, t_in:], windows[:, t_in - 1]
-            errors = {(model_name, "melv", "vertices"): melv(pred, reference, edges),
-                      (model_name, "rmse", "vertices"): vertex_rmse(pred, target)}
-            if regressor is not None:
-                errors[(model_name, "mpjpe", f"regressor{regressor.shape[0]}")] = \
-                    regressed_mpjpe(pred, target, regressor)
+            scored_frames = {model_name: pred}
+            if floor is not None:
+                rebuilt = floor(target.to(device))
+                scored_frames[model_name + FLOOR_SUFFIX] = _checked(
+                    rebuilt, (len(windows), *expected_tail), model_name + FLOOR_SUFFIX, start)
+            errors = {}
+            for name, frames in scored_frames.items():
+                errors[(name, "melv", "vertices")] = melv_of(frames, reference)
+                errors[(name, "rmse", "vertices")] = vertex_rmse(frames, target)
+                if regressor is not None:
+                    errors[(name, "mpjpe", f"regressor{regressor.shape[0]}")] = \
+                        regressed_mpjpe(frames, target, regressor)
             # the data's own MELV, once per mesh evaluation: the ground-truth rows
-            errors[("ground_truth", "melv", "vertices")] = melv(target, reference, edges)
+            errors[("ground_truth", "melv", "vertices")] = melv_of(target, reference)
             scored[start] = {key: _float64(value) for key, value in errors.items()}
     accumulators, log = _accumulate(gather_shares(scored, dist_info), actions)
 
     windows_per_action = {a: int((actions == a).sum()) for a in dataset.actions_present
                           if (actions == a).any()}
     record = {**mesh_protocol_record(bench, dataset, sampler, windows_per_action, ground_truth,
-                                     basis), **_task_record(task, t_out)}
+                                     basis, melv_frames), **_task_record(task, t_out)}
     model_basis = getattr(model, "basis", None)
     _seal(record, model_name, device, {
         **({"model_basis": {"k": model_basis.k, "hash": model_basis.hash}}

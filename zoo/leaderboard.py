@@ -244,11 +244,13 @@ def write_index(out_root: str | Path) -> Path:
 
 
 def results_folder(sampler: str, task: str = "prediction", truth: str | None = None,
-                   horizon: int | None = None) -> str:
-    """The folder under ``results/<benchmark>/`` of one sampler, task and ground truth:
-    ``all``, ``all-completion``, ``all-longterm50``, ``all-gt_spectral``, ..."""
+                   horizon: int | None = None, melv: str | None = None) -> str:
+    """The folder under ``results/<benchmark>/`` of one sampler, task, ground truth and (when
+    not the benchmark's default) MELV frames: ``all``, ``all-completion``, ``all-longterm50``,
+    ``all-gt_spectral``, ``all-melv_raw``, ..."""
     folder = sampler if task == "prediction" else f"{sampler}-{task}{horizon or ''}"
-    return folder if truth in (None, "raw") else f"{folder}-gt_{truth}"
+    folder = folder if truth in (None, "raw") else f"{folder}-gt_{truth}"
+    return folder if melv is None else f"{folder}-melv_{melv}"
 
 
 def _regenerate_one(bench, registry, dataset, sampler, truth, folder, out_root, checkpoints,
@@ -275,7 +277,7 @@ def _table(bench, registry, dataset, sampler, truth, folder, out_root, checkpoin
         names += [n for n in registry.list_models("joints") if n not in names]
     names = [n for n in names if registry.get(n).task == task]
     if task != "prediction" and not any(registry.get(n).trainable and _has_run(
-            out_root / bench.name / folder / n, checkpoints, bench.name, n, weights)
+            out_root / bench.name / folder / n, checkpoints, bench, n, weights)
             for n in names):
         return None  # a table of baselines alone says nothing about this task
     for name in names:
@@ -284,7 +286,7 @@ def _table(bench, registry, dataset, sampler, truth, folder, out_root, checkpoin
         for label, ckpt in _checkpoints_of(name, entry, bench, checkpoints):
             run_dir = out_root / bench.name / folder / label
             provenance = {}
-            shipped = _shipped(weights, bench.name, label) if entry.trainable else None
+            shipped = _shipped(weights, bench, label) if entry.trainable else None
             if shipped is not None:
                 from zoo.weights import load_weights, weights_provenance
 
@@ -391,15 +393,23 @@ def _check_table(results: list, folder: Path, check: CheckReport) -> None:
         check.problems.append(f"{folder}/results.csv: {where}: " + ", ".join(
             f"{k}={getattr(row, k)}" for k in KEY_COLUMNS))
     matched = both[both["side"] == "both"]
-    difference = (matched["value"] - matched["value_committed"]).abs()
-    relative = difference / matched["value_committed"].abs().clip(lower=1e-12)
-    if len(matched):
-        check.max_difference = max(check.max_difference, float(difference.max()))
-    for row, rel in zip(matched[relative > check.tolerance].itertuples(),
-                        relative[relative > check.tolerance]):
-        check.problems.append(f"{folder}/results.csv: " + ", ".join(
-            f"{k}={getattr(row, k)}" for k in KEY_COLUMNS) + f": committed "
-            f"{row.value_committed!r}, recomputed {row.value!r} (relative {rel:.2g})")
+    for column in ("value", "std"):  # the mean and its standard deviation over windows
+        if f"{column}_committed" not in matched:
+            check.problems.append(f"{folder}/results.csv: no column {column!r} (written by an "
+                                  f"older zoo); regenerate the table")
+            continue
+        fresh_values, old_values = matched[column], matched[f"{column}_committed"]
+        difference = (fresh_values - old_values).abs()
+        relative = difference / old_values.abs().clip(lower=1e-12)
+        # a NaN (the spread of a single window) matches only a NaN
+        differs = (relative > check.tolerance) | (fresh_values.isna() != old_values.isna())
+        if len(matched) and column == "value":
+            check.max_difference = max(check.max_difference, float(difference.max()))
+        for row, rel in zip(matched[differs].itertuples(), relative[differs]):
+            check.problems.append(f"{folder}/results.csv: " + ", ".join(
+                f"{k}={getattr(row, k)}" for k in KEY_COLUMNS) + f": {column} committed "
+                f"{getattr(row, column + '_committed')!r}, recomputed {getattr(row, column)!r} "
+                f"(relative {rel:.2g})")
     for row in matched[matched["protocol_id"] != matched["protocol_id_committed"]] \
             .drop_duplicates("model").itertuples():
         check.problems.append(f"{folder}/results.csv: {row.model}: protocol "
@@ -426,21 +436,25 @@ def _check_table(results: list, folder: Path, check: CheckReport) -> None:
                                       f"(relative up to {gap.max():.2g})")
 
 
-def _has_run(run_dir: Path, checkpoints, bench_name: str, name: str, weights=None) -> bool:
+def _has_run(run_dir: Path, checkpoints, bench, name: str, weights=None) -> bool:
     """Whether a trained model has shipped weights, a checkpoint or a stored result to show."""
     return (run_dir / "results.csv").is_file() or bool(
-        checkpoints and (Path(checkpoints) / bench_name / name / "best.pt").is_file()) or \
-        _shipped(weights, bench_name, name) is not None
+        checkpoints and (Path(checkpoints) / bench.name / name / "best.pt").is_file()) or \
+        _shipped(weights, bench, name) is not None
 
 
-def _shipped(weights, bench_name: str, label: str) -> Path | None:
-    """The shipped weights of ``label`` on a benchmark, if any."""
+def _shipped(weights, bench, label: str) -> Path | None:
+    """The shipped weights of ``label`` on a benchmark, if any: its own, else those of the
+    benchmark it takes weights from (``weights_from``)."""
     if not weights:
         return None
     from zoo.weights import weights_file
 
-    path = weights_file(bench_name, label, weights)
-    return path if path.is_file() else None
+    for name in (bench.name, bench.weights_from):
+        path = weights_file(name, label, weights) if name else None
+        if path is not None and path.is_file():
+            return path
+    return None
 
 
 def _checkpoints_of(name, entry, bench, checkpoints):

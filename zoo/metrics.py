@@ -75,13 +75,16 @@ def skeleton_errors(pred_used: torch.Tensor, target: torch.Tensor,
 # ---- accumulation ------------------------------------------------------------------------------
 
 class FrameErrorMean:
-    """Running mean over windows of per-frame errors, kept per group (action).
+    """Running mean and standard deviation over windows of per-frame errors, per group (action).
 
-    Sums in float64 so that thousands of windows add up without drift.
+    Sums in float64 so that thousands of windows add up without drift. The standard deviation is
+    over windows (``ddof=1``), of each window's error at frame t (``frame`` averaging) or of its
+    mean over frames 1..t (``cumulative``); for the ``average`` group it pools every window.
     """
 
     def __init__(self) -> None:
         self.sums: dict[str, np.ndarray] = {}
+        self.squares: dict[str, dict[str, np.ndarray]] = {}
         self.counts: dict[str, int] = defaultdict(int)
 
     def update(self, errors: torch.Tensor | np.ndarray, groups: Sequence[str]) -> None:
@@ -93,10 +96,15 @@ class FrameErrorMean:
         groups = np.asarray(groups)
         for g in np.unique(groups):
             rows = errors[groups == g]
+            squares = {"frame": np.square(rows).sum(axis=0),
+                       "cumulative": np.square(cumulative_mean(rows, axis=1)).sum(axis=0)}
             if g in self.sums:
                 self.sums[g] += rows.sum(axis=0)
+                for averaging, value in squares.items():
+                    self.squares[g][averaging] += value
             else:
                 self.sums[g] = rows.sum(axis=0)
+                self.squares[g] = squares
             self.counts[g] += len(rows)
 
     def compute(self) -> dict[str, np.ndarray]:
@@ -105,6 +113,29 @@ class FrameErrorMean:
         if means:
             means["average"] = np.mean(np.stack(list(means.values())), axis=0)
         return means
+
+    def std(self, averaging: str) -> dict[str, np.ndarray]:
+        """Per-group standard deviation over windows ``(T,)`` under ``averaging`` (NaN for a
+        group of one window); ``average`` pools the windows of every group."""
+        if averaging not in AVERAGING:
+            raise ValueError(f"averaging must be one of {', '.join(AVERAGING)}, got "
+                             f"{averaging!r}")
+        def spread(total, squares, count):
+            if count < 2:
+                return np.full_like(total, np.nan)
+            mean = total / count
+            if averaging == "cumulative":
+                mean = cumulative_mean(mean)
+            with np.errstate(invalid="ignore"):  # an infinite error has no finite spread
+                return np.sqrt(np.maximum(squares - count * mean ** 2, 0.0) / (count - 1))
+
+        out = {g: spread(self.sums[g], self.squares[g][averaging], self.counts[g])
+               for g in self.sums}
+        if out:
+            out["average"] = spread(sum(self.sums.values()),
+                                    sum(sq[averaging] for sq in self.squares.values()),
+                                    sum(self.counts.values()))
+        return out
 
 
 # ---- mesh metrics (SPEC section 4) -------------------------------------------------------------

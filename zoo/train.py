@@ -266,6 +266,11 @@ def trained_model(meta: dict[str, Any], state_dict: dict[str, torch.Tensor], kin
     expected = model_protocol(bench, view)
     diff = [f"{k} ({kind} {meta['protocol'].get(k)!r}, benchmark {v!r})"
             for k, v in expected.items() if meta["protocol"].get(k) != v]
+    if diff and bench.weights_from and meta["protocol"].get("benchmark") == bench.weights_from:
+        # trained on the benchmark this one takes weights from: the same data, other sizes
+        source_protocol = model_protocol(get_benchmark(bench.weights_from), view)
+        diff = [f"{k} ({kind} {meta['protocol'].get(k)!r}, benchmark {bench.weights_from} "
+                f"{v!r})" for k, v in source_protocol.items() if meta["protocol"].get(k) != v]
     if diff:
         raise CheckpointError(f"{source} was trained for another protocol than benchmark "
                               f"{bench.name!r}: " + "; ".join(diff))

@@ -171,12 +171,21 @@ class MeshDataset:
 
     # ---- on-disk format: one folder, arrays in an .npz, metadata in a JSON ----------------------
 
-    def save(self, folder: str | Path) -> Path:
-        """Write ``meshes.npz`` and ``dataset.json`` into ``folder``, each atomically."""
+    def save(self, folder: str | Path, step_mm: float | None = None) -> Path:
+        """Write ``meshes.npz`` and ``dataset.json`` into ``folder``, each atomically.
+
+        ``step_mm``: store vertices as int16 multiples of ``step_mm`` around a per-sequence,
+        per-axis origin (half the bytes of float32); the vertices must already lie on that grid
+        (:func:`quantise_vertices`), so what is loaded equals what was saved."""
         folder = Path(folder)
         arrays = {"faces": self.topology.faces, "num_vertices": np.int64(self.topology.num_vertices)}
         for i, s in enumerate(self.sequences):
-            arrays[f"seq{i}"] = s.vertices.astype(np.float32)
+            if step_mm is None:
+                arrays[f"seq{i}"] = s.vertices.astype(np.float32)
+                continue
+            codes, origin = _int16_codes(s.vertices, step_mm, f"{self.name}/{s.name}")
+            arrays.update({f"seq{i}": codes, f"seq{i}_origin": origin,
+                           f"seq{i}_step": np.float64(step_mm)})
         if self.joint_regressor is not None:
             r = self.joint_regressor.tocoo()
             arrays.update(reg_row=r.row, reg_col=r.col, reg_val=r.data,
@@ -216,8 +225,9 @@ class MeshDataset:
             if topology.hash != meta["topology_hash"]:
                 raise MeshError(f"{npz_path}: topology hash {topology.hash[:12]} differs from "
                                 f"the recorded {meta['topology_hash'][:12]}")
-            sequences = [MeshSequence(name=m["name"], action=m["action"], vertices=z[f"seq{i}"],
-                                      fps=m["fps"], identity=m["identity"], meta=m["meta"])
+            sequences = [MeshSequence(name=m["name"], action=m["action"],
+                                      vertices=_stored_vertices(z, f"seq{i}"), fps=m["fps"],
+                                      identity=m["identity"], meta=m["meta"])
                          for i, m in enumerate(meta["sequences"])]
             regressor = None
             if "reg_row" in z:
@@ -226,6 +236,42 @@ class MeshDataset:
         return cls(name=meta["name"], split=meta["split"], topology=topology,
                    sequences=sequences, recipe=meta["recipe"], joint_regressor=regressor,
                    joint_names=meta.get("joint_names"))
+
+
+def quantise_vertices(vertices: np.ndarray, step_mm: float) -> np.ndarray:
+    """``vertices (T, V, 3)`` rounded to the int16 grid of :meth:`MeshDataset.save`: multiples
+    of ``step_mm`` from the middle of each axis' range, as float32."""
+    origin = _grid_origin(vertices, step_mm)
+    codes = np.rint((vertices.astype(np.float64) - origin) / step_mm)
+    return (codes * step_mm + origin).astype(np.float32)
+
+
+def _grid_origin(vertices: np.ndarray, step_mm: float) -> np.ndarray:
+    flat = vertices.reshape(-1, 3).astype(np.float64)
+    middle = (flat.max(axis=0) + flat.min(axis=0)) / 2
+    return np.rint(middle / step_mm) * step_mm  # on the grid itself: re-quantising is exact
+
+
+def _int16_codes(vertices: np.ndarray, step_mm: float, what: str) -> tuple[np.ndarray, np.ndarray]:
+    origin = _grid_origin(vertices, step_mm)
+    codes = (vertices.astype(np.float64) - origin) / step_mm
+    if np.abs(codes).max() > np.iinfo(np.int16).max:
+        span = np.ptp(vertices.reshape(-1, 3), axis=0).max()
+        raise MeshError(f"{what}: spans {span:.0f} mm, more than int16 steps of {step_mm:g} mm "
+                        f"can hold ({2 * np.iinfo(np.int16).max * step_mm:.0f} mm); store it as "
+                        f"float32 or with a larger step")
+    rounded = np.rint(codes)
+    if np.abs(codes - rounded).max() > 0.05:  # float32 rounding of mm values: < 0.01 steps
+        raise MeshError(f"{what}: vertices are not on the {step_mm:g} mm grid; quantise them "
+                        f"first (zoo.data.mesh.quantise_vertices) so the saved data is the data")
+    return rounded.astype(np.int16), origin
+
+
+def _stored_vertices(z, key: str) -> np.ndarray:
+    if f"{key}_step" not in z:
+        return z[key]
+    step, origin = float(z[f"{key}_step"]), z[f"{key}_origin"]
+    return (z[key].astype(np.float64) * step + origin).astype(np.float32)
 
 
 @dataclass

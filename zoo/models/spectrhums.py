@@ -259,11 +259,13 @@ class EncoderLayer(nn.Module):
 
 
 class LatentTransformer(nn.Module):
-    """Linear, sinusoidal positions, post-norm transformer encoder layers, Linear."""
+    """Linear, sinusoidal positions, dropout (``position_dropout``, 0.1 in the public code),
+    post-norm transformer encoder layers, Linear."""
 
     def __init__(self, latent: int, d_model: int, layers: int, heads: int, ff: int,
-                 dropout: float, window: int) -> None:
+                 dropout: float, window: int, position_dropout: float = 0.0) -> None:
         super().__init__()
+        self.position_dropout = position_dropout
         self.inp = nn.Linear(latent, d_model)
         self.layers = nn.ModuleList(EncoderLayer(d_model, heads, ff, dropout)
                                     for _ in range(layers))
@@ -271,7 +273,8 @@ class LatentTransformer(nn.Module):
         self.register_buffer("positions", sinusoidal_positions(window, d_model), persistent=False)
 
     def forward(self, x: Tensor) -> Tensor:
-        h = self.inp(x) + self.positions[: x.shape[1]]
+        h = F.dropout(self.inp(x) + self.positions[: x.shape[1]], self.position_dropout,
+                      self.training)
         for layer in self.layers:
             h = layer(h)
         return self.out(h)
@@ -302,12 +305,13 @@ class SpecTrHuMS(nn.Module):
                  task: str = "prediction", latent: int = 256,
                  channels: Sequence[int] = (32, 64), pooling: Sequence[int] = (64, 32),
                  kernel_size: int = 3, d_model: int = 256, layers: int = 6, heads: int = 4,
-                 ff: int = 1024, dropout: float = 0.0, autoencoder_epochs: int = 2,
-                 static_frames: int = 1, loss_unit_mm: float = 1000.0) -> None:
+                 ff: int = 1024, dropout: float = 0.0, position_dropout: float = 0.1,
+                 autoencoder_epochs: int = 2, static_frames: int = 1,
+                 loss_unit_mm: float = 1000.0) -> None:
         super().__init__()
         _check_settings(input_frames, output_frames, num_points, task, latent, channels, pooling,
-                        kernel_size, d_model, layers, heads, ff, dropout, autoencoder_epochs,
-                        static_frames, loss_unit_mm)
+                        kernel_size, d_model, layers, heads, ff, dropout, position_dropout,
+                        autoencoder_epochs, static_frames, loss_unit_mm)
         phi = _basis_vectors(basis, num_points)
         self.input_frames, self.output_frames = int(input_frames), int(output_frames)
         self.window = self.input_frames + self.output_frames
@@ -325,7 +329,7 @@ class SpecTrHuMS(nn.Module):
 
         self.autoencoder = SpectralAutoencoder(self.k, channels, pooling, kernel_size, latent)
         self.transformer = LatentTransformer(latent, d_model, layers, heads, ff, dropout,
-                                             self.window)
+                                             self.window, position_dropout)
         for m in self.modules():  # the published initialisation: xavier, zero bias
             if isinstance(m, (nn.Linear, nn.Conv1d)):
                 nn.init.xavier_uniform_(m.weight)
@@ -464,6 +468,14 @@ class SpecTrHuMS(nn.Module):
         final_coeffs = None if final is None else coeffs[:, -1]
         return self.reconstruct(self.predict_coefficients(coeffs[:, : self.input_frames],
                                                           final_coeffs))
+
+    @torch.no_grad()
+    def autoencoder_floor(self, frames: Tensor) -> Tensor:
+        """``frames (B, T, V, 3)`` in mm through the autoencoder alone: projected, encoded,
+        decoded and reconstructed. Scored against the ground truth, it is the error the model
+        would keep with a perfect transformer (the evaluator's ``<name>:autoencoder`` rows)."""
+        self._check_vertices(frames, "frames", None)
+        return self.reconstruct(self.decode(self.encode(self.project(frames))))
 
     @torch.no_grad()
     def rollout(self, history: Tensor, frames: int) -> Tensor:
@@ -636,8 +648,8 @@ def _basis_vectors(basis: Any, num_points: int) -> np.ndarray:
 
 
 def _check_settings(input_frames, output_frames, num_points, task, latent, channels, pooling,
-                    kernel_size, d_model, layers, heads, ff, dropout, autoencoder_epochs,
-                    static_frames, loss_unit_mm) -> None:
+                    kernel_size, d_model, layers, heads, ff, dropout, position_dropout,
+                    autoencoder_epochs, static_frames, loss_unit_mm) -> None:
     def positive(name, value):
         if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
             raise SpecTrHuMSError(f"{name}: a positive integer, got {value!r}")
@@ -662,8 +674,9 @@ def _check_settings(input_frames, output_frames, num_points, task, latent, chann
     if d_model % 2 or d_model % heads:
         raise SpecTrHuMSError(f"d_model={d_model}: must be even (sinusoidal positions) and "
                               f"divisible by heads={heads}")
-    if not 0 <= dropout < 1:
-        raise SpecTrHuMSError(f"dropout: in [0, 1), got {dropout}")
+    for name, value in (("dropout", dropout), ("position_dropout", position_dropout)):
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 <= value < 1:
+            raise SpecTrHuMSError(f"{name}: a probability in [0, 1), got {value!r}")
     if isinstance(autoencoder_epochs, bool) or not isinstance(autoencoder_epochs, int) \
             or autoencoder_epochs < 0:
         raise SpecTrHuMSError(f"autoencoder_epochs: a non-negative integer, got "
