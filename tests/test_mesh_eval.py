@@ -359,6 +359,7 @@ def test_autoencoder_floor_rows_beside_the_model(toy_bench, tmp_path):
     floor_line = next(line for line in headline.splitlines() if line.startswith("| blurred:"))
     model_line = next(line for line in headline.splitlines() if line.startswith("| blurred "))
     assert "**" not in floor_line and "**" in model_line
+    assert "±" in floor_line  # its own interval, from its per-window errors
     assert "`blurred:autoencoder`: the ground-truth future through the model's autoencoder" \
         in headline
     plain = evaluate(RepeatLast(2, 3, 4), bench, model_name="repeat_last")

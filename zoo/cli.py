@@ -286,6 +286,10 @@ def cmd_render(args) -> int:
         from zoo.train import read_checkpoint
 
         args.benchmark = read_checkpoint(args.checkpoint)["protocol"]["benchmark"]
+    if args.benchmark is None and args.weights:
+        from zoo.weights import read_weights
+
+        args.benchmark = read_weights(args.weights)[1]["protocol"]["benchmark"]
     bench = get_benchmark(args.benchmark or "cloth")
     if bench.representation != "mesh":
         raise UsageError(f"zoo render draws meshes; benchmark {bench.name!r} is a skeleton one")
@@ -482,7 +486,9 @@ def build_parser() -> argparse.ArgumentParser:
     common(p)
     p.add_argument("--model")
     p.add_argument("--checkpoint")
-    p.add_argument("--benchmark", help="mesh benchmark (default: the checkpoint's, else cloth)")
+    p.add_argument("--weights", help="shipped weights (weights/<benchmark>/<label>.safetensors)")
+    p.add_argument("--benchmark", help="mesh benchmark (default: the checkpoint's or weights', "
+                                       "else cloth)")
     p.add_argument("--windows", type=int, nargs="+", default=[0, 1, 2])
     p.add_argument("--set", action="append", metavar="KEY=VALUE")
     p.add_argument("--task", default="prediction", choices=["prediction", "completion",

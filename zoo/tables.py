@@ -186,10 +186,11 @@ def headline_table(results: list, horizons_ms: Iterable[int] | None = None,
     values = rows.pivot_table(index="model", columns="horizon_ms", values="value")[horizons]
     frame_of = dict(zip(rows["horizon_ms"], rows["frame"]))
     columns = [int(frame_of[h]) - 1 for h in horizons]  # 0-based predicted frame of each
-    errors = {str(r.frame["model"].iloc[0]): r for r in results if r.windows is not None
-              and (str(r.frame["model"].iloc[0]), metric, joints) in r.windows.errors}
+    # every row of the headline that has per-window errors (a model, its autoencoder floor)
     errors = {m: r.windows.get(m, metric, joints)[:, columns].astype(np.float64)
-              for m, r in errors.items()}
+              for r in results if r.windows is not None
+              for (m, metric_, joints_) in r.windows.errors
+              if metric_ == metric and joints_ == joints and m in values.index}
     windows = next((r.windows for r in results if r.windows is not None), None)
     block = block_frames_default(windows) if windows is not None else None
 
