@@ -40,7 +40,10 @@ def test_exported_weights_are_the_checkpoint_s_and_carry_its_record(trained, tmp
     assert record["training_data"]["files"][0]["sha256"]
     assert record["hparams"] == ckpt["hparams"] and record["protocol"] == ckpt["protocol"]
     assert len(record["history"]) == 2
-    assert export_weights(trained / "best.pt", root=tmp_path / "weights").stem == "tiny"
+    best = export_weights(trained / "best.pt", root=tmp_path / "weights")
+    assert best.stem == "tiny"
+    best_epoch = read_checkpoint(trained / "best.pt")["training"]["best"]["epoch"]
+    assert [h["epoch"] for h in read_weights(best)[1]["history"]] == list(range(1, best_epoch + 1))
 
 
 def test_a_changed_weights_file_is_refused_naming_it(trained, tmp_path):

@@ -475,7 +475,10 @@ def train(model_name: str, benchmark: str | Benchmark, *, registry: Registry | N
         if dist_info.rank == 0:
             if val < best["val_mpjpe"]:
                 best = {"val_mpjpe": val, "epoch": epoch + 1}
+                # the curve up to this epoch travels too: a run whose best is its last
+                # epoch ships one file, and its training plot with it
                 _save(best_path, {**meta, "state_dict": model.state_dict(),
+                                  "history": list(history),
                                   "training": _training_summary(recipe, history, best, device)})
             _save(last_path, {**meta, "state_dict": model.state_dict(),
                               "optimizer": optimizer.state_dict(), "rng": torch.get_rng_state(),
