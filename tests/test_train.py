@@ -230,3 +230,35 @@ def test_recipe_values_are_checked_before_training(setup, tmp_path, overrides, m
 def test_zero_epochs_is_an_error_not_the_full_recipe(setup, tmp_path):
     with pytest.raises(TrainingError, match="epochs must be a positive integer, got 0"):
         run(setup, tmp_path / "zero", epochs=0)
+
+
+def test_init_from_starts_a_new_stage_from_those_weights_and_records_them(setup, tmp_path):
+    first = run(setup, tmp_path / "a", epochs=1)
+    source = read_checkpoint(first)
+    # lr 0: the new stage changes nothing, so its weights are exactly the source's
+    still = read_checkpoint(run(setup, tmp_path / "b", epochs=1, init_from=first,
+                                train_overrides={"lr": 0.0}))
+    for name, tensor in source["state_dict"].items():
+        assert torch.equal(still["state_dict"][name], tensor), name
+    record = still["init_from"]
+    assert record["path"].endswith("a/best.pt") and len(record["sha256"]) == 64
+    assert record["training"]["epochs_run"] == 1 and record["recipe"]["lr"] == 0.001
+    # a stage of a stage keeps the whole chain
+    third = read_checkpoint(run(setup, tmp_path / "c", epochs=1, init_from=tmp_path / "b" / "last.pt"))
+    assert third["init_from"]["init_from"]["sha256"] == record["sha256"]
+    assert digest(tmp_path / "c" / "last.pt") != digest(first)
+
+
+def test_init_from_refusals_name_the_file(setup, tmp_path):
+    first = run(setup, tmp_path / "a", epochs=1)
+    with pytest.raises(TrainingError, match=r"--init-from .*missing\.pt: no such file"):
+        run(setup, tmp_path / "b", init_from=tmp_path / "missing.pt")
+    with pytest.raises(TrainingError, match=r"--init-from .*tiny\.safetensors: expected a "
+                                           r"training checkpoint"):
+        run(setup, tmp_path / "b", init_from=tmp_path / "tiny.safetensors")
+    with pytest.raises(TrainingError, match=r"would overwrite it; give the new stage its own"):
+        run(setup, tmp_path / "a", init_from=first)
+    with pytest.raises(TrainingError, match=r"not both"):
+        run(setup, tmp_path / "b", init_from=first, resume=True)
+    with pytest.raises(TrainingError, match=r"do not fit tiny with these hyper-parameters"):
+        run(setup, tmp_path / "b", init_from=first, overrides={"hidden": 8})

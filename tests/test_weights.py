@@ -39,7 +39,7 @@ def test_exported_weights_are_the_checkpoint_s_and_carry_its_record(trained, tmp
     assert record["recipe"]["epochs"] == 2 and record["seed"] == 0
     assert record["training_data"]["files"][0]["sha256"]
     assert record["hparams"] == ckpt["hparams"] and record["protocol"] == ckpt["protocol"]
-    assert len(record["history"]) == 2
+    assert len(record["history"]) == 2 and record["init_from"] is None  # a first stage
     best = export_weights(trained / "best.pt", root=tmp_path / "weights")
     assert best.stem == "tiny"
     best_epoch = read_checkpoint(trained / "best.pt")["training"]["best"]["epoch"]

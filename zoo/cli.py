@@ -328,7 +328,8 @@ def cmd_train(args) -> int:
     train(args.model, args.benchmark, registry=registry, epochs=args.epochs, out_dir=args.out,
           data_root=args.data_root, overrides=parse_overrides(args.set),
           train_overrides=parse_overrides(args.train_set), resume=args.resume, seed=args.seed,
-          device=args.device, max_batches=args.max_batches, progress=not args.no_progress)
+          device=args.device, max_batches=args.max_batches, progress=not args.no_progress,
+          init_from=args.init_from)
     return 0
 
 
@@ -529,6 +530,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--train-set", action="append", metavar="KEY=VALUE",
                    help="training-recipe override (lr, batch_size, ...)")
     p.add_argument("--resume", action="store_true", help="continue from the run's last state")
+    p.add_argument("--init-from", metavar="PATH",
+                   help="start from this checkpoint (best.pt or last.pt of the same model and "
+                        "benchmark) with a fresh optimiser and schedule: a new stage of "
+                        "training, recorded with the source's budget")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--max-batches", type=int, help="cap batches per epoch (quick runs)")
     p.add_argument("--no-progress", action="store_true")

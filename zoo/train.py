@@ -35,7 +35,7 @@ from zoo.data.windows import gather_windows, window_sampler
 from zoo.distributed import DistInfo, init_distributed
 from zoo.errors import ZooError
 from zoo.evaluate import EVAL_BATCH, predict
-from zoo.io import atomic_path, code_version, repo_relative
+from zoo.io import atomic_path, code_version, repo_relative, sha256_file
 from zoo.metrics import mpjpe
 from zoo.paths import REPO_ROOT
 from zoo.registry import Registry, load_registry
@@ -335,8 +335,12 @@ def train(model_name: str, benchmark: str | Benchmark, *, registry: Registry | N
           data_root: str | Path | None = None, overrides: dict[str, Any] | None = None,
           train_overrides: dict[str, Any] | None = None, resume: bool = False, seed: int = 0,
           device: str = "cpu", max_batches: int | None = None, progress: bool = True,
-          stop_after_epoch: int | None = None) -> Path:
+          stop_after_epoch: int | None = None, init_from: str | Path | None = None) -> Path:
     """Train ``model_name`` on ``benchmark``'s training split; returns the best checkpoint path.
+
+    ``init_from`` (a checkpoint of the same model and protocol) starts from
+    those weights with a fresh optimiser and schedule: a further stage of training (e.g. a longer
+    autoencoder phase, then the joint one), recorded with the source's own budget.
 
     ``stop_after_epoch`` ends the run early as if interrupted (tests of ``resume``).
     """
@@ -355,7 +359,6 @@ def train(model_name: str, benchmark: str | Benchmark, *, registry: Registry | N
     recipe = training_recipe(entry.train, {**(train_overrides or {}),
                                            **({"epochs": epochs} if epochs is not None else {})})
     dist_info = init_distributed(device)
-    out_dir = Path(out_dir) if out_dir else REPO_ROOT / "checkpoints" / bench.name / model_name
     view = bench.view_for(entry.representation)
     dataset = bench.load(data_root, split=bench.train_split)
     if bench.representation == "mesh" and view == "joints":
@@ -363,11 +366,27 @@ def train(model_name: str, benchmark: str | Benchmark, *, registry: Registry | N
     hparams = registry.model_args(model_name, **{**bench.model_inputs(entry.context, data_root,
                                                                       dataset, view),
                                                  **(overrides or {})})
+    if init_from is not None and resume:
+        raise TrainingError("give --init-from (a new stage from other weights) or --resume (this "
+                            "run's last state), not both")
+    out_dir = Path(out_dir) if out_dir else REPO_ROOT / "checkpoints" / bench.name / model_name
+    if init_from is not None and Path(init_from).resolve() in {
+            (out_dir / f).resolve() for f in ("best.pt", "last.pt")}:
+        raise TrainingError(f"--init-from {init_from}: this run would overwrite it; give the new "
+                            f"stage its own --out")
+    initial = initial_weights(init_from, model_name, bench, registry, data_root, dataset) \
+        if init_from is not None else None
 
     torch.manual_seed(seed)
     np.random.seed(seed)
     torch.use_deterministic_algorithms(True, warn_only=True)
     model = registry.create_model(model_name, **hparams).to(device)
+    if initial is not None:
+        try:
+            model.load_state_dict(initial[0])
+        except RuntimeError as e:
+            raise TrainingError(f"--init-from {init_from}: its weights do not fit {model_name} "
+                                f"with these hyper-parameters: {e}") from None
     optimizer = torch.optim.Adam(model.parameters(), lr=recipe["lr"],
                                  weight_decay=recipe["weight_decay"])
     t_in, t_out = bench.input_frames, bench.output_frames
@@ -388,9 +407,11 @@ def train(model_name: str, benchmark: str | Benchmark, *, registry: Registry | N
 
     first_epoch, best, history = 0, {"val_mpjpe": math.inf, "epoch": -1}, []
     recipe_changes: list[dict[str, Any]] = []
+    init_record = initial[1] if initial is not None else None
     last_path, best_path = out_dir / "last.pt", out_dir / "best.pt"
     if resume:
         state = read_checkpoint(last_path)
+        init_record = state.get("init_from")
         if state["model"] != model_name or state["hparams"] != _stored_hparams(hparams)[0]:
             raise CheckpointError(f"{last_path}: cannot resume: it holds {state['model']!r} with "
                                   f"other hyper-parameters")
@@ -414,7 +435,8 @@ def train(model_name: str, benchmark: str | Benchmark, *, registry: Registry | N
     if max_batches:
         steps_per_epoch = min(steps_per_epoch, max_batches)
     meta = {**_metadata(model_name, hparams, bench, dataset, recipe, seed, device, dist_info,
-                        view), "max_batches": max_batches, "recipe_changes": recipe_changes}
+                        view), "max_batches": max_batches, "recipe_changes": recipe_changes,
+            "init_from": init_record}
 
     def training_windows():
         """Every training window once, in a fixed order (for per-epoch statistics), in batches
@@ -584,6 +606,30 @@ def _training_data(dataset) -> dict[str, Any]:
     return {"dataset": mesh.name, "split": mesh.split, "recipe_hash": mesh.recipe_hash,
             "content_hash": mesh.content_hash(), "topology_hash": mesh.topology.hash,
             **({"points": f"regressor{dataset.num_joints}"} if mesh is not dataset else {})}
+
+
+def initial_weights(path: str | Path, model_name: str, bench: Benchmark, registry: Registry,
+                    data_root, dataset) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
+    """The state dict a new training stage starts from, and what the run records about it: the
+    file and its sha256, and the source's own recipe, budget and origin (so a chain of stages
+    keeps every budget). Refused, naming the file, if it holds another model or was trained
+    for another protocol or data (the checks of ``trained_model``)."""
+    path = Path(path)
+    if path.suffix != ".pt":
+        raise TrainingError(f"--init-from {path}: expected a training checkpoint (best.pt or "
+                            f"last.pt); shipped weights are float16 copies, not a stage's start")
+    if not path.is_file():
+        raise TrainingError(f"--init-from {path}: no such file")
+    meta = read_checkpoint(path)
+    state_dict, kind, digest = meta["state_dict"], "checkpoint", sha256_file(path)
+    if meta["model"] != model_name:
+        raise TrainingError(f"--init-from {path}: it holds {meta['model']!r}, not {model_name!r}")
+    source = trained_model(meta, state_dict, kind, path, registry=registry, benchmark=bench,
+                           data_root=data_root, dataset=dataset)
+    record = {"path": repo_relative(path), "sha256": digest, "hparams": meta["hparams"],
+              **{k: meta.get(k) for k in ("recipe", "max_batches", "recipe_changes", "training",
+                                          "init_from")}}
+    return source.state_dict(), record
 
 
 def _metadata(model_name, hparams, bench, dataset, recipe, seed, device, dist_info, view):

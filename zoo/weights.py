@@ -86,6 +86,8 @@ def export_weights(checkpoint: str | Path, *, label: str | None = None,
         # batches per epoch when capped, and budget changes made on resume (epoch they began)
         "max_batches": ckpt.get("max_batches"),
         "recipe_changes": ckpt.get("recipe_changes", []),
+        # the weights this run started from (a stage of a longer recipe), with their budget
+        "init_from": ckpt.get("init_from"),
         # budget (epochs, samples, seconds), device and the validation curve
         "training": ckpt.get("training", {}),
         "history": ckpt.get("history"),
