@@ -148,7 +148,9 @@ def learning_rate(schedule: dict[str, Any], base_lr: float, epoch: int, epochs: 
     """The learning rate at 0-based ``epoch`` and global optimizer ``step``.
 
     Any schedule may add ``warmup_steps: N``: the rate grows linearly from ``lr / N`` over the
-    first N optimizer steps (a post-norm transformer trained at a high rate needs it)."""
+    first N optimizer steps (a post-norm transformer trained at a high rate needs it). No
+    schedule (``null``) is a constant rate, as the recipe check reads it."""
+    schedule = schedule or {"type": "constant"}
     warmup = schedule.get("warmup_steps", 0)
     if warmup and step < warmup:
         rest = {k: v for k, v in schedule.items() if k != "warmup_steps"}
