@@ -249,13 +249,40 @@ def test_init_from_starts_a_new_stage_from_those_weights_and_records_them(setup,
     assert digest(tmp_path / "c" / "last.pt") != digest(first)
 
 
+def test_init_from_shipped_weights_extends_a_published_row(setup, tmp_path):
+    """Shipped weights (no checkpoint) start a new stage: anyone can extend a committed row's
+    training from the repository alone; the record names the file, its kind and dtype."""
+    from zoo.train import export_weights
+
+    first = run(setup, tmp_path / "a", epochs=1)
+    shipped = export_weights(first, root=tmp_path / "weights", dtype="float32")
+    still = read_checkpoint(run(setup, tmp_path / "b", epochs=1, init_from=shipped,
+                                train_overrides={"lr": 0.0, "schedule": None}))
+    for name, tensor in read_checkpoint(first)["state_dict"].items():
+        assert torch.equal(still["state_dict"][name], tensor), name
+    record = still["init_from"]
+    assert record["kind"] == "weights" and record["dtype"] == "float32"
+    assert record["path"].endswith("tiny.safetensors")
+    assert record["training"]["epochs_run"] == 1
+    # a damaged file is refused by its sha256 before any training
+    data = bytearray(shipped.read_bytes())
+    data[-1] ^= 1
+    shipped.write_bytes(bytes(data))
+    with pytest.raises(Exception, match=r"sha256 .* differs from its record"):
+        run(setup, tmp_path / "c", epochs=1, init_from=shipped)
+    assert not (tmp_path / "c").exists()
+
+
 def test_init_from_refusals_name_the_file(setup, tmp_path):
     first = run(setup, tmp_path / "a", epochs=1)
     with pytest.raises(TrainingError, match=r"--init-from .*missing\.pt: no such file"):
         run(setup, tmp_path / "b", init_from=tmp_path / "missing.pt")
-    with pytest.raises(TrainingError, match=r"--init-from .*tiny\.safetensors: expected a "
-                                           r"training checkpoint"):
+    with pytest.raises(TrainingError, match=r"--init-from .*tiny\.safetensors: no such file"):
         run(setup, tmp_path / "b", init_from=tmp_path / "tiny.safetensors")
+    (tmp_path / "tiny.npz").write_bytes(b"")
+    with pytest.raises(TrainingError, match=r"--init-from .*tiny\.npz: expected a training "
+                                           r"checkpoint .* or shipped weights"):
+        run(setup, tmp_path / "b", init_from=tmp_path / "tiny.npz")
     with pytest.raises(TrainingError, match=r"would overwrite it; give the new stage its own"):
         run(setup, tmp_path / "a", init_from=first)
     with pytest.raises(TrainingError, match=r"not both"):

@@ -13,7 +13,8 @@ from zoo.cli import main
 from zoo.evaluate import EvalResult
 from zoo.leaderboard import regenerate
 from zoo.train import read_checkpoint
-from zoo.weights import WeightsError, export_weights, load_weights, read_weights
+from zoo.train import export_weights, load_weights
+from zoo.weights import WeightsError, read_weights
 
 
 @pytest.fixture

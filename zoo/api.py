@@ -23,7 +23,8 @@ def create_model(name: str, benchmark: Any = None, registry: Registry | None = N
     the error lists the shipped ones when there are none."""
     registry = registry or load_registry()
     if pretrained:
-        from zoo.weights import load_weights, pretrained_path
+        from zoo.train import load_weights
+        from zoo.weights import pretrained_path
 
         if benchmark is None:
             raise RegistryError(f"create_model({name!r}, pretrained=True) needs benchmark=...: "

@@ -70,7 +70,8 @@ def _load_model(args, registry, bench, dataset):
     hold."""
     overrides = parse_overrides(args.set)
     if getattr(args, "weights", None):
-        from zoo.weights import load_weights, weights_provenance
+        from zoo.train import load_weights
+        from zoo.weights import weights_provenance
 
         if getattr(args, "checkpoint", None):
             raise UsageError("give --weights or --checkpoint, not both")
@@ -175,7 +176,8 @@ def cmd_eval(args) -> int:
 def cmd_weights(args) -> int:
     from tabulate import tabulate
 
-    from zoo.weights import available_weights, export_weights, read_weights, weights_file
+    from zoo.train import export_weights
+    from zoo.weights import available_weights, read_weights, weights_file
 
     root = Path(args.root)
     if args.action == "export":
@@ -531,9 +533,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="training-recipe override (lr, batch_size, ...)")
     p.add_argument("--resume", action="store_true", help="continue from the run's last state")
     p.add_argument("--init-from", metavar="PATH",
-                   help="start from this checkpoint (best.pt or last.pt of the same model and "
-                        "benchmark) with a fresh optimiser and schedule: a new stage of "
-                        "training, recorded with the source's budget")
+                   help="start from this checkpoint (best.pt or last.pt) or shipped weights "
+                        "(.safetensors) of the same model and benchmark, with a fresh optimiser "
+                        "and schedule: a new stage of training, recorded with the source's budget")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--max-batches", type=int, help="cap batches per epoch (quick runs)")
     p.add_argument("--no-progress", action="store_true")

@@ -207,6 +207,11 @@ How each number is made:
 - Cost columns (parameters, forward GFLOPs per window, latency of one window, training windows
   per second) are measured by the machine that wrote the table, named under it; they are not in
   `results.csv` and `--check` does not compare them.
+- Mesh tables: RMSE is per vertex, normalised by the ground-truth frame's bounding-box
+  diagonal; MELV is measured on the k-coefficient reconstructions of the reference and scored
+  frames (as SpecTrHuMS measures it) and printed as mean (standard deviation over windows);
+  `<model>:autoencoder` rows are a SpecTrHuMS model's floor, the ground-truth future through its
+  autoencoder alone. `*-gt_spectral` tables score against the k-coefficient reconstruction.
 - Rows marked `reported` are figures printed in papers (`zoo/published.yaml`), shown only where
   their protocol matches; the others are listed under each table with their differences.
 """
@@ -288,7 +293,8 @@ def _table(bench, registry, dataset, sampler, truth, folder, out_root, checkpoin
             provenance = {}
             shipped = _shipped(weights, bench, label) if entry.trainable else None
             if shipped is not None:
-                from zoo.weights import load_weights, weights_provenance
+                from zoo.train import load_weights
+                from zoo.weights import weights_provenance
 
                 model, record = load_weights(shipped, registry=registry, benchmark=bench,
                                              dataset=dataset)

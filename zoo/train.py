@@ -35,10 +35,12 @@ from zoo.data.windows import gather_windows, window_sampler
 from zoo.distributed import DistInfo, init_distributed
 from zoo.errors import ZooError
 from zoo.evaluate import EVAL_BATCH, predict
-from zoo.io import atomic_path, code_version, repo_relative, sha256_file
+from zoo.io import atomic_path, atomic_write_json, code_version, repo_relative, sha256_file
 from zoo.metrics import mpjpe
 from zoo.paths import REPO_ROOT
 from zoo.registry import Registry, load_registry
+from zoo.weights import (RECORD_FORMAT, STORAGE_DTYPES, WeightsError, checkpoint_label,
+                         read_weights, record_file, weights_file)
 
 CHECKPOINT_FORMAT = "motion-zoo-checkpoint/1"
 DEFAULT_RECIPE: dict[str, Any] = {
@@ -249,6 +251,67 @@ def load_checkpoint(path: str | Path, *, registry: Registry | None = None,
     model = trained_model(ckpt, ckpt["state_dict"], "checkpoint", path, registry=registry,
                           benchmark=benchmark, data_root=data_root, dataset=dataset)
     return model, ckpt
+
+
+def export_weights(checkpoint: str | Path, *, label: str | None = None,
+                   root: str | Path | None = None, dtype: str = "float16") -> Path:
+    """Write a checkpoint's weights and record under ``<root>/<benchmark>/``; returns the
+    ``.safetensors`` path. Both files are written atomically, the record last."""
+    from safetensors.torch import save_file
+
+    if dtype not in STORAGE_DTYPES:
+        raise WeightsError(f"weights dtype {dtype!r} unknown; valid: "
+                           f"{', '.join(STORAGE_DTYPES)}")
+    ckpt = read_checkpoint(checkpoint)
+    label = label or checkpoint_label(checkpoint, ckpt["model"])
+    if not label or "/" in label or label.startswith("."):
+        raise WeightsError(f"weights label {label!r} must be a plain file name "
+                           f"(e.g. {ckpt['model']!r} or {ckpt['model'] + '@last'!r})")
+    benchmark = ckpt["protocol"]["benchmark"]
+    path = weights_file(benchmark, label, root)
+    tensors = {name: (t.to(STORAGE_DTYPES[dtype]) if t.is_floating_point() else t)
+               .detach().cpu().contiguous() for name, t in ckpt["state_dict"].items()}
+    with atomic_path(path) as tmp:
+        save_file(tensors, str(tmp), metadata={"format": RECORD_FORMAT, "model": ckpt["model"]})
+        digest = sha256_file(tmp)
+    record = {
+        "format": RECORD_FORMAT,
+        "label": label,
+        "model": ckpt["model"],
+        "benchmark": benchmark,
+        "file": path.name,
+        "sha256": digest,
+        "dtype": dtype,
+        "parameters": int(sum(t.numel() for t in ckpt["state_dict"].values())),
+        "hparams": ckpt["hparams"],
+        "context_hashes": ckpt.get("context_hashes", {}),
+        "protocol": ckpt["protocol"],
+        "recipe": ckpt.get("recipe"),
+        "seed": ckpt.get("seed"),
+        # batches per epoch when capped, and budget changes made on resume (epoch they began)
+        "max_batches": ckpt.get("max_batches"),
+        "recipe_changes": ckpt.get("recipe_changes", []),
+        # the weights this run started from (a stage of a longer recipe), with their budget
+        "init_from": ckpt.get("init_from"),
+        # budget (epochs, samples, seconds), device and the validation curve
+        "training": ckpt.get("training", {}),
+        "history": ckpt.get("history"),
+        "training_data": ckpt.get("training_data"),
+        "code_version": ckpt.get("code_version"),
+        "torch": ckpt.get("torch"),
+        "checkpoint": repo_relative(checkpoint),
+    }
+    atomic_write_json(record_file(path), record)
+    return path
+
+
+def load_weights(path: str | Path, *, registry=None, benchmark=None, data_root=None,
+                 dataset=None) -> tuple[torch.nn.Module, dict[str, Any]]:
+    """The model of shipped weights, checked against ``benchmark`` (default: its own)."""
+    state, record = read_weights(path)
+    model = trained_model(record, state, "weights", path, registry=registry,
+                          benchmark=benchmark, data_root=data_root, dataset=dataset)
+    return model, record
 
 
 def trained_model(meta: dict[str, Any], state_dict: dict[str, torch.Tensor], kind: str,
@@ -613,22 +676,31 @@ def _training_data(dataset) -> dict[str, Any]:
 def initial_weights(path: str | Path, model_name: str, bench: Benchmark, registry: Registry,
                     data_root, dataset) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
     """The state dict a new training stage starts from, and what the run records about it: the
-    file and its sha256, and the source's own recipe, budget and origin (so a chain of stages
-    keeps every budget). Refused, naming the file, if it holds another model or was trained
-    for another protocol or data (the checks of ``trained_model``)."""
+    file, its kind and sha256, and the source's own recipe, budget and origin (so a chain of
+    stages keeps every budget). The source is a training checkpoint (``.pt``) or shipped weights
+    (``.safetensors``, checked against their record's sha256), so anyone can extend a published
+    row's training from the repository alone; shipped weights may be float16, and the record
+    says so. Refused, naming the file, if it holds another model or was trained for another
+    protocol or data (the checks of ``trained_model``)."""
     path = Path(path)
-    if path.suffix != ".pt":
+    if path.suffix not in (".pt", ".safetensors"):
         raise TrainingError(f"--init-from {path}: expected a training checkpoint (best.pt or "
-                            f"last.pt); shipped weights are float16 copies, not a stage's start")
+                            f"last.pt) or shipped weights (.safetensors with their .json record)")
     if not path.is_file():
         raise TrainingError(f"--init-from {path}: no such file")
-    meta = read_checkpoint(path)
-    state_dict, kind, digest = meta["state_dict"], "checkpoint", sha256_file(path)
+    if path.suffix == ".safetensors":
+        state_dict, meta = read_weights(path)
+        kind, digest = "weights", meta["sha256"]
+    else:
+        meta = read_checkpoint(path)
+        state_dict, kind, digest = meta["state_dict"], "checkpoint", sha256_file(path)
     if meta["model"] != model_name:
         raise TrainingError(f"--init-from {path}: it holds {meta['model']!r}, not {model_name!r}")
     source = trained_model(meta, state_dict, kind, path, registry=registry, benchmark=bench,
                            data_root=data_root, dataset=dataset)
-    record = {"path": repo_relative(path), "sha256": digest, "hparams": meta["hparams"],
+    record = {"path": repo_relative(path), "kind": kind, "sha256": digest,
+              **({"dtype": meta["dtype"]} if kind == "weights" else {}),
+              "hparams": meta["hparams"],
               **{k: meta.get(k) for k in ("recipe", "max_batches", "recipe_changes", "training",
                                           "init_from")}}
     return source.state_dict(), record

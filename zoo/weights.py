@@ -21,7 +21,7 @@ from typing import Any
 import torch
 
 from zoo.errors import ZooError
-from zoo.io import atomic_path, atomic_write_json, repo_relative, sha256_file
+from zoo.io import repo_relative, sha256_file
 from zoo.paths import REPO_ROOT
 
 WEIGHTS_DIR = REPO_ROOT / "weights"
@@ -44,60 +44,6 @@ def record_file(weights: str | Path) -> Path:
 def checkpoint_label(checkpoint: str | Path, model: str) -> str:
     """``<model>@last`` for a fully trained checkpoint (``last.pt``), else the model's name."""
     return f"{model}@last" if Path(checkpoint).name == "last.pt" else model
-
-
-def export_weights(checkpoint: str | Path, *, label: str | None = None,
-                   root: str | Path | None = None, dtype: str = "float16") -> Path:
-    """Write a checkpoint's weights and record under ``<root>/<benchmark>/``; returns the
-    ``.safetensors`` path. Both files are written atomically, the record last."""
-    from safetensors.torch import save_file
-
-    from zoo.train import read_checkpoint
-
-    if dtype not in STORAGE_DTYPES:
-        raise WeightsError(f"weights dtype {dtype!r} unknown; valid: "
-                           f"{', '.join(STORAGE_DTYPES)}")
-    ckpt = read_checkpoint(checkpoint)
-    label = label or checkpoint_label(checkpoint, ckpt["model"])
-    if not label or "/" in label or label.startswith("."):
-        raise WeightsError(f"weights label {label!r} must be a plain file name "
-                           f"(e.g. {ckpt['model']!r} or {ckpt['model'] + '@last'!r})")
-    benchmark = ckpt["protocol"]["benchmark"]
-    path = weights_file(benchmark, label, root)
-    tensors = {name: (t.to(STORAGE_DTYPES[dtype]) if t.is_floating_point() else t)
-               .detach().cpu().contiguous() for name, t in ckpt["state_dict"].items()}
-    with atomic_path(path) as tmp:
-        save_file(tensors, str(tmp), metadata={"format": RECORD_FORMAT, "model": ckpt["model"]})
-        digest = sha256_file(tmp)
-    record = {
-        "format": RECORD_FORMAT,
-        "label": label,
-        "model": ckpt["model"],
-        "benchmark": benchmark,
-        "file": path.name,
-        "sha256": digest,
-        "dtype": dtype,
-        "parameters": int(sum(t.numel() for t in ckpt["state_dict"].values())),
-        "hparams": ckpt["hparams"],
-        "context_hashes": ckpt.get("context_hashes", {}),
-        "protocol": ckpt["protocol"],
-        "recipe": ckpt.get("recipe"),
-        "seed": ckpt.get("seed"),
-        # batches per epoch when capped, and budget changes made on resume (epoch they began)
-        "max_batches": ckpt.get("max_batches"),
-        "recipe_changes": ckpt.get("recipe_changes", []),
-        # the weights this run started from (a stage of a longer recipe), with their budget
-        "init_from": ckpt.get("init_from"),
-        # budget (epochs, samples, seconds), device and the validation curve
-        "training": ckpt.get("training", {}),
-        "history": ckpt.get("history"),
-        "training_data": ckpt.get("training_data"),
-        "code_version": ckpt.get("code_version"),
-        "torch": ckpt.get("torch"),
-        "checkpoint": repo_relative(checkpoint),
-    }
-    atomic_write_json(record_file(path), record)
-    return path
 
 
 def read_weights(path: str | Path) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
@@ -131,17 +77,6 @@ def read_weights(path: str | Path) -> tuple[dict[str, torch.Tensor], dict[str, A
         raise WeightsError(f"weights {path} is not a readable safetensors file ({e})") from e
     state = {name: t.float() if t.is_floating_point() else t for name, t in tensors.items()}
     return state, record
-
-
-def load_weights(path: str | Path, *, registry=None, benchmark=None, data_root=None,
-                 dataset=None) -> tuple[torch.nn.Module, dict[str, Any]]:
-    """The model of shipped weights, checked against ``benchmark`` (default: its own)."""
-    from zoo.train import trained_model
-
-    state, record = read_weights(path)
-    model = trained_model(record, state, "weights", path, registry=registry,
-                          benchmark=benchmark, data_root=data_root, dataset=dataset)
-    return model, record
 
 
 def available_weights(root: str | Path | None = None) -> list[tuple[str, str]]:
