@@ -440,6 +440,43 @@ def test_checkpoint_round_trip_keeps_the_standardisation_buffers():
         make(basis=other).load_state_dict(state)
 
 
+def recomputed(basis, vectors):
+    """``basis`` as another machine computes it: the same topology and k, so the same name."""
+    return SpectralBasis(basis.topology_hash, basis.eigenvalues, vectors, basis.topology_name)
+
+
+def test_weights_check_the_numbers_of_their_basis_not_only_its_name():
+    state = trained_stats(make(seed=0)).state_dict()
+    history = motion(2)[:, :T_IN]
+    # Another machine's solver: the same basis to rounding (measured between OpenBLAS kernels:
+    # 5e-13), so other bytes and the same name; the weights apply, in float16 too.
+    noise = np.random.default_rng(0).standard_normal(BASIS.vectors.shape) * 1e-12
+    rounded = recomputed(BASIS, BASIS.vectors + noise)
+    assert rounded.hash == BASIS.hash and rounded.checksum != BASIS.checksum
+    model = make(basis=rounded, seed=1).eval()
+    model.load_state_dict({k: v.half().float() if k == "basis_probe" else v
+                           for k, v in state.items()})
+    reference = make(seed=2).eval()
+    reference.load_state_dict(state)
+    with torch.no_grad():
+        assert torch.allclose(model(history), reference(history), atol=1e-3)
+    # The same name, but one eigenvector with the other sign: refused, naming the difference.
+    flipped = BASIS.vectors.copy()
+    flipped[:, 3] *= -1
+    with pytest.raises(SpecTrHuMSError, match=r"probe projections differ by up to \d"):
+        make(basis=recomputed(BASIS, flipped)).load_state_dict(state)
+    # ... or two eigenvectors mixed (a rotated eigenspace)
+    mixed = BASIS.vectors.copy()
+    c, s = np.cos(0.3), np.sin(0.3)
+    mixed[:, 5], mixed[:, 6] = c * BASIS.vectors[:, 5] + s * BASIS.vectors[:, 6], \
+        -s * BASIS.vectors[:, 5] + c * BASIS.vectors[:, 6]
+    with pytest.raises(SpecTrHuMSError, match="another rotation"):
+        make(basis=recomputed(BASIS, mixed)).load_state_dict(state)
+    # Weights exported before the probe existed cannot be checked: refused, saying what to do.
+    with pytest.raises(SpecTrHuMSError, match="carry no basis_probe .* export them again"):
+        make().load_state_dict({k: v for k, v in state.items() if k != "basis_probe"})
+
+
 # ---- registry ------------------------------------------------------------------------------------
 
 def test_registry_entries_and_recipe():

@@ -414,7 +414,6 @@ def mesh_protocol_record(bench: Benchmark, dataset, sampler: str,
         "topology_hash": topology.hash,
         "num_vertices": topology.num_vertices,
         "recipe_hash": dataset.recipe_hash,
-        "data_hash": dataset.content_hash(),
         "ground_truth": truth,
         "ground_truth_rule": truth_rule,
         "spectral_basis": ({"k": basis.k, "hash": basis.hash, "topology_hash":
@@ -560,6 +559,11 @@ def evaluate_mesh(model: torch.nn.Module, benchmark: str | Benchmark, *, model_n
                                      basis, melv_frames), **_task_record(task, t_out)}
     model_basis = getattr(model, "basis", None)
     _seal(record, model_name, device, {
+        # The data are named by their recipe in the protocol; the bytes of a generated mesh
+        # follow the machine's float kernels (CMU-on-Anny's skinning: other bytes on another
+        # CPU), so their hash is this build's provenance, not part of the protocol.
+        "data_hash": dataset.content_hash(),
+        **({"basis_checksum": basis.checksum} if isinstance(basis, SpectralBasis) else {}),
         **({"model_basis": {"k": model_basis.k, "hash": model_basis.hash}}
            if isinstance(model_basis, SpectralBasis) else {}),
         **({"model_input": f"regressed joints (regressor{regressor.shape[0]})"}

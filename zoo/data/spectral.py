@@ -4,11 +4,20 @@
 by frequency. Spectral coefficients are ``C = Phi^T X`` and the reconstruction is ``X = Phi C``.
 
 Eigenvector signs, and the basis inside an eigenspace of a repeated eigenvalue, are arbitrary: a
-different solver, BLAS or machine may return a different (equally valid) basis. So a basis is
-computed once, cached on disk next to its topology hash, and its own ``hash`` goes into every
-protocol record that depends on it; a cached file that does not match is an error, never a silent
-recompute. Signs are fixed by a convention (the largest-magnitude entry of every vector is
-positive) so that recomputes agree wherever the eigenvalues are simple.
+different solver, BLAS or machine may return a different (equally valid) basis. Signs are fixed by
+a convention (the largest-magnitude entry of every vector is positive) so that recomputes agree
+wherever the eigenvalues are simple, and a basis is computed once and cached on disk next to its
+topology hash; a cached file whose bytes do not match its ``checksum`` is an error, never a silent
+recompute.
+
+Identity and numbers are kept apart. The last bits of a basis follow the machine's LAPACK and
+ARPACK kernels (measured: the cloth's dense solve and CMU-on-Anny's Lanczos solve give other bytes
+on an AVX-512 EPYC than on the machine that trained the shipped models, equal to about 1e-12). So
+``hash``, which protocol records and trained models carry, names what was computed (topology,
+``k``, method), the same on every machine; and ``probe_projections`` gives a few numbers of the
+vectors themselves that a trained model stores and compares within a tolerance when it is loaded,
+so weights are never applied through a basis with other signs or another rotation of an
+eigenspace, while a recompute equal to rounding is accepted.
 """
 from __future__ import annotations
 
@@ -33,7 +42,11 @@ SIGMA = -1e-3
 DENSE_FRACTION = 0.25
 DENSE_MAX_VERTICES = 600  # small meshes: the dense solver is fast and exact
 SLICE = 128  # eigenvalues per shift-invert solve (see _lanczos)
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2  # 1: `hash` was the checksum of the vectors' bytes
+# What a basis's identity (``basis_hash``) names besides topology and k; change it with any change
+# to what ``SpectralBasis.compute`` returns (solver choice, ordering, sign convention).
+BASIS_METHOD = "combinatorial-laplacian/lowest-k/sorted/largest-entry-positive/v1"
+PROBES = 4  # probe vectors of ``probe_projections``
 
 
 class SpectralError(MeshError):
@@ -63,7 +76,8 @@ class SpectralBasis:
         self.eigenvalues = eigenvalues
         self.vectors = vectors
         self.solver = solver
-        self.hash = basis_hash(self.k, self.topology_hash, self.vectors)
+        self.hash = basis_hash(self.k, self.topology_hash)
+        self.checksum = vectors_checksum(self.vectors)
         self._torch: dict[tuple[str, torch.dtype], torch.Tensor] = {}
 
     def __repr__(self) -> str:
@@ -83,7 +97,7 @@ class SpectralBasis:
         lap = topology.laplacian().astype(np.float64)
         # One BLAS thread for both solvers: the result is then the same to the last bit on a
         # given machine whatever its thread settings (the dense solver's last bits, and so the
-        # basis hash, change with the thread count), and ARPACK runs faster on shared cores.
+        # checksum, change with the thread count), and ARPACK runs faster on shared cores.
         with _one_blas_thread():
             if n <= DENSE_MAX_VERTICES or k >= DENSE_FRACTION * n or k >= n - 1:
                 values, vectors = scipy.linalg.eigh(lap.toarray(), subset_by_index=[0, k - 1])
@@ -104,7 +118,7 @@ class SpectralBasis:
 
         The file is ``<cache_dir>/spectral-<topology hash>-k<k>.npz`` (``cache_dir`` defaults to
         ``<cache root>/spectral``, see :func:`zoo.data.mesh.cache_root`). A file there that
-        belongs to another topology, or whose content no longer matches its hash, raises
+        belongs to another topology, or whose content no longer matches its checksum, raises
         :class:`SpectralError`: delete it deliberately to recompute.
         """
         path = cache_path(topology, k, cache_dir)
@@ -128,19 +142,23 @@ class SpectralBasis:
                 np.savez(f, format_version=np.int64(FORMAT_VERSION), k=np.int64(self.k),
                          topology_hash=np.str_(self.topology_hash),
                          topology_name=np.str_(self.topology_name), solver=np.str_(self.solver),
-                         hash=np.str_(self.hash), eigenvalues=self.eigenvalues,
+                         hash=np.str_(self.hash), checksum=np.str_(self.checksum),
+                         eigenvalues=self.eigenvalues,
                          vectors=self.vectors)
         return path
 
     @classmethod
     def load(cls, path: str | Path) -> "SpectralBasis":
-        """Read a basis written by :meth:`save`, checking its recorded hash."""
+        """Read a basis written by :meth:`save`, checking its recorded checksum."""
         path = Path(path)
         try:
             with np.load(path, allow_pickle=False) as z:
                 fields = {name: z[name] for name in ("format_version", "k", "topology_hash",
                                                      "topology_name", "solver", "hash",
                                                      "eigenvalues", "vectors")}
+                version = int(fields["format_version"])
+                # version 1 stored the checksum of the vectors as its `hash`
+                fields["checksum"] = z["checksum"] if version >= 2 else fields["hash"]
         except FileNotFoundError:
             raise SpectralError(f"{path}: spectral basis file does not exist") from None
         except KeyError as e:
@@ -148,16 +166,15 @@ class SpectralBasis:
         except (OSError, ValueError, EOFError, zipfile.BadZipFile) as e:
             raise SpectralError(f"{path}: unreadable spectral basis file ({e}); delete it to "
                                 f"recompute") from None
-        if int(fields["format_version"]) != FORMAT_VERSION:
-            raise SpectralError(f"{path}: format version {int(fields['format_version'])}, "
-                                f"expected {FORMAT_VERSION}")
+        if version not in (1, FORMAT_VERSION):
+            raise SpectralError(f"{path}: format version {version}, expected {FORMAT_VERSION}")
         basis = cls(str(fields["topology_hash"]), fields["eigenvalues"], fields["vectors"],
                     str(fields["topology_name"]), str(fields["solver"]))
-        if basis.k != int(fields["k"]) or basis.hash != str(fields["hash"]):
-            raise SpectralError(f"{path}: corrupted spectral basis: content hash "
-                                f"{basis.hash[:12]} (k={basis.k}) differs from the recorded "
-                                f"{str(fields['hash'])[:12]} (k={int(fields['k'])}); delete it "
-                                f"to recompute")
+        if basis.k != int(fields["k"]) or basis.checksum != str(fields["checksum"]):
+            raise SpectralError(f"{path}: corrupted spectral basis: checksum "
+                                f"{basis.checksum[:12]} (k={basis.k}) differs from the recorded "
+                                f"{str(fields['checksum'])[:12]} (k={int(fields['k'])}); delete "
+                                f"it to recompute")
         return basis
 
     # ---- use ----------------------------------------------------------------------------------
@@ -226,13 +243,29 @@ class SpectralBasis:
                                 f" got shape {tuple(x.shape)}")
 
 
-def basis_hash(k: int, topology_hash: str, vectors: np.ndarray) -> str:
-    """sha256 over ``k``, the topology hash and the float64 little-endian bytes of ``vectors``."""
-    digest = hashlib.sha256()
-    digest.update(f"k={int(k)}".encode())
-    digest.update(topology_hash.encode())
-    digest.update(np.ascontiguousarray(vectors, dtype="<f8").tobytes())
-    return digest.hexdigest()
+def basis_hash(k: int, topology_hash: str) -> str:
+    """A basis's identity: sha256 over ``BASIS_METHOD``, ``k`` and the topology hash. The same
+    on every machine; the numbers are checked by :func:`probe_projections`."""
+    return hashlib.sha256(f"{BASIS_METHOD}|k={int(k)}|{topology_hash}".encode()).hexdigest()
+
+
+def vectors_checksum(vectors: np.ndarray) -> str:
+    """sha256 over the float64 little-endian bytes of ``vectors``: a file's integrity on the
+    machine that wrote it (other machines' solvers differ in the last bits)."""
+    return hashlib.sha256(np.ascontiguousarray(vectors, dtype="<f8").tobytes()).hexdigest()
+
+
+def probe_projections(vectors: np.ndarray) -> np.ndarray:
+    """``Phi^T R`` for ``PROBES`` fixed probe vectors ``R (V, PROBES)``: ``(k, PROBES)`` numbers of
+    order one that change by about 1 when any vector of the basis changes sign or an eigenspace
+    is rotated, and by rounding only when the same basis is recomputed elsewhere. The probes are
+    smooth functions of the vertex index with no random generator, so every machine builds the
+    same ones (to the last bit of its ``cos``)."""
+    vectors = np.asarray(vectors, dtype=np.float64)
+    index = np.arange(vectors.shape[0], dtype=np.float64)[:, None]
+    probes = np.cos(index * (0.7071067811865476 + 0.3819660112501051 * np.arange(PROBES))
+                    + np.arange(PROBES))
+    return vectors.T @ probes
 
 
 def cache_path(topology: MeshTopology, k: int, cache_dir: str | Path | None = None) -> Path:
@@ -342,4 +375,5 @@ def default_cache_dir() -> Path:
     return cache_root() / "spectral"
 
 
-__all__ = ["SpectralBasis", "SpectralError", "basis_hash", "cache_path", "default_cache_dir"]
+__all__ = ["SpectralBasis", "SpectralError", "basis_hash", "cache_path", "default_cache_dir",
+           "probe_projections", "vectors_checksum"]

@@ -46,9 +46,14 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from zoo.data.spectral import probe_projections
 from zoo.errors import ZooError
 
 TASKS = ("prediction", "completion")
+# Largest |difference| of basis probe projections (values up to about 4) that counts as the same
+# basis: float16 storage rounds them by up to 2e-3, other machines' solvers by about 1e-11, while
+# a flipped sign or a rotated eigenspace moves them by about 1.
+PROBE_TOLERANCE = 1e-2
 _STD_FLOOR = 1e-6  # a feature whose std is below this is only centred (its std is set to 1)
 _FRAMES_PER_CHUNK = 2048  # frames projected at once when computing statistics
 
@@ -338,6 +343,10 @@ class SpecTrHuMS(nn.Module):
         self.basis = basis  # data, not parameters: it travels with the dataset, by hash
         self.register_buffer("basis_id", torch.tensor(
             list(hashlib.sha256(self.basis_hash.encode()).digest()), dtype=torch.uint8))
+        # The basis's own numbers, so weights are checked against the vectors they will meet,
+        # not only against the name of the basis (see zoo.data.spectral: names agree across
+        # machines, bytes do not).
+        self.register_buffer("basis_probe", torch.from_numpy(probe_projections(phi)).float())
         self.register_buffer("coeff_mean", torch.zeros(self.k, 3))
         self.register_buffer("coeff_std", torch.ones(self.k, 3))
         self.register_buffer("coeff_frames", torch.zeros((), dtype=torch.int64))
@@ -623,6 +632,20 @@ class SpecTrHuMS(nn.Module):
             raise SpecTrHuMSError(f"these weights were trained with another spectral basis than "
                                   f"this model's (hash {self.basis_hash[:12]}); a basis is never "
                                   f"interchangeable (eigenvector signs and order are arbitrary)")
+        probe = state_dict.get(prefix + "basis_probe")
+        if saved is not None and probe is None:
+            raise SpecTrHuMSError("these weights carry no basis_probe (the numbers of the basis "
+                                  "they were trained with), so they cannot be checked against "
+                                  "this machine's basis; export them again from their checkpoint")
+        if probe is not None and probe.shape == self.basis_probe.shape:
+            gap = (probe.float().cpu() - self.basis_probe.cpu()).abs().max().item()
+            if not gap <= PROBE_TOLERANCE:
+                raise SpecTrHuMSError(
+                    f"these weights were trained with other numbers for spectral basis "
+                    f"{self.basis_hash[:12]} than this machine computed: its probe projections "
+                    f"differ by up to {gap:.3g} (rounding gives < {PROBE_TOLERANCE:g}), so some "
+                    f"eigenvector has another sign or an eigenspace another rotation; the "
+                    f"weights do not apply to this basis")
         super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
 
 
