@@ -186,3 +186,25 @@ def test_result_folders_are_replaced_whole_and_refuse_a_second_writer(swinging_c
     assert EvalResult.read(out).windows is not None
     assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".run.")
             and not p.name.endswith(".lock")] == []
+
+
+@pytest.mark.parametrize("sampler", ["all", "stride5", "stride5_strict", "ltd8"])
+def test_frame_counts_count_the_windows_holding_each_frame(sampler):
+    from zoo.data.windows import frame_counts, gather_windows, window_sampler
+
+    lengths = [100, 80, 130]
+    index = window_sampler(sampler, lengths, 10, 25)
+    frame_ids = [np.arange(n) for n in lengths]
+    held = gather_windows([f[:, None] for f in frame_ids], index, 35)  # (W, 35, 1) frame ids
+    counts = frame_counts(index, lengths, 35)
+    for i, n in enumerate(lengths):
+        ids = held[index[:, 0] == i].ravel()
+        np.testing.assert_array_equal(counts[i], np.bincount(ids, minlength=n))
+
+
+def test_frame_counts_name_a_window_past_its_sequence():
+    from zoo.data.windows import SamplerError, frame_counts
+
+    with pytest.raises(SamplerError, match=r"window 1 of sequence 0: frames \[8, 13\) run past "
+                                           r"its 12 frames"):
+        frame_counts(np.array([[0, 0], [0, 8]]), [12], 5)

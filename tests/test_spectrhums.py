@@ -62,14 +62,17 @@ def motion(batch, frames=W, seed=1):
 WINDOW_BATCHES = [motion(5, seed=2), motion(3, seed=3), motion(4, seed=4)]
 
 
-def windows():
-    yield from WINDOW_BATCHES
+def frames():
+    """The frames of WINDOW_BATCHES as the engine gives them: each once, with its count."""
+    for batch in WINDOW_BATCHES:
+        flat = batch.flatten(0, 1)
+        yield flat, torch.ones(len(flat), dtype=torch.int64)
 
 
 def trained_stats(model, epoch=2):
-    model.start_epoch(0, windows)
+    model.start_epoch(0, frames)
     if epoch:
-        model.start_epoch(epoch, windows)
+        model.start_epoch(epoch, frames)
     return model
 
 
@@ -92,16 +95,46 @@ def test_welford_equals_numpy_over_uneven_batches():
     np.testing.assert_allclose(std.numpy(), rows.std(0, ddof=1), rtol=1e-12)
 
 
+def test_welford_counts_weight_rows_as_repeats():
+    rng = np.random.default_rng(1)
+    rows = rng.normal(-2.0, 4.0, size=(40, 5))
+    counts = rng.integers(0, 6, size=40)
+    w = Welford((5,))
+    for part in np.split(np.arange(40), [3, 17, 18]):
+        w.update(torch.from_numpy(rows[part]), torch.from_numpy(counts[part]))
+    mean, std = w.finalize("test")
+    repeated = np.repeat(rows, counts, axis=0)
+    assert w.count == len(repeated) == counts.sum()
+    np.testing.assert_allclose(mean.numpy(), repeated.mean(0), rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(std.numpy(), repeated.std(0, ddof=1), rtol=1e-12)
+    with pytest.raises(SpecTrHuMSError, match="3 counts for 2 rows"):
+        w.update(torch.zeros(2, 5), torch.ones(3, dtype=torch.int64))
+
+
+def test_start_epoch_on_counted_frames_equals_the_repeated_frames():
+    """The engine gives each distinct frame once with the number of windows holding it."""
+    distinct = motion(1, frames=20, seed=7)[0]
+    counts = torch.arange(20) % 4  # some frames in no window at all
+    counted, repeated = make(), make()
+    counted.start_epoch(2, lambda: iter([(distinct, counts)]))
+    repeated.start_epoch(2, lambda: iter([(distinct.repeat_interleave(counts, 0),
+                                           torch.ones(int(counts.sum()), dtype=torch.int64))]))
+    assert int(counted.coeff_frames) == int(repeated.coeff_frames) == int(counts.sum())
+    for name in ("coeff_mean", "coeff_std", "latent_mean", "latent_std"):
+        torch.testing.assert_close(getattr(counted, name), getattr(repeated, name),
+                                   rtol=1e-5, atol=1e-5)
+
+
 def test_start_epoch_statistics_equal_numpy_over_the_training_frames():
     model = make()
-    model.start_epoch(0, windows)
+    model.start_epoch(0, frames)
     coeffs = all_coefficients().numpy()
     assert int(model.coeff_frames) == len(coeffs) == 12 * W
     np.testing.assert_allclose(model.coeff_mean.numpy(), coeffs.mean(0), rtol=1e-5, atol=1e-3)
     np.testing.assert_allclose(model.coeff_std.numpy(), coeffs.std(0, ddof=1), rtol=1e-5)
     assert model.phase == "autoencoder" and int(model.latent_frames) == 0
 
-    model.start_epoch(2, windows)  # the transformer trains from epoch 2 on: latent statistics
+    model.start_epoch(2, frames)  # the transformer trains from epoch 2 on: latent statistics
     assert model.phase == "joint"
     with torch.no_grad():
         latents = model.encode(all_coefficients().float()).double().numpy()
@@ -115,10 +148,10 @@ def test_latent_statistics_follow_the_encoder_every_epoch():
     before = model.latent_mean.clone()
     with torch.no_grad():
         model.autoencoder.to_latent.bias += 1.0
-    model.start_epoch(3, windows)
+    model.start_epoch(3, frames)
     torch.testing.assert_close(model.latent_mean, before + 1.0)
     coeff_mean = model.coeff_mean.clone()
-    model.start_epoch(4, windows)  # coefficient statistics are kept after the first epoch
+    model.start_epoch(4, frames)  # coefficient statistics are kept after the first epoch
     assert torch.equal(model.coeff_mean, coeff_mean)
 
 
@@ -290,7 +323,7 @@ def test_autoencoder_trains_alone_for_the_first_two_epochs():
     model = make()
     window = motion(4)
     for epoch in (0, 1):
-        model.start_epoch(epoch, windows)
+        model.start_epoch(epoch, frames)
         model.zero_grad()
         terms = model.loss_terms(window[:, :T_IN], window[:, T_IN:])
         assert terms["dynamic"] is None
@@ -300,7 +333,7 @@ def test_autoencoder_trains_alone_for_the_first_two_epochs():
         assert all(p.grad is not None and p.grad.abs().sum() > 0
                    for p in model.autoencoder.parameters())
 
-    model.start_epoch(2, windows)
+    model.start_epoch(2, frames)
     terms = model.loss_terms(window[:, :T_IN], window[:, T_IN:])
     assert terms["dynamic"] is not None and terms["dynamic"] > 0
     # the dynamic loss never reaches the autoencoder, the static loss never the transformer
@@ -332,7 +365,7 @@ def test_engine_like_loop_leaves_the_transformer_alone_until_epoch_three():
     snapshot = {n: p.detach().clone() for n, p in model.transformer.named_parameters()}
     losses = []
     for epoch in range(3):
-        model.start_epoch(epoch, windows)
+        model.start_epoch(epoch, frames)
         for batch in WINDOW_BATCHES:
             loss = model.training_loss(batch[:, :T_IN], batch[:, T_IN:])
             opt.zero_grad(set_to_none=True)
@@ -381,8 +414,12 @@ def test_errors_name_the_argument_and_what_was_expected():
     with pytest.raises(SpecTrHuMSError, match=rf"history: {T_IN - 1} frames, expected {T_IN} "
                                               rf"\(the model's window is {W}"):
         model(motion(1, frames=T_IN - 1))
-    with pytest.raises(SpecTrHuMSError, match=rf"training windows: {W - 2} frames, expected {W}"):
-        model.start_epoch(0, lambda: iter([motion(2, frames=W - 2)]))
+    with pytest.raises(SpecTrHuMSError, match=r"training frames: expected vertices "
+                                              r"\(B, T, 30, 3\)"):
+        model.start_epoch(0, lambda: iter([(motion(2), torch.ones(2, dtype=torch.int64))]))
+    with pytest.raises(SpecTrHuMSError, match=r"training frames: \(3,\) counts for 4 frames"):
+        model.start_epoch(0, lambda: iter([(motion(1, frames=4)[0],
+                                            torch.ones(3, dtype=torch.int64))]))
     with pytest.raises(SpecTrHuMSError, match=r"expected vertices \(B, T, 30, 3\)"):
         model(torch.zeros(1, T_IN, V + 1, 3))
     with pytest.raises(SpecTrHuMSError, match=r"basis: 30 vertices .* but num_points=31"):

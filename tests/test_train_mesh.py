@@ -5,6 +5,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
 
 from tiny_models import MESH_REGISTRY
 from zoo import benchmark as benchmark_module
@@ -115,3 +116,32 @@ def test_a_training_sampler_that_finds_no_window_is_named(toy_mesh, tmp_path):
         train("tiny_spectral", whole, registry=registry, out_dir=tmp_path / "run",
               progress=False, train_overrides={"train_sampler": "stride5_strict"})
     assert not (tmp_path / "run").exists()  # nothing half-written
+
+
+def test_start_epoch_gets_every_training_frame_once_with_its_window_count(toy_mesh, tmp_path,
+                                                                          monkeypatch):
+    """Statistics over the counted frames equal those over every frame of every window."""
+    from zoo.data.windows import gather_windows
+    from zoo.train import _windows, split_train_val
+
+    bench, registry, _ = toy_mesh
+    monkeypatch.setitem(benchmark_module.MESH_DATASETS, "toy_mesh",
+                        lambda root, split: waving(grid(4), split, frames=30))
+    seen = []
+    model_class = registry.get("tiny_spectral").load_class()
+    monkeypatch.setattr(model_class, "start_epoch",
+                        lambda self, epoch, frames: seen.append(list(frames())), raising=False)
+    train("tiny_spectral", bench, registry=registry, out_dir=tmp_path / "run", progress=False,
+          epochs=1, train_overrides={"train_sampler": "all"})
+    frames = torch.cat([f for f, _ in seen[0]]).double()
+    counts = torch.cat([c for _, c in seen[0]])
+    assert len(seen) == 1 and bool((counts > 0).all())
+
+    train_seqs, _ = split_train_val(waving(grid(4), "train", frames=30), 0.25, 8)
+    positions, index = _windows(train_seqs, 8, "all", 4, 4)
+    windows = torch.from_numpy(gather_windows(positions, index, 8)).double().flatten(0, 1)
+    assert int(counts.sum()) == len(windows) > 2 * len(frames)  # each frame in several windows
+    weights = counts.double()[:, None, None]
+    torch.testing.assert_close((weights * frames).sum(0) / counts.sum(), windows.mean(0))
+    torch.testing.assert_close((weights * frames.square()).sum(0) / counts.sum(),
+                               windows.square().mean(0))

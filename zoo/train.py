@@ -11,8 +11,10 @@ windows never overlap the training windows. The checkpoint with the lowest valid
 is kept as ``best.pt``; ``last.pt`` holds the full state for ``--resume``.
 
 Model hooks (both optional): ``training_loss(history, future)`` replaces the default loss (mean
-MPJPE over predicted frames); ``start_epoch(epoch, windows)`` runs before every epoch, with
-``windows()`` yielding every training window ``(B, T_in + T_out, P, 3)`` once in a fixed order.
+MPJPE over predicted frames); ``start_epoch(epoch, frames)`` runs before every epoch, with
+``frames()`` yielding ``(frames (N, P, 3), counts (N,))``: every distinct frame of the training
+windows once, in a fixed order, with the number of training windows that hold it (a statistic
+over every frame of every window weights each frame by its count).
 
 Distributed data-parallel: launched by ``torchrun``, each process takes its share of every
 global batch (gloo on CPU, nccl on GPU), gradients are averaged, and rank 0 writes.
@@ -31,7 +33,7 @@ import torch
 from torch import nn
 
 from zoo.benchmark import Benchmark, get_benchmark
-from zoo.data.windows import gather_windows, window_sampler
+from zoo.data.windows import frame_counts, gather_windows, window_sampler
 from zoo.distributed import DistInfo, init_distributed
 from zoo.errors import ZooError
 from zoo.evaluate import EVAL_BATCH, predict
@@ -503,18 +505,24 @@ def train(model_name: str, benchmark: str | Benchmark, *, registry: Registry | N
                         view), "max_batches": max_batches, "recipe_changes": recipe_changes,
             "init_from": init_record}
 
-    def training_windows():
-        """Every training window once, in a fixed order (for per-epoch statistics), in batches
-        of at most 2**24 values (64 MiB) so big meshes fit."""
+    def training_frames():
+        """Every distinct frame of the training windows once, in a fixed order, with how many
+        windows hold it (for per-epoch statistics over every frame of every window, at a
+        fraction of the cost: sampler ``all`` puts each frame in ``length`` windows), in
+        batches of at most 2**24 values (64 MiB) so big meshes fit."""
+        counts = frame_counts(train_index, [len(a) for a in train_pos], length)
         points = train_pos[0][:, used].shape[1]
-        batch = max(1, min(256, 2 ** 24 // (length * points * 3)))
-        for start in range(0, len(train_index), batch):
-            w = gather_windows(train_pos, train_index[start:start + batch], length)[:, :, used]
-            yield torch.from_numpy(w).to(device)
+        batch = max(1, 2 ** 24 // (points * 3))
+        for sequence, count in zip(train_pos, counts):
+            rows = np.nonzero(count)[0]
+            for start in range(0, len(rows), batch):
+                part = rows[start:start + batch]
+                yield (torch.from_numpy(np.ascontiguousarray(sequence[part][:, used])).to(device),
+                       torch.from_numpy(count[part]).to(device))
 
     for epoch in range(first_epoch, recipe["epochs"]):
         if hasattr(model, "start_epoch"):  # e.g. warm-up phases, statistics over the data
-            model.start_epoch(epoch, training_windows)
+            model.start_epoch(epoch, training_frames)
         order = torch.randperm(len(train_index),
                                generator=torch.Generator().manual_seed(seed * 100003 + epoch))
         augment_rng = np.random.default_rng([seed, epoch])

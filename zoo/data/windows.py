@@ -137,3 +137,25 @@ def gather_windows(sequences: Sequence[np.ndarray], index: np.ndarray, length: i
         rows = np.nonzero(index[:, 0] == i)[0]
         out[rows] = sequences[i][index[rows, 1, None] + offsets]
     return out
+
+
+def frame_counts(index: np.ndarray, lengths: Sequence[int], length: int) -> list[np.ndarray]:
+    """How many windows of ``index`` hold each frame: one int64 array ``(n,)`` per sequence.
+
+    Statistics "over every frame of every window" weight each frame by this count, so they can
+    be computed over each distinct frame once (with sampler ``all`` a frame sits in ``length``
+    windows).
+    """
+    lengths = np.asarray(lengths, np.int64)
+    seq, starts = index[:, 0], index[:, 1]
+    bad = np.nonzero((starts < 0) | (starts + length > lengths[seq]))[0]
+    if len(bad):
+        i = bad[0]
+        raise SamplerError(f"window {i} of sequence {seq[i]}: frames [{starts[i]}, "
+                           f"{starts[i] + length}) run past its {lengths[seq[i]]} frames")
+    # +1 where a window starts, -1 one past its end; each sequence has n + 1 slots
+    offsets = np.concatenate([[0], np.cumsum(lengths + 1)])
+    edges = np.zeros(offsets[-1], np.int64)
+    np.add.at(edges, offsets[seq] + starts, 1)
+    np.add.at(edges, offsets[seq] + starts + length, -1)
+    return [np.cumsum(edges[offsets[i]:offsets[i] + n]) for i, n in enumerate(lengths)]

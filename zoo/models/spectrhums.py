@@ -27,7 +27,8 @@ on latents encoded without gradient, so it trains the transformer alone. For the
 ``autoencoder_epochs`` epochs (2) only the static loss is used. ``start_epoch`` computes the
 coefficient statistics (first epoch) and the latent statistics (at the start of every epoch in
 which the transformer trains, with the encoder as it is then) over all frames of all training
-windows; both are buffers, so they travel with the checkpoint.
+windows (each distinct frame encoded once, weighted by the number of windows holding it); both
+are buffers, so they travel with the checkpoint.
 
 The static loss is measured in metres (coefficients divided by ``loss_unit_mm`` = 1000), the
 unit of the published SMPL data, while the model's inputs and outputs are in mm (zoo contract).
@@ -78,14 +79,21 @@ class Welford:
         self.mean = torch.zeros(self.shape, dtype=torch.float64, device=device)
         self.m2 = torch.zeros(self.shape, dtype=torch.float64, device=device)
 
-    def update(self, rows: Tensor) -> None:
-        """Add ``rows (N, *shape)``."""
+    def update(self, rows: Tensor, counts: Tensor | None = None) -> None:
+        """Add ``rows (N, *shape)``, row ``i`` taken ``counts[i]`` times (default once)."""
         rows = rows.detach().to(self.mean.device, torch.float64).reshape(-1, *self.shape)
-        n_b = rows.shape[0]
+        if counts is None:
+            counts = torch.ones(rows.shape[0], dtype=torch.int64)
+        counts = counts.detach().to(self.mean.device, torch.int64).reshape(-1)
+        if counts.shape[0] != rows.shape[0] or bool((counts < 0).any()):
+            raise SpecTrHuMSError(f"statistics: {counts.shape[0]} counts for {rows.shape[0]} "
+                                  f"rows (counts must be one non-negative integer per row)")
+        n_b = int(counts.sum())
         if n_b == 0:
             return
-        mean_b = rows.mean(0)
-        m2_b = (rows - mean_b).square().sum(0)
+        weight = counts.to(torch.float64).reshape(-1, *([1] * len(self.shape)))
+        mean_b = (weight * rows).sum(0) / n_b
+        m2_b = (weight * (rows - mean_b).square()).sum(0)
         n = self.count + n_b
         delta = mean_b - self.mean
         self.mean = self.mean + delta * (n_b / n)
@@ -516,53 +524,62 @@ class SpecTrHuMS(nn.Module):
 
     # ---- training ------------------------------------------------------------------------------
 
-    def start_epoch(self, epoch: int, windows: Callable[[], Iterable[Tensor]]) -> None:
+    def start_epoch(self, epoch: int,
+                    frames: Callable[[], Iterable[tuple[Tensor, Tensor]]]) -> None:
         """Training-engine hook: the phase of ``epoch`` and the statistics it needs.
 
         Coefficient statistics: in the first epoch (or whenever they were never computed);
         latent statistics: every epoch in which the transformer trains, with the current
-        encoder. Both over every frame of every training window ``(B, W, V, 3)``.
+        encoder. Both over every frame of every training window: ``frames()`` yields each
+        distinct training frame ``(N, V, 3)`` once with the number of windows holding it
+        ``(N,)``, which weights it.
         """
         self.phase = "autoencoder" if epoch < self.autoencoder_epochs else "joint"
         if epoch == 0 or int(self.coeff_frames) == 0:
-            self.compute_coefficient_statistics(windows())
+            self.compute_coefficient_statistics(frames())
         if self.phase == "joint":
-            self.compute_latent_statistics(windows())
+            self.compute_latent_statistics(frames())
 
     @torch.no_grad()
-    def compute_coefficient_statistics(self, windows: Iterable[Tensor]) -> None:
+    def compute_coefficient_statistics(self, frames: Iterable[tuple[Tensor, Tensor]]) -> None:
         stats = Welford((self.k, 3), self.coeff_mean.device)
-        for coeffs in self._window_coefficients(windows):
-            stats.update(coeffs)
+        for coeffs, counts in self._frame_coefficients(frames):
+            stats.update(coeffs, counts)
         mean, std = stats.finalize("coefficient statistics over the training windows")
         self.coeff_mean.copy_(mean)
         self.coeff_std.copy_(_floored(std))
         self.coeff_frames.fill_(stats.count)
 
     @torch.no_grad()
-    def compute_latent_statistics(self, windows: Iterable[Tensor]) -> None:
+    def compute_latent_statistics(self, frames: Iterable[tuple[Tensor, Tensor]]) -> None:
         if int(self.coeff_frames) == 0:
             raise SpecTrHuMSError("latent statistics need the coefficient statistics first "
                                   "(start_epoch computes both)")
         stats = Welford((self.latent_mean.shape[0],), self.latent_mean.device)
-        for coeffs in self._window_coefficients(windows):
-            stats.update(self.encode(coeffs))
+        for coeffs, counts in self._frame_coefficients(frames):
+            stats.update(self.encode(coeffs), counts)
         mean, std = stats.finalize("latent statistics over the training windows")
         self.latent_mean.copy_(mean)
         self.latent_std.copy_(_floored(std))
         self.latent_frames.fill_(stats.count)
 
-    def _window_coefficients(self, windows: Iterable[Tensor]) -> Iterator[Tensor]:
-        """Coefficients ``(N, k, 3)`` of all frames of ``windows``, a few thousand at a time."""
+    def _frame_coefficients(self, frames: Iterable[tuple[Tensor, Tensor]]
+                            ) -> Iterator[tuple[Tensor, Tensor]]:
+        """Coefficients ``(N, k, 3)`` of the training frames with their counts, a few thousand
+        frames at a time."""
         seen = 0
-        for batch in windows:
-            self._check_vertices(batch, "training windows", self.window)
-            frames = batch.to(self.coeff_mean.device, self.coeff_mean.dtype).flatten(0, 1)
-            for start in range(0, len(frames), _FRAMES_PER_CHUNK):
-                yield self.project(frames[start:start + _FRAMES_PER_CHUNK])
-            seen += len(frames)
+        for batch, counts in frames:
+            self._check_vertices(batch[None], "training frames", None)
+            if counts.shape != batch.shape[:1]:
+                raise SpecTrHuMSError(f"training frames: {tuple(counts.shape)} counts for "
+                                      f"{batch.shape[0]} frames (one count per frame)")
+            batch = batch.to(self.coeff_mean.device, self.coeff_mean.dtype)
+            for start in range(0, len(batch), _FRAMES_PER_CHUNK):
+                part = slice(start, start + _FRAMES_PER_CHUNK)
+                yield self.project(batch[part]), counts[part]
+            seen += len(batch)
         if seen == 0:
-            raise SpecTrHuMSError("training windows: none given")
+            raise SpecTrHuMSError("training frames: none given")
 
     def loss_terms(self, history: Tensor, future: Tensor) -> dict[str, Tensor | None]:
         """``{'static': ..., 'dynamic': ...}`` for a batch of windows (``dynamic`` is None in
@@ -578,7 +595,7 @@ class SpecTrHuMS(nn.Module):
                                   f"3), got {tuple(coeffs.shape)}")
         if int(self.coeff_frames) == 0:
             raise SpecTrHuMSError("training needs the coefficient statistics: call "
-                                  "start_epoch(epoch, windows) first (the training engine does)")
+                                  "start_epoch(epoch, frames) first (the training engine does)")
         b = coeffs.shape[0]
         if self.static_frames == self.window:
             picked = coeffs
@@ -592,7 +609,7 @@ class SpecTrHuMS(nn.Module):
             return {"static": static, "dynamic": None}
         if int(self.latent_frames) == 0:
             raise SpecTrHuMSError("the joint phase needs the latent statistics: call "
-                                  "start_epoch(epoch, windows) first (the training engine does)")
+                                  "start_epoch(epoch, frames) first (the training engine does)")
         with torch.no_grad():  # the dynamic loss never updates the encoder
             target = self.standardise_latents(self.encode(coeffs))
         dynamic = F.mse_loss(self.transform_window(target), target)
