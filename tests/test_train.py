@@ -12,6 +12,7 @@ import torch
 
 from conftest import write_cmu_file
 from tiny_models import REGISTRY
+import zoo.train as train_module
 from zoo.cli import main
 from zoo.registry import Registry
 from zoo.train import CheckpointError, TrainingError, load_checkpoint, read_checkpoint, train, \
@@ -69,7 +70,9 @@ def test_seeded_runs_match_and_checkpoint_carries_its_record(setup, tmp_path):
     assert ckpt["training"]["epochs_run"] >= 1
 
 
-def test_bfloat16_precision_trains_under_autocast_with_float32_weights(setup, tmp_path):
+def test_bfloat16_precision_trains_under_autocast_with_float32_weights(setup, tmp_path,
+                                                                     monkeypatch):
+    monkeypatch.setattr(train_module, "cpu_has_native_bfloat16", lambda: True)
     plain = run(setup, tmp_path / "fp32")
     mixed = run(setup, tmp_path / "bf16", train_overrides={"precision": "bfloat16"})
     ckpt = read_checkpoint(mixed)
@@ -78,6 +81,25 @@ def test_bfloat16_precision_trains_under_autocast_with_float32_weights(setup, tm
     assert all(v.dtype == torch.float32 for v in ckpt["state_dict"].values())
     # The same seed and data: only the forward's bfloat16 products differ.
     assert digest(mixed) != digest(plain)
+
+
+def test_bfloat16_on_a_cpu_without_native_bfloat16_warns_that_float32_is_faster(
+        setup, tmp_path, monkeypatch):
+    monkeypatch.setattr(train_module, "cpu_has_native_bfloat16", lambda: False)
+    with pytest.warns(RuntimeWarning, match=r"precision bfloat16 on a CPU without native "
+                                            r"bfloat16 .* precision=float32 is faster here"):
+        run(setup, tmp_path / "bf16", epochs=1, train_overrides={"precision": "bfloat16"})
+
+
+def test_native_bfloat16_is_read_from_the_cpu_flags(tmp_path):
+    from zoo.train import cpu_has_native_bfloat16
+
+    info = tmp_path / "cpuinfo"
+    info.write_text("processor\t: 0\nflags\t\t: fpu sse avx2 fma\n")
+    assert cpu_has_native_bfloat16(info) is False
+    info.write_text("processor\t: 0\nflags\t\t: fpu avx2 avx512f avx512_bf16\n")
+    assert cpu_has_native_bfloat16(info) is True
+    assert cpu_has_native_bfloat16(tmp_path / "missing") is None
 
 
 def test_checkpoint_provenance_names_repository_files_relative_to_it(tmp_path):
