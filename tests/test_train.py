@@ -102,6 +102,14 @@ def test_native_bfloat16_is_read_from_the_cpu_flags(tmp_path):
     assert cpu_has_native_bfloat16(tmp_path / "missing") is None
 
 
+def test_the_training_device_names_the_cpu_model_and_its_kernels():
+    from zoo.train import device_name
+
+    name = device_name("cpu")
+    assert name.startswith("CPU ") and torch.backends.cpu.get_cpu_capability() in name
+    assert name.endswith(f"{os.cpu_count()} cores")
+
+
 def test_checkpoint_provenance_names_repository_files_relative_to_it(tmp_path):
     from zoo.paths import REPO_ROOT
     from zoo.train import checkpoint_provenance

@@ -362,18 +362,29 @@ def trained_model(meta: dict[str, Any], state_dict: dict[str, torch.Tensor], kin
     return model.eval()
 
 
+def cpu_info(path: str | Path = "/proc/cpuinfo") -> dict[str, str]:
+    """The first processor's fields of ``path`` (Linux), or {} where it cannot be read."""
+    try:
+        text = Path(path).read_text()
+    except OSError:
+        return {}
+    info: dict[str, str] = {}
+    for line in text.splitlines():
+        key, sep, value = line.partition(":")
+        if not sep:
+            if info:  # a blank line ends the first processor
+                break
+            continue
+        info.setdefault(key.strip(), value.strip())
+    return info
+
+
 def cpu_has_native_bfloat16(cpuinfo: str | Path = "/proc/cpuinfo") -> bool | None:
     """Whether this CPU multiplies bfloat16 natively (AVX512-BF16 or AMX), from the flags of
     ``cpuinfo``; None where they cannot be read (not Linux). Without them a bfloat16 autocast
     runs its products on a slow fallback."""
-    try:
-        text = Path(cpuinfo).read_text()
-    except OSError:
-        return None
-    for line in text.splitlines():
-        if line.startswith("flags"):
-            return bool({"avx512_bf16", "amx_bf16"} & set(line.partition(":")[2].split()))
-    return None
+    flags = cpu_info(cpuinfo).get("flags")
+    return None if flags is None else bool({"avx512_bf16", "amx_bf16"} & set(flags.split()))
 
 
 def forward_precision(precision: str, device) -> torch.autocast:
@@ -766,7 +777,11 @@ def device_name(device) -> str:
         return torch.cuda.get_device_name(torch.device(device))
     import platform
 
-    return f"CPU {platform.processor() or platform.machine()}, {os.cpu_count()} cores"
+    # the model and the kernels torch picked (AVX2, AVX512, ...): a budget in minutes, and
+    # whether mixed precision pays, depend on both
+    model = cpu_info().get("model name") or platform.processor() or "CPU"
+    return (f"CPU {model} ({platform.machine()}, {torch.backends.cpu.get_cpu_capability()}), "
+            f"{os.cpu_count()} cores")
 
 
 def _plain(value):
