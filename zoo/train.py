@@ -539,19 +539,22 @@ def train(model_name: str, benchmark: str | Benchmark, *, registry: Registry | N
             "init_from": init_record}
 
     def training_frames():
-        """Every distinct frame of the training windows once, in a fixed order, with how many
-        windows hold it (for per-epoch statistics over every frame of every window, at a
-        fraction of the cost: sampler ``all`` puts each frame in ``length`` windows), in
-        batches of at most 2**24 values (64 MiB) so big meshes fit."""
+        """``(frames (N, P, 3), counts (N,))``: every distinct frame of the training windows
+        once, in a fixed order, with how many training windows hold it (statistics over every
+        frame of every window at a fraction of the cost: sampler all puts each frame in
+        ``length`` windows), in batches of at most 2**24 values (64 MiB) so big meshes fit."""
         counts = frame_counts(train_index, [len(a) for a in train_pos], length)
-        points = train_pos[0][:, used].shape[1]
-        batch = max(1, 2 ** 24 // (points * 3))
-        for sequence, count in zip(train_pos, counts):
-            rows = np.nonzero(count)[0]
-            for start in range(0, len(rows), batch):
-                part = rows[start:start + batch]
-                yield (torch.from_numpy(np.ascontiguousarray(sequence[part][:, used])).to(device),
-                       torch.from_numpy(count[part]).to(device))
+        flat = np.concatenate(counts)
+        held = flat > 0
+        # each held frame as a one-frame window (sequence, frame) for gather_windows
+        frame_index = np.stack([np.repeat(np.arange(len(counts)), [len(c) for c in counts]),
+                                np.concatenate([np.arange(len(c)) for c in counts])], 1)[held]
+        weights = torch.from_numpy(flat[held])
+        batch = max(1, 2 ** 24 // (train_pos[0][:, used].shape[1] * 3))
+        for start in range(0, len(frame_index), batch):
+            frames = gather_windows(train_pos, frame_index[start:start + batch], 1)[:, 0, used]
+            yield (torch.from_numpy(np.ascontiguousarray(frames)).to(device),
+                   weights[start:start + batch].to(device))
 
     for epoch in range(first_epoch, recipe["epochs"]):
         if hasattr(model, "start_epoch"):  # e.g. warm-up phases, statistics over the data
