@@ -84,12 +84,13 @@ def test_empty_checkpoint_names_the_file_and_the_fix(capsys, root, tmp_path):
     assert code == 2 and "train again, or restore the file" in last
 
 
-def test_ctrl_c_ends_in_one_line(capsys, monkeypatch, root):
+def test_ctrl_c_ends_in_one_line(capsys, monkeypatch, root, tmp_path):
     def interrupted(*args, **kwargs):
         raise KeyboardInterrupt
 
     monkeypatch.setattr("zoo.evaluate.evaluate", interrupted)
-    code, last = run(capsys, "eval", "--model", "repeat_last", "--data-root", str(root))
+    code, last = run(capsys, "eval", "--model", "repeat_last", "--data-root", str(root),
+                     "--out", str(tmp_path / "out"))
     assert code == 130 and last.startswith("zoo eval: interrupted")
 
 

@@ -15,8 +15,8 @@ from tiny_models import REGISTRY
 import zoo.train as train_module
 from zoo.cli import main
 from zoo.registry import Registry
-from zoo.train import CheckpointError, TrainingError, load_checkpoint, read_checkpoint, train, \
-    weights_digest
+from zoo.checkpoints import CheckpointError, load_checkpoint, read_checkpoint, weights_digest
+from zoo.train import TrainingError, train
 
 HERE = Path(__file__).resolve().parent
 
@@ -112,7 +112,7 @@ def test_the_training_device_names_the_cpu_model_and_its_kernels():
 
 def test_checkpoint_provenance_names_repository_files_relative_to_it(tmp_path):
     from zoo.paths import REPO_ROOT
-    from zoo.train import checkpoint_provenance
+    from zoo.checkpoints import checkpoint_provenance
     meta = {"hparams": {"hidden": 16}, "training": {"epochs_run": 3}}
     inside = checkpoint_provenance(REPO_ROOT / "checkpoints" / "cmu" / "mlp" / "best.pt", meta)
     assert inside == {"checkpoint": "checkpoints/cmu/mlp/best.pt", "hparams": {"hidden": 16},
@@ -282,7 +282,7 @@ def test_init_from_starts_a_new_stage_from_those_weights_and_records_them(setup,
 def test_init_from_shipped_weights_extends_a_published_row(setup, tmp_path):
     """Shipped weights (no checkpoint) start a new stage: anyone can extend a committed row's
     training from the repository alone; the record names the file, its kind and dtype."""
-    from zoo.train import export_weights
+    from zoo.checkpoints import export_weights
 
     first = run(setup, tmp_path / "a", epochs=1)
     shipped = export_weights(first, root=tmp_path / "weights", dtype="float32")

@@ -11,7 +11,8 @@ from tiny_models import MESH_REGISTRY
 from zoo import benchmark as benchmark_module
 from zoo.data.mesh import MeshDataset, MeshSequence, MeshTopology
 from zoo.registry import Registry
-from zoo.train import CheckpointError, load_checkpoint, read_checkpoint, train
+from zoo.checkpoints import CheckpointError, load_checkpoint, read_checkpoint
+from zoo.train import train
 
 HERE = Path(__file__).resolve().parent
 

@@ -12,8 +12,7 @@ from test_train import run, setup  # noqa: F401  (setup is a fixture)
 from zoo.cli import main
 from zoo.evaluate import EvalResult
 from zoo.leaderboard import regenerate
-from zoo.train import read_checkpoint
-from zoo.train import export_weights, load_weights
+from zoo.checkpoints import export_weights, load_weights, read_checkpoint
 from zoo.weights import WeightsError, read_weights
 
 

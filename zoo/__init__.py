@@ -1,7 +1,26 @@
 """motion-zoo: a model zoo and benchmark suite for 3D human motion prediction."""
 __version__ = "0.1.0"
 
-from zoo.api import create_model, list_models  # noqa: E402
+import sys as _sys
+import types as _types
+
+import zoo.compare  # noqa: E402
+import zoo.evaluate  # noqa: E402
+from zoo.api import create_model, list_models, load_results  # noqa: E402
 from zoo.registry import load_registry  # noqa: E402
 
-__all__ = ["__version__", "create_model", "list_models", "load_registry"]
+
+class _CallableModule(_types.ModuleType):
+    """``zoo.evaluate`` and ``zoo.compare`` are modules (``from zoo.evaluate import EvalResult``)
+    and the API's functions (``zoo.evaluate(model, "cmu")``) at once: calling the module calls
+    :mod:`zoo.api`'s function of the same name."""
+
+    def __call__(self, *args, **kwargs):
+        return getattr(_sys.modules["zoo.api"], self.__name__.rsplit(".", 1)[1])(*args, **kwargs)
+
+
+zoo.evaluate.__class__ = _CallableModule
+zoo.compare.__class__ = _CallableModule
+
+__all__ = ["__version__", "compare", "create_model", "evaluate", "list_models", "load_results",
+           "load_registry"]

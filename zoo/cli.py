@@ -12,8 +12,8 @@ from zoo.errors import ZooError
 from zoo.evaluate import EVAL_BATCH
 from zoo.paths import REPO_ROOT
 from zoo.registry import load_registry
+from zoo.store import RESULTS_DIR
 
-RESULTS_DIR = REPO_ROOT / "results"
 
 
 class UsageError(ZooError, ValueError):
@@ -65,81 +65,39 @@ def cmd_list(args) -> int:
     return 0
 
 
-def _load_model(args, registry, bench, dataset):
-    """The model to evaluate: a registered one, or the one a checkpoint or shipped weights
-    hold."""
-    overrides = parse_overrides(args.set)
-    if getattr(args, "weights", None):
-        from zoo.train import load_weights
-        from zoo.weights import weights_provenance
+def _source(args):
+    from zoo.model_source import ModelSource
 
-        if getattr(args, "checkpoint", None):
-            raise UsageError("give --weights or --checkpoint, not both")
-        if overrides:
-            raise UsageError("--set cannot change shipped weights' hyper-parameters")
-        model, record = load_weights(args.weights, registry=registry, benchmark=bench,
-                                     data_root=args.data_root, dataset=dataset)
-        if args.model and args.model != record["model"]:
-            raise UsageError(f"--model {args.model} but weights {args.weights} hold model "
-                             f"{record['model']!r}")
-        return record["model"], model, weights_provenance(args.weights, record)
-    if getattr(args, "checkpoint", None):
-        from zoo.train import checkpoint_provenance, load_checkpoint
+    return ModelSource.of(model=args.model, checkpoint=getattr(args, "checkpoint", None),
+                          weights=getattr(args, "weights", None),
+                          overrides=parse_overrides(args.set),
+                          label=getattr(args, "label", None))
 
-        model, ckpt = load_checkpoint(args.checkpoint, registry=registry, benchmark=bench,
-                                      data_root=args.data_root, dataset=dataset)
-        if args.model and args.model != ckpt["model"]:
-            raise UsageError(f"--model {args.model} but checkpoint {args.checkpoint} holds model "
-                             f"{ckpt['model']!r}")
-        if overrides:
-            raise UsageError("--set cannot change a trained checkpoint's hyper-parameters")
-        return ckpt["model"], model, checkpoint_provenance(args.checkpoint, ckpt)
-    if not args.model:
-        raise UsageError("give --model NAME or --checkpoint PATH")
-    from zoo.train import _stored_hparams
 
-    entry = registry.get(args.model)
-    view = bench.view_for(entry.representation)
-    hparams = registry.model_args(args.model, **{**bench.model_inputs(entry.context,
-                                                                       args.data_root, dataset,
-                                                                       view),
-                                                 **overrides})
-    model = registry.create_model(args.model, **hparams)
-    if entry.trainable:
-        print(f"warning: {args.model} is trainable and no --checkpoint was given: evaluating "
-              f"its untrained initialisation", file=sys.stderr)
-    return args.model, model, {"hparams": _stored_hparams(hparams)[0]}
+def _benchmark_of(args, source, default: str):
+    """The benchmark asked for, else the one a trained model was trained for, else
+    ``default``."""
+    from zoo.benchmark import get_benchmark
+
+    return get_benchmark(args.benchmark or source.benchmark() or default)
 
 
 def cmd_eval(args) -> int:
-    from zoo.benchmark import get_benchmark
     from zoo.distributed import init_distributed
-    from zoo.evaluate import evaluate
-    from zoo.leaderboard import results_folder
+    from zoo.evaluate import evaluate, protocol_for
+    from zoo.leaderboard import stamp
+    from zoo.store import check_replace, result_path, table_folder
 
     registry = _registry(args)
-    if args.benchmark is None and args.checkpoint:
-        from zoo.train import read_checkpoint
-
-        # A trained model is evaluated under the protocol its checkpoint records by default.
-        args.benchmark = read_checkpoint(args.checkpoint)["protocol"]["benchmark"]
-    if args.benchmark is None and args.weights:
-        from zoo.weights import read_weights
-
-        args.benchmark = read_weights(args.weights)[1]["protocol"]["benchmark"]
-    bench = get_benchmark(args.benchmark or "cmu")
+    source = _source(args)
+    bench = _benchmark_of(args, source, "cmu")
     dataset = bench.load(args.data_root)
-    name, model, provenance = _load_model(args, registry, bench, dataset)
-    view = bench.view_for(registry.get(name).representation)
-    provenance = {**registry.get(name).provenance(), **provenance}
-    if args.checkpoint and Path(args.checkpoint).name == "last.pt":
-        name += "@last"  # the fully trained checkpoint, labelled as the leaderboard does
-    if args.weights:
-        name = Path(args.weights).stem  # the shipped label: <model> or <model>@last
+    loaded = source.load(registry, bench, dataset, args.data_root)
+    loaded.warn_if_untrained()
     samplers = args.sampler or [bench.sampler]
     if args.out and len(samplers) > 1:
         raise UsageError("--out takes one --sampler; omit --out to write "
-                         "results/<benchmark>/<sampler>/<model>/ for each")
+                         "results/<benchmark>/<sampler>/<label>/ for each")
     from zoo.io import check_output_folder
 
     if args.melv_frames is not None and bench.representation != "mesh":
@@ -147,26 +105,30 @@ def cmd_eval(args) -> int:
     # Only a MELV other than the benchmark's default gets a folder of its own.
     melv = args.melv_frames if args.melv_frames not in (None, getattr(bench, "melv_on", None)) \
         else None
-    for sampler in samplers:  # every output folder checked before any evaluation
-        folder = results_folder(sampler, args.task, args.ground_truth, args.horizon_frames,
-                                melv)
-        check_output_folder(Path(args.out) if args.out else
-                            RESULTS_DIR / bench.name / folder / name)
+    plans = []
+    for sampler in samplers:  # every output place checked before any evaluation
+        folder = table_folder(sampler, args.task, args.ground_truth, args.horizon_frames, melv)
+        out = Path(args.out) if args.out else result_path(args.results, bench.name, folder,
+                                                          loaded.label)
+        check_output_folder(out)
+        protocol = protocol_for(bench, dataset, sampler=sampler, task=args.task,
+                                horizon=args.horizon_frames, ground_truth=args.ground_truth,
+                                melv_frames=args.melv_frames)
+        identity = loaded.identity(bench.name, protocol["protocol_id"])
+        check_replace(out, identity, replace=args.replace, protocol=protocol)
+        plans.append((sampler, out, identity))
     # Under torchrun every process scores its share of the windows and all get the whole
     # result; the first writes it.
     writer = init_distributed(args.device).rank == 0
-    for sampler in samplers:
-        result = evaluate(model, bench, model_name=name, sampler=sampler, dataset=dataset,
-                          view=view,
-                          batch_size=args.batch_size,
-                          device=args.device, provenance=_jsonable(provenance),
+    for sampler, out, identity in plans:
+        result = evaluate(loaded.model, bench, model_name=loaded.label, sampler=sampler,
+                          dataset=dataset, view=loaded.view, batch_size=args.batch_size,
+                          device=args.device, provenance=_jsonable(loaded.provenance),
                           task=args.task, horizon=args.horizon_frames,
                           ground_truth=args.ground_truth, melv_frames=args.melv_frames)
+        stamp(result, identity)
         if not writer:
             continue
-        folder = results_folder(sampler, args.task, args.ground_truth, args.horizon_frames,
-                                melv)
-        out = Path(args.out) if args.out else RESULTS_DIR / bench.name / folder / name
         result.write(out)
         _print_average(result.frame, bench.horizons_ms)
         print(f"wrote {out}/results.csv, protocol.json, tables.md, windows.npz")
@@ -176,8 +138,8 @@ def cmd_eval(args) -> int:
 def cmd_weights(args) -> int:
     from tabulate import tabulate
 
-    from zoo.train import export_weights
-    from zoo.weights import available_weights, read_weights, weights_file
+    from zoo.checkpoints import export_weights
+    from zoo.weights import available_weights, read_weights_record, weights_file
 
     root = Path(args.root)
     if args.action == "export":
@@ -191,7 +153,7 @@ def cmd_weights(args) -> int:
         raise UsageError("zoo weights list takes no CHECKPOINT or --label")
     rows = []
     for bench, label in available_weights(root):
-        record = read_weights(weights_file(bench, label, root))[1]
+        record = read_weights_record(weights_file(bench, label, root))
         training = record.get("training", {})
         rows.append([bench, label, record["model"], f"{record['parameters'] / 1e6:.2f} M",
                      record["dtype"], training.get("samples_seen"),
@@ -204,32 +166,43 @@ def cmd_weights(args) -> int:
 def cmd_leaderboard(args) -> int:
     import time
 
-    from zoo.leaderboard import CheckReport, regenerate
+    from zoo.leaderboard import CheckReport, Plan, regenerate
 
     registry = _registry(args)
     check = CheckReport() if args.check else None
+    if check and (args.recompute is not None or args.model or args.drop):
+        raise UsageError("--check recomputes every committed row and writes nothing; it takes "
+                         "no --recompute, --model or --drop")
     if not args.benchmark:
         args.benchmark = committed_benchmarks(Path(args.out)) if check else \
             list(default_benchmarks())
+    names = [Path(b).stem for b in args.benchmark]
+    unknown = sorted(set(args.recompute or ()) - set(names))
+    if unknown:
+        raise UsageError(f"--recompute {' '.join(unknown)}: not among the benchmarks of this run "
+                         f"({', '.join(names)})")
     if check:
-        for bench in args.benchmark:
-            name = Path(bench).stem
+        for name in names:
             if not list((Path(args.out) / name).glob("*/results.csv")):
                 raise UsageError(f"--check: no committed table of {name} under {args.out} "
                                  f"(expected {args.out}/{name}/<sampler>/results.csv)")
     started = time.perf_counter()
-    for bench in args.benchmark:
-        regenerate(bench, registry=registry, data_root=args.data_root,
-                   out_root=Path(args.out), checkpoints=Path(args.checkpoints),
-                   weights=Path(args.weights), device=args.device, check=check)
+    for bench, name in zip(args.benchmark, names):
+        plan = Plan(recompute=args.recompute is not None and (not args.recompute
+                                                             or name in args.recompute),
+                    models=frozenset(args.model or ()), drop=frozenset(args.drop or ()),
+                    check=check)
+        regenerate(bench, registry=registry, data_root=args.data_root, out_root=Path(args.out),
+                   checkpoints=Path(args.checkpoints), weights=Path(args.weights),
+                   device=args.device, plan=plan)
     if check is None:
         from zoo.leaderboard import write_index
 
-        print(f"wrote {write_index(Path(args.out))}")
+        print(f"wrote {write_index(Path(args.out))} ({time.perf_counter() - started:.0f} s)")
         return 0
     for problem in check.problems:
         print(f"zoo leaderboard --check: {problem}", file=sys.stderr)
-    print(f"{check.summary()} ({', '.join(args.benchmark)}; {time.perf_counter() - started:.0f} "
+    print(f"{check.summary()} ({', '.join(names)}; {time.perf_counter() - started:.0f} "
           f"s){'' if not check.problems else f'; {len(check.problems)} problem(s) above'}")
     return 1 if check.problems else 0
 
@@ -259,11 +232,12 @@ def cmd_compare(args) -> int:
             raise UsageError(f"{name!r} is not a result folder; give --benchmark to find "
                              f"results/<benchmark>/<sampler>/{name}")
         from zoo.benchmark import get_benchmark
-        from zoo.leaderboard import results_folder
+        from zoo.store import result_path, table_folder
 
         bench = get_benchmark(args.benchmark)
-        folder = Path(args.results) / bench.name / results_folder(
-            args.sampler or bench.sampler, truth=args.ground_truth) / name
+        folder = result_path(args.results, bench.name,
+                             table_folder(args.sampler or bench.sampler, truth=args.ground_truth),
+                             name)
         if not (folder / "results.csv").is_file():
             raise UsageError(f"{folder}: no result of {name!r} there (zoo eval or zoo "
                              f"leaderboard writes it)")
@@ -280,26 +254,18 @@ def cmd_compare(args) -> int:
 
 
 def cmd_render(args) -> int:
-    from zoo.benchmark import get_benchmark
     from zoo.render import render_windows
 
     registry = _registry(args)
-    if args.benchmark is None and args.checkpoint:
-        from zoo.train import read_checkpoint
-
-        args.benchmark = read_checkpoint(args.checkpoint)["protocol"]["benchmark"]
-    if args.benchmark is None and args.weights:
-        from zoo.weights import read_weights
-
-        args.benchmark = read_weights(args.weights)[1]["protocol"]["benchmark"]
-    bench = get_benchmark(args.benchmark or "cloth")
+    source = _source(args)
+    bench = _benchmark_of(args, source, "cloth")
     if bench.representation != "mesh":
         raise UsageError(f"zoo render draws meshes; benchmark {bench.name!r} is a skeleton one")
     dataset = bench.load(args.data_root)
-    name, model, _ = _load_model(args, registry, bench, dataset)
+    loaded = source.load(registry, bench, dataset, args.data_root)
     out = Path(args.out) if args.out else RESULTS_DIR / bench.name / "renders"
-    written = render_windows(model, name, bench, dataset, args.windows, out, task=args.task,
-                             horizon=args.horizon_frames)
+    written = render_windows(loaded.model, loaded.label, bench, dataset, args.windows, out,
+                             task=args.task, horizon=args.horizon_frames)
     print("wrote " + ", ".join(str(p) for p in written))
     return 0
 
@@ -432,7 +398,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--sampler", action="append",
                    help="window sampler (ltd8, rand256, all, strideK, strideK_strict); "
                         "repeatable; default the benchmark's")
-    p.add_argument("--out", help="output folder (default results/<benchmark>/<sampler>/<model>)")
+    p.add_argument("--out", help="output folder (default results/<benchmark>/<sampler>/<label>)")
+    p.add_argument("--results", default=str(RESULTS_DIR), help="results root (default results/)")
+    p.add_argument("--label", help="the row's label and folder name (default: the model's name, "
+                                   "<model>@last for a last.pt, <model>+key=value with --set)")
+    p.add_argument("--replace", action="store_true",
+                   help="replace a stored result of another identity (other hyper-parameters, "
+                        "data, weights or code) in the same place")
     p.add_argument("--set", action="append", metavar="KEY=VALUE",
                    help="override a hyper-parameter; repeatable")
     p.add_argument("--batch-size", type=_positive_int, default=EVAL_BATCH,
@@ -461,8 +433,17 @@ def build_parser() -> argparse.ArgumentParser:
                         "(default checkpoints/, where zoo train writes)")
     p.add_argument("--check", action="store_true",
                    help="write nothing: recompute every row of every committed table (default: "
-                        "every benchmark under --out) and exit 1 naming each row that differs "
-                        "by more than 1e-6 relative")
+                        "every benchmark under --out) and exit 1 naming each value that differs "
+                        "by more than float32 rounding across CPUs (tolerance in the summary)")
+    p.add_argument("--model", action="append", metavar="NAME",
+                   help="add or refresh only this model's rows (repeatable); every other "
+                        "stored row is kept as it is")
+    p.add_argument("--recompute", nargs="*", metavar="BENCHMARK",
+                   help="recompute every row (of these benchmarks; alone: of all) instead of "
+                        "reusing stored rows whose identity holds")
+    p.add_argument("--drop", action="append", metavar="LABEL",
+                   help="remove this row's result folder from the tables (repeatable): the way "
+                        "to delete a row the leaderboard did not make")
     p.set_defaults(func=cmd_leaderboard)
 
     p = sub.add_parser("compare", help="is A better than B? paired differences per horizon "

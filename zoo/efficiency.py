@@ -83,6 +83,11 @@ def _threads() -> str:
     return f"{n} thread{'s' if n != 1 else ''}"
 
 
+def machine(device="cpu") -> str:
+    """The machine a cost was measured on: the device's name and torch's thread count."""
+    return f"{device_name(device)}, {_threads()}"
+
+
 def measure(model: torch.nn.Module, *, input_frames: int, output_frames: int, points: int,
             task: str = "prediction", recipe: dict[str, Any] | None = None,
             device="cpu") -> dict[str, Any]:
@@ -92,7 +97,7 @@ def measure(model: torch.nn.Module, *, input_frames: int, output_frames: int, po
     history = _windows(1, input_frames, points, device)
     row = {"parameters": sum(p.numel() for p in model.parameters()),
            "gflop_per_sample": None, "latency_ms": None, "train_samples_per_s": None,
-           "device": f"{device_name(device)}, {_threads()}"}
+           "device": machine(device)}
     if task == "prediction":  # the other tasks take more than the history
         row["gflop_per_sample"] = forward_gflop(model, history)
         row["latency_ms"] = latency_ms(model, history)

@@ -147,6 +147,21 @@ class EvalResult:
                 self.windows.write(folder / WINDOWS_FILE)
         return out_dir
 
+    def summary(self, metric: str | None = None, averaging: str = "frame") -> pd.DataFrame:
+        """The action average per horizon (columns, ms) of every model and joint protocol of
+        ``metric`` (default: every metric), under ``averaging``."""
+        frame = self.frame[(self.frame["action"] == "average") &
+                           (self.frame["averaging"] == averaging)]
+        if metric is not None:
+            frame = frame[frame["metric"] == metric]
+        return frame.pivot_table(index=["model", "metric", "joints"], columns="horizon_ms",
+                                 values="value")
+
+    @property
+    def identity(self) -> dict[str, Any] | None:
+        """What was measured (:mod:`zoo.store`), as recorded in ``protocol.json``."""
+        return self.protocol.get("provenance", {}).get("identity")
+
     @classmethod
     def read(cls, out_dir: str | Path) -> "EvalResult":
         out_dir = Path(out_dir)
@@ -222,6 +237,10 @@ def _seal(record: dict[str, Any], model_name: str, device, provenance: dict | No
         "torch": str(torch.__version__),
         "device": str(device),
         "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+        # float32 kernels round differently on other CPUs (summation order, fused
+        # multiply-adds): a re-run elsewhere agrees to rounding, not to the last bit
+        "exactness": "float32 evaluation: another CPU reproduces these values and per-window "
+                     "errors to rounding (zoo leaderboard --check's tolerance), not bit for bit",
         **(provenance or {}),
     }
 
@@ -289,19 +308,12 @@ def evaluate(model: torch.nn.Module, benchmark: str | Benchmark, *, model_name: 
         if value is not None:
             raise EvaluationError(f"benchmark {bench.name}: {name}={value!r} applies to mesh "
                                   f"benchmarks only")
-    sampler = check_sampler(sampler or bench.sampler)
     dataset = dataset if dataset is not None else bench.load(data_root)
     skeleton = dataset.skeleton
+    plan = _skeleton_plan(bench, dataset, sampler, task, horizon)
+    sampler, t_out, index, actions, record = plan
     t_in = bench.input_frames
-    t_out = check_task(task, horizon, bench.output_frames)
     sequences = dataset.sequences
-    index = window_sampler(sampler, [len(s) for s in sequences], t_in, t_out, dataset.ltd_rule,
-                           groups=[s.action for s in sequences],
-                           subactions=[s.subaction for s in sequences])
-    if len(index) == 0:
-        raise EvaluationError(f"benchmark {bench.name}: sampler {sampler} found no window of "
-                              f"{t_in + t_out} frames in {dataset.root}")
-    actions = np.asarray([sequences[i].action for i in index[:, 0]])
     positions = [s.positions for s in sequences]
     used = list(skeleton.used)
     dist_info = init_distributed(device)
@@ -318,13 +330,47 @@ def evaluate(model: torch.nn.Module, benchmark: str | Benchmark, *, model_name: 
                              in skeleton_errors(pred, windows[:, t_in:], skeleton).items()}
     accumulators, log = _accumulate(gather_shares(scored, dist_info), actions)
 
+    _seal(record, model_name, device, provenance)
+    return EvalResult(frame=_frame(accumulators, record, record["windows_per_action"]),
+                      protocol=record,
+                      windows=log.compute(sequences, index, actions, record["protocol_id"],
+                                          t_in + t_out))
+
+
+def _skeleton_plan(bench: Benchmark, dataset: MotionDataset, sampler: str | None, task: str,
+                   horizon: int | None):
+    """The windows a skeleton evaluation scores and its protocol record (not yet sealed)."""
+    sampler = check_sampler(sampler or bench.sampler)
+    t_in = bench.input_frames
+    t_out = check_task(task, horizon, bench.output_frames)
+    sequences = dataset.sequences
+    index = window_sampler(sampler, [len(s) for s in sequences], t_in, t_out, dataset.ltd_rule,
+                           groups=[s.action for s in sequences],
+                           subactions=[s.subaction for s in sequences])
+    if len(index) == 0:
+        raise EvaluationError(f"benchmark {bench.name}: sampler {sampler} found no window of "
+                              f"{t_in + t_out} frames in {dataset.root}")
+    actions = np.asarray([sequences[i].action for i in index[:, 0]])
     windows_per_action = {a: int((actions == a).sum()) for a in dataset.actions_present}
     record = protocol_record(bench, dataset, sampler, windows_per_action)
     record.update(_task_record(task, t_out))
-    _seal(record, model_name, device, provenance)
-    return EvalResult(frame=_frame(accumulators, record, windows_per_action), protocol=record,
-                      windows=log.compute(sequences, index, actions, record["protocol_id"],
-                                          t_in + t_out))
+    return sampler, t_out, index, actions, record
+
+
+def protocol_for(benchmark: str | Benchmark, dataset=None, *, sampler: str | None = None,
+                 task: str = "prediction", horizon: int | None = None,
+                 ground_truth: str | None = None, melv_frames: str | None = None,
+                 data_root: str | Path | None = None) -> dict[str, Any]:
+    """The protocol record (with its ``protocol_id``) that ``evaluate`` would write for these
+    settings, found without running any model: what a stored result is checked against."""
+    bench = get_benchmark(benchmark) if isinstance(benchmark, (str, Path)) else benchmark
+    dataset = dataset if dataset is not None else bench.load(data_root)
+    if bench.representation == "mesh":
+        record = _mesh_plan(bench, dataset, sampler, task, horizon, ground_truth,
+                            melv_frames)[-1]
+    else:
+        record = _skeleton_plan(bench, dataset, sampler, task, horizon)[-1]
+    return {**record, "protocol_id": protocol_id(record)}
 
 
 def _my_batches(windows: int, batch_size: int, dist_info: DistInfo) -> range:
@@ -463,32 +509,22 @@ def evaluate_mesh(model: torch.nn.Module, benchmark: str | Benchmark, *, model_n
     ``view='joints'``: a skeleton model sees the regressed joints ``(B, T_in, J, 3)`` of the same
     windows and predicts ``(B, T_out, J, 3)``; it gets the ``mpjpe`` rows only, under the very
     protocol record of the mesh models, so both share one MPJPE table."""
-    from zoo.benchmark import GROUND_TRUTHS
     from zoo.data.spectral import SpectralBasis
     from zoo.metrics import melv, mpjpe, regress_joints, regressed_mpjpe, vertex_rmse
 
     bench = get_benchmark(benchmark) if isinstance(benchmark, (str, Path)) else benchmark
-    sampler = check_sampler(sampler or bench.sampler)
-    ground_truth = ground_truth or bench.ground_truth
-    if ground_truth not in GROUND_TRUTHS:
-        raise EvaluationError(f"ground_truth must be one of {', '.join(GROUND_TRUTHS)}, got "
-                              f"{ground_truth!r}")
     if view not in ("mesh", "joints"):
         raise EvaluationError(f"view must be mesh or joints, got {view!r}")
-    melv_frames = melv_frames or bench.melv_on
-    if melv_frames not in GROUND_TRUTHS:
-        raise EvaluationError(f"melv_frames must be one of {', '.join(GROUND_TRUTHS)}, got "
-                              f"{melv_frames!r}")
-    if "spectral" in (ground_truth, melv_frames) and bench.spectral_k is None:
-        raise EvaluationError(f"benchmark {bench.name}: spectral ground truth or MELV needs a "
-                              f"spectral basis (field spectral_k in {bench.source})")
     dataset = dataset if dataset is not None else bench.load(data_root)
     topology = dataset.topology
     regressor = dataset.joint_regressor
     if view == "joints" and regressor is None:
         raise EvaluationError(f"benchmark {bench.name}: {dataset.name} has no joint regressor, so "
                               f"skeleton model {model_name!r} cannot be evaluated on it")
-    basis = bench.spectral_basis(dataset) if "spectral" in (ground_truth, melv_frames) else None
+    sampler, t_out, index, actions, basis, record = _mesh_plan(
+        bench, dataset, sampler, task, horizon, ground_truth, melv_frames)
+    ground_truth, melv_frames = bench.ground_truth if ground_truth is None else ground_truth, \
+        melv_frames or bench.melv_on
     truth_basis = basis if ground_truth == "spectral" else None
 
     def melv_of(frames: torch.Tensor, reference: torch.Tensor) -> torch.Tensor:
@@ -499,16 +535,7 @@ def evaluate_mesh(model: torch.nn.Module, benchmark: str | Benchmark, *, model_n
 
     floor = getattr(model, "autoencoder_floor", None) if view == "mesh" else None
     t_in = bench.input_frames
-    t_out = check_task(task, horizon, bench.output_frames)
     sequences = dataset.sequences
-    index = window_sampler(sampler, [len(s) for s in sequences], t_in, t_out, "per_file",
-                           groups=[s.action for s in sequences])
-    if len(index) == 0:
-        raise EvaluationError(f"benchmark {bench.name}: sampler {sampler} found no window of "
-                              f"{t_in + t_out} frames in {dataset.name}/{dataset.split} "
-                              f"(sequences of {min(len(s) for s in sequences)} to "
-                              f"{max(len(s) for s in sequences)} frames)")
-    actions = np.asarray([sequences[i].action for i in index[:, 0]])
     vertices = [s.vertices for s in sequences]
     edges = topology.edges
     dist_info = init_distributed(device)
@@ -553,21 +580,58 @@ def evaluate_mesh(model: torch.nn.Module, benchmark: str | Benchmark, *, model_n
             scored[start] = {key: _float64(value) for key, value in errors.items()}
     accumulators, log = _accumulate(gather_shares(scored, dist_info), actions)
 
-    windows_per_action = {a: int((actions == a).sum()) for a in dataset.actions_present
-                          if (actions == a).any()}
-    record = {**mesh_protocol_record(bench, dataset, sampler, windows_per_action, ground_truth,
-                                     basis, melv_frames), **_task_record(task, t_out)}
     model_basis = getattr(model, "basis", None)
     _seal(record, model_name, device, {
         # The data are named by their recipe in the protocol; the bytes of a generated mesh
         # follow the machine's float kernels (CMU-on-Anny's skinning: other bytes on another
         # CPU), so their hash is this build's provenance, not part of the protocol.
         "data_hash": dataset.content_hash(),
+        "data_exactness": "generated from its recipe on this machine: another CPU's build may "
+                          "differ in the last bits of its vertices (data_hash), and so may "
+                          "errors computed from them (MELV most: a difference of edge lengths)",
         **({"basis_checksum": basis.checksum} if isinstance(basis, SpectralBasis) else {}),
         **({"model_basis": {"k": model_basis.k, "hash": model_basis.hash}}
            if isinstance(model_basis, SpectralBasis) else {}),
         **({"model_input": f"regressed joints (regressor{regressor.shape[0]})"}
            if view == "joints" else {}), **(provenance or {})})
-    return EvalResult(frame=_frame(accumulators, record, windows_per_action), protocol=record,
+    return EvalResult(frame=_frame(accumulators, record, record["windows_per_action"]),
+                      protocol=record,
                       windows=log.compute(sequences, index, actions, record["protocol_id"],
                                           t_in + t_out))
+
+
+def _mesh_plan(bench: Benchmark, dataset, sampler: str | None, task: str, horizon: int | None,
+               ground_truth: str | None, melv_frames: str | None):
+    """The windows a mesh evaluation scores, the spectral basis it needs (or None) and its
+    protocol record (not yet sealed)."""
+    from zoo.benchmark import GROUND_TRUTHS
+
+    sampler = check_sampler(sampler or bench.sampler)
+    ground_truth = ground_truth or bench.ground_truth
+    if ground_truth not in GROUND_TRUTHS:
+        raise EvaluationError(f"ground_truth must be one of {', '.join(GROUND_TRUTHS)}, got "
+                              f"{ground_truth!r}")
+    melv_frames = melv_frames or bench.melv_on
+    if melv_frames not in GROUND_TRUTHS:
+        raise EvaluationError(f"melv_frames must be one of {', '.join(GROUND_TRUTHS)}, got "
+                              f"{melv_frames!r}")
+    if "spectral" in (ground_truth, melv_frames) and bench.spectral_k is None:
+        raise EvaluationError(f"benchmark {bench.name}: spectral ground truth or MELV needs a "
+                              f"spectral basis (field spectral_k in {bench.source})")
+    basis = bench.spectral_basis(dataset) if "spectral" in (ground_truth, melv_frames) else None
+    t_in = bench.input_frames
+    t_out = check_task(task, horizon, bench.output_frames)
+    sequences = dataset.sequences
+    index = window_sampler(sampler, [len(s) for s in sequences], t_in, t_out, "per_file",
+                           groups=[s.action for s in sequences])
+    if len(index) == 0:
+        raise EvaluationError(f"benchmark {bench.name}: sampler {sampler} found no window of "
+                              f"{t_in + t_out} frames in {dataset.name}/{dataset.split} "
+                              f"(sequences of {min(len(s) for s in sequences)} to "
+                              f"{max(len(s) for s in sequences)} frames)")
+    actions = np.asarray([sequences[i].action for i in index[:, 0]])
+    windows_per_action = {a: int((actions == a).sum()) for a in dataset.actions_present
+                          if (actions == a).any()}
+    record = {**mesh_protocol_record(bench, dataset, sampler, windows_per_action, ground_truth,
+                                     basis, melv_frames), **_task_record(task, t_out)}
+    return sampler, t_out, index, actions, basis, record

@@ -1,9 +1,13 @@
-"""Leaderboards: re-evaluate every model a benchmark can show (``regenerate``), write
-``results/<benchmark>/<sampler>/`` (tables from :mod:`zoo.tables`, plots), or check the
-committed ones without writing (``CheckReport``)."""
+"""Leaderboards: bring every table of a benchmark up to date (``regenerate``: stored rows
+reused while their identity holds, new and stale rows recomputed), write
+``results/<benchmark>/<table>/`` (tables from :mod:`zoo.tables`, plots), or check the committed
+ones without writing (``CheckReport``)."""
 from __future__ import annotations
 
-from contextlib import nullcontext
+import os
+import shutil
+import sys
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterable
@@ -11,8 +15,11 @@ from typing import Iterable
 import numpy as np
 import pandas as pd
 
-from zoo.io import atomic_write_json, atomic_write_text, folder_lock, replace_folder, \
-    save_figure
+from zoo.evaluate import evaluate
+from zoo.io import atomic_write_json, atomic_write_text, replace_folder, save_figure
+from zoo.model_source import ModelSource
+from zoo.store import RESULTS_DIR, StoreError, identity_differences, identity_id, \
+    stored_identity, table_folder
 from zoo.tables import check_comparable, headline_table, markdown_tables, metric_unit, \
     protocol_differences
 
@@ -118,81 +125,500 @@ def plot_training_curves(curves: dict[str, list[tuple[int, float]]], path: str |
 @dataclass
 class CheckReport:
     """What ``zoo leaderboard --check`` found: rows and tables recomputed, the largest
-    difference from the committed values, and every problem (a row that differs, a row or
-    table missing on either side, a row that cannot be recomputed)."""
-    tolerance: float = 1e-6
+    difference from the committed values (and where), and every problem (a value outside its
+    tolerance, a row or table missing on either side, a row that cannot be recomputed).
+
+    Tolerances follow from the arithmetic (see :data:`TOLERANCES`): a value is named when it
+    differs from the committed one by more than ``tolerance(metric) * max(|value|, scale)``."""
     rows: int = 0
     tables: int = 0
     models: set = field(default_factory=set)
-    max_difference: float = 0.0
+    largest: tuple = (0.0, 0.0, 0.0, "")  # (share of its tolerance, relative, absolute, where)
     problems: list = field(default_factory=list)
 
+    def note(self, gap: np.ndarray, old: np.ndarray, allowed: np.ndarray, where) -> None:
+        """Keep the largest difference (measured as a share of its tolerance) and where
+        (``where``: text, or a function of the position of that difference)."""
+        if not gap.size:
+            return
+        share = gap / allowed
+        i = int(np.argmax(share))
+        if share.flat[i] > self.largest[0] or not self.largest[3]:
+            relative = gap.flat[i] / max(abs(old.flat[i]), 1e-12)
+            self.largest = (float(share.flat[i]), float(relative), float(gap.flat[i]),
+                            where(i) if callable(where) else where)
+
     def summary(self) -> str:
-        return (f"checked {self.rows} rows of {len(self.models)} models in {self.tables} tables: "
-                f"max |difference| {self.max_difference:.3g}")
+        share, relative, absolute, where = self.largest
+        return (f"checked {self.rows} rows of {len(self.models)} models in {self.tables} tables "
+                f"against tolerance {tolerance_text()}: largest difference {absolute:.2g} "
+                f"({relative:.2g} relative, {share:.2f} of its tolerance) at {where or '-'}")
 
 
-def regenerate(benchmark, *, registry=None, data_root=None, out_root: str | Path = "results",
+@dataclass
+class Plan:
+    """What one ``zoo leaderboard`` run does on a benchmark. ``recompute``: every row anew;
+    ``models``: (re)compute only these models' rows, keep every other stored row as it is;
+    ``drop``: labels whose result folders are removed (deliberately) from the tables;
+    ``check``: write nothing, recompute every committed row and compare."""
+    recompute: bool = False
+    models: frozenset = frozenset()
+    drop: frozenset = frozenset()
+    check: CheckReport | None = None
+
+
+@dataclass
+class Row:
+    """One planned row of a table: a label and where its model comes from."""
+    label: str
+    name: str
+    source: ModelSource
+
+
+def regenerate(benchmark, *, registry=None, data_root=None, out_root: str | Path | None = None,
                checkpoints: str | Path | None = None, weights: str | Path | None = None,
-               device: str = "cpu", check: CheckReport | None = None) -> list[Path]:
-    """Re-evaluate every model that can be evaluated on ``benchmark`` under each of its samplers
-    (and, for mesh benchmarks, each ground truth: ``<sampler>-gt_spectral`` beside ``<sampler>``)
-    and rebuild ``<out_root>/<benchmark>/<sampler>/``.
+               device: str = "cpu", plan: Plan | None = None) -> list[Path]:
+    """Bring ``<out_root>/<benchmark>/<table>/`` up to date for every sampler, task and (mesh
+    benchmarks) ground truth of ``benchmark``: reuse each stored row whose identity
+    (:mod:`zoo.store`) still holds, recompute rows that are new or stale (saying why), keep
+    every result folder it did not plan (a row of a registry not loaded now stays as stored),
+    and rewrite a table only when one of its rows changed.
 
-    A model is evaluated if it needs no training, if shipped weights
-    ``<weights>/<benchmark>/<label>.safetensors`` exist (they take precedence: a published row
-    is always computed from the published weights), or if its checkpoint
-    ``<checkpoints>/<benchmark>/<model>/best.pt`` (where ``zoo train`` writes it) exists;
-    otherwise a result folder already under ``out_root`` (from an earlier ``zoo eval
-    --checkpoint``) is kept if its protocol still matches, and skipped with a warning naming the
-    difference if not.
-
-    ``check``: write nothing; recompute every row and compare it with the committed tables
-    under ``out_root``, recording every difference in the report (a row that cannot be
-    recomputed is a problem, never kept).
+    Rows: every registered model that needs no training; a trainable one from its shipped
+    weights ``<weights>/<benchmark>/<label>.safetensors`` (a published row is always computed
+    from the published weights), else from its checkpoint ``<checkpoints>/<benchmark>/<model>/
+    best.pt`` (and ``last.pt`` as ``<model>@last`` when it trained past its best epoch).
     """
     from zoo.benchmark import get_benchmark
     from zoo.registry import load_registry
 
-    registry = registry or load_registry()
-    bench = get_benchmark(benchmark) if isinstance(benchmark, (str, Path)) else benchmark
-    dataset = bench.load(data_root)
-    out_root = Path(out_root)
-    written = []
-    costs: dict = {}  # one measurement per architecture and benchmark, shared by its tables
-    truths = (bench.ground_truths or (bench.ground_truth,)) if bench.representation == "mesh" \
-        else (None,)
-    tasks = dict.fromkeys(["prediction", *(registry.get(n).task for n in registry.list_models())])
-    for sampler in bench.samplers:
-        for task in tasks:
-            for truth in truths:
-                folder = results_folder(sampler, task, truth)
-                path = _regenerate_one(bench, registry, dataset, sampler, truth, folder,
-                                       out_root, checkpoints, device, task, weights, check,
-                                       costs)
-                if path is not None:
-                    written.append(path)
-    if check is not None:
-        produced = {p.name for p in written}
-        for table in sorted((out_root / bench.name).glob("*/results.csv")):
-            if table.parent.name not in produced:
-                check.problems.append(f"{table}: a committed table that the leaderboard no "
-                                      f"longer produces")
+    board = Leaderboard(
+        bench=get_benchmark(benchmark) if isinstance(benchmark, (str, Path)) else benchmark,
+        registry=registry or load_registry(), root=Path(out_root or RESULTS_DIR),
+        weights=Path(weights) if weights else None,
+        checkpoints=Path(checkpoints) if checkpoints else None, device=device,
+        plan=plan or Plan(), data_root=data_root)
+    return board.run()
+
+
+class Leaderboard:
+    """The tables of one benchmark (see :func:`regenerate`)."""
+
+    def __init__(self, *, bench, registry, root: Path, weights: Path | None,
+                 checkpoints: Path | None, device: str, plan: Plan, data_root=None) -> None:
+        self.bench, self.registry, self.root = bench, registry, root
+        self.weights, self.checkpoints, self.device, self.plan = weights, checkpoints, device, plan
+        self.dataset = bench.load(data_root)
+        self.costs = CostCache(root / bench.name / COSTS_FILE)
+        self.counts = {"reused": 0, "recomputed": 0, "kept": 0, "dropped": 0}
+        self.loaded: dict = {}
+        unknown = sorted(set(plan.models) - set(registry.list_models()))
+        if unknown:
+            raise StoreError(f"--model {', '.join(unknown)}: not a registered model (add its "
+                             f"registry with --registry); registered: "
+                             f"{', '.join(registry.list_models())}")
+
+    def run(self) -> list[Path]:
+        bench = self.bench
+        truths = (bench.ground_truths or (bench.ground_truth,)) \
+            if bench.representation == "mesh" else (None,)
+        tasks = dict.fromkeys(["prediction", *(self.registry.get(n).task
+                                               for n in self.registry.list_models())])
+        written, changed = [], False
+        for sampler in bench.samplers:
+            for task in tasks:
+                for truth in truths:
+                    folder = table_folder(sampler, task, truth)
+                    started = time.perf_counter()
+                    outcome = self._table(sampler, task, truth, folder)
+                    if outcome:
+                        print(f"{bench.name}/{folder}: {time.perf_counter() - started:.0f} s",
+                              file=sys.stderr)
+                    if outcome is not None:
+                        written.append(self.root / bench.name / folder)
+                        changed |= outcome
+        check = self.plan.check
+        if check is not None:
+            produced = {p.name for p in written}
+            for table in sorted((self.root / bench.name).glob("*/results.csv")):
+                if table.parent.name not in produced:
+                    check.problems.append(f"{table}: a committed table that the leaderboard no "
+                                          f"longer produces")
+            return written
+        self.costs.save()
+        curves = training_curves(self.weights, bench.name) if self.weights else {}
+        png = self.root / bench.name / "training.png"
+        if curves and (changed or not png.is_file()):
+            plot_training_curves(curves, png, title=f"{bench.name}: validation MPJPE while "
+                                                    f"training (shipped models)")
+        c = self.counts
+        print(f"{bench.name}: {c['reused']} row(s) reused, {c['recomputed']} recomputed, "
+              f"{c['kept']} kept as stored (not planned by this registry), {c['dropped']} "
+              f"dropped", file=sys.stderr)
         return written
-    curves = training_curves(weights, bench.name) if weights else {}
-    if curves:
-        plot_training_curves(curves, out_root / bench.name / "training.png",
-                             title=f"{bench.name}: validation MPJPE while training "
-                                   f"(shipped models)")
-    return written
+
+    # ---- rows -----------------------------------------------------------------------------
+
+    def _rows(self, task: str) -> list[Row]:
+        bench, registry = self.bench, self.registry
+        # Skeleton models join a mesh benchmark with a joint regressor, fed its regressed joints.
+        names = registry.list_models(bench.representation)
+        if bench.representation == "mesh" and self.dataset.joint_regressor is not None:
+            names += [n for n in registry.list_models("joints") if n not in names]
+        rows = []
+        for name in (n for n in names if registry.get(n).task == task):
+            if not registry.get(name).trainable:
+                rows.append(Row(name, name, ModelSource.of(name)))
+                continue
+            for label in (name, f"{name}@last"):
+                shipped = self._shipped(label)
+                checkpoint = self.checkpoints / bench.name / name / \
+                    ("last.pt" if label != name else "best.pt") if self.checkpoints else None
+                if shipped is not None:
+                    rows.append(Row(label, name, ModelSource.of(weights=shipped, label=label)))
+                    if checkpoint is not None and checkpoint.is_file():
+                        print(f"{bench.name}: {label}: the shipped weights {shipped}, not "
+                              f"{checkpoint} (zoo weights export publishes a checkpoint)",
+                              file=sys.stderr)
+                elif checkpoint is not None and checkpoint.is_file():
+                    if label != name and _no_further_than_best(checkpoint):
+                        continue  # trained no further than its best epoch: best.pt's weights
+                    rows.append(Row(label, name, ModelSource.of(checkpoint=checkpoint,
+                                                                label=label)))
+        return rows
+
+    def _shipped(self, label: str) -> Path | None:
+        """Shipped weights of ``label``: this benchmark's own, else those of the benchmark it
+        takes weights from (``weights_from``)."""
+        if not self.weights:
+            return None
+        from zoo.weights import weights_file
+
+        for name in (self.bench.name, self.bench.weights_from):
+            path = weights_file(name, label, self.weights) if name else None
+            if path is not None and path.is_file():
+                return path
+        return None
+
+    # ---- one table ------------------------------------------------------------------------
+
+    def _table(self, sampler: str, task: str, truth: str | None, folder: str) -> bool | None:
+        """Check or bring one table up to date; None when there is no table to make, else
+        whether it was (re)written."""
+        from zoo.evaluate import EvalResult, protocol_for
+
+        bench, plan, check = self.bench, self.plan, self.plan.check
+        path = self.root / bench.name / folder
+        where = f"{bench.name}/{folder}"
+        stored = {p.name: p for p in sorted(path.iterdir())
+                  if p.is_dir() and (p / "protocol.json").is_file()} if path.is_dir() else {}
+        rows = [r for r in self._rows(task) if r.label not in plan.drop]
+        if task != "prediction" and not any(self.registry.get(r.name).trainable for r in rows) \
+                and not any(label not in {r.label for r in rows} for label in stored):
+            return None  # a table of baselines alone says nothing about this task
+        protocol = protocol_for(bench, self.dataset, sampler=sampler, task=task,
+                                ground_truth=truth)
+        fresh, reused, efficiency, reasons = [], [], {}, []
+        for row in rows:
+            if row.label not in self.loaded:  # built once, used by every table
+                self.loaded[row.label] = row.source.load(self.registry, bench, self.dataset)
+            loaded = self.loaded[row.label]
+            identity = loaded.identity(bench.name, protocol["protocol_id"])
+            old = stored.get(row.label)
+            if old is not None and check is None:
+                _refuse_foreign_registry(old, loaded, row.label)
+            if check is not None or plan.recompute:
+                why = "asked (--recompute)" if check is None else None
+            elif plan.models and row.name not in plan.models:
+                if old is not None:
+                    reused.append(old)
+                    if identity_differences(stored_identity(old), identity):
+                        print(f"{where}: {row.label}: kept as stored although stale (only "
+                              f"{', '.join(sorted(plan.models))} asked)", file=sys.stderr)
+                continue
+            elif plan.models:
+                why = "asked (--model)"
+            elif old is None:
+                why = "new"
+            else:
+                differences = identity_differences(stored_identity(old), identity)
+                why = "; ".join(differences[:3]) + (" ..." if len(differences) > 3 else "")
+                if not differences:
+                    reused.append(old)
+                    self.counts["reused"] += 1
+                    efficiency[row.label] = self._cost(row.name, loaded, task)
+                    continue
+            if why is not None:
+                reasons.append(f"{row.label}: {why}")
+            result = evaluate(loaded.model, bench, model_name=row.label, sampler=sampler,
+                              dataset=self.dataset, device=self.device,
+                              provenance=loaded.provenance, ground_truth=truth,
+                              view=loaded.view, task=task)
+            stamp(result, identity)
+            fresh.append(result)
+            if check is None:
+                self.counts["recomputed"] += 1
+                efficiency[row.label] = self._cost(row.name, loaded, task)
+        planned = {r.label for r in rows}
+        foreign = [p for label, p in stored.items() if label not in planned
+                   and label not in plan.drop]
+        dropped = [p for label, p in stored.items() if label in plan.drop]
+        if check is not None:
+            for p in foreign:
+                check.problems.append(f"{p}: cannot be recomputed ({_why_not_planned(p, self)})")
+            if fresh:
+                _check_table(fresh, path, check)
+            return True if fresh or foreign else None
+        kept = [EvalResult.read(p) for p in reused]
+        for p in foreign:
+            result = EvalResult.read(p)
+            differences = protocol_differences(protocol, result.protocol)
+            if differences:
+                print(f"{where}: {p.name}: its stored result was measured under another "
+                      f"protocol ({'; '.join(differences)}); left out of the leaderboard (kept "
+                      f"on disk)", file=sys.stderr)
+                continue
+            print(f"{where}: {p.name}: kept as stored ({_why_not_planned(p, self)})",
+                  file=sys.stderr)
+            kept.append(result)
+        self.counts["kept"] += len(foreign)
+        self.counts["dropped"] += len(dropped)
+        results = fresh + kept
+        if not results:
+            return None
+        for reason in reasons:
+            print(f"{where}: recomputing {reason}", file=sys.stderr)
+        if not fresh and not dropped and (path / "leaderboard.md").is_file() and \
+                _same_runs(path, results) and not self.costs.measured_now:
+            return False
+        with replace_folder(path) as tmp:
+            for p in [*reused, *foreign]:
+                shutil.copytree(p, tmp / p.name, copy_function=os.link)
+            for result in fresh:
+                result.write(tmp / str(result.frame["model"].iloc[0]), replace=False)
+            write_leaderboard(results, tmp, bench.horizons_ms, efficiency)
+        gone = f", dropped {', '.join(p.name for p in dropped)}" if dropped else ""
+        print(f"wrote {path}/leaderboard.md ({len(results)} rows: {len(fresh)} evaluated now, "
+              f"{len(reused)} reused, {len(results) - len(fresh) - len(reused)} kept{gone})")
+        return True
+
+    def _cost(self, name: str, loaded, task: str) -> dict:
+        """The efficiency columns of a model, measured once per architecture and machine."""
+        from zoo.efficiency import measure
+
+        view = loaded.view
+        points = self.bench.model_inputs(dataset=self.dataset, view=view)["num_points"]
+        key = {"class": loaded.entry.class_path, "hparams": loaded.hparams, "view": view,
+               "task": task, "recipe": loaded.recipe, "points": points,
+               "input_frames": self.bench.input_frames,
+               "output_frames": self.bench.output_frames}
+        return self.costs.get(key, lambda: measure(
+            loaded.model, input_frames=self.bench.input_frames,
+            output_frames=self.bench.output_frames, points=points, task=task,
+            recipe=loaded.recipe, device=self.device), self.device)
+
+
+COSTS_FILE = "costs.json"
+
+
+class CostCache:
+    """Cost columns per architecture and machine, kept in ``<results>/<benchmark>/costs.json``
+    (timings hold for the machine that measured them; another machine measures its own)."""
+
+    def __init__(self, path: Path) -> None:
+        import json
+
+        self.path = path
+        self.entries = json.loads(path.read_text()).get("entries", {}) if path.is_file() else {}
+        self.measured_now = 0
+
+    def get(self, key: dict, measure_, device) -> dict:
+        import hashlib
+        import json
+
+        from zoo.efficiency import machine
+
+        key = {**key, "machine": machine(device)}
+        digest = hashlib.sha256(json.dumps(key, sort_keys=True, default=str).encode()) \
+            .hexdigest()[:16]
+        if digest not in self.entries:
+            self.entries[digest] = {"key": key, "costs": measure_()}
+            self.measured_now += 1
+        return self.entries[digest]["costs"]
+
+    def save(self) -> None:
+        if self.measured_now:
+            atomic_write_json(self.path, {"entries": dict(sorted(self.entries.items()))})
+
+
+def stamp(result, identity: dict) -> None:
+    """Record ``identity`` in a result's provenance (written to its ``protocol.json``)."""
+    result.protocol["provenance"]["identity"] = identity
+    result.protocol["provenance"]["identity_id"] = identity_id(identity)
+
+
+def _same_runs(path: Path, results: list) -> bool:
+    """Whether the table in ``path`` was made of exactly these results (same identities)."""
+    import json
+
+    try:
+        runs = json.loads((path / "protocol.json").read_text())["provenance"]["runs"]
+    except (OSError, ValueError, KeyError):
+        return False
+    return sorted(r.get("identity_id", "") for r in runs) == \
+        sorted(r.protocol["provenance"].get("identity_id", "") for r in results)
+
+
+def _recorded_registry(folder: Path) -> str | None:
+    import json
+
+    provenance = json.loads((folder / "protocol.json").read_text()).get("provenance", {})
+    identity = provenance.get("identity") or {}
+    return (identity.get("model") or {}).get("registry") or provenance.get("registry")
+
+
+def _refuse_foreign_registry(folder: Path, loaded, label: str) -> None:
+    """A stored row of this label made with another registry's model is the user's: never
+    replaced by a rebuild that does not load that registry."""
+    from zoo.io import repo_relative
+
+    recorded = _recorded_registry(folder)
+    if recorded is not None and recorded != repo_relative(loaded.entry.source):
+        raise StoreError(f"{folder}: row {label!r} was evaluated with registry {recorded}, which "
+                         f"this run does not load (its {label!r} comes from "
+                         f"{repo_relative(loaded.entry.source)}); nothing was changed: pass "
+                         f"--registry {recorded}, or remove the row deliberately with --drop "
+                         f"{label}")
+
+
+def _why_not_planned(folder: Path, board: Leaderboard) -> str:
+    recorded = _recorded_registry(folder)
+    from zoo.io import repo_relative
+
+    loaded = {repo_relative(e.source) for e in board.registry.entries.values()}
+    if recorded is not None and recorded not in loaded:
+        return f"registry {recorded} not loaded: --registry {recorded} recomputes it, --drop " \
+               f"{folder.name} removes it"
+    return f"no shipped weights {board.bench.name}/{folder.name}.safetensors and no checkpoint " \
+           f"to recompute it from; --drop {folder.name} removes it"
+
+
+def _no_further_than_best(checkpoint: Path) -> bool:
+    from zoo.checkpoints import read_checkpoint
+
+    training = read_checkpoint(checkpoint).get("training", {})
+    return training.get("best", {}).get("epoch") == training.get("epochs_run")
+
+
+KEY_COLUMNS = ["model", "action", "metric", "averaging", "joints", "horizon_ms"]
+# How far a recomputed value may sit from the committed one, from the arithmetic: every error
+# is computed in float32, whose rounding follows the CPU's kernels (summation order, fused
+# multiply-adds, vector width), so another machine reproduces a value to some units in the last
+# place, not bit for bit. RELATIVE_TOLERANCE is 2**-16, 128 float32 units in the last place
+# (float32 carries 24 bits); ABSOLUTE_TOLERANCE_MM is 2**-12 mm, four float32 units in the last
+# place of a coordinate at one metre, for errors that are small differences of large
+# coordinates (MELV: |edge length now - edge length before|, where generated meshes' own bytes
+# differ between CPUs by a unit in the last place). A real change is far above both: a value
+# moved by 0.01 mm is named.
+RELATIVE_TOLERANCE = 2.0 ** -16
+ABSOLUTE_TOLERANCE_MM = 2.0 ** -12
+
+
+def tolerance_text() -> str:
+    return (f"|difference| <= {RELATIVE_TOLERANCE:.2g} x |value| + {ABSOLUTE_TOLERANCE_MM:.2g} "
+            f"mm (float32 rounding across CPUs)")
+
+
+def _allowed(metric, values: np.ndarray) -> np.ndarray:
+    """The largest difference tolerated for each value of ``metric`` (a name or an array)."""
+    units = np.vectorize(lambda m: metric_unit(m)[0] == "mm")(np.asarray(metric))
+    return RELATIVE_TOLERANCE * np.abs(values) + np.where(units, ABSOLUTE_TOLERANCE_MM, 0.0)
+
+
+def _check_table(results: list, folder: Path, check: CheckReport) -> None:
+    """Compare freshly computed results with the committed table in ``folder`` (and each
+    model's per-window errors with its ``windows.npz``)."""
+    from zoo.evaluate import WINDOWS_FILE, WindowErrors
+
+    check.tables += 1
+    fresh = pd.concat([r.frame for r in results], ignore_index=True)
+    check.rows += len(fresh)
+    check.models |= set(fresh["model"])
+    if not (folder / "results.csv").is_file():
+        check.problems.append(f"{folder}/results.csv: missing; the leaderboard makes this table")
+        return
+    committed = pd.read_csv(folder / "results.csv")
+    both = fresh.merge(committed, on=KEY_COLUMNS, how="outer", suffixes=("", "_committed"),
+                       indicator="side")
+    for row in both[both["side"] != "both"].itertuples():
+        where = "committed only" if row.side == "right_only" else "recomputed only"
+        check.problems.append(f"{folder}/results.csv: {where}: " + ", ".join(
+            f"{k}={getattr(row, k)}" for k in KEY_COLUMNS))
+    matched = both[both["side"] == "both"]
+    for column in ("value", "std"):  # the mean and its standard deviation over windows
+        if f"{column}_committed" not in matched:
+            check.problems.append(f"{folder}/results.csv: no column {column!r} (written by an "
+                                  f"older zoo); regenerate the table")
+            continue
+        new, old = matched[column].to_numpy(float), matched[f"{column}_committed"].to_numpy(float)
+        difference = np.abs(new - old)
+        relative = difference / np.maximum(np.abs(old), 1e-12)
+        nan = np.isnan(new) | np.isnan(old)  # a NaN (one window's spread) matches only a NaN
+        differs = np.where(nan, np.isnan(new) != np.isnan(old),
+                           difference > _allowed(matched["metric"].to_numpy(), old))
+        keep = ~nan
+        rows = matched[keep]
+        check.note(difference[keep], old[keep], _allowed(rows["metric"].to_numpy(), old[keep]),
+                   lambda i: f"{folder.parent.name}/{folder.name}/results.csv " + ", ".join(
+                       f"{k}={rows.iloc[i][k]}" for k in KEY_COLUMNS) + f" ({column})")
+        for row, rel in zip(matched[differs].itertuples(), relative[differs]):
+            check.problems.append(f"{folder}/results.csv: " + ", ".join(
+                f"{k}={getattr(row, k)}" for k in KEY_COLUMNS) + f": {column} committed "
+                f"{getattr(row, column + '_committed')!r}, recomputed {getattr(row, column)!r} "
+                f"(relative {rel:.2g}; tolerance {tolerance_text()})")
+    for row in matched[matched["protocol_id"] != matched["protocol_id_committed"]] \
+            .drop_duplicates("model").itertuples():
+        check.problems.append(f"{folder}/results.csv: {row.model}: protocol "
+                              f"{row.protocol_id_committed} committed, {row.protocol_id} now")
+    for r in results:
+        if r.windows is None:
+            continue
+        label = str(r.frame["model"].iloc[0])
+        path = folder / label / WINDOWS_FILE
+        if not path.is_file():
+            check.problems.append(f"{path}: missing (per-window errors of {label})")
+            continue
+        stored = WindowErrors.read(path)
+        same_windows = np.array_equal(stored.start, r.windows.start) and \
+            np.array_equal(stored.sequence, r.windows.sequence)
+        for key, values in r.windows.errors.items():
+            old = stored.errors.get(key)
+            if old is None or not same_windows:
+                check.problems.append(f"{path}: {'/'.join(key)}: missing or for other windows")
+                continue
+            old = old.astype(np.float64)
+            gap = np.abs(old - values)
+            relative = gap / np.maximum(np.abs(old), 1e-12)
+            allowed = _allowed(key[1], old)
+            check.note(gap, old, allowed, f"{folder.parent.name}/{folder.name}/{label}/"
+                       f"{WINDOWS_FILE} {'/'.join(key)}")
+            if (gap > allowed).any():
+                check.problems.append(f"{path}: {'/'.join(key)}: per-window errors differ "
+                                      f"beyond tolerance (relative up to {relative.max():.2g}, "
+                                      f"absolute up to {gap.max():.2g}; tolerance "
+                                      f"{tolerance_text()})")
 
 
 INDEX_PREAMBLE = """# Results
 
-Every table here is regenerated by `zoo leaderboard` (the README's first command does cloth and
-CMU; `--benchmark NAME` any other) and re-checked without writing by `zoo leaderboard --check`,
-which recomputes every row (baselines, and trained models from the weights shipped in
-`weights/`) and names any that differs from the committed value by more than 1e-6 relative.
+Every table here is brought up to date by `zoo leaderboard` (the README's first command does
+cloth and CMU; `--benchmark NAME` any other), which reuses a stored row while its identity
+holds (benchmark and protocol, model class and hyper-parameters, weights' sha256, registry file
+and evaluation code, in each row's `protocol.json`) and recomputes new or stale rows; and
+re-checked without writing by `zoo leaderboard --check`, which recomputes every row (baselines,
+and trained models from the weights shipped in `weights/`) and names any value that differs
+from the committed one by more than float32 rounding across CPUs (the tolerance is printed in
+its summary line).
 
 How each number is made:
 
@@ -205,7 +631,8 @@ How each number is made:
   best model and those not distinguishable from it; `zoo compare A B --benchmark NAME` says by
   how much one model beats another.
 - Cost columns (parameters, forward GFLOPs per window, latency of one window, training windows
-  per second) are measured by the machine that wrote the table, named under it; they are not in
+  per second) are measured once per architecture and machine (kept in
+  `<benchmark>/costs.json`) and named under the table with that machine; they are not in
   `results.csv` and `--check` does not compare them.
 - Mesh tables: RMSE is per vertex, normalised by the ground-truth frame's bounding-box
   diagonal; MELV is measured on the k-coefficient reconstructions of the reference and scored
@@ -246,249 +673,3 @@ def write_index(out_root: str | Path) -> Path:
     path = out_root / "README.md"
     atomic_write_text(path, "\n".join(lines).rstrip() + "\n")
     return path
-
-
-def results_folder(sampler: str, task: str = "prediction", truth: str | None = None,
-                   horizon: int | None = None, melv: str | None = None) -> str:
-    """The folder under ``results/<benchmark>/`` of one sampler, task, ground truth and (when
-    not the benchmark's default) MELV frames: ``all``, ``all-completion``, ``all-longterm50``,
-    ``all-gt_spectral``, ``all-melv_raw``, ..."""
-    folder = sampler if task == "prediction" else f"{sampler}-{task}{horizon or ''}"
-    folder = folder if truth in (None, "raw") else f"{folder}-gt_{truth}"
-    return folder if melv is None else f"{folder}-melv_{melv}"
-
-
-def _regenerate_one(bench, registry, dataset, sampler, truth, folder, out_root, checkpoints,
-                    device, task="prediction", weights=None, check=None, costs=None):
-    """One table: checked, or rebuilt under a lock and replaced as a whole (an interrupted
-    regeneration leaves the old folder, never a half-written one)."""
-    with folder_lock(out_root / bench.name / folder) if check is None else nullcontext():
-        return _table(bench, registry, dataset, sampler, truth, folder, out_root, checkpoints,
-                      device, task, weights, check, costs)
-
-
-def _table(bench, registry, dataset, sampler, truth, folder, out_root, checkpoints, device,
-           task, weights, check, costs):
-    import shutil
-    import sys
-
-    from zoo.evaluate import EvalResult, evaluate
-
-    results, stored, stored_dirs, efficiency = [], [], [], {}
-    costs = {} if costs is None else costs
-    # Skeleton models join a mesh benchmark with a joint regressor, fed its regressed joints.
-    names = registry.list_models(bench.representation)
-    if bench.representation == "mesh" and dataset.joint_regressor is not None:
-        names += [n for n in registry.list_models("joints") if n not in names]
-    names = [n for n in names if registry.get(n).task == task]
-    if task != "prediction" and not any(registry.get(n).trainable and _has_run(
-            out_root / bench.name / folder / n, checkpoints, bench, n, weights)
-            for n in names):
-        return None  # a table of baselines alone says nothing about this task
-    for name in names:
-        entry = registry.get(name)
-        view = bench.view_for(entry.representation)
-        for label, ckpt in _checkpoints_of(name, entry, bench, checkpoints):
-            run_dir = out_root / bench.name / folder / label
-            provenance = {}
-            shipped = _shipped(weights, bench, label) if entry.trainable else None
-            if shipped is not None:
-                from zoo.train import load_weights
-                from zoo.weights import weights_provenance
-
-                model, record = load_weights(shipped, registry=registry, benchmark=bench,
-                                             dataset=dataset)
-                provenance = weights_provenance(shipped, record)
-                recipe = record.get("recipe")
-                if ckpt is not None and ckpt.is_file():
-                    print(f"{bench.name}/{folder}: {label}: evaluating the shipped weights "
-                          f"{shipped}, not {ckpt} (zoo weights export publishes a checkpoint)",
-                          file=sys.stderr)
-            elif ckpt is not None and ckpt.is_file():
-                from zoo.train import checkpoint_provenance, load_checkpoint
-
-                model, meta = load_checkpoint(ckpt, registry=registry, benchmark=bench,
-                                              dataset=dataset)
-                training = meta.get("training", {})
-                if label != name and training.get("best", {}).get("epoch") == \
-                        training.get("epochs_run"):
-                    continue  # trained no further than its best epoch: best.pt's weights
-                provenance = checkpoint_provenance(ckpt, meta)
-                recipe = meta.get("recipe")
-            elif not entry.trainable:
-                model = registry.create_model(name, **bench.model_inputs(
-                    entry.context, dataset=dataset, view=view))
-                recipe = None
-            elif (run_dir / "results.csv").is_file():
-                if check is not None:
-                    check.problems.append(f"{run_dir}: cannot be recomputed (no shipped weights "
-                                          f"{bench.name}/{label}.safetensors, no checkpoint)")
-                    continue
-                stored.append(EvalResult.read(run_dir))
-                stored_dirs.append(run_dir)
-                print(f"{bench.name}/{folder}: {label}: no checkpoint here, keeping {run_dir}",
-                      file=sys.stderr)
-                continue
-            else:
-                if label == name:
-                    print(f"{bench.name}/{folder}: {name}: skipped (trainable; no shipped "
-                          f"weights, no checkpoint{f' at {ckpt}' if ckpt else ''})",
-                          file=sys.stderr)
-                continue
-            provenance = {**entry.provenance(), **provenance}
-            result = evaluate(model, bench, model_name=label, sampler=sampler, dataset=dataset,
-                              device=device, provenance=provenance, ground_truth=truth,
-                              view=view, task=task)
-            if check is None:
-                efficiency[label] = _cost(costs, name, provenance.get("hparams"), model, bench,
-                                          dataset, view, task, recipe, device)
-            results.append(result)
-    # Freshly evaluated results come first: they define the protocol stored ones must match.
-    kept = _drop_mismatched(results + stored, bench.name, folder)
-    if not kept:
-        return None
-    if check is not None:
-        _check_table(kept, out_root / bench.name / folder, check)
-        return out_root / bench.name / folder
-    path = out_root / bench.name / folder
-    with replace_folder(path, lock=False) as tmp:
-        for result in results:
-            result.write(tmp / str(result.frame["model"].iloc[0]), replace=False)
-        for source in stored_dirs:  # kept on disk even when left out of the table
-            shutil.copytree(source, tmp / source.name)
-        write_leaderboard(kept, tmp, bench.horizons_ms, efficiency)
-    print(f"wrote {path}/leaderboard.md ({len(kept)} models, {len(results)} evaluated now)")
-    return path
-
-
-def _cost(costs, name, hparams, model, bench, dataset, view, task, recipe, device):
-    """The efficiency columns of a model, measured once per architecture on a benchmark."""
-    import json
-
-    from zoo.efficiency import measure
-
-    key = (name, json.dumps(hparams, sort_keys=True, default=str), view, task)
-    if key not in costs:
-        points = bench.model_inputs(dataset=dataset, view=view)["num_points"]
-        costs[key] = measure(model, input_frames=bench.input_frames,
-                             output_frames=bench.output_frames, points=points, task=task,
-                             recipe=recipe, device=device)
-    return costs[key]
-
-
-KEY_COLUMNS = ["model", "action", "metric", "averaging", "joints", "horizon_ms"]
-
-
-def _check_table(results: list, folder: Path, check: CheckReport) -> None:
-    """Compare freshly computed results with the committed table in ``folder`` (and each
-    model's per-window errors with its ``windows.npz``)."""
-    from zoo.evaluate import WINDOWS_FILE, WindowErrors
-
-    check.tables += 1
-    fresh = pd.concat([r.frame for r in results], ignore_index=True)
-    check.rows += len(fresh)
-    check.models |= set(fresh["model"])
-    if not (folder / "results.csv").is_file():
-        check.problems.append(f"{folder}/results.csv: missing; the leaderboard makes this table")
-        return
-    committed = pd.read_csv(folder / "results.csv")
-    both = fresh.merge(committed, on=KEY_COLUMNS, how="outer", suffixes=("", "_committed"),
-                       indicator="side")
-    for row in both[both["side"] != "both"].itertuples():
-        where = "committed only" if row.side == "right_only" else "recomputed only"
-        check.problems.append(f"{folder}/results.csv: {where}: " + ", ".join(
-            f"{k}={getattr(row, k)}" for k in KEY_COLUMNS))
-    matched = both[both["side"] == "both"]
-    for column in ("value", "std"):  # the mean and its standard deviation over windows
-        if f"{column}_committed" not in matched:
-            check.problems.append(f"{folder}/results.csv: no column {column!r} (written by an "
-                                  f"older zoo); regenerate the table")
-            continue
-        fresh_values, old_values = matched[column], matched[f"{column}_committed"]
-        difference = (fresh_values - old_values).abs()
-        relative = difference / old_values.abs().clip(lower=1e-12)
-        # a NaN (the spread of a single window) matches only a NaN
-        differs = (relative > check.tolerance) | (fresh_values.isna() != old_values.isna())
-        if len(matched) and column == "value":
-            check.max_difference = max(check.max_difference, float(difference.max()))
-        for row, rel in zip(matched[differs].itertuples(), relative[differs]):
-            check.problems.append(f"{folder}/results.csv: " + ", ".join(
-                f"{k}={getattr(row, k)}" for k in KEY_COLUMNS) + f": {column} committed "
-                f"{getattr(row, column + '_committed')!r}, recomputed {getattr(row, column)!r} "
-                f"(relative {rel:.2g})")
-    for row in matched[matched["protocol_id"] != matched["protocol_id_committed"]] \
-            .drop_duplicates("model").itertuples():
-        check.problems.append(f"{folder}/results.csv: {row.model}: protocol "
-                              f"{row.protocol_id_committed} committed, {row.protocol_id} now")
-    for r in results:
-        if r.windows is None:
-            continue
-        label = str(r.frame["model"].iloc[0])
-        path = folder / label / WINDOWS_FILE
-        if not path.is_file():
-            check.problems.append(f"{path}: missing (per-window errors of {label})")
-            continue
-        stored = WindowErrors.read(path)
-        same_windows = np.array_equal(stored.start, r.windows.start) and \
-            np.array_equal(stored.sequence, r.windows.sequence)
-        for key, values in r.windows.errors.items():
-            old = stored.errors.get(key)
-            if old is None or not same_windows:
-                check.problems.append(f"{path}: {'/'.join(key)}: missing or for other windows")
-                continue
-            gap = np.abs(old.astype(np.float64) - values) / np.maximum(np.abs(old), 1e-12)
-            if gap.max() > check.tolerance:
-                check.problems.append(f"{path}: {'/'.join(key)}: per-window errors differ "
-                                      f"(relative up to {gap.max():.2g})")
-
-
-def _has_run(run_dir: Path, checkpoints, bench, name: str, weights=None) -> bool:
-    """Whether a trained model has shipped weights, a checkpoint or a stored result to show."""
-    return (run_dir / "results.csv").is_file() or bool(
-        checkpoints and (Path(checkpoints) / bench.name / name / "best.pt").is_file()) or \
-        _shipped(weights, bench, name) is not None
-
-
-def _shipped(weights, bench, label: str) -> Path | None:
-    """The shipped weights of ``label`` on a benchmark, if any: its own, else those of the
-    benchmark it takes weights from (``weights_from``)."""
-    if not weights:
-        return None
-    from zoo.weights import weights_file
-
-    for name in (bench.name, bench.weights_from):
-        path = weights_file(name, label, weights) if name else None
-        if path is not None and path.is_file():
-            return path
-    return None
-
-
-def _checkpoints_of(name, entry, bench, checkpoints):
-    """``(label, checkpoint path or None)`` to evaluate for a model: untrained models once;
-    trained ones by their early-stopped checkpoint (``best.pt``, labelled with the model's name)
-    and their fully trained one (``last.pt``, ``<name>@last``), which is shown only when training
-    went on past the best epoch: the two can trade accuracy for smoothness (SpecTrHuMS reports
-    both)."""
-    if not entry.trainable:
-        return [(name, None)]
-    run = Path(checkpoints) / bench.name / name if checkpoints else None
-    return [(name, run and run / "best.pt"), (f"{name}@last", run and run / "last.pt")]
-
-
-def _drop_mismatched(results: list, bench: str, sampler: str) -> list:
-    """Keep the results whose protocol matches the freshly evaluated reference."""
-    import sys
-
-    if not results:
-        return []
-    reference = results[0].protocol
-    kept = [results[0]]
-    for r in results[1:]:
-        diff = protocol_differences(reference, r.protocol)
-        if diff:
-            model = r.protocol.get("provenance", {}).get("model", "?")
-            print(f"{bench}/{sampler}: {model}: its stored result was measured under another "
-                  f"protocol ({'; '.join(diff)}); left out of the leaderboard", file=sys.stderr)
-        else:
-            kept.append(r)
-    return kept

@@ -247,7 +247,7 @@ def headline_table(results: list, horizons_ms: Iterable[int] | None = None,
                     f"narrow")
     devices = sorted({e["device"] for e in efficiency.values() if e})
     if devices:
-        how += (f". Costs measured by the machine that wrote this table ({'; '.join(devices)}): "
+        how += (f". Costs measured once per architecture on {'; '.join(devices)}: "
                 f"parameters; forward GFLOPs per window (torch's FlopCounterMode, a multiply-add "
                 f"counts 2); median latency of one window (batch 1); training windows per "
                 f"second (forward, backward, clip and Adam at the recipe's batch size and "

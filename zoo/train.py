@@ -21,7 +21,6 @@ global batch (gloo on CPU, nccl on GPU), gradients are averaged, and rank 0 writ
 """
 from __future__ import annotations
 
-import hashlib
 import math
 import os
 import time
@@ -37,15 +36,16 @@ from zoo.benchmark import Benchmark, get_benchmark
 from zoo.data.windows import frame_counts, gather_windows, window_sampler
 from zoo.distributed import DistInfo, init_distributed
 from zoo.errors import ZooError
+from zoo.checkpoints import (CHECKPOINT_FORMAT, CheckpointError, model_origin, model_protocol,
+                             plain, read_checkpoint, save_checkpoint, stored_hparams,
+                             trained_model, weights_digest)
 from zoo.evaluate import EVAL_BATCH, predict
-from zoo.io import atomic_path, atomic_write_json, code_version, repo_relative, sha256_file
+from zoo.io import code_version, repo_relative, sha256_file
 from zoo.metrics import mpjpe
 from zoo.paths import REPO_ROOT
 from zoo.registry import Registry, load_registry
-from zoo.weights import (RECORD_FORMAT, STORAGE_DTYPES, WeightsError, checkpoint_label,
-                         read_weights, record_file, weights_file)
+from zoo.weights import read_weights
 
-CHECKPOINT_FORMAT = "motion-zoo-checkpoint/1"
 DEFAULT_RECIPE: dict[str, Any] = {
     "optimizer": "adam",
     "lr": 1e-3,
@@ -68,10 +68,6 @@ AUGMENTATIONS = ("time_reversal",)
 
 
 class TrainingError(ZooError, RuntimeError):
-    pass
-
-
-class CheckpointError(ZooError, ValueError):
     pass
 
 
@@ -205,163 +201,6 @@ def _windows(arrays, length: int, sampler: str, t_in: int, t_out: int):
     return usable, index
 
 
-# ---- checkpoints -----------------------------------------------------------------------------
-
-def weights_digest(model: nn.Module) -> str:
-    digest = hashlib.sha256()
-    for name, tensor in sorted(model.state_dict().items()):
-        digest.update(name.encode())
-        digest.update(tensor.detach().cpu().contiguous().numpy().tobytes())
-    return digest.hexdigest()
-
-
-def _save(path: Path, payload: dict[str, Any]) -> None:
-    with atomic_path(path) as tmp:
-        torch.save(payload, tmp)
-
-
-def read_checkpoint(path: str | Path) -> dict[str, Any]:
-    path = Path(path)
-    if not path.is_file():
-        raise CheckpointError(f"checkpoint {path} does not exist")
-    try:
-        payload = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as e:  # torch raises several types for truncated or foreign files
-        first = (str(e).splitlines() or [""])[0][:200]
-        raise CheckpointError(f"checkpoint {path} is empty, truncated or not a motion-zoo "
-                              f"checkpoint ({type(e).__name__}: {first}); train again, or "
-                              f"restore the file") from e
-    if not isinstance(payload, dict) or payload.get("format") != CHECKPOINT_FORMAT:
-        raise CheckpointError(f"checkpoint {path} is not a motion-zoo checkpoint (format "
-                              f"{payload.get('format') if isinstance(payload, dict) else None!r},"
-                              f" expected {CHECKPOINT_FORMAT!r})")
-    return payload
-
-
-def load_checkpoint(path: str | Path, *, registry: Registry | None = None,
-                    benchmark: str | Benchmark | None = None, model_name: str | None = None,
-                    data_root: str | Path | None = None, dataset=None
-                    ) -> tuple[nn.Module, dict[str, Any]]:
-    """The trained model of a checkpoint, checked against the benchmark it will be evaluated on.
-
-    With ``benchmark=None`` the checkpoint's own protocol is used. Data objects the model was
-    built with (a spectral basis) come from the benchmark again and must hash the same.
-    """
-    ckpt = read_checkpoint(path)
-    if model_name is not None and model_name != ckpt["model"]:
-        raise CheckpointError(f"checkpoint {path} holds model {ckpt['model']!r}, not "
-                              f"{model_name!r}")
-    model = trained_model(ckpt, ckpt["state_dict"], "checkpoint", path, registry=registry,
-                          benchmark=benchmark, data_root=data_root, dataset=dataset)
-    return model, ckpt
-
-
-def export_weights(checkpoint: str | Path, *, label: str | None = None,
-                   root: str | Path | None = None, dtype: str = "float16") -> Path:
-    """Write a checkpoint's weights and record under ``<root>/<benchmark>/``; returns the
-    ``.safetensors`` path. Both files are written atomically, the record last."""
-    from safetensors.torch import save_file
-
-    if dtype not in STORAGE_DTYPES:
-        raise WeightsError(f"weights dtype {dtype!r} unknown; valid: "
-                           f"{', '.join(STORAGE_DTYPES)}")
-    ckpt = read_checkpoint(checkpoint)
-    label = label or checkpoint_label(checkpoint, ckpt["model"])
-    if not label or "/" in label or label.startswith("."):
-        raise WeightsError(f"weights label {label!r} must be a plain file name "
-                           f"(e.g. {ckpt['model']!r} or {ckpt['model'] + '@last'!r})")
-    benchmark = ckpt["protocol"]["benchmark"]
-    path = weights_file(benchmark, label, root)
-    tensors = {name: (t.to(STORAGE_DTYPES[dtype]) if t.is_floating_point() else t)
-               .detach().cpu().contiguous() for name, t in ckpt["state_dict"].items()}
-    with atomic_path(path) as tmp:
-        save_file(tensors, str(tmp), metadata={"format": RECORD_FORMAT, "model": ckpt["model"]})
-        digest = sha256_file(tmp)
-    record = {
-        "format": RECORD_FORMAT,
-        "label": label,
-        "model": ckpt["model"],
-        "benchmark": benchmark,
-        "file": path.name,
-        "sha256": digest,
-        "dtype": dtype,
-        "parameters": int(sum(t.numel() for t in ckpt["state_dict"].values())),
-        "hparams": ckpt["hparams"],
-        "context_hashes": ckpt.get("context_hashes", {}),
-        "protocol": ckpt["protocol"],
-        "recipe": ckpt.get("recipe"),
-        "seed": ckpt.get("seed"),
-        # batches per epoch when capped, and budget changes made on resume (epoch they began)
-        "max_batches": ckpt.get("max_batches"),
-        "recipe_changes": ckpt.get("recipe_changes", []),
-        # the weights this run started from (a stage of a longer recipe), with their budget
-        "init_from": ckpt.get("init_from"),
-        # budget (epochs, samples, seconds), device and the validation curve
-        "training": ckpt.get("training", {}),
-        "history": ckpt.get("history"),
-        "training_data": ckpt.get("training_data"),
-        "code_version": ckpt.get("code_version"),
-        "torch": ckpt.get("torch"),
-        "checkpoint": repo_relative(checkpoint),
-    }
-    atomic_write_json(record_file(path), record)
-    return path
-
-
-def load_weights(path: str | Path, *, registry=None, benchmark=None, data_root=None,
-                 dataset=None) -> tuple[torch.nn.Module, dict[str, Any]]:
-    """The model of shipped weights, checked against ``benchmark`` (default: its own)."""
-    state, record = read_weights(path)
-    model = trained_model(record, state, "weights", path, registry=registry,
-                          benchmark=benchmark, data_root=data_root, dataset=dataset)
-    return model, record
-
-
-def trained_model(meta: dict[str, Any], state_dict: dict[str, torch.Tensor], kind: str,
-                  path: str | Path, *,
-                  registry: Registry | None = None, benchmark: str | Benchmark | None = None,
-                  data_root: str | Path | None = None, dataset=None) -> nn.Module:
-    """The model that ``meta`` (a checkpoint's or shipped weights' record: model, hparams,
-    protocol, context_hashes) describes, holding ``state_dict``, in eval mode; refused with an
-    error naming the ``kind`` ("checkpoint", "weights") and ``path`` it came from if it was
-    trained for another protocol or data than ``benchmark``."""
-    source = f"{kind} {path}"
-    registry = registry or load_registry()
-    entry = registry.get(meta["model"])
-    bench = get_benchmark(benchmark or meta["protocol"]["benchmark"]) \
-        if not isinstance(benchmark, Benchmark) else benchmark
-    view = bench.view_for(entry.representation)
-    expected = model_protocol(bench, view)
-    diff = [f"{k} ({kind} {meta['protocol'].get(k)!r}, benchmark {v!r})"
-            for k, v in expected.items() if meta["protocol"].get(k) != v]
-    if diff and bench.weights_from and meta["protocol"].get("benchmark") == bench.weights_from:
-        # trained on the benchmark this one takes weights from: the same data, other sizes
-        source_protocol = model_protocol(get_benchmark(bench.weights_from), view)
-        diff = [f"{k} ({kind} {meta['protocol'].get(k)!r}, benchmark {bench.weights_from} "
-                f"{v!r})" for k, v in source_protocol.items() if meta["protocol"].get(k) != v]
-    if diff:
-        raise CheckpointError(f"{source} was trained for another protocol than benchmark "
-                              f"{bench.name!r}: " + "; ".join(diff))
-    hparams = dict(meta["hparams"])
-    hashes = meta.get("context_hashes", {})
-    if hashes:
-        supplied = bench.model_inputs(entry.context, data_root, dataset, view)
-        for key, trained_hash in hashes.items():
-            if supplied[key].hash != trained_hash:
-                raise CheckpointError(f"{source}: its {key} hash {trained_hash[:16]} "
-                                      f"differs from benchmark {bench.name!r}'s "
-                                      f"{supplied[key].hash[:16]} (another basis or mesh); "
-                                      f"never silently recomputed, retrain for this data")
-            hparams[key] = supplied[key]
-    model = registry.create_model(entry.name, **hparams)
-    try:
-        model.load_state_dict(state_dict)
-    except RuntimeError as e:
-        raise CheckpointError(f"{source}: weights do not fit model {entry.name!r} "
-                              f"({str(e).splitlines()[0]})") from e
-    return model.eval()
-
-
 def cpu_info(path: str | Path = "/proc/cpuinfo") -> dict[str, str]:
     """The first processor's fields of ``path`` (Linux), or {} where it cannot be read."""
     try:
@@ -392,28 +231,6 @@ def forward_precision(precision: str, device) -> torch.autocast:
     autocast to its dtype, or a disabled one for float32."""
     dtype = PRECISIONS[precision]
     return torch.autocast(torch.device(device).type, dtype=dtype, enabled=dtype is not None)
-
-
-def checkpoint_provenance(path: str | Path, checkpoint: dict[str, Any]) -> dict[str, Any]:
-    """What a result computed from ``checkpoint`` records about it: the file (relative to the
-    repository when inside it, so stored results name no machine's folders), the
-    hyper-parameters and the training summary."""
-    return {"checkpoint": repo_relative(path), "hparams": checkpoint["hparams"],
-            "training": checkpoint.get("training", {})}
-
-
-def model_protocol(bench: Benchmark, view: str = "mesh") -> dict[str, Any]:
-    """What a trained model's weights depend on: it must match wherever they are evaluated.
-    ``view``: ``joints`` for a skeleton model trained on a mesh benchmark's regressed joints."""
-    protocol = {"benchmark": bench.name, "dataset": bench.dataset,
-                "input_frames": bench.input_frames, "output_frames": bench.output_frames}
-    if bench.representation == "mesh":
-        protocol.update(representation="mesh", spectral_k=bench.spectral_k)
-        if view == "joints":
-            protocol["points"] = "regressed joints"
-    else:
-        protocol.update(skeleton=bench.skeleton.name, used_joints=list(bench.skeleton.used))
-    return protocol
 
 
 def _point_index(bench: Benchmark):
@@ -512,7 +329,7 @@ def train(model_name: str, benchmark: str | Benchmark, *, registry: Registry | N
     if resume:
         state = read_checkpoint(last_path)
         init_record = state.get("init_from")
-        if state["model"] != model_name or state["hparams"] != _stored_hparams(hparams)[0]:
+        if state["model"] != model_name or state["hparams"] != stored_hparams(hparams)[0]:
             raise CheckpointError(f"{last_path}: cannot resume: it holds {state['model']!r} with "
                                   f"other hyper-parameters")
         recipe_changes = resume_changes(last_path, state, recipe, seed, max_batches)
@@ -534,7 +351,7 @@ def train(model_name: str, benchmark: str | Benchmark, *, registry: Registry | N
     steps_per_epoch = max(1, len(train_index) // batch_size)
     if max_batches:
         steps_per_epoch = min(steps_per_epoch, max_batches)
-    meta = {**_metadata(model_name, hparams, bench, dataset, recipe, seed, device, dist_info,
+    meta = {**_metadata(entry, hparams, bench, dataset, recipe, seed, device, dist_info,
                         view), "max_batches": max_batches, "recipe_changes": recipe_changes,
             "init_from": init_record}
 
@@ -608,10 +425,10 @@ def train(model_name: str, benchmark: str | Benchmark, *, registry: Registry | N
                 best = {"val_mpjpe": val, "epoch": epoch + 1}
                 # the curve up to this epoch travels too: a run whose best is its last
                 # epoch ships one file, and its training plot with it
-                _save(best_path, {**meta, "state_dict": model.state_dict(),
+                save_checkpoint(best_path, {**meta, "state_dict": model.state_dict(),
                                   "history": list(history),
                                   "training": _training_summary(recipe, history, best, device)})
-            _save(last_path, {**meta, "state_dict": model.state_dict(),
+            save_checkpoint(last_path, {**meta, "state_dict": model.state_dict(),
                               "optimizer": optimizer.state_dict(), "rng": torch.get_rng_state(),
                               "epoch": epoch, "best": best, "history": history,
                               "training": _training_summary(recipe, history, best, device)})
@@ -635,7 +452,7 @@ def resume_changes(path: Path, state: dict[str, Any], recipe: dict[str, Any], se
     """The checkpoint's recorded recipe changes plus this resume's; refuses any change that is
     not the budget, naming the fields."""
     stored = state.get("recipe") or {}
-    given = _plain(recipe)
+    given = plain(recipe)
     differ = [f"{key}: {stored.get(key)!r} in the checkpoint, {given.get(key)!r} now"
               for key in sorted(set(stored) | set(given))
               if key not in BUDGET_FIELDS and stored.get(key) != given.get(key)]
@@ -695,18 +512,6 @@ def validate(model, positions, index, t_in, t_out, used, device, batch_size: int
     return total / count
 
 
-def _stored_hparams(hparams: dict[str, Any]) -> tuple[dict[str, Any], dict[str, str]]:
-    """Hyper-parameters as stored: data objects (a spectral basis) become their hashes, and the
-    benchmark supplies them again when the checkpoint is loaded."""
-    plain, hashes = {}, {}
-    for key, value in hparams.items():
-        if hasattr(value, "hash") and not isinstance(value, (str, int, float, dict, list)):
-            hashes[key] = value.hash
-        else:
-            plain[key] = _plain(value)
-    return plain, hashes
-
-
 def _training_data(dataset) -> dict[str, Any]:
     if hasattr(dataset, "files"):
         return {"dataset": dataset.name, "split": dataset.split,
@@ -750,16 +555,17 @@ def initial_weights(path: str | Path, model_name: str, bench: Benchmark, registr
     return source.state_dict(), record
 
 
-def _metadata(model_name, hparams, bench, dataset, recipe, seed, device, dist_info, view):
-    stored, context_hashes = _stored_hparams(hparams)
+def _metadata(entry, hparams, bench, dataset, recipe, seed, device, dist_info, view):
+    stored, context_hashes = stored_hparams(hparams)
     return {
         "format": CHECKPOINT_FORMAT,
-        "model": model_name,
+        "model": entry.name,
+        "origin": model_origin(entry),
         "hparams": stored,
         "context_hashes": context_hashes,
         "protocol": model_protocol(bench, view),
         "training_data": _training_data(dataset),
-        "recipe": _plain(recipe),
+        "recipe": plain(recipe),
         "seed": seed,
         "code_version": code_version(),
         "torch": str(torch.__version__),
@@ -785,19 +591,6 @@ def device_name(device) -> str:
     model = cpu_info().get("model name") or platform.processor() or "CPU"
     return (f"CPU {model} ({platform.machine()}, {torch.backends.cpu.get_cpu_capability()}), "
             f"{os.cpu_count()} cores")
-
-
-def _plain(value):
-    """Checkpoint metadata as plain Python (loadable with weights_only=True)."""
-    if isinstance(value, dict):
-        return {str(k): _plain(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_plain(v) for v in value]
-    if isinstance(value, (np.integer,)):
-        return int(value)
-    if isinstance(value, (np.floating,)):
-        return float(value)
-    return value
 
 
 def _write_rank_digest(out_dir: Path, model: nn.Module, dist_info: DistInfo) -> None:

@@ -46,12 +46,8 @@ def checkpoint_label(checkpoint: str | Path, model: str) -> str:
     return f"{model}@last" if Path(checkpoint).name == "last.pt" else model
 
 
-def read_weights(path: str | Path) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
-    """The float32 state dict and the record of shipped weights, after checking the file's
-    sha256 against its record."""
-    from safetensors import SafetensorError
-    from safetensors.torch import load_file
-
+def read_weights_record(path: str | Path) -> dict[str, Any]:
+    """The JSON record of shipped weights (tensors neither read nor checked)."""
     path = Path(path)
     record_path = record_file(path)
     for p in (path, record_path):
@@ -66,6 +62,18 @@ def read_weights(path: str | Path) -> tuple[dict[str, torch.Tensor], dict[str, A
         raise WeightsError(f"weights record {record_path}: format "
                            f"{record.get('format') if isinstance(record, dict) else None!r}, "
                            f"expected {RECORD_FORMAT!r}")
+    return record
+
+
+def read_weights(path: str | Path) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
+    """The float32 state dict and the record of shipped weights, after checking the file's
+    sha256 against its record."""
+    from safetensors import SafetensorError
+    from safetensors.torch import load_file
+
+    path = Path(path)
+    record_path = record_file(path)
+    record = read_weights_record(path)
     digest = sha256_file(path)
     if digest != record.get("sha256"):
         raise WeightsError(f"weights {path}: sha256 {digest[:16]}... differs from its record's "

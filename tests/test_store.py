@@ -1,0 +1,261 @@
+"""The results store: a result's identity is what was measured; nothing of another identity is
+replaced silently; the leaderboard reuses what still holds, recomputes what is new or stale, and
+never deletes a row it did not make."""
+import json
+import shutil
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+import torch
+
+from conftest import write_cmu_file
+from tiny_models import REGISTRY
+from zoo.cli import main
+from zoo.registry import Registry
+from zoo.train import train
+
+HERE = Path(__file__).resolve().parent
+
+CONSTANT_VELOCITY = '''\
+import torch
+from torch import nn
+
+
+class ConstantVelocity(nn.Module):
+    """The last observed velocity, carried on (multiplied by damping each frame)."""
+
+    def __init__(self, input_frames, output_frames, num_points, damping=1.0):
+        super().__init__()
+        self.output_frames, self.damping = output_frames, damping
+
+    def forward(self, history):
+        velocity = history[:, -1] - history[:, -2]
+        steps = torch.cumsum(self.damping ** torch.arange(1, self.output_frames + 1,
+                                                          dtype=history.dtype), 0)
+        return history[:, -1:] + steps.view(1, -1, 1, 1) * velocity[:, None]
+'''
+
+
+@pytest.fixture
+def project(tmp_path):
+    """CMU data (two training files, one test file), the tiny models' registry and a user's
+    registry with a constant-velocity baseline, each in its own folder."""
+    root = tmp_path / "cmu"
+    for split, n in (("train", 2), ("test", 1)):
+        for i in range(1, n + 1):
+            write_cmu_file(root / split / "walking" / f"walking_{i}.txt",
+                           0.01 * i * np.arange(800) + 0.002 * np.sin(np.arange(800) / 7))
+    (tmp_path / "tiny").mkdir()
+    (tmp_path / "tiny" / "registry.yaml").write_text(REGISTRY)
+    shutil.copy(HERE / "tiny_models.py", tmp_path / "tiny" / "tiny_models.py")
+    (tmp_path / "mine").mkdir()
+    (tmp_path / "mine" / "baselines.py").write_text(CONSTANT_VELOCITY)
+    (tmp_path / "mine" / "registry.yaml").write_text(textwrap.dedent("""\
+        models:
+          constant_velocity:
+            class: baselines.py:ConstantVelocity
+            representation: joints
+            hparams: {damping: 1.0}
+            reference: my own baseline
+        """))
+    return tmp_path
+
+
+def cli(capsys, *args):
+    code = main([str(a) for a in args])
+    captured = capsys.readouterr()
+    return code, captured.out, captured.err
+
+
+def board_args(project, *registries):
+    out = ["--benchmark", "cmu", "--data-root", project / "cmu", "--out", project / "results",
+           "--weights", project / "weights", "--checkpoints", project / "no-checkpoints"]
+    for registry in registries:
+        out += ["--registry", project / registry / "registry.yaml"]
+    return out
+
+
+def shipped_tiny(project, epochs=1, seed=0):
+    """The tiny model trained and exported as shipped weights (weights/cmu/tiny.*)."""
+    from zoo.checkpoints import export_weights
+
+    registry = Registry.from_files(HERE.parent / "registry.yaml",
+                                   project / "tiny" / "registry.yaml")
+    run = project / "checkpoints" / f"seed{seed}"
+    best = train("tiny", "cmu", registry=registry, data_root=project / "cmu", epochs=epochs,
+                 seed=seed, progress=False, out_dir=run)
+    return export_weights(best, root=project / "weights", dtype="float32")
+
+
+def test_a_users_row_survives_a_rebuild_without_its_registry(project, capsys):
+    code, _, _ = cli(capsys, "leaderboard", *board_args(project, "mine"))
+    assert code == 0
+    table = project / "results" / "cmu" / "ltd8"
+    assert set(pd.read_csv(table / "results.csv").model) == {"constant_velocity", "repeat_last"}
+    before = (table / "constant_velocity" / "results.csv").read_bytes()
+
+    # The same rebuild without the user's registry: their row stays, on disk and in the table.
+    code, _, err = cli(capsys, "leaderboard", "--recompute", *board_args(project))
+    assert code == 0
+    assert (table / "constant_velocity" / "results.csv").read_bytes() == before
+    assert "constant_velocity" in set(pd.read_csv(table / "results.csv").model)
+    assert "constant_velocity: kept as stored (registry" in err and "not loaded" in err
+    assert "--drop constant_velocity removes it" in err
+
+    # Only a deliberate --drop removes it.
+    code, _, _ = cli(capsys, "leaderboard", "--drop", "constant_velocity", *board_args(project))
+    assert code == 0 and not (table / "constant_velocity").exists()
+    assert set(pd.read_csv(table / "results.csv").model) == {"repeat_last"}
+
+
+def test_a_stored_row_of_another_registry_is_never_replaced(project, capsys):
+    (project / "mine" / "registry.yaml").write_text(textwrap.dedent("""\
+        models:
+          repeat_last:
+            class: baselines.py:ConstantVelocity
+            representation: joints
+            override: true
+            reference: a user's own row under a zoo name
+        """))
+    assert cli(capsys, "leaderboard", *board_args(project, "mine"))[0] == 0
+    stored = project / "results" / "cmu" / "all" / "repeat_last" / "results.csv"
+    before = stored.read_bytes()
+    code, _, err = cli(capsys, "leaderboard", *board_args(project))
+    assert code == 2 and stored.read_bytes() == before
+    assert "was evaluated with registry" in err and "--drop repeat_last" in err
+
+
+def eval_args(project, *extra):
+    return ["eval", "--registry", project / "mine" / "registry.yaml", "--model",
+            "constant_velocity", "--sampler", "ltd8", "--results", project / "results", *extra]
+
+
+def test_eval_never_replaces_a_result_of_another_identity(project, capsys, tmp_path):
+    data = ["--data-root", project / "cmu"]
+    assert cli(capsys, *eval_args(project, *data))[0] == 0
+    place = project / "results" / "cmu" / "ltd8" / "constant_velocity"
+    before = (place / "results.csv").read_bytes()
+    # the same measurement again: same identity, allowed
+    assert cli(capsys, *eval_args(project, *data))[0] == 0
+
+    # other hyper-parameters: stored beside it under their own label, never in its place
+    assert cli(capsys, *eval_args(project, *data, "--set", "damping=0.8"))[0] == 0
+    assert (place.parent / "constant_velocity+damping=0.8" / "results.csv").is_file()
+    code, _, err = cli(capsys, *eval_args(project, *data, "--set", "damping=0.8", "--label",
+                                          "constant_velocity"))
+    assert code == 2 and "model.hparams.damping: stored 1.0, now 0.8" in err
+
+    # other data under the same benchmark name
+    other = tmp_path / "other"
+    write_cmu_file(other / "test" / "walking" / "walking_1.txt", 0.02 * np.arange(800))
+    code, _, err = cli(capsys, *eval_args(project, "--data-root", other))
+    assert code == 2 and "protocol_id: stored" in err
+    assert "different sha256: ['test/walking/walking_1.txt']" in err
+
+    # another benchmark file of the same name
+    bench = yaml_text = (HERE.parent / "benchmarks" / "cmu.yaml").read_text()
+    bench = tmp_path / "cmu.yaml"
+    bench.write_text(yaml_text.replace("input_frames: 10", "input_frames: 12"))
+    code, _, err = cli(capsys, *eval_args(project, *data, "--benchmark", bench))
+    assert code == 2 and "input_frames (10 vs 12)" in err
+    assert (place / "results.csv").read_bytes() == before
+
+    # told to: replaced
+    assert cli(capsys, *eval_args(project, *data, "--benchmark", bench, "--replace"))[0] == 0
+    assert json.loads((place / "protocol.json").read_text())["input_frames"] == 12
+
+
+def test_a_stale_row_is_recomputed_and_a_current_one_reused(project, capsys):
+    shipped_tiny(project)
+    code, _, err = cli(capsys, "leaderboard", *board_args(project, "tiny"))
+    assert code == 0 and "recomputing tiny: new" in err
+    table = project / "results" / "cmu" / "all"
+    written = {p: p.stat().st_mtime_ns for p in table.rglob("*") if p.is_file()}
+
+    code, _, err = cli(capsys, "leaderboard", *board_args(project, "tiny"))
+    assert code == 0 and "cmu: 4 row(s) reused, 0 recomputed" in err
+    assert {p: p.stat().st_mtime_ns for p in table.rglob("*") if p.is_file()} == written
+
+    shipped_tiny(project, seed=1)  # retrained: other weights under the same label
+    code, _, err = cli(capsys, "leaderboard", *board_args(project, "tiny"))
+    assert code == 0 and "recomputing tiny: trained.sha256: stored" in err
+    assert "cmu: 2 row(s) reused, 2 recomputed" in err  # repeat_last reused on both tables
+    assert (table / "repeat_last" / "results.csv").stat().st_mtime_ns == \
+        written[table / "repeat_last" / "results.csv"]
+
+
+def test_a_user_checkpoint_names_its_registry(project, capsys):
+    registry = Registry.from_files(HERE.parent / "registry.yaml",
+                                   project / "tiny" / "registry.yaml")
+    best = train("tiny", "cmu", registry=registry, data_root=project / "cmu", epochs=1,
+                 progress=False, out_dir=project / "checkpoints" / "tiny")
+    from zoo.checkpoints import read_checkpoint
+
+    origin = read_checkpoint(best)["origin"]
+    assert origin["class"] == "tiny_models.py:TinyTemporal"
+    assert origin["registry"] == str(project / "tiny" / "registry.yaml")
+    code, _, err = cli(capsys, "eval", "--checkpoint", best, "--data-root", project / "cmu",
+                       "--out", project / "out")
+    assert code == 2
+    assert f"holds model 'tiny' (class tiny_models.py:TinyTemporal) from registry file " \
+           f"{project / 'tiny' / 'registry.yaml'}" in err
+    assert f"pass --registry {project / 'tiny' / 'registry.yaml'}" in err
+    assert cli(capsys, "eval", "--checkpoint", best, "--data-root", project / "cmu", "--out",
+               project / "out", "--registry", project / "tiny" / "registry.yaml")[0] == 0
+
+
+def test_readme_add_a_constant_velocity_baseline_to_the_cmu_ltd8_leaderboard(project, capsys):
+    """The README's words: register a constant-velocity baseline from your own file and add it
+    to the CMU leaderboard; no trained model is evaluated again."""
+    shipped_tiny(project)
+    assert cli(capsys, "leaderboard", *board_args(project, "tiny"))[0] == 0
+    table = project / "results" / "cmu" / "ltd8"
+    tiny = (table / "tiny" / "protocol.json").read_bytes()
+
+    code, out, err = cli(capsys, "leaderboard", "--model", "constant_velocity",
+                         *board_args(project, "tiny", "mine"))
+    assert code == 0
+    assert "recomputing constant_velocity: asked (--model)" in err
+    assert "recomputing tiny" not in err and "recomputing repeat_last" not in err
+    assert (table / "tiny" / "protocol.json").read_bytes() == tiny  # not re-evaluated
+    board = (table / "leaderboard.md").read_text()
+    assert "| constant_velocity " in board and "| tiny " in board
+    record = json.loads((table / "constant_velocity" / "protocol.json").read_text())
+    assert record["provenance"]["identity"]["model"]["registry"] == \
+        str(project / "mine" / "registry.yaml")
+
+
+def test_python_results_carry_the_command_lines_identity(project, capsys):
+    import zoo
+
+    assert cli(capsys, *eval_args(project, "--data-root", project / "cmu"))[0] == 0
+    stored = zoo.load_results("cmu", sampler="ltd8", root=project / "results")
+    registry = Registry.from_files(HERE.parent / "registry.yaml",
+                                   project / "mine" / "registry.yaml")
+    result = zoo.evaluate("constant_velocity", "cmu", sampler="ltd8", registry=registry,
+                          data_root=project / "cmu")
+    assert result.identity == stored["constant_velocity"].identity
+    assert result.summary().shape[1] == 25
+
+    class Zero(torch.nn.Module):  # your own model object: no registry, nothing written
+        def forward(self, history):
+            return torch.zeros(history.shape[0], 25, *history.shape[2:])
+
+    mine = zoo.evaluate(Zero(), "cmu", sampler="ltd8", data_root=project / "cmu", label="zero")
+    assert mine.identity["model"]["class"].endswith("Zero")
+    assert not (HERE.parent / "results" / "cmu" / "ltd8" / "zero").exists()
+    comparison = zoo.compare(stored["constant_velocity"], mine)
+    assert "constant_velocity against zero" in comparison.markdown()
+
+
+def test_code_fingerprints_ignore_comments_and_docstrings(tmp_path):
+    from zoo.store import code_fingerprint
+
+    a, b, c = (tmp_path / f"{n}.py" for n in "abc")
+    a.write_text('def f(x):\n    """Doc."""\n    return x + 1\n')
+    b.write_text("def f(x):  # a comment\n\n    return (x\n            + 1)\n")
+    c.write_text("def f(x):\n    return x + 2\n")
+    assert code_fingerprint(a) == code_fingerprint(b) != code_fingerprint(c)
