@@ -464,8 +464,9 @@ def evaluate_mesh(model: torch.nn.Module, benchmark: str | Benchmark, *, model_n
     windows and predicts ``(B, T_out, J, 3)``; it gets the ``mpjpe`` rows only, under the very
     protocol record of the mesh models, so both share one MPJPE table."""
     from zoo.benchmark import GROUND_TRUTHS
+    from zoo.data.mesh import regress_joints
     from zoo.data.spectral import SpectralBasis
-    from zoo.metrics import melv, mpjpe, regress_joints, regressed_mpjpe, vertex_rmse
+    from zoo.metrics import melv, mpjpe, regressed_mpjpe, vertex_rmse
 
     bench = get_benchmark(benchmark) if isinstance(benchmark, (str, Path)) else benchmark
     sampler = check_sampler(sampler or bench.sampler)

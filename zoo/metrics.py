@@ -12,6 +12,7 @@ from typing import Sequence
 import numpy as np
 import torch
 
+from zoo.data.mesh import regress_joints
 from zoo.data.skeleton import Skeleton
 
 AVERAGING = {
@@ -176,28 +177,6 @@ def vertex_rmse(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     rmse = (pred - target).pow(2).sum(dim=-1).mean(dim=-1).sqrt()
     diagonal = torch.linalg.vector_norm(target.amax(dim=-2) - target.amin(dim=-2), dim=-1)
     return rmse / diagonal
-
-
-def regress_joints(vertices: torch.Tensor, regressor) -> torch.Tensor:
-    """Joints ``(..., J, 3)`` from vertices ``(..., V, 3)`` with a ``(J, V)`` regressor (scipy
-    sparse, numpy or torch), as one matrix product over all leading dimensions."""
-    import scipy.sparse as sp
-
-    if sp.issparse(regressor):
-        r = regressor.tocoo()
-        matrix = torch.sparse_coo_tensor(np.stack([r.row, r.col]), r.data, r.shape,
-                                         check_invariants=True)
-    else:
-        matrix = torch.as_tensor(regressor)
-    matrix = matrix.to(device=vertices.device, dtype=vertices.dtype)
-    joints, num_vertices = matrix.shape
-    if vertices.ndim < 2 or vertices.shape[-2:] != (num_vertices, 3):
-        raise ValueError(f"regress_joints: regressor ({joints}, {num_vertices}) does not fit "
-                         f"vertices {tuple(vertices.shape)}")
-    lead = vertices.shape[:-2]
-    flat = vertices.reshape(-1, num_vertices, 3).permute(1, 0, 2).reshape(num_vertices, -1)
-    out = (matrix @ flat).reshape(joints, -1, 3).permute(1, 0, 2)
-    return out.reshape(*lead, joints, 3)
 
 
 def regressed_mpjpe(pred: torch.Tensor, target: torch.Tensor, regressor) -> torch.Tensor:
