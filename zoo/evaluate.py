@@ -31,8 +31,8 @@ from zoo.distributed import DistInfo, gather_shares, init_distributed
 from zoo.errors import ZooError
 from zoo.io import atomic_path, atomic_write_json, atomic_write_text, canonical_json, \
     code_version, replace_folder
-from zoo.metrics import ACTION_AVERAGING, AVERAGING, FrameErrorMean, cumulative_mean, \
-    joint_protocols, skeleton_errors
+from zoo.metrics import ACTION_AVERAGING, AVERAGING, METRICS, STD_DESCRIPTION, FrameErrorMean, \
+    cumulative_mean, joint_protocols, skeleton_errors
 from zoo.tables import FLOOR_SUFFIX, markdown_tables
 
 # Windows per forward pass. Small batches keep a model's intermediate tensors in the CPU's
@@ -424,17 +424,13 @@ def mesh_protocol_record(bench: Benchmark, dataset, sampler: str,
                         else "raw: the frames as scored"),
         "joint_protocols": joints,
         "metrics": {
-            "melv": "mean over unique edges of |len_t - len_ref| (mm), reference = last observed "
-                    "ground-truth frame, on the frames of `melv_frames`; model `ground_truth` "
-                    "rows: the same for the ground-truth future (the data baseline)",
-            "rmse": "sqrt(mean_v |v_hat - v|^2) / |max_v v - min_v v| of the ground-truth frame "
-                    "(the zoo's own definition; SpecTrHuMS publishes none)",
-            "std": "standard deviation over windows (ddof 1) of the row's error; `average` "
-                   "rows pool the windows of every action",
+            "melv": METRICS["melv"].description,
+            "rmse": METRICS["rmse"].description,
+            "std": STD_DESCRIPTION,
             "floor": f"model `<name>{FLOOR_SUFFIX}` rows: the ground-truth future through the "
                      f"model's autoencoder alone (it sees the future: a bound, not a "
                      f"prediction)",
-            "mpjpe": "mean L2 error of the regressed joints (mm)",
+            "mpjpe": METRICS["mpjpe"].description,
         },
         "averaging": AVERAGING,
         "action_averaging": ACTION_AVERAGING,

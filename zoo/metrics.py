@@ -1,4 +1,5 @@
-"""The one implementation of every metric, plus the accumulator the evaluator streams into.
+"""The one implementation of every metric, its one description (:data:`METRICS`: unit, printed
+precision, text of the protocol records), plus the accumulator the evaluator streams into.
 
 Per-frame errors are computed per window as ``(B, T_out)`` tensors; :class:`FrameErrorMean`
 accumulates them per action (``update`` / ``compute``, as in torchmetrics); averaging over time
@@ -7,6 +8,7 @@ accumulates them per action (``update`` / ``compute``, as in torchmetrics); aver
 from __future__ import annotations
 
 from collections import defaultdict
+from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
@@ -20,6 +22,38 @@ AVERAGING = {
     "cumulative": "mean of the per-frame errors over predicted frames 1..t (STS-GCN)",
 }
 ACTION_AVERAGING = "mean over windows inside an action, then unweighted mean over actions present"
+
+
+@dataclass(frozen=True)
+class Metric:
+    """What the tables and the protocol records say of a metric.
+
+    ``unit`` heads its tables, ``fmt`` prints its values; ``with_std``: its tables print the
+    standard deviation over windows beside the mean; ``description``: its entry in the mesh
+    protocol records' ``metrics`` (hashed into ``protocol_id``: change it and every stored mesh
+    result stops matching new ones)."""
+
+    name: str
+    unit: str
+    fmt: str
+    with_std: bool
+    description: str
+
+
+METRICS = {m.name: m for m in (
+    Metric("mpjpe", "mm", ".2f", False, "mean L2 error of the regressed joints (mm)"),
+    # The SpecTrHuMS paper prints MELV as mean and standard deviation.
+    Metric("melv", "mm", ".3f", True,
+           "mean over unique edges of |len_t - len_ref| (mm), reference = last observed "
+           "ground-truth frame, on the frames of `melv_frames`; model `ground_truth` rows: the "
+           "same for the ground-truth future (the data baseline)"),
+    Metric("rmse", "per vertex, normalised by the ground-truth frame's bounding-box diagonal",
+           ".4f", False, "sqrt(mean_v |v_hat - v|^2) / |max_v v - min_v v| of the ground-truth "
+           "frame (the zoo's own definition; SpecTrHuMS publishes none)"),
+)}
+# The ``std`` column of every row, as the mesh protocol records describe it.
+STD_DESCRIPTION = ("standard deviation over windows (ddof 1) of the row's error; `average` rows "
+                   "pool the windows of every action")
 
 
 def mpjpe(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
