@@ -381,7 +381,8 @@ MESH_BATCH_VALUES = 2 ** 24  # float32 values of ground-truth windows held at on
 def mesh_protocol_record(bench: Benchmark, dataset, sampler: str,
                          windows_per_action: dict[str, int], ground_truth: str,
                          basis=None, melv_frames: str = "raw") -> dict[str, Any]:
-    """The protocol record of a mesh evaluation (SPEC sections 2 and 4)."""
+    """The protocol record of a mesh evaluation: the data, windows and frames, as for skeletons,
+    plus the mesh's own elements (topology, ground truth, spectral basis, MELV frames)."""
     topology = dataset.topology
     joints = {"vertices": f"all {topology.num_vertices} vertices (MELV: their "
                           f"{len(topology.edges)} unique undirected edges)"}

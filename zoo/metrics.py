@@ -72,7 +72,7 @@ def cumulative_mean(per_frame: np.ndarray, axis: int = -1) -> np.ndarray:
     return np.cumsum(per_frame, axis=axis) / steps.reshape(shape)
 
 
-# ---- joint protocols of the skeleton benchmarks (SPEC section 3) ----------------------------
+# ---- joint protocols of the skeleton benchmarks ---------------------------------------------
 
 def joint_protocols(skeleton: Skeleton) -> dict[str, str]:
     """Named joint protocols of a skeleton and what each means, the one the literature reports
@@ -173,7 +173,7 @@ class FrameErrorMean:
         return out
 
 
-# ---- mesh metrics (SPEC section 4) -------------------------------------------------------------
+# ---- mesh metrics ------------------------------------------------------------------------------
 
 def edge_lengths(vertices: torch.Tensor, edges: np.ndarray | torch.Tensor) -> torch.Tensor:
     """Lengths of ``edges (E, 2)`` in ``vertices (..., V, 3)``: ``(..., E)``."""
@@ -188,7 +188,7 @@ def melv(pred: torch.Tensor, reference: torch.Tensor,
          edges: np.ndarray | torch.Tensor) -> torch.Tensor:
     """Mean edge length variation ``(B, T)``: for every frame of ``pred (B, T, V, 3)``, the mean
     over the unique undirected ``edges (E, 2)`` of ``|len_t - len_ref|``, with ``reference
-    (B, V, 3)`` the last observed ground-truth frame (SPEC section 4). In the vertices' units (mm).
+    (B, V, 3)`` the last observed ground-truth frame. In the vertices' units (mm).
     Scored on the ground-truth future it gives the data's own figure (the baseline)."""
     if pred.ndim != 4 or reference.shape != pred.shape[:1] + pred.shape[2:]:
         raise ValueError(f"melv: expected pred (B, T, V, 3) and reference (B, V, 3), got "
@@ -203,7 +203,7 @@ def vertex_rmse(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     ``RMSE_t = sqrt(mean_v |v_hat - v|^2) / |max_v v - min_v v|``: the root mean squared vertex
     error divided by the length of the diagonal of the ground-truth frame's axis-aligned bounding
     box, so it has no unit. SpecTrHuMS reports an RMSE normalised by the bounding-box diagonal but
-    publishes no code for it: this definition is the zoo's own (SPEC section 4).
+    publishes no code for it: this definition is the zoo's own.
     """
     if pred.shape != target.shape or pred.ndim != 4:
         raise ValueError(f"vertex_rmse: expected prediction and target (B, T, V, 3) of one "

@@ -94,7 +94,7 @@ class MeshTopology:
         return (a + a.T).tocsr()
 
     def laplacian(self) -> sp.csr_matrix:
-        """Combinatorial Graph Laplacian ``L = D - A`` (SPEC section 4)."""
+        """Combinatorial Graph Laplacian ``L = D - A``."""
         a = self.adjacency()
         return (sp.diags(np.asarray(a.sum(axis=1)).ravel()) - a).tocsr()
 
