@@ -173,9 +173,9 @@ def test_identity_root_removes_heading_and_tilt(low_model, short_motion):
 
 @needs_anny
 def test_ground_truth_edge_length_changes_at_low_resolution(low_model, short_motion):
-    # SPEC section 7 (full resolution): mean |edge change| vs the first frame about 0.25 mm for
-    # 10 mm edges. The low-resolution mesh has ~42 mm edges and, measured on 09_03, 1.2 mm
-    # mean change (p99 18 mm, max 62 mm): the same ~3 % of an edge.
+    # At full resolution the mean |edge change| vs the first frame is about 0.25 mm for 10 mm
+    # edges (linear blend skinning). The low-resolution mesh has ~42 mm edges and, measured on
+    # 09_03, 1.2 mm mean change (p99 18 mm, max 62 mm): the same ~3 % of an edge.
     bvh, rots = short_motion
     v = am.skin(low_model, am.retarget(low_model, bvh).pose_parameters(rots))["vertices"]
     edges = MeshTopology(am.model_faces(low_model), v.shape[1]).edges
@@ -301,7 +301,7 @@ def test_builder_argument_errors(cache):
 @needs_data
 @pytest.mark.slow
 def test_full_resolution_directions_and_edge_lengths(short_motion):
-    # SPEC section 7 sanity figures at 13,718 vertices: measured on 09_03, mean edge 9.96 mm,
+    # Sanity figures at 13,718 vertices, measured on 09_03: mean edge 9.96 mm,
     # mean |edge change| 0.22 mm, p99 4.2 mm, max 30 mm.
     model = am.load_anny_model("full")
     bvh, rots = short_motion

@@ -9,11 +9,11 @@ import yaml
 
 from zoo import benchmark as benchmark_module
 from zoo.benchmark import BenchmarkError, get_benchmark
-from zoo.data.mesh import MeshDataset, MeshError, MeshSequence, MeshTopology
+from zoo.data.mesh import MeshDataset, MeshError, MeshSequence, MeshTopology, regress_joints
 from zoo.data.spectral import SpectralBasis, SpectralError
 from zoo.evaluate import EvaluationError, evaluate
 from zoo.tables import markdown_tables
-from zoo.metrics import melv, regress_joints, regressed_mpjpe, vertex_rmse
+from zoo.metrics import melv, regressed_mpjpe, vertex_rmse
 from zoo.models.repeat_last import RepeatLast
 from zoo import create_model
 

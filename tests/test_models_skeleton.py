@@ -1,4 +1,4 @@
-"""Skeleton models (SPEC section 5): the DCT, the MLP baseline and SPGSN."""
+"""Skeleton models: the DCT, the MLP baseline and SPGSN."""
 from __future__ import annotations
 
 import numpy as np
@@ -164,7 +164,7 @@ def test_mlp_rejects_wrong_input_shape():
 # ---- SPGSN (paper design) ------------------------------------------------------------------------
 
 def expected_filter_bank(graph: np.ndarray, a: np.ndarray) -> list[np.ndarray]:
-    """SPEC's filters, written out independently: A~ = (I + A / ||A||_F^2) / 2, h_0 = a00 A,
+    """The paper's filters, written out independently: A~ = (I + A / ||A||_F^2) / 2, h_0 = a00 A,
     h_1 = a10 I + a11 A~, h_k = sum_{j=1..k} a_kj A~^(2^(j-1)); a[k][j] is a_kj."""
     eye = np.eye(len(graph))
     tilde = (eye + graph / np.sum(graph ** 2)) / 2
@@ -203,7 +203,7 @@ def test_spgsn_filter_bank_follows_trained_coefficients():
     model = SPGSN(4, 3, 3, parts={"upper": [0], "lower": [1, 2]}, blocks=1, hidden=8,
                   filter_order=3, dct_n=7)
     with torch.no_grad():
-        model.filter_coefficients.normal_()  # entries outside the SPEC's terms must not matter
+        model.filter_coefficients.normal_()  # entries outside the paper's terms must not matter
     c = model.filter_coefficients[0].detach().double().numpy()
     # column layout [A, I, A~, A~^2, A~^4]: a00 = c[0,0]; a10 = c[1,1]; a_kj = c[k, j+1]
     a = [[c[0, 0]], [c[1, 1], c[1, 2]]] + [[0.0] + [c[k, j + 1] for j in range(1, k + 1)]

@@ -1,10 +1,10 @@
 """repeat_last on the real CMU test files against an independent oracle of the official test code.
 
-The oracle below follows the LTD / SPGSN CMU test pipeline step by step as SPEC sections 2-3
-describe it, written independently of the zoo (plain numpy, one frame at a time): read the file,
-FK on every source frame, keep even frames, cut the windows (LTD's seeded 8 per file, or SPGSN's
-every window), write the predicted joints into a copy of the ground truth, copy the duplicated
-joints, average the L2 error over joints, then over windows, then over actions.
+The oracle below follows the LTD / SPGSN CMU test pipeline step by step, written independently
+of the zoo (plain numpy, one frame at a time): read the file, FK on every source frame, keep even
+frames, cut the windows (LTD's seeded 8 per file, or SPGSN's every window), write the predicted
+joints into a copy of the ground truth, copy the duplicated joints, average the L2 error over
+joints, then over windows, then over actions.
 """
 import functools
 from pathlib import Path

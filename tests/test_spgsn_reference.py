@@ -1,4 +1,4 @@
-"""SPGSN against a slow reference written from its equations (SPEC section 5, the module docstring).
+"""SPGSN against a slow reference written from its equations (the paper's, in its module docstring).
 
 The fast model batches everything (filters, tree channels, parts, blocks) into a few tensor
 products, so an axis mix-up there (a softmax over the wrong axis, a weight transposed, a part's
@@ -55,7 +55,7 @@ def part_rows(model: SPGSN, parts: dict | None) -> dict[str, list[int]]:
 
 
 def reference_filters(model: SPGSN, part: str, block: int) -> list[torch.Tensor]:
-    """SPEC's filters ``h_0 .. h_K`` of one block and part: ``A~ = (I + A / ||A||_F^2) / 2``,
+    """The paper's filters ``h_0 .. h_K`` of one block and part: ``A~ = (I + A / ||A||_F^2) / 2``,
     ``h_0 = a00 A``, ``h_1 = a10 I + a11 A~``, ``h_k = sum_{j=1..k} a_kj A~^(2^(j-1))``."""
     order = model.filter_order
     # The coefficient columns are the basis [A, I, A~, A~^2, A~^4, ...]: a00 is column 0, a10
@@ -281,7 +281,7 @@ def test_one_backward_pass_reaches_every_parameter(body_parts):
     unreached, not_cancelled = [], []
     for name, grad in grads.items():
         if name == "filter_coefficients":
-            # Entries outside the SPEC's terms are multiplied by zero; each of the others (per
+            # Entries outside the paper's terms are multiplied by zero; each of the others (per
             # block, filter and term) must be reached.
             assert grad[:, ~mask].abs().max() == 0, "coefficients outside the mask are used"
             missed = (grad[:, mask].abs() <= zero).sum().item()

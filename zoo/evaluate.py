@@ -31,8 +31,8 @@ from zoo.distributed import DistInfo, gather_shares, init_distributed
 from zoo.errors import ZooError
 from zoo.io import atomic_path, atomic_write_json, atomic_write_text, canonical_json, \
     code_version, replace_folder
-from zoo.metrics import ACTION_AVERAGING, AVERAGING, FrameErrorMean, cumulative_mean, \
-    joint_protocols, skeleton_errors
+from zoo.metrics import ACTION_AVERAGING, AVERAGING, METRICS, STD_DESCRIPTION, FrameErrorMean, \
+    cumulative_mean, joint_protocols, skeleton_errors
 from zoo.tables import FLOOR_SUFFIX, markdown_tables
 
 # Windows per forward pass. Small batches keep a model's intermediate tensors in the CPU's
@@ -427,7 +427,8 @@ MESH_BATCH_VALUES = 2 ** 24  # float32 values of ground-truth windows held at on
 def mesh_protocol_record(bench: Benchmark, dataset, sampler: str,
                          windows_per_action: dict[str, int], ground_truth: str,
                          basis=None, melv_frames: str = "raw") -> dict[str, Any]:
-    """The protocol record of a mesh evaluation (SPEC sections 2 and 4)."""
+    """The protocol record of a mesh evaluation: the data, windows and frames, as for skeletons,
+    plus the mesh's own elements (topology, ground truth, spectral basis, MELV frames)."""
     topology = dataset.topology
     joints = {"vertices": f"all {topology.num_vertices} vertices (MELV: their "
                           f"{len(topology.edges)} unique undirected edges)"}
@@ -470,17 +471,13 @@ def mesh_protocol_record(bench: Benchmark, dataset, sampler: str,
                         else "raw: the frames as scored"),
         "joint_protocols": joints,
         "metrics": {
-            "melv": "mean over unique edges of |len_t - len_ref| (mm), reference = last observed "
-                    "ground-truth frame, on the frames of `melv_frames`; model `ground_truth` "
-                    "rows: the same for the ground-truth future (the data baseline)",
-            "rmse": "sqrt(mean_v |v_hat - v|^2) / |max_v v - min_v v| of the ground-truth frame "
-                    "(the zoo's own definition; SpecTrHuMS publishes none)",
-            "std": "standard deviation over windows (ddof 1) of the row's error; `average` "
-                   "rows pool the windows of every action",
+            "melv": METRICS["melv"].description,
+            "rmse": METRICS["rmse"].description,
+            "std": STD_DESCRIPTION,
             "floor": f"model `<name>{FLOOR_SUFFIX}` rows: the ground-truth future through the "
                      f"model's autoencoder alone (it sees the future: a bound, not a "
                      f"prediction)",
-            "mpjpe": "mean L2 error of the regressed joints (mm)",
+            "mpjpe": METRICS["mpjpe"].description,
         },
         "averaging": AVERAGING,
         "action_averaging": ACTION_AVERAGING,
@@ -509,8 +506,9 @@ def evaluate_mesh(model: torch.nn.Module, benchmark: str | Benchmark, *, model_n
     ``view='joints'``: a skeleton model sees the regressed joints ``(B, T_in, J, 3)`` of the same
     windows and predicts ``(B, T_out, J, 3)``; it gets the ``mpjpe`` rows only, under the very
     protocol record of the mesh models, so both share one MPJPE table."""
+    from zoo.data.mesh import regress_joints
     from zoo.data.spectral import SpectralBasis
-    from zoo.metrics import melv, mpjpe, regress_joints, regressed_mpjpe, vertex_rmse
+    from zoo.metrics import melv, mpjpe, regressed_mpjpe, vertex_rmse
 
     bench = get_benchmark(benchmark) if isinstance(benchmark, (str, Path)) else benchmark
     if view not in ("mesh", "joints"):

@@ -1,4 +1,5 @@
-"""The one implementation of every metric, plus the accumulator the evaluator streams into.
+"""The one implementation of every metric, its one description (:data:`METRICS`: unit, printed
+precision, text of the protocol records), plus the accumulator the evaluator streams into.
 
 Per-frame errors are computed per window as ``(B, T_out)`` tensors; :class:`FrameErrorMean`
 accumulates them per action (``update`` / ``compute``, as in torchmetrics); averaging over time
@@ -7,11 +8,13 @@ accumulates them per action (``update`` / ``compute``, as in torchmetrics); aver
 from __future__ import annotations
 
 from collections import defaultdict
+from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
 import torch
 
+from zoo.data.mesh import regress_joints
 from zoo.data.skeleton import Skeleton
 
 AVERAGING = {
@@ -19,6 +22,38 @@ AVERAGING = {
     "cumulative": "mean of the per-frame errors over predicted frames 1..t (STS-GCN)",
 }
 ACTION_AVERAGING = "mean over windows inside an action, then unweighted mean over actions present"
+
+
+@dataclass(frozen=True)
+class Metric:
+    """What the tables and the protocol records say of a metric.
+
+    ``unit`` heads its tables, ``fmt`` prints its values; ``with_std``: its tables print the
+    standard deviation over windows beside the mean; ``description``: its entry in the mesh
+    protocol records' ``metrics`` (hashed into ``protocol_id``: change it and every stored mesh
+    result stops matching new ones)."""
+
+    name: str
+    unit: str
+    fmt: str
+    with_std: bool
+    description: str
+
+
+METRICS = {m.name: m for m in (
+    Metric("mpjpe", "mm", ".2f", False, "mean L2 error of the regressed joints (mm)"),
+    # The SpecTrHuMS paper prints MELV as mean and standard deviation.
+    Metric("melv", "mm", ".3f", True,
+           "mean over unique edges of |len_t - len_ref| (mm), reference = last observed "
+           "ground-truth frame, on the frames of `melv_frames`; model `ground_truth` rows: the "
+           "same for the ground-truth future (the data baseline)"),
+    Metric("rmse", "per vertex, normalised by the ground-truth frame's bounding-box diagonal",
+           ".4f", False, "sqrt(mean_v |v_hat - v|^2) / |max_v v - min_v v| of the ground-truth "
+           "frame (the zoo's own definition; SpecTrHuMS publishes none)"),
+)}
+# The ``std`` column of every row, as the mesh protocol records describe it.
+STD_DESCRIPTION = ("standard deviation over windows (ddof 1) of the row's error; `average` rows "
+                   "pool the windows of every action")
 
 
 def mpjpe(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
@@ -37,7 +72,7 @@ def cumulative_mean(per_frame: np.ndarray, axis: int = -1) -> np.ndarray:
     return np.cumsum(per_frame, axis=axis) / steps.reshape(shape)
 
 
-# ---- joint protocols of the skeleton benchmarks (SPEC section 3) ----------------------------
+# ---- joint protocols of the skeleton benchmarks ---------------------------------------------
 
 def joint_protocols(skeleton: Skeleton) -> dict[str, str]:
     """Named joint protocols of a skeleton and what each means, the one the literature reports
@@ -138,7 +173,7 @@ class FrameErrorMean:
         return out
 
 
-# ---- mesh metrics (SPEC section 4) -------------------------------------------------------------
+# ---- mesh metrics ------------------------------------------------------------------------------
 
 def edge_lengths(vertices: torch.Tensor, edges: np.ndarray | torch.Tensor) -> torch.Tensor:
     """Lengths of ``edges (E, 2)`` in ``vertices (..., V, 3)``: ``(..., E)``."""
@@ -153,7 +188,7 @@ def melv(pred: torch.Tensor, reference: torch.Tensor,
          edges: np.ndarray | torch.Tensor) -> torch.Tensor:
     """Mean edge length variation ``(B, T)``: for every frame of ``pred (B, T, V, 3)``, the mean
     over the unique undirected ``edges (E, 2)`` of ``|len_t - len_ref|``, with ``reference
-    (B, V, 3)`` the last observed ground-truth frame (SPEC section 4). In the vertices' units (mm).
+    (B, V, 3)`` the last observed ground-truth frame. In the vertices' units (mm).
     Scored on the ground-truth future it gives the data's own figure (the baseline)."""
     if pred.ndim != 4 or reference.shape != pred.shape[:1] + pred.shape[2:]:
         raise ValueError(f"melv: expected pred (B, T, V, 3) and reference (B, V, 3), got "
@@ -168,7 +203,7 @@ def vertex_rmse(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     ``RMSE_t = sqrt(mean_v |v_hat - v|^2) / |max_v v - min_v v|``: the root mean squared vertex
     error divided by the length of the diagonal of the ground-truth frame's axis-aligned bounding
     box, so it has no unit. SpecTrHuMS reports an RMSE normalised by the bounding-box diagonal but
-    publishes no code for it: this definition is the zoo's own (SPEC section 4).
+    publishes no code for it: this definition is the zoo's own.
     """
     if pred.shape != target.shape or pred.ndim != 4:
         raise ValueError(f"vertex_rmse: expected prediction and target (B, T, V, 3) of one "
@@ -176,28 +211,6 @@ def vertex_rmse(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     rmse = (pred - target).pow(2).sum(dim=-1).mean(dim=-1).sqrt()
     diagonal = torch.linalg.vector_norm(target.amax(dim=-2) - target.amin(dim=-2), dim=-1)
     return rmse / diagonal
-
-
-def regress_joints(vertices: torch.Tensor, regressor) -> torch.Tensor:
-    """Joints ``(..., J, 3)`` from vertices ``(..., V, 3)`` with a ``(J, V)`` regressor (scipy
-    sparse, numpy or torch), as one matrix product over all leading dimensions."""
-    import scipy.sparse as sp
-
-    if sp.issparse(regressor):
-        r = regressor.tocoo()
-        matrix = torch.sparse_coo_tensor(np.stack([r.row, r.col]), r.data, r.shape,
-                                         check_invariants=True)
-    else:
-        matrix = torch.as_tensor(regressor)
-    matrix = matrix.to(device=vertices.device, dtype=vertices.dtype)
-    joints, num_vertices = matrix.shape
-    if vertices.ndim < 2 or vertices.shape[-2:] != (num_vertices, 3):
-        raise ValueError(f"regress_joints: regressor ({joints}, {num_vertices}) does not fit "
-                         f"vertices {tuple(vertices.shape)}")
-    lead = vertices.shape[:-2]
-    flat = vertices.reshape(-1, num_vertices, 3).permute(1, 0, 2).reshape(num_vertices, -1)
-    out = (matrix @ flat).reshape(joints, -1, 3).permute(1, 0, 2)
-    return out.reshape(*lead, joints, 3)
 
 
 def regressed_mpjpe(pred: torch.Tensor, target: torch.Tensor, regressor) -> torch.Tensor:

@@ -14,23 +14,21 @@ import pandas as pd
 from tabulate import tabulate
 
 from zoo.errors import ZooError
+from zoo.metrics import METRICS
 
 
 class ProtocolMismatchError(ZooError, ValueError):
     pass
 
 
-# Units and printed precision per metric: RMSE is normalised by the bounding-box diagonal.
-METRIC_UNITS = {"mpjpe": ("mm", ".2f"), "melv": ("mm", ".3f"),
-                "rmse": ("per vertex, normalised by the ground-truth frame's bounding-box "
-                         "diagonal", ".4f")}
-# Metrics whose tables print the standard deviation over windows beside the mean (the
-# SpecTrHuMS paper prints MELV as mean and std).
-WITH_STD = ("melv",)
+# Metrics whose tables print the standard deviation over windows beside the mean.
+WITH_STD = tuple(name for name, m in METRICS.items() if m.with_std)
 
 
 def metric_unit(metric: str) -> tuple[str, str]:
-    return METRIC_UNITS.get(metric, ("", ".4g"))
+    """Unit and printed precision of ``metric`` (zoo.metrics.METRICS; unknown: none, ``.4g``)."""
+    m = METRICS.get(metric)
+    return (m.unit, m.fmt) if m else ("", ".4g")
 
 
 def _comparable(record: dict[str, Any]) -> dict[str, Any]:

@@ -47,7 +47,8 @@ SKIN_BATCH = 256
 
 
 def frame_stride(fps: float, target_fps: float = TARGET_FPS) -> int:
-    """``floor(fps / 25)`` (at least 1): the AMASS frame-rate policy of SPEC section 2."""
+    """``floor(fps / 25)`` (at least 1): the AMASS frame-rate policy of the literature (30 fps
+    from 120 Hz and from 60 Hz sources; the effective fps is recorded per sequence)."""
     if not np.isfinite(fps) or fps <= 0:
         raise ValueError(f"frame rate must be positive, got {fps}")
     return max(1, int(math.floor(fps / target_fps + 1e-9)))

@@ -1,4 +1,4 @@
-"""CMU BVH motion on the Anny body (SPEC section 7): retargeting, resampling and mesh datasets.
+"""CMU BVH motion on the Anny body: retargeting, resampling and mesh datasets.
 
 The mapping, for a BVH frame and one Anny identity (``anny.Anny(rig="cmu_mb")``, default
 ``local-ref`` pose parameterization, where each bone's delta is a rotation about its head in
@@ -68,7 +68,7 @@ from zoo.io import atomic_path
 
 # BVH name -> Anny ``cmu_mb`` bone name where they differ (all others are the same).
 BVH_TO_ANNY = {"LeftHandIndex1": "LeftHandFinger1", "RightHandIndex1": "RightHandFinger1"}
-# Bones whose rest correction is their parent's (SPEC section 7, step 3), BVH names.
+# Bones whose rest correction is their parent's (step 3 of the mapping above), BVH names.
 NO_DIRECTION_BONES = frozenset({
     "Hips", "LHipJoint", "RHipJoint", "Spine1", "LeftShoulder", "RightShoulder", "LThumb",
     "RThumb", "LeftFingerBase", "RightFingerBase", "LeftHandIndex1", "RightHandIndex1",
@@ -633,8 +633,8 @@ def build_cmu_anny(bvh_root: str | Path, *, identities: Literal["one", "many"],
       ``MI_PHENOTYPE_RANGES`` by ``mi_phenotype(seed, trial)``);
     - ``topology``: ``"full"`` (13,718 vertices) or ``"low"`` (``notoes_collapse10pc``, 1,229);
     - ``split``: ``SPLIT_RULE``; ``trials`` (keys like ``"09_03"``) builds only those;
-    - ``root``: ``"identity"`` (no global rotation; SPEC's protocol) or ``"no_heading"``
-      (heading removed, body tilt kept); root translation is always zero.
+    - ``root``: ``"identity"`` (no global rotation: the motion-prediction protocol) or
+      ``"no_heading"`` (heading removed, body tilt kept); root translation is always zero.
 
     Each sequence's ``action`` is the trial's MANIFEST description (or its subject); ``meta``
     records trial, file, sha256, source frames and fps and the phenotype. The dataset carries

@@ -17,7 +17,7 @@ import os
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import scipy.sparse as sp
@@ -25,6 +25,9 @@ import scipy.sparse as sp
 from zoo.errors import ZooError
 from zoo.io import atomic_path, atomic_write_json, canonical_json
 from zoo.paths import REPO_ROOT
+
+if TYPE_CHECKING:
+    import torch
 
 
 def cache_root(cache_dir: str | Path | None = None) -> Path:
@@ -91,7 +94,7 @@ class MeshTopology:
         return (a + a.T).tocsr()
 
     def laplacian(self) -> sp.csr_matrix:
-        """Combinatorial Graph Laplacian ``L = D - A`` (SPEC section 4)."""
+        """Combinatorial Graph Laplacian ``L = D - A``."""
         a = self.adjacency()
         return (sp.diags(np.asarray(a.sum(axis=1)).ravel()) - a).tocsr()
 
@@ -274,6 +277,28 @@ def _stored_vertices(z, key: str) -> np.ndarray:
     return (z[key].astype(np.float64) * step + origin).astype(np.float32)
 
 
+def regress_joints(vertices: torch.Tensor, regressor) -> torch.Tensor:
+    """Joints ``(..., J, 3)`` from vertices ``(..., V, 3)`` with a ``(J, V)`` regressor (scipy
+    sparse, numpy or torch), as one matrix product over all leading dimensions."""
+    import torch
+
+    if sp.issparse(regressor):
+        r = regressor.tocoo()
+        matrix = torch.sparse_coo_tensor(np.stack([r.row, r.col]), r.data, r.shape,
+                                         check_invariants=True)
+    else:
+        matrix = torch.as_tensor(regressor)
+    matrix = matrix.to(device=vertices.device, dtype=vertices.dtype)
+    joints, num_vertices = matrix.shape
+    if vertices.ndim < 2 or vertices.shape[-2:] != (num_vertices, 3):
+        raise ValueError(f"regress_joints: regressor ({joints}, {num_vertices}) does not fit "
+                         f"vertices {tuple(vertices.shape)}")
+    lead = vertices.shape[:-2]
+    flat = vertices.reshape(-1, num_vertices, 3).permute(1, 0, 2).reshape(num_vertices, -1)
+    out = (matrix @ flat).reshape(joints, -1, 3).permute(1, 0, 2)
+    return out.reshape(*lead, joints, 3)
+
+
 @dataclass
 class JointSequence:
     """One sequence of a :class:`JointsView`: ``positions (T, J, 3)`` float32 in mm."""
@@ -305,8 +330,6 @@ class JointsView:
     def sequences(self) -> list[JointSequence]:
         """The regressed joints, computed on first use (one sparse product per sequence)."""
         import torch
-
-        from zoo.metrics import regress_joints
 
         return [JointSequence(s.name, s.action, regress_joints(
             torch.from_numpy(np.asarray(s.vertices, dtype=np.float64)),

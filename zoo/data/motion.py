@@ -1,7 +1,7 @@
 """Skeleton motion datasets in the exp-map layout: CMU Mocap and Human3.6M.
 
 Both adapters read with the one exp-map reader, run the one FK routine, halve the frame rate
-(SPEC section 2: every second source frame, starting with the first) and expose sequences that
+(every second source frame, starting with the first) and expose sequences that
 carry their action, file, hash and fps.
 """
 from __future__ import annotations
@@ -115,7 +115,7 @@ def load_cmu(root: str | Path | None, split: str = "test",
         if others:
             skipped.append(f"{folder.relative_to(root)}: skipped {', '.join(others)} (not "
                            f"{action}_<n>.txt)")
-        # The field treats these files as 50 Hz, so 25 Hz after halving (SPEC section 2).
+        # The field treats these files as 50 Hz, so 25 Hz after halving.
         sequences += [_load_sequence(f, root, action, CMU, 50.0, 2) for f in files]
     if not sequences:
         raise DataFormatError(f"{split_dir}: none of the actions {', '.join(actions)} has a file")

@@ -1,6 +1,6 @@
 """Skeletons of the exponential-map datasets and the one forward-kinematics routine.
 
-Everything here follows SPEC section 3 (the row-vector convention of the LTD / convSeq2Seq code):
+Everything here follows the row-vector convention of the LTD / convSeq2Seq code:
 the root's rotation and position are never applied, so positions come out root-relative.
 """
 from __future__ import annotations
@@ -104,7 +104,7 @@ SKELETONS = {s.name: s for s in (CMU, H36M)}
 def rodrigues(rotvec: torch.Tensor, exact: bool = False) -> torch.Tensor:
     """Rotation matrices ``(..., 3, 3)`` from exponential maps / axis-angle vectors ``(..., 3)``.
 
-    Default: the reference code's formula (SPEC section 3), unit axis ``r / (theta + eps)``
+    Default: the reference code's formula, unit axis ``r / (theta + eps)``
     with eps = float32 epsilon, which the exp-map benchmarks must reproduce to the digit.
     ``exact=True``: the exact map, with Taylor series near zero (body models, e.g. SMPL-H).
     """

@@ -1,4 +1,4 @@
-"""Spectral basis of a mesh: eigenvectors of its combinatorial Graph Laplacian (SPEC section 4).
+"""Spectral basis of a mesh: eigenvectors of its combinatorial Graph Laplacian.
 
 ``Phi (V, k)`` holds the ``k`` eigenvectors of ``L = D - A`` with the smallest eigenvalues, ordered
 by frequency. Spectral coefficients are ``C = Phi^T X`` and the reconstruction is ``X = Phi C``.

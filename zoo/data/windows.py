@@ -1,6 +1,6 @@
 """The one windowing routine: which windows of which sequences a protocol evaluates or trains on.
 
-Samplers (SPEC section 2); a window is ``T_in + T_out`` consecutive frames:
+Samplers; a window is ``T_in + T_out`` consecutive frames:
 
 - ``ltd8``: the LTD / convSeq2Seq test windows. Per CMU file, a fresh
   ``RandomState(1234567890)`` and 8 draws ``idx = randint(0, N - 75)``; per H3.6M action, one

@@ -1,4 +1,4 @@
-"""The MLP baseline (siMLPe; Guo et al., Back to MLP, WACV 2023), as SPEC section 5 describes it.
+"""The MLP baseline (siMLPe; Guo et al., Back to MLP, WACV 2023).
 
 One prediction step maps the last ``T_in`` observed frames to the next ``chunk`` frames:
 

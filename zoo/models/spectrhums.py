@@ -1,4 +1,4 @@
-"""SpecTrHuMS: a spectral autoencoder and a transformer over its latents (SPEC section 5).
+"""SpecTrHuMS: a spectral autoencoder and a transformer over its latents.
 
 Lemeunier, Denis, Lavoué, Dupont. SpecTrHuMS: Spectral Transformer for Human Mesh Sequence
 learning. Computers & Graphics 2023.

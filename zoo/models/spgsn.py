@@ -1,5 +1,5 @@
 """SPGSN, the design of the paper (Li et al., Skeleton-Parted Graph Scattering Networks for 3D
-Human Motion Prediction, ECCV 2022), as SPEC section 5 describes it.
+Human Motion Prediction, ECCV 2022), not that of its public code.
 
 Data flow (``N = 3P`` nodes, one per joint coordinate; ``T = T_in + T_out``):
 

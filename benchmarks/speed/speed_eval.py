@@ -2,7 +2,7 @@
 
 Prints windows per second of the zoo's evaluator (batched windows, batched errors) and, side by
 side in the same run, of a per-window loop doing the same work, with their ratio.
-Run: python benchmarks/speed_eval.py [--data-root ../shared/data/cmu_mocap]
+Run: python benchmarks/speed/speed_eval.py [--data-root ../shared/data/cmu_mocap]
 """
 import argparse
 import statistics
@@ -10,11 +10,11 @@ import time
 
 import torch
 
+import zoo
 from zoo.benchmark import get_benchmark
 from zoo.data.windows import gather_windows, window_sampler
 from zoo.evaluate import evaluate
 from zoo.metrics import skeleton_errors
-from zoo.registry import create_model
 
 
 def per_window_loop(dataset, bench, model):
@@ -34,17 +34,21 @@ def per_window_loop(dataset, bench, model):
     return len(index)
 
 
-def main():
+def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--data-root")
     parser.add_argument("--repeats", type=int, default=3)
-    args = parser.parse_args()
-    torch.set_num_threads(max(1, torch.get_num_threads()))
+    parser.add_argument("--threads", type=int, default=None,
+                        help="torch threads (default: torch's own choice; on a loaded machine "
+                             "--threads 1 gives steadier figures)")
+    args = parser.parse_args(argv)
+    if args.threads:
+        torch.set_num_threads(args.threads)
     bench = get_benchmark("cmu")
     t0 = time.perf_counter()
     dataset = bench.load(args.data_root)
     load_s = time.perf_counter() - t0
-    model = create_model("repeat_last", benchmark=bench)
+    model = zoo.create_model("repeat_last", benchmark=bench)
     zoo_times, loop_times = [], []
     for _ in range(args.repeats):
         t0 = time.perf_counter()

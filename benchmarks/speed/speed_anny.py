@@ -1,8 +1,8 @@
 """Speed of CMU-on-Anny mesh generation: model load (first build vs cached) and frames/s.
 
-    python benchmarks/speed_anny.py                # cached load, skinning at full and low res
-    python benchmarks/speed_anny.py --cold         # also the first build into an empty cache
-    python benchmarks/speed_anny.py --frames 2000 --batch 1000 --batch 256
+    python benchmarks/speed/speed_anny.py          # cached load, skinning at full and low res
+    python benchmarks/speed/speed_anny.py --cold   # also the first build into an empty cache
+    python benchmarks/speed/speed_anny.py --frames 2000 --batch 1000 --batch 256
 
 Loads run in a fresh Python process each (the model is built or read from anny's cache there);
 the figures leave out importing torch and anny. Skinning figures are float32 on this machine's CPU,
@@ -23,7 +23,7 @@ import numpy as np
 import torch
 from tabulate import tabulate
 
-REPO = Path(__file__).resolve().parent.parent
+REPO = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(REPO))
 
 from zoo.data import anny_motion as am  # noqa: E402

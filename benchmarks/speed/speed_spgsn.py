@@ -2,7 +2,7 @@
 
 Run from the repository root::
 
-    python benchmarks/speed_spgsn.py [--threads N] [--repeats R] [--bf16] [--models spgsn mlp]
+    python benchmarks/speed/speed_spgsn.py [--threads N] [--repeats R] [--bf16] [--models spgsn mlp]
 
 For each model in its registry configuration on the CMU benchmark (SPGSN: 10 blocks, hidden 256,
 L = 2, K = 2, dct_n 30; 10 frames in, 25 out, 25 joints) it prints: parameters, forward FLOPs per
@@ -17,6 +17,7 @@ re-implementation of its computation) in the same run, their timed runs interlea
 changes hit both alike. The aim (issue: at least equal training samples/s in float32 at equal or
 larger forward FLOPs per sample) is printed with the ceiling the FLOPs allow: a training step
 cannot take less than its counted FLOPs at the best matrix-product rate measured in this run.
+``--tiny`` (one block of width 16 on both sides) checks the script quickly; it measures nothing.
 """
 from __future__ import annotations
 
@@ -24,30 +25,37 @@ import argparse
 import os
 import platform
 import statistics
+import sys
 import time
+from pathlib import Path
 from typing import Callable
 
 import torch
 from torch.utils.flop_counter import FlopCounterMode
 
 import zoo
-from public_spgsn import forward_gflop_per_sample, make_public_step, public_batch
 from zoo.benchmark import get_benchmark
 from zoo.metrics import mpjpe
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # public_spgsn.py lies beside this file
+from public_spgsn import forward_gflop_per_sample, make_public_step, public_batch
 
 TRAINING_SPEED_AIM = 1.0  # times the public code's float32 training samples/s
 PAPER_TABLE9_PARAMS_M = 5.66  # SPGSN paper, Table 9: H3.6M, 10 in / 10 out, dct_n 15
 TRAIN_BATCH = 32
+# --tiny: ours (those of these hyper-parameters that a model has) and the public code's model
+TINY = {"blocks": 1, "hidden": 16}
+TINY_PUBLIC = {"num_stage": 1, "hidden": 16}
 
 
-def table9_params_m(name: str) -> float:
+def table9_params_m(name: str, **overrides) -> float:
     """Parameters (M) of registry model ``name`` in the paper's Table 9 setting: Human3.6M's 22
     used joints and body parts, 10 frames in and 10 out, 15 DCT coefficients."""
     from zoo.data.skeleton import H36M
 
     parts = {k: list(v) for k, v in H36M.parts.items()}
     model = zoo.create_model(name, input_frames=10, output_frames=10, num_points=len(H36M.used),
-                             parts=parts, dct_n=15)
+                             parts=parts, dct_n=15, **overrides)
     return sum(p.numel() for p in model.parameters()) / 1e6
 
 
@@ -99,25 +107,28 @@ def synthetic_motion(batch: int, frames: int, points: int, seed: int) -> torch.T
     return offsets + (torch.randn(batch, frames, points, 3, generator=g) * 5).cumsum(dim=1)
 
 
-def measure(name: str, repeats: int, bf16: bool) -> tuple[dict[str, float], dict | None]:
+def measure(name: str, repeats: int, bf16: bool, tiny: bool = False
+            ) -> tuple[dict[str, float], dict | None]:
     """Figures of registry model ``name``; for an SPGSN model also those of the public code's
     CMU model, timed interleaved with it on the same inputs."""
     bench = get_benchmark("cmu")
     entry = zoo.load_registry().get(name)
+    overrides = {k: v for k, v in TINY.items() if k in entry.hparams} if tiny else {}
     torch.manual_seed(0)
-    model = zoo.create_model(name, benchmark=bench)
+    model = zoo.create_model(name, benchmark=bench, **overrides)
     t_in, t_out, points = bench.input_frames, bench.output_frames, len(bench.skeleton.used)
     history = synthetic_motion(TRAIN_BATCH, t_in, points, seed=1)
     future = synthetic_motion(TRAIN_BATCH, t_out, points, seed=2)
     ours: dict[str, float] = {"params_m": sum(p.numel() for p in model.parameters()) / 1e6}
     public = None
     if name.startswith("spgsn"):
-        public_step, public_model = make_public_step(history_mm=history, future_mm=future)
+        public_step, public_model = make_public_step(history_mm=history, future_mm=future,
+                                                     **(TINY_PUBLIC if tiny else {}))
         public_input = public_batch(history, future)[0]
         public = {"params_m": sum(p.numel() for p in public_model.parameters()) / 1e6,
                   "gflop_per_sample": forward_gflop_per_sample(public_model)}
         if name == "spgsn":
-            ours["table9_params_m"] = table9_params_m(name)
+            ours["table9_params_m"] = table9_params_m(name, **overrides)
 
     model.eval()
     with torch.no_grad():
@@ -232,7 +243,7 @@ def report(name: str, f: dict[str, float], reference: dict[str, float] | None,
               f"{ceiling / reference['train_samples_per_s']:.2f}x")
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--threads", type=int, default=None,
                         help="torch intra-op threads (default: torch's own choice)")
@@ -240,7 +251,9 @@ def main() -> None:
     parser.add_argument("--bf16", action="store_true",
                         help="also time a training step under CPU bf16 autocast")
     parser.add_argument("--models", nargs="+", default=["spgsn", "mlp"])
-    args = parser.parse_args()
+    parser.add_argument("--tiny", action="store_true",
+                        help="tiny models (one block, width 16): a quick check of the script")
+    args = parser.parse_args(argv)
     if args.threads:
         torch.set_num_threads(args.threads)
     load_before = os.getloadavg()
@@ -254,7 +267,7 @@ def main() -> None:
         print("note: other processes are using the CPUs; wall-clock figures will be slower "
               "than on an idle machine (with more threads than free cores, much slower: "
               "try --threads 1)")
-    results = {name: measure(name, args.repeats, args.bf16) for name in args.models}
+    results = {name: measure(name, args.repeats, args.bf16, args.tiny) for name in args.models}
     for name, (ours, public) in results.items():
         report(name, ours, public, best)
     print(f"\nload average after: {os.getloadavg()[0]:.2f}; medians of {args.repeats} runs")

@@ -27,7 +27,9 @@ FLOPs come from ``torch.utils.flop_counter``; the machine's matrix-product rate 
 the same run (a 2400 x 256 by 256 x 1024 product), so the figures can be read against what the
 machine delivered while they were taken (the machine is shared: see the load average).
 
-Run: python benchmarks/speed_spectrhums.py [--repeats 5] [--threads N]
+Run: python benchmarks/speed/speed_spectrhums.py [--repeats 5] [--threads N]
+(``--vertices``, ``--k`` and ``--tiny``, a model of a few thousand parameters, make a quick check
+of the script, not a measurement of the published configuration.)
 On a loaded machine, two threads wait on each other at every operation (small batches suffer
 most); ``--threads 1`` then gives steadier figures.
 """
@@ -48,6 +50,8 @@ from zoo.registry import load_registry
 from zoo.train import forward_precision
 
 V, K, T_IN, T_OUT, BATCH = 6890, 512, 50, 25, 32
+TINY = {"latent": 16, "channels": [4, 8], "pooling": [8, 4], "d_model": 16, "layers": 1,
+        "heads": 2, "ff": 32}
 STATS_FRAMES = 150  # a motion of 6 s at 25 Hz: 76 windows of 75 frames
 # The public SpecTrHuMS code on this machine type (figures given with the task).
 PUBLIC = {"params": 6.0e6, "latency_b1_ms": 14.0, "latency_b32_ms": 542.0,
@@ -158,13 +162,18 @@ def gemm_rate(repeats: int) -> float:
     return 2 * 2400 * 256 * 1024 / seconds / 1e9
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--threads", type=int, default=None,
                         help="torch threads (default: torch's own choice)")
-    args = parser.parse_args()
+    parser.add_argument("--vertices", type=int, default=V, help="vertices of the random basis")
+    parser.add_argument("--k", type=int, default=K, help="coefficients of the random basis")
+    parser.add_argument("--tiny", action="store_true",
+                        help=f"a tiny model ({', '.join(f'{n} {x}' for n, x in TINY.items())})")
+    args = parser.parse_args(argv)
+    v, k = args.vertices, args.k
     if args.threads:
         torch.set_num_threads(args.threads)
     torch.manual_seed(0)
@@ -172,18 +181,20 @@ def main() -> None:
     rate0 = gemm_rate(args.repeats)
 
     t0 = time.perf_counter()
-    basis = random_basis(V, K)
+    basis = random_basis(v, k)
     basis_s = time.perf_counter() - t0
-    model = load_registry().create_model("spectrhums", input_frames=T_IN, output_frames=T_OUT,
-                                         num_points=V, basis=basis)
+    registry = load_registry()
+    hparams = {**registry.get("spectrhums").hparams, **(TINY if args.tiny else {})}
+    model = registry.create_model("spectrhums", input_frames=T_IN, output_frames=T_OUT,
+                                  num_points=v, basis=basis, **(TINY if args.tiny else {}))
     params = sum(p.numel() for p in model.parameters())
 
     g = torch.Generator().manual_seed(1)
-    vertices = torch.randn(BATCH, T_IN + T_OUT, V, 3, generator=g) * 100.0
+    vertices = torch.randn(BATCH, T_IN + T_OUT, v, 3, generator=g) * 100.0
     # start_epoch's statistics over every frame of every window of a STATS_FRAMES-frame motion
     # cut by sampler all: each distinct frame once with its window count (the engine) against
     # every window's frames one by one (as the engine gave them before), same model.
-    motion = torch.cumsum(torch.randn(STATS_FRAMES, V, 3, generator=g), 0) + vertices[0, :1]
+    motion = torch.cumsum(torch.randn(STATS_FRAMES, v, 3, generator=g), 0) + vertices[0, :1]
     index = window_sampler("all", [STATS_FRAMES], T_IN, T_OUT)
     counts = torch.from_numpy(frame_counts(index, [STATS_FRAMES], T_IN + T_OUT)[0])
     per_window = torch.from_numpy(gather_windows([motion.numpy()], index, T_IN + T_OUT))
@@ -257,8 +268,8 @@ def main() -> None:
         predicted = model.predict_coefficients(coeffs[:, :T_IN])  # (32, 25, 512, 3)
         phi = basis.torch_vectors()
 
-        frames = predicted.reshape(-1, K, 3)
-        looped = torch.empty(len(frames), V, 3)
+        frames = predicted.reshape(-1, k, 3)
+        looped = torch.empty(len(frames), v, 3)
 
         def per_frame():
             for i in range(len(frames)):
@@ -266,15 +277,16 @@ def main() -> None:
 
         one = median_seconds(lambda: model.reconstruct(predicted), args.repeats)
         loop = median_seconds(per_frame, max(1, args.repeats // 2), warm_up=False)  # slow
-        torch.testing.assert_close(looped.view(BATCH, T_OUT, V, 3),
+        torch.testing.assert_close(looped.view(BATCH, T_OUT, v, 3),
                                    model.reconstruct(predicted), rtol=1e-4, atol=1e-2)
     rate1 = gemm_rate(args.repeats)
     load1 = os.getloadavg()[0]
 
     samples_c, samples_v = BATCH / train_c, BATCH / train_v
-    print(f"SpecTrHuMS speed, published configuration: k={K} coefficients on V={V} vertices "
-          f"(random orthonormal basis, QR {basis_s:.1f} s), window {T_IN}+{T_OUT}, latent 256, "
-          f"6 layers, 4 heads, ff 1024")
+    print(f"SpecTrHuMS speed, {'tiny' if args.tiny else 'published'} configuration: k={k} "
+          f"coefficients on V={v} vertices (random orthonormal basis, QR {basis_s:.1f} s), "
+          f"window {T_IN}+{T_OUT}, latent {hparams['latent']}, {hparams['layers']} layers, "
+          f"{hparams['heads']} heads, ff {hparams['ff']}")
     print(f"torch {torch.__version__}, {torch.get_num_threads()} threads, "
           f"{args.repeats} repeats (medians), load average {load0:.1f} -> {load1:.1f}, "
           f"matrix products {rate0:.0f} -> {rate1:.0f} GFLOP/s")

@@ -1,16 +1,18 @@
 """Speed of the spectral mesh pipeline and of the cloth generator.
 
-    python benchmarks/speed_spectral.py [--k 512] [--repeats 5] [--default-split]
+    python benchmarks/speed/speed_spectral.py [--k 512] [--repeats 5] [--default-split]
 
 Prints:
 1. the time to compute a spectral basis (k = 512) cold on Anny's default topology (13,718
    vertices) when ``anny`` is installed, else on a synthetic closed mesh of the same vertex
    count: a UV sphere of 127 rings x 108 segments plus two poles, every quad split along a
-   random diagonal so that the connectivity has no symmetry;
+   random diagonal so that the connectivity has no symmetry (``--sphere RINGS SEGMENTS``: a
+   sphere of that size in any case);
 2. the time to load the same basis from the cache;
 3. the cloth simulator's throughput in mesh frames per second (a batch of 100 sequences, the size
-   of the default test split), and with ``--default-split`` the wall time to generate the default
-   train and test splits (400 + 100 sequences) into a temporary cache;
+   of the default test split, or ``--cloth-sequences``), and with ``--default-split`` the wall
+   time to generate the default train and test splits (400 + 100 sequences) into a temporary
+   cache;
 4. the time of one reshaped matrix product against a frame-by-frame loop for reconstructing
    32 windows x 25 frames on 6,890 vertices (SMPL's count) with k = 512, and their ratio.
 """
@@ -71,11 +73,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--repeats", type=int, default=3, help="repeats of the product timings")
     parser.add_argument("--default-split", action="store_true",
                         help="also time generating the default cloth splits (about a minute)")
+    parser.add_argument("--sphere", type=int, nargs=2, metavar=("RINGS", "SEGMENTS"),
+                        help="the basis of a UV sphere of this size instead of Anny's topology")
+    parser.add_argument("--cloth-sequences", type=int, default=100,
+                        help="sequences simulated together for the cloth throughput")
     args = parser.parse_args(argv)
     print(f"torch {torch.__version__}, {torch.get_num_threads()} threads; numpy {np.__version__}")
 
     # 1-2. basis: cold, then cached
-    topology = anny_topology() or uv_sphere()
+    topology = uv_sphere(*args.sphere) if args.sphere else anny_topology() or uv_sphere()
     with tempfile.TemporaryDirectory() as cache:
         cold, basis = timed(lambda: SpectralBasis.load_or_compute(topology, args.k, cache))
         cached, again = timed(lambda: SpectralBasis.load_or_compute(topology, args.k, cache), 3)
@@ -90,10 +96,11 @@ def main(argv: list[str] | None = None) -> int:
 
     # 3. cloth generator
     config = ClothConfig()
-    seconds, (vertices, _) = timed(lambda: simulate_cloth(config, "test", list(range(100))))
+    batch = args.cloth_sequences
+    seconds, (vertices, _) = timed(lambda: simulate_cloth(config, "test", list(range(batch))))
     frames = vertices.shape[0] * (vertices.shape[1] - 1)  # frame 0 is the initial state
     print(f"cloth simulator: {frames / seconds:.0f} mesh frames/s ({vertices.shape[2]} vertices, "
-          f"{config.substeps} substeps per frame, batch of 100 sequences: {seconds:.1f} s)")
+          f"{config.substeps} substeps per frame, batch of {batch} sequences: {seconds:.1f} s)")
     if args.default_split:
         with tempfile.TemporaryDirectory() as cache:
             total = 0.0

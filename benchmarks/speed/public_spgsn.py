@@ -3,7 +3,7 @@
 What this is: an independent re-implementation of the *computation* of the authors' public code
 (github.com/MediaBrain-SJTU/SPGSN: ``utils/model.py`` ``GCN``, ``utils/attentions.py``, the
 ``train()`` loop of ``main_cmu_3d.py``), written here from reading that code, not copied from it.
-It exists so that ``benchmarks/speed_spgsn.py`` can time the public design next to ours on the
+It exists so that ``benchmarks/speed/speed_spgsn.py`` can time the public design next to ours on the
 same CPU in the same run. It is not a model of this zoo and is not meant for training.
 
 Configuration reproduced: the README's CMU command (``--input_n 10 --output_n 25 --dct_n 30``)
@@ -35,9 +35,9 @@ here, under 0.1 % of a step); ``clip_grad_norm_`` for the deprecated
 with ``.float()`` on the GPU); a (V, V) graph is unsqueezed inside ``GraphOperator`` rather than
 by its caller, so that ``FlopCounterMode`` under ``no_grad`` works (same operation).
 
-    python benchmarks/public_spgsn.py      # parameters, forward GFLOP/sample, training step time
+    python benchmarks/speed/public_spgsn.py  # parameters, forward GFLOP/sample, training step time
 
-From a script in ``benchmarks/`` (its folder is on ``sys.path``)::
+From a script in ``benchmarks/speed/`` (its folder is on ``sys.path``)::
 
     from public_spgsn import make_public_step, forward_gflop_per_sample
     step, model = make_public_step(history_mm=history, future_mm=future)  # or batch_size=32
@@ -45,6 +45,7 @@ From a script in ``benchmarks/`` (its folder is on ``sys.path``)::
 """
 from __future__ import annotations
 
+import argparse
 import math
 import statistics
 import time
@@ -361,17 +362,29 @@ def forward_gflop_per_sample(model: PublicSPGSN) -> float:
     return counter.get_total_flops() / 1e9
 
 
-if __name__ == "__main__":
-    torch.set_num_threads(1)
-    step, model = make_public_step(batch_size=32)
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--threads", type=int, default=1, help="torch threads")
+    parser.add_argument("--steps", type=int, default=5, help="timed training steps (median)")
+    parser.add_argument("--batch-size", type=int, default=32)
+    parser.add_argument("--num-stage", type=int, default=10, help="blocks (opt.py default: 9)")
+    parser.add_argument("--hidden", type=int, default=256)
+    args = parser.parse_args(argv)
+    torch.set_num_threads(args.threads)
+    step, model = make_public_step(batch_size=args.batch_size, num_stage=args.num_stage,
+                                   hidden=args.hidden)
     params = sum(p.numel() for p in model.parameters())
     print(f"total params: {params / 1e6:.2f}M ({params})")
     print(f"forward GFLOP per sample: {forward_gflop_per_sample(model):.3f}")
     losses, times = [step()], []  # the first step (warm-up) is not timed
-    for _ in range(5):
+    for _ in range(args.steps):
         start = time.perf_counter()
         losses.append(step())
         times.append(time.perf_counter() - start)
     print("losses:", " ".join(f"{x:.2f}" for x in losses))
-    print(f"training step, batch 32, {torch.get_num_threads()} thread(s): median "
+    print(f"training step, batch {args.batch_size}, {torch.get_num_threads()} thread(s): median "
           f"{statistics.median(times):.3f} s over {len(times)} steps after a warm-up")
+
+
+if __name__ == "__main__":
+    main()

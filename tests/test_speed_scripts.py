@@ -1,0 +1,86 @@
+"""The speed scripts of ``benchmarks/speed/`` import without doing any work, and each one's
+``main`` runs end to end at the smallest sizes (tiny models, one repeat): a smoke test of the
+scripts, not of the figures they print. speed_anny needs the ``anny`` package and the CMU BVH
+data, and a warm anny cache (test_anny.py builds it) to take seconds rather than minutes."""
+import importlib.util
+from pathlib import Path
+
+import pytest
+import torch
+
+REPO = Path(__file__).resolve().parents[1]
+SPEED = REPO / "benchmarks" / "speed"
+CMU_BVH = REPO.parent / "shared" / "data" / "cmu_bvh"
+SCRIPTS = ["public_spgsn", "speed_anny", "speed_eval", "speed_spectral", "speed_spectrhums",
+           "speed_spgsn"]
+
+
+def load(name: str):
+    """The script ``benchmarks/speed/<name>.py`` imported by its path."""
+    spec = importlib.util.spec_from_file_location(f"speed_script_{name}", SPEED / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.fixture(autouse=True)
+def one_thread():
+    """One torch thread (steady on a shared machine); the scripts' own thread settings and this
+    one are undone afterwards."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
+def test_the_folder_holds_the_speed_scripts_and_benchmarks_the_protocols():
+    assert sorted(p.stem for p in SPEED.glob("*.py")) == SCRIPTS
+    assert list((REPO / "benchmarks").glob("*.py")) == []
+
+
+@pytest.mark.parametrize("name", SCRIPTS)
+def test_importing_does_no_work(name, capsys):
+    assert callable(load(name).main)
+    assert capsys.readouterr().out == ""
+
+
+def test_public_spgsn(capsys):
+    load("public_spgsn").main(["--steps", "1", "--batch-size", "2", "--num-stage", "1",
+                               "--hidden", "16"])
+    assert "training step, batch 2" in capsys.readouterr().out
+
+
+def test_speed_eval(swinging_cmu, capsys):
+    root, _ = swinging_cmu
+    load("speed_eval").main(["--data-root", str(root), "--repeats", "1"])
+    out = capsys.readouterr().out
+    assert "per-window loop" in out and "ratio" in out
+
+
+def test_speed_spectral(capsys):
+    load("speed_spectral").main(["--k", "16", "--repeats", "1", "--sphere", "8", "10",
+                                 "--cloth-sequences", "2"])
+    out = capsys.readouterr().out
+    assert "uv_sphere_82" in out and "batch of 2 sequences" in out and "ratio" in out
+
+
+def test_speed_spectrhums(capsys):
+    load("speed_spectrhums").main(["--repeats", "1", "--vertices", "64", "--k", "16", "--tiny"])
+    out = capsys.readouterr().out
+    assert "tiny configuration: k=16 coefficients on V=64" in out
+    assert "layer-by-layer baseline, train step b32" in out
+
+
+def test_speed_spgsn(capsys):
+    load("speed_spgsn").main(["--tiny", "--repeats", "1", "--bf16", "--models", "spgsn", "mlp"])
+    out = capsys.readouterr().out
+    assert "public code" in out and "== mlp ==" in out and "aim (>=" in out
+
+
+@pytest.mark.skipif(importlib.util.find_spec("anny") is None,
+                    reason="the anny package is not installed (pip install anny==0.6.2)")
+@pytest.mark.skipif(not CMU_BVH.is_dir(), reason=f"CMU BVH data not found at {CMU_BVH}")
+def test_speed_anny(capsys):
+    load("speed_anny").main(["--trial", "09_03", "--frames", "8", "--batch", "4"])
+    out = capsys.readouterr().out
+    assert "cached load: full" in out and "end to end (09_03" in out
