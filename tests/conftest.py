@@ -1,4 +1,5 @@
 """Shared fixtures: tiny datasets written in the exact on-disk formats."""
+
 from pathlib import Path
 
 import numpy as np
@@ -26,6 +27,5 @@ def write_cmu_file(path: Path, angles: np.ndarray) -> Path:
 def swinging_cmu(tmp_path) -> tuple[Path, float]:
     """A CMU data root with one test file: joint 5 turns by ``omega`` rad per source frame."""
     omega = 0.01
-    write_cmu_file(tmp_path / "cmu" / "test" / "walking" / "walking_1.txt",
-                   omega * np.arange(200))
+    write_cmu_file(tmp_path / "cmu" / "test" / "walking" / "walking_1.txt", omega * np.arange(200))
     return tmp_path / "cmu", omega

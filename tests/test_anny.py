@@ -4,6 +4,7 @@ The tests that need the ``anny`` package share one low-resolution model (session
 use the shortest trials (09_03: 128 motion frames at 120 fps, 27 frames at 25 Hz). With a cold
 anny cache the first model build takes a few minutes; afterwards loading takes seconds.
 """
+
 import importlib.util
 import shutil
 
@@ -22,9 +23,10 @@ SHORT = "09_03"  # train split, 27 frames at 25 Hz
 SHORT_TEST = "09_05"  # test split
 
 needs_data = pytest.mark.skipif(not CMU_BVH.is_dir(), reason=f"CMU BVH data not found at {CMU_BVH}")
-needs_anny = pytest.mark.skipif(importlib.util.find_spec("anny") is None,
-                                reason="the anny package is not installed (pip install "
-                                       "anny==0.6.2); CI installs it")
+needs_anny = pytest.mark.skipif(
+    importlib.util.find_spec("anny") is None,
+    reason="the anny package is not installed (pip install anny==0.6.2); CI installs it",
+)
 
 
 def bvh_path(key):
@@ -32,6 +34,7 @@ def bvh_path(key):
 
 
 # ---- rotations and resampling (no anny needed) -------------------------------------------------
+
 
 def test_rotation_between_is_the_smallest_rotation():
     rng = np.random.default_rng(1)
@@ -41,8 +44,9 @@ def test_rotation_between_is_the_smallest_rotation():
         np.testing.assert_allclose(r @ (a / np.linalg.norm(a)), b / np.linalg.norm(b), atol=1e-12)
         axis = Rotation.from_matrix(r).as_rotvec()
         assert abs(axis @ a) < 1e-9 and abs(axis @ b) < 1e-9  # about a x b: smallest angle
-    np.testing.assert_allclose(am.rotation_between([1, 0, 0], [-1, 0, 0]) @ [1, 0, 0], [-1, 0, 0],
-                               atol=1e-12)
+    np.testing.assert_allclose(
+        am.rotation_between([1, 0, 0], [-1, 0, 0]) @ [1, 0, 0], [-1, 0, 0], atol=1e-12
+    )
     np.testing.assert_allclose(am.rotation_between([0, 2, 0], [0, 1, 0]), np.eye(3))
 
 
@@ -56,8 +60,9 @@ def test_remove_heading_keeps_the_tilt():
         q = (heading * tilt).as_matrix()
         np.testing.assert_allclose(am.remove_heading(q), tilt.as_matrix(), atol=1e-9)
     # A pure heading leaves nothing; a rotation about a horizontal axis is kept as is.
-    np.testing.assert_allclose(am.remove_heading(Rotation.from_rotvec([0, 1, 0]).as_matrix()),
-                               np.eye(3), atol=1e-12)
+    np.testing.assert_allclose(
+        am.remove_heading(Rotation.from_rotvec([0, 1, 0]).as_matrix()), np.eye(3), atol=1e-12
+    )
 
 
 def test_resampling_to_25_hz_is_exact_on_shared_instants_and_slerps_between():
@@ -79,6 +84,7 @@ def test_resampling_to_25_hz_is_exact_on_shared_instants_and_slerps_between():
 
 # ---- trials and split (data, no anny) ---------------------------------------------------------
 
+
 @needs_data
 def test_trials_split_and_selection_errors():
     trials = am.list_trials(CMU_BVH)
@@ -97,12 +103,16 @@ def test_trials_split_and_selection_errors():
 def test_a_bvh_with_an_unexpected_joint_is_named(tmp_path):
     text = bvh_path(SHORT).read_text().replace("JOINT LThumb", "JOINT LPinky", 1)
     (tmp_path / "odd.bvh").write_text(text)
-    with pytest.raises(DataFormatError, match=r"odd\.bvh: unexpected joint 'LPinky'; expected "
-                                              r"the joint set \{Hips, LHipJoint, .*RThumb\}"):
+    with pytest.raises(
+        DataFormatError,
+        match=r"odd\.bvh: unexpected joint 'LPinky'; expected "
+        r"the joint set \{Hips, LHipJoint, .*RThumb\}",
+    ):
         read_bvh(tmp_path / "odd.bvh", CMU_BVH_JOINTS)
 
 
 # ---- on the Anny body -------------------------------------------------------------------------
+
 
 @pytest.fixture(scope="session")
 def low_model():
@@ -125,15 +135,22 @@ def cache(tmp_path_factory):
     return tmp_path_factory.mktemp("zoo-cache")
 
 
-MI_BODY = {"gender": 0.9, "age": 0.85, "muscle": 0.2, "weight": 0.8, "height": 0.3,
-           "proportions": 0.7}
+MI_BODY = {
+    "gender": 0.9,
+    "age": 0.85,
+    "muscle": 0.2,
+    "weight": 0.8,
+    "height": 0.3,
+    "proportions": 0.7,
+}
 
 
 @needs_anny
 @pytest.mark.parametrize("phenotype", [None, MI_BODY], ids=["default", "mi"])
 @pytest.mark.parametrize("root", am.ROOT_MODES)
-def test_skinned_bone_directions_match_the_bvh_forward_kinematics(low_model, short_motion,
-                                                                  phenotype, root):
+def test_skinned_bone_directions_match_the_bvh_forward_kinematics(
+    low_model, short_motion, phenotype, root
+):
     bvh, rots = short_motion
     frames = rots[[0, 9, 18, 26]]
     target = am.retarget(low_model, bvh, phenotype)
@@ -161,14 +178,19 @@ def test_identity_root_removes_heading_and_tilt(low_model, short_motion):
     target = am.retarget(low_model, bvh)
     turned = rots.copy()
     turned[:, 0] = Rotation.from_rotvec([0, 1.0, 0]).as_matrix() @ turned[:, 0]
-    np.testing.assert_allclose(target.pose_parameters(turned, "no_heading"),
-                               target.pose_parameters(rots, "no_heading"), atol=1e-9)
+    np.testing.assert_allclose(
+        target.pose_parameters(turned, "no_heading"),
+        target.pose_parameters(rots, "no_heading"),
+        atol=1e-9,
+    )
     tilted = rots.copy()
     tilted[:, 0] = Rotation.from_rotvec([0.3, 0, 0]).as_matrix() @ tilted[:, 0]
-    np.testing.assert_array_equal(target.pose_parameters(tilted, "identity"),
-                                  target.pose_parameters(rots, "identity"))
-    assert not np.allclose(target.pose_parameters(tilted, "no_heading"),
-                           target.pose_parameters(rots, "no_heading"))
+    np.testing.assert_array_equal(
+        target.pose_parameters(tilted, "identity"), target.pose_parameters(rots, "identity")
+    )
+    assert not np.allclose(
+        target.pose_parameters(tilted, "no_heading"), target.pose_parameters(rots, "no_heading")
+    )
 
 
 @needs_anny
@@ -194,10 +216,17 @@ def test_built_meshes_do_not_depend_on_the_thread_count(low_model, tmp_path):
     try:
         for threads in (3, 1):
             torch.set_num_threads(threads)
-            hashes.append(am.build_cmu_anny(CMU_BVH, identities="one", topology="low",
-                                            split="train", trials=[SHORT], progress=False,
-                                            cache_dir=tmp_path / f"threads{threads}")
-                          .content_hash())
+            hashes.append(
+                am.build_cmu_anny(
+                    CMU_BVH,
+                    identities="one",
+                    topology="low",
+                    split="train",
+                    trials=[SHORT],
+                    progress=False,
+                    cache_dir=tmp_path / f"threads{threads}",
+                ).content_hash()
+            )
             assert torch.get_num_threads() == threads  # the caller's setting is restored
     finally:
         torch.set_num_threads(before)
@@ -207,8 +236,15 @@ def test_built_meshes_do_not_depend_on_the_thread_count(low_model, tmp_path):
 @needs_anny
 @needs_data
 def test_build_one_identity_low(low_model, cache):
-    ds = am.build_cmu_anny(CMU_BVH, identities="one", topology="low", split="train",
-                           trials=[SHORT], cache_dir=cache, progress=False)
+    ds = am.build_cmu_anny(
+        CMU_BVH,
+        identities="one",
+        topology="low",
+        split="train",
+        trials=[SHORT],
+        cache_dir=cache,
+        progress=False,
+    )
     assert ds.name == "cmu_anny-oi-low-train" and ds.split == "train" and ds.fps == 25.0
     (seq,) = ds.sequences
     assert seq.vertices.shape == (27, 1229, 3) and seq.vertices.dtype == np.float32
@@ -231,28 +267,58 @@ def test_build_one_identity_low(low_model, cache):
     assert err.mean() < 10, f"regressed joints {err.mean():.1f} mm from the rig's bone heads"
     # Cached on disk under its recipe hash; a second call loads the same data.
     assert folder.name == f"{ds.name}-{ds.recipe_hash}"
-    again = am.build_cmu_anny(CMU_BVH, identities="one", topology="low", split="train",
-                              trials=[SHORT], cache_dir=cache, progress=False)
+    again = am.build_cmu_anny(
+        CMU_BVH,
+        identities="one",
+        topology="low",
+        split="train",
+        trials=[SHORT],
+        cache_dir=cache,
+        progress=False,
+    )
     assert again.content_hash() == ds.content_hash() and again.recipe_hash == ds.recipe_hash
     # The seed draws MI bodies only: an OI build of another seed is the same dataset.
-    assert am.build_cmu_anny(CMU_BVH, identities="one", topology="low", split="train",
-                             trials=[SHORT], seed=7, cache_dir=cache,
-                             progress=False).recipe_hash == ds.recipe_hash
+    assert (
+        am.build_cmu_anny(
+            CMU_BVH,
+            identities="one",
+            topology="low",
+            split="train",
+            trials=[SHORT],
+            seed=7,
+            cache_dir=cache,
+            progress=False,
+        ).recipe_hash
+        == ds.recipe_hash
+    )
     assert MeshDataset.load(folder).topology.hash == ds.topology.hash
 
 
 @needs_anny
 @needs_data
-def test_many_identities_share_the_triangulation_differ_in_shape_and_are_seeded(low_model,
-                                                                               cache):
+def test_many_identities_share_the_triangulation_differ_in_shape_and_are_seeded(low_model, cache):
     def build(seed, split="train", trials=(SHORT, "02_03")):
-        return am.build_cmu_anny(CMU_BVH, identities="many", topology="low", split=split,
-                                 trials=list(trials), seed=seed, cache_dir=cache,
-                                 progress=False)
+        return am.build_cmu_anny(
+            CMU_BVH,
+            identities="many",
+            topology="low",
+            split=split,
+            trials=list(trials),
+            seed=seed,
+            cache_dir=cache,
+            progress=False,
+        )
 
     ds = build(0)
-    oi = am.build_cmu_anny(CMU_BVH, identities="one", topology="low", split="train",
-                           trials=[SHORT], cache_dir=cache, progress=False)
+    oi = am.build_cmu_anny(
+        CMU_BVH,
+        identities="one",
+        topology="low",
+        split="train",
+        trials=[SHORT],
+        cache_dir=cache,
+        progress=False,
+    )
     assert ds.topology.hash == oi.topology.hash  # one triangulation for every identity
     a, b = ds.sequences
     assert a.identity != b.identity and a.meta["phenotype"] != b.meta["phenotype"]
@@ -284,17 +350,17 @@ def test_many_identities_share_the_triangulation_differ_in_shape_and_are_seeded(
 @needs_data
 def test_builder_argument_errors(cache):
     with pytest.raises(ValueError, match="identities must be one of"):
-        am.build_cmu_anny(CMU_BVH, identities="some", topology="low", split="train",
-                          cache_dir=cache)
+        am.build_cmu_anny(
+            CMU_BVH, identities="some", topology="low", split="train", cache_dir=cache
+        )
     with pytest.raises(ValueError, match="topology must be one of"):
-        am.build_cmu_anny(CMU_BVH, identities="one", topology="mid", split="train",
-                          cache_dir=cache)
+        am.build_cmu_anny(CMU_BVH, identities="one", topology="mid", split="train", cache_dir=cache)
     with pytest.raises(ValueError, match="split must be one of"):
-        am.build_cmu_anny(CMU_BVH, identities="one", topology="low", split="val",
-                          cache_dir=cache)
+        am.build_cmu_anny(CMU_BVH, identities="one", topology="low", split="val", cache_dir=cache)
     with pytest.raises(ValueError, match="root must be one of"):
-        am.build_cmu_anny(CMU_BVH, identities="one", topology="low", split="train",
-                          root="world", cache_dir=cache)
+        am.build_cmu_anny(
+            CMU_BVH, identities="one", topology="low", split="train", root="world", cache_dir=cache
+        )
 
 
 @needs_anny
@@ -307,8 +373,10 @@ def test_full_resolution_directions_and_edge_lengths(short_motion):
     bvh, rots = short_motion
     target = am.retarget(model, bvh)
     out = am.skin(model, target.pose_parameters(rots), return_bone_ends=True)
-    angles = am.angle_degrees((out["tails"] - out["heads"])[:, target.directed],
-                              target.expected_directions(rots)[:, target.directed])
+    angles = am.angle_degrees(
+        (out["tails"] - out["heads"])[:, target.directed],
+        target.expected_directions(rots)[:, target.directed],
+    )
     assert angles.max() < 0.01
     v = out["vertices"]
     assert v.shape == (27, 13718, 3)

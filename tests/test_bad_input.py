@@ -1,9 +1,10 @@
 """Bad input gets a clear error naming the file and line, or the option and its valid values,
 and leaves no partial result files behind."""
+
 import numpy as np
 import pytest
-
 from conftest import write_cmu_file
+
 from zoo.cli import main
 from zoo.data.expmap import DataFormatError
 from zoo.data.motion import load_cmu
@@ -11,8 +12,20 @@ from zoo.errors import DataNotFoundError
 
 
 def run_eval(root, out, *extra):
-    return main(["eval", "--model", "repeat_last", "--benchmark", "cmu", "--data-root", str(root),
-                 "--out", str(out), *extra])
+    return main(
+        [
+            "eval",
+            "--model",
+            "repeat_last",
+            "--benchmark",
+            "cmu",
+            "--data-root",
+            str(root),
+            "--out",
+            str(out),
+            *extra,
+        ]
+    )
 
 
 def corrupt_line(path, lineno, fields_transform):
@@ -21,11 +34,23 @@ def corrupt_line(path, lineno, fields_transform):
     path.write_text("\n".join(lines) + "\n")
 
 
-@pytest.mark.parametrize("transform, message", [
-    (lambda f: f[:-1], r"walking_1.txt, line 7: expected 117 comma-separated values.*found 116"),
-    (lambda f: f[:4] + ["abc"] + f[5:], r"walking_1.txt, line 7, column 5: 'abc' is not a number"),
-    (lambda f: f[:9] + ["nan"] + f[10:], r"walking_1.txt, line 7, column 10: value nan is not fin"),
-])
+@pytest.mark.parametrize(
+    "transform, message",
+    [
+        (
+            lambda f: f[:-1],
+            r"walking_1.txt, line 7: expected 117 comma-separated values.*found 116",
+        ),
+        (
+            lambda f: f[:4] + ["abc"] + f[5:],
+            r"walking_1.txt, line 7, column 5: 'abc' is not a number",
+        ),
+        (
+            lambda f: f[:9] + ["nan"] + f[10:],
+            r"walking_1.txt, line 7, column 10: value nan is not fin",
+        ),
+    ],
+)
 def test_malformed_file_names_file_and_line(swinging_cmu, tmp_path, capsys, transform, message):
     root, _ = swinging_cmu
     corrupt_line(root / "test" / "walking" / "walking_1.txt", 7, transform)

@@ -2,8 +2,15 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from zoo.data.bvh import (BVH, CMU_BVH_JOINTS, bone_directions, euler_to_matrix,
-                          forward_kinematics, parse_bvh, read_bvh)
+from zoo.data.bvh import (
+    BVH,
+    CMU_BVH_JOINTS,
+    bone_directions,
+    euler_to_matrix,
+    forward_kinematics,
+    parse_bvh,
+    read_bvh,
+)
 from zoo.data.expmap import DataFormatError
 from zoo.paths import REPO_ROOT
 
@@ -58,8 +65,14 @@ def test_hierarchy_and_motion_of_a_small_file(tmp_path):
     assert bvh.names == ("Hips", "Arm", "Hand", "Pivot")
     assert bvh.parents == (-1, 0, 1, 0)
     np.testing.assert_array_equal(bvh.offsets, [[1, 2, 3], [2, 0, 0], [3, 0, 0], [0, 0, 0]])
-    assert bvh.channels[0] == ("Xposition", "Yposition", "Zposition", "Zrotation", "Yrotation",
-                               "Xrotation")
+    assert bvh.channels[0] == (
+        "Xposition",
+        "Yposition",
+        "Zposition",
+        "Zrotation",
+        "Yrotation",
+        "Xrotation",
+    )
     assert bvh.channels[3] == ("Xrotation", "Yrotation", "Zrotation")
     assert sorted(bvh.end_sites) == [2, 3]
     np.testing.assert_array_equal(bvh.end_sites[2], [1, 0, 0])
@@ -104,36 +117,65 @@ def test_forward_kinematics_by_hand(tmp_path):
 def test_expected_joint_set(tmp_path):
     path = write(tmp_path, TINY)
     read_bvh(path, expected_joints=["Hips", "Arm", "Hand", "Pivot"])
-    with pytest.raises(DataFormatError, match=r"tiny.bvh: unexpected joint 'Pivot'; expected "
-                                              r"the joint set \{Hips, Arm, Hand\}"):
+    with pytest.raises(
+        DataFormatError,
+        match=r"tiny.bvh: unexpected joint 'Pivot'; expected "
+        r"the joint set \{Hips, Arm, Hand\}",
+    ):
         read_bvh(path, expected_joints=["Hips", "Arm", "Hand"])
     with pytest.raises(DataFormatError, match=r"joint\(s\) 'Head' missing"):
         read_bvh(path, expected_joints=["Hips", "Arm", "Hand", "Pivot", "Head"])
 
 
-@pytest.mark.parametrize("old, new, message", [
-    ("HIERARCHY", "HIERARCH", r"line 1: expected 'HIERARCHY'"),
-    ("    OFFSET 2 0 0", "    OFFSET 2 0", r"line 8: OFFSET of joint 'Arm': expected 3 numbers, "
-                                            r"found 2"),
-    ("    OFFSET 2 0 0", "    OFFSET 2 x 0", r"line 8: OFFSET of joint 'Arm': '2 x 0' are not"),
-    ("CHANNELS 3 Xrotation Yrotation Zrotation", "CHANNELS 3 Xrotation Yrotation Wrotation",
-     r"line 23: CHANNELS of joint 'Pivot': unknown channel 'Wrotation'"),
-    ("CHANNELS 3 Xrotation Yrotation Zrotation", "CHANNELS 4 Xrotation Yrotation Zrotation",
-     r"line 23: CHANNELS of joint 'Pivot': the count says 4, 3 channel names follow"),
-    ("  JOINT Pivot\n  {", "  JOINT Pivot\n  (", r"line 21: expected '\{' of Pivot, found '\('"),
-    ("JOINT Pivot", "JOINT Arm", r"line 20: joint 'Arm' is defined twice"),
-    ("      End Site", "      End Sight", r"line 14: unexpected 'End Sight' in joint 'Hand'"),
-    ("MOTION", "MOTON", r"line 30: expected 'MOTION'"),
-    ("Frames: 2", "Frames: two", r"line 31: frame count 'two' is not an integer"),
-    ("Frame Time: 0.0083333", "Frame Time: 0", r"line 32: frame time must be positive"),
-    ("Frames: 2", "Frames: 3", r"header says 3 frames, found 2 frame lines"),
-    ("0 0 0 90 0 0 0 0 0 90 0 0 0 0 0", "0 0 0 90 0 0 0 0 0 90 0 0 0 0",
-     r"line 34: expected 15 channel values \(the hierarchy's channels\), found 14"),
-    ("0 0 0 90 0 0 0 0 0 90 0 0 0 0 0", "0 0 0 90 0 0 0 0 0 90 0 abc 0 0 0",
-     r"line 34, value 12: 'abc' is not a number"),
-    ("0 0 0 90 0 0 0 0 0 90 0 0 0 0 0", "0 0 0 90 0 0 0 0 0 90 0 nan 0 0 0",
-     r"line 34, value 12: nan is not finite"),
-])
+@pytest.mark.parametrize(
+    "old, new, message",
+    [
+        ("HIERARCHY", "HIERARCH", r"line 1: expected 'HIERARCHY'"),
+        (
+            "    OFFSET 2 0 0",
+            "    OFFSET 2 0",
+            r"line 8: OFFSET of joint 'Arm': expected 3 numbers, "
+            r"found 2",
+        ),
+        ("    OFFSET 2 0 0", "    OFFSET 2 x 0", r"line 8: OFFSET of joint 'Arm': '2 x 0' are not"),
+        (
+            "CHANNELS 3 Xrotation Yrotation Zrotation",
+            "CHANNELS 3 Xrotation Yrotation Wrotation",
+            r"line 23: CHANNELS of joint 'Pivot': unknown channel 'Wrotation'",
+        ),
+        (
+            "CHANNELS 3 Xrotation Yrotation Zrotation",
+            "CHANNELS 4 Xrotation Yrotation Zrotation",
+            r"line 23: CHANNELS of joint 'Pivot': the count says 4, 3 channel names follow",
+        ),
+        (
+            "  JOINT Pivot\n  {",
+            "  JOINT Pivot\n  (",
+            r"line 21: expected '\{' of Pivot, found '\('",
+        ),
+        ("JOINT Pivot", "JOINT Arm", r"line 20: joint 'Arm' is defined twice"),
+        ("      End Site", "      End Sight", r"line 14: unexpected 'End Sight' in joint 'Hand'"),
+        ("MOTION", "MOTON", r"line 30: expected 'MOTION'"),
+        ("Frames: 2", "Frames: two", r"line 31: frame count 'two' is not an integer"),
+        ("Frame Time: 0.0083333", "Frame Time: 0", r"line 32: frame time must be positive"),
+        ("Frames: 2", "Frames: 3", r"header says 3 frames, found 2 frame lines"),
+        (
+            "0 0 0 90 0 0 0 0 0 90 0 0 0 0 0",
+            "0 0 0 90 0 0 0 0 0 90 0 0 0 0",
+            r"line 34: expected 15 channel values \(the hierarchy's channels\), found 14",
+        ),
+        (
+            "0 0 0 90 0 0 0 0 0 90 0 0 0 0 0",
+            "0 0 0 90 0 0 0 0 0 90 0 abc 0 0 0",
+            r"line 34, value 12: 'abc' is not a number",
+        ),
+        (
+            "0 0 0 90 0 0 0 0 0 90 0 0 0 0 0",
+            "0 0 0 90 0 0 0 0 0 90 0 nan 0 0 0",
+            r"line 34, value 12: nan is not finite",
+        ),
+    ],
+)
 def test_malformed_files_name_file_and_line(tmp_path, old, new, message):
     assert old in TINY
     path = write(tmp_path, TINY.replace(old, new, 1), "bad.bvh")
@@ -142,9 +184,12 @@ def test_malformed_files_name_file_and_line(tmp_path, old, new, message):
 
 
 def test_truncated_file_and_missing_file(tmp_path):
-    cut = TINY[:TINY.index("  JOINT Pivot")]
-    with pytest.raises(DataFormatError, match=r"cut\.bvh: file ends where the '\}' closing "
-                                              r"joint 'Hips' was expected"):
+    cut = TINY[: TINY.index("  JOINT Pivot")]
+    with pytest.raises(
+        DataFormatError,
+        match=r"cut\.bvh: file ends where the '\}' closing "
+        r"joint 'Hips' was expected",
+    ):
         read_bvh(write(tmp_path, cut, "cut.bvh"))
     with pytest.raises(DataFormatError, match=r"nothing\.bvh: cannot read BVH file"):
         read_bvh(tmp_path / "nothing.bvh")
@@ -169,7 +214,10 @@ def test_a_real_cmu_trial():
     # Bone lengths are preserved by the motion, and the head is above the feet (Y up).
     for j, p in enumerate(bvh.parents):
         if p >= 0:
-            np.testing.assert_allclose(np.linalg.norm(pos[:, j] - pos[:, p], axis=-1),
-                                       np.linalg.norm(bvh.offsets[j]), atol=1e-9)
+            np.testing.assert_allclose(
+                np.linalg.norm(pos[:, j] - pos[:, p], axis=-1),
+                np.linalg.norm(bvh.offsets[j]),
+                atol=1e-9,
+            )
     head, foot = bvh.index("Head"), bvh.index("LeftFoot")
     assert (pos[:, head, 1] > pos[:, foot, 1] + 10).all()

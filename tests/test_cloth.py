@@ -1,4 +1,5 @@
 """The generated cloth dataset: reproducible, physically sane, cached by recipe."""
+
 import json
 
 import numpy as np
@@ -27,8 +28,10 @@ def test_topology_is_asymmetric_and_valid():
     mirrored = np.sort(row * 22 + (21 - col), axis=1)
     assert {tuple(f) for f in np.sort(topo.faces, axis=1)} != {tuple(f) for f in mirrored}
     # Every triangle keeps its orientation: the jitter folds nothing over.
-    e1, e2 = rest[topo.faces[:, 1]] - rest[topo.faces[:, 0]], rest[topo.faces[:, 2]] - \
-        rest[topo.faces[:, 0]]
+    e1, e2 = (
+        rest[topo.faces[:, 1]] - rest[topo.faces[:, 0]],
+        rest[topo.faces[:, 2]] - rest[topo.faces[:, 0]],
+    )
     area = np.cross(e1, e2)[:, 2]
     assert (np.abs(area) > 0.2 * np.abs(area).mean()).all()
 
@@ -123,13 +126,23 @@ def test_cloth_benchmark_on_a_small_cloth(tmp_path):
     small = ClothConfig(grid=(10, 10), substeps=5, test_sequences=2)  # 50 frames, like the default
     dataset = load_cloth("test", small, cache_dir=tmp_path)
     # MELV on the raw frames: this 100-vertex cloth has no room for the benchmark's k = 256
-    result = evaluate(RepeatLast(25, 25, 100), "cloth", dataset=dataset,
-                      model_name="repeat_last", melv_frames="raw")
+    result = evaluate(
+        RepeatLast(25, 25, 100),
+        "cloth",
+        dataset=dataset,
+        model_name="repeat_last",
+        melv_frames="raw",
+    )
     frame = result.frame[(result.frame.action == "average") & (result.frame.averaging == "frame")]
-    value = {(m, metric): g.sort_values("frame").value.to_numpy()
-             for (m, metric), g in frame.groupby(["model", "metric"])}
-    assert set(value) == {("repeat_last", "melv"), ("repeat_last", "rmse"),
-                          ("ground_truth", "melv")}
+    value = {
+        (m, metric): g.sort_values("frame").value.to_numpy()
+        for (m, metric), g in frame.groupby(["model", "metric"])
+    }
+    assert set(value) == {
+        ("repeat_last", "melv"),
+        ("repeat_last", "rmse"),
+        ("ground_truth", "melv"),
+    }
     assert (value["repeat_last", "melv"] == 0).all()  # the last observed frame, unchanged
     assert (value["ground_truth", "melv"] > 0).all()
     assert value["repeat_last", "rmse"][0] < value["repeat_last", "rmse"][9]
@@ -140,8 +153,8 @@ def test_cloth_benchmark_on_a_small_cloth(tmp_path):
 @pytest.mark.slow
 def test_default_cloth_benchmark_end_to_end(tmp_path, monkeypatch):
     """Builds the default test split (100 sequences) and evaluates repeat_last on it."""
-    from zoo.evaluate import evaluate
     from zoo import create_model
+    from zoo.evaluate import evaluate
 
     monkeypatch.setenv("ZOO_CACHE_DIR", str(tmp_path))
     model = create_model("repeat_last", benchmark="cloth")
@@ -171,11 +184,13 @@ def test_parallel_generation_and_int16_storage(tmp_path):
     compact = ClothConfig(**{**TINY.__dict__, "test_sequences": 5, "position_step_mm": 1 / 32})
     alone = cloth.generate_cloth("test", compact, batch=5, workers=1)
     spread = cloth.generate_cloth("test", compact, batch=2, workers=2)
-    assert all(np.array_equal(a.vertices, b.vertices)
-               for a, b in zip(alone.sequences, spread.sequences))
+    assert all(
+        np.array_equal(a.vertices, b.vertices) for a, b in zip(alone.sequences, spread.sequences)
+    )
     exact = cloth.generate_cloth("test", ClothConfig(**{**TINY.__dict__, "test_sequences": 5}))
-    gap = max(np.abs(a.vertices - b.vertices).max()
-              for a, b in zip(alone.sequences, exact.sequences))
+    gap = max(
+        np.abs(a.vertices - b.vertices).max() for a, b in zip(alone.sequences, exact.sequences)
+    )
     assert 0 < gap <= 1 / 64 + 1e-4
     saved = load_cloth("test", compact, cache_dir=tmp_path, workers=2)
     loaded = load_cloth("test", compact, cache_dir=tmp_path)
@@ -197,10 +212,13 @@ def test_int16_storage_refuses_what_it_cannot_hold(tmp_path):
     topology = MeshTopology(np.array([[0, 1, 2]]), 3, name="tri")
     wide = np.array([[[0, 0, 0], [5000, 0, 0], [0, 1, 0]]], np.float32)  # 5 m > 2 km / 1024
     off_grid = quantise_vertices(wide[:, :, :] / 10, 1 / 32) + 0.01
-    for vertices, message in ((wide, "spans 5000 mm, more than int16 steps"),
-                              (off_grid, "not on the 0.03125 mm grid")):
-        dataset = MeshDataset("tri", "test", topology, [MeshSequence("s", "a", vertices, 25.0)],
-                              recipe={})
+    for vertices, message in (
+        (wide, "spans 5000 mm, more than int16 steps"),
+        (off_grid, "not on the 0.03125 mm grid"),
+    ):
+        dataset = MeshDataset(
+            "tri", "test", topology, [MeshSequence("s", "a", vertices, 25.0)], recipe={}
+        )
         with pytest.raises(MeshError, match=message):
             dataset.save(tmp_path / "tri", step_mm=1 / 32)
         assert not (tmp_path / "tri" / "meshes.npz").exists()
@@ -214,10 +232,15 @@ def test_cloth_full_and_weights_from(monkeypatch):
     assert cloth.CLOTH_FULL.train_sequences == 16000 and cloth.CLOTH_FULL.test_sequences == 4000
     assert small.weights_from == "cloth_full" and full.weights_from is None
     # sequence i of a split is the same simulation in both, whatever their sizes
-    assert {k: v for k, v in cloth.CLOTH_FULL.recipe("test").items()
-            if k not in ("sequences", "position_step_mm")} == \
-        {k: v for k, v in ClothConfig().recipe("test").items()
-         if k not in ("sequences", "position_step_mm")}
+    assert {
+        k: v
+        for k, v in cloth.CLOTH_FULL.recipe("test").items()
+        if k not in ("sequences", "position_step_mm")
+    } == {
+        k: v
+        for k, v in ClothConfig().recipe("test").items()
+        if k not in ("sequences", "position_step_mm")
+    }
     monkeypatch.setenv("ZOO_WORKERS", "two")
     with pytest.raises(MeshError, match="ZOO_WORKERS must be a positive integer, got 'two'"):
         cloth.cloth_full_dataset(None, "test")
@@ -229,9 +252,11 @@ def test_weights_from_must_fit(tmp_path):
     from zoo.benchmark import BenchmarkError, get_benchmark
 
     spec = yaml.safe_load(open(get_benchmark("cloth").source))
-    for change, message in (({"weights_from": "cloth"}, "must name another benchmark"),
-                            ({"weights_from": "nosuch"}, "field 'weights_from': unknown"),
-                            ({"output_frames": 20}, "output_frames 20 here, 25 there")):
+    for change, message in (
+        ({"weights_from": "cloth"}, "must name another benchmark"),
+        ({"weights_from": "nosuch"}, "field 'weights_from': unknown"),
+        ({"output_frames": 20}, "output_frames 20 here, 25 there"),
+    ):
         path = tmp_path / "b.yaml"
         path.write_text(yaml.safe_dump({**spec, **change}))
         with pytest.raises(BenchmarkError, match=message):

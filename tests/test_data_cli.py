@@ -1,4 +1,5 @@
 """zoo data: describe and export windows of a mesh dataset; errors name the argument."""
+
 import numpy as np
 import pytest
 import trimesh
@@ -12,8 +13,16 @@ from zoo.data.mesh import MeshDataset, MeshError, MeshSequence, MeshTopology
 def toy_dataset(frames=60):
     faces = np.array([[0, 1, 2], [0, 2, 3]])
     rng = np.random.default_rng(0)
-    seqs = [MeshSequence(f"s{i}", "fall", rng.normal(size=(frames, 4, 3)).astype("f4") * 100,
-                         25.0, identity=f"id{i % 2}") for i in range(3)]
+    seqs = [
+        MeshSequence(
+            f"s{i}",
+            "fall",
+            rng.normal(size=(frames, 4, 3)).astype("f4") * 100,
+            25.0,
+            identity=f"id{i % 2}",
+        )
+        for i in range(3)
+    ]
     return MeshDataset("toy", "test", MeshTopology(faces, 4), seqs, recipe={"seed": 0})
 
 
@@ -58,8 +67,11 @@ def test_render_writes_picture_and_meshes(tmp_path):
     ds, bench = toy_dataset(), get_benchmark("cloth")
     model = create_model("repeat_last", input_frames=25, output_frames=25, num_points=4)
     written = render_windows(model, "repeat_last", bench, ds, [0, 5], tmp_path)
-    assert [p.name for p in written] == ["repeat_last_windows.png", "repeat_last_window0.glb",
-                                         "repeat_last_window5.glb"]
+    assert [p.name for p in written] == [
+        "repeat_last_windows.png",
+        "repeat_last_window0.glb",
+        "repeat_last_window5.glb",
+    ]
     assert written[0].read_bytes()[:4] == b"\x89PNG"
     scene = trimesh.load(written[1])
     assert len(scene.geometry) == 2 * 3  # truth and prediction at 80, 400 and 1000 ms

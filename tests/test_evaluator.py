@@ -1,17 +1,18 @@
 """The evaluator on motions whose errors are computed by hand, and its refusals."""
+
 import json
 
 import numpy as np
 import pandas as pd
 import pytest
-
 from conftest import LEAF_OFFSET, write_cmu_file
+
+from zoo import create_model
 from zoo.benchmark import get_benchmark
 from zoo.cli import main
 from zoo.evaluate import EvaluationError, evaluate
-from zoo.tables import ProtocolMismatchError, markdown_tables
 from zoo.metrics import cumulative_mean
-from zoo import create_model
+from zoo.tables import ProtocolMismatchError, markdown_tables
 
 
 def expected_repeat_last(omega, t):
@@ -24,16 +25,26 @@ def expected_repeat_last(omega, t):
 def test_repeat_last_by_hand(swinging_cmu, sampler):
     root, omega = swinging_cmu
     bench = get_benchmark("cmu")
-    df = evaluate(create_model("repeat_last", benchmark=bench), bench, model_name="repeat_last",
-                  sampler=sampler, data_root=root).frame
+    df = evaluate(
+        create_model("repeat_last", benchmark=bench),
+        bench,
+        model_name="repeat_last",
+        sampler=sampler,
+        data_root=root,
+    ).frame
     t = np.arange(1, 26)
     chord = expected_repeat_last(omega, t)
     for joints, count in (("all38", 38), ("used25", 25)):
-        for averaging, values in (("frame", chord / count),
-                                  ("cumulative", np.cumsum(chord / count) / t)):
+        for averaging, values in (
+            ("frame", chord / count),
+            ("cumulative", np.cumsum(chord / count) / t),
+        ):
             for action in ("walking", "average"):
-                got = df[(df.joints == joints) & (df.averaging == averaging) &
-                         (df.action == action)].sort_values("frame")["value"].to_numpy()
+                got = (
+                    df[(df.joints == joints) & (df.averaging == averaging) & (df.action == action)]
+                    .sort_values("frame")["value"]
+                    .to_numpy()
+                )
                 np.testing.assert_allclose(got, values, rtol=1e-5)
     assert sorted(df.horizon_ms.unique())[:3] == [40, 80, 120]
 
@@ -56,14 +67,23 @@ def test_action_average_is_unweighted_over_actions(tmp_path):
     write_cmu_file(root / "test" / "walking" / "walking_1.txt", 0.01 * np.arange(200))
     write_cmu_file(root / "test" / "running" / "running_1.txt", 0.03 * np.arange(400))
     bench = get_benchmark("cmu")
-    result = evaluate(create_model("repeat_last", benchmark=bench), bench, model_name="rl",
-                      sampler="all", data_root=root)
+    result = evaluate(
+        create_model("repeat_last", benchmark=bench),
+        bench,
+        model_name="rl",
+        sampler="all",
+        data_root=root,
+    )
     df = result.frame[(result.frame.joints == "all38") & (result.frame.averaging == "frame")]
-    walk, run, avg = (df[df.action == a].sort_values("frame")["value"].to_numpy()
-                      for a in ("walking", "running", "average"))
+    walk, run, avg = (
+        df[df.action == a].sort_values("frame")["value"].to_numpy()
+        for a in ("walking", "running", "average")
+    )
     np.testing.assert_allclose(avg, (walk + run) / 2)
-    assert result.protocol["windows_per_action"] == {"running": 200 - 35 + 1,
-                                                     "walking": 100 - 35 + 1}
+    assert result.protocol["windows_per_action"] == {
+        "running": 200 - 35 + 1,
+        "walking": 100 - 35 + 1,
+    }
     assert result.protocol["actions_present"] == ["running", "walking"]
 
 
@@ -75,12 +95,15 @@ def test_rows_of_different_protocols_refuse_to_share_a_table(swinging_cmu):
     b = evaluate(model, bench, model_name="b", sampler="all", data_root=root)
     frame = pd.concat([a.frame, b.frame])
     records = {r.protocol["protocol_id"]: r.protocol for r in (a, b)}
-    with pytest.raises(ProtocolMismatchError, match=r"differ in sampler \('(ltd8|all)' vs '(all|ltd8)'\)"):
+    with pytest.raises(
+        ProtocolMismatchError, match=r"differ in sampler \('(ltd8|all)' vs '(all|ltd8)'\)"
+    ):
         markdown_tables(frame, records)
     # Same protocol, different models: one table.
     c = evaluate(model, bench, model_name="c", sampler="ltd8", data_root=root)
-    text = markdown_tables(pd.concat([a.frame, c.frame]),
-                           {r.protocol["protocol_id"]: r.protocol for r in (a, c)})
+    text = markdown_tables(
+        pd.concat([a.frame, c.frame]), {r.protocol["protocol_id"]: r.protocol for r in (a, c)}
+    )
     assert "| a " in text and "| c " in text
 
 
@@ -99,11 +122,35 @@ def test_model_breaking_the_contract_is_named(swinging_cmu):
 def test_cli_contract_writes_results_and_protocol(swinging_cmu, tmp_path):
     root, _ = swinging_cmu
     out = tmp_path / "out"
-    assert main(["eval", "--model", "repeat_last", "--benchmark", "cmu", "--sampler", "ltd8",
-                 "--data-root", str(root), "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "eval",
+                "--model",
+                "repeat_last",
+                "--benchmark",
+                "cmu",
+                "--sampler",
+                "ltd8",
+                "--data-root",
+                str(root),
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     df = pd.read_csv(out / "results.csv")
-    for column in ["model", "benchmark", "action", "metric", "averaging", "joints", "horizon_ms",
-                   "value"]:
+    for column in [
+        "model",
+        "benchmark",
+        "action",
+        "metric",
+        "averaging",
+        "joints",
+        "horizon_ms",
+        "value",
+    ]:
         assert column in df.columns
     protocol = json.loads((out / "protocol.json").read_text())
     assert protocol["sampler"] == "ltd8" and protocol["input_frames"] == 10
@@ -126,16 +173,39 @@ def test_two_process_evaluation_equals_one_to_the_last_digit(tmp_path):
 
     root = tmp_path / "cmu"
     for action, speed in (("walking", 0.01), ("running", 0.03)):
-        write_cmu_file(root / "test" / action / f"{action}_1.txt",
-                       speed * np.sin(np.arange(500) / 15.0))
-    args = ["eval", "--model", "repeat_last", "--data-root", str(root), "--sampler", "all",
-            "--batch-size", "16"]
+        write_cmu_file(
+            root / "test" / action / f"{action}_1.txt", speed * np.sin(np.arange(500) / 15.0)
+        )
+    args = [
+        "eval",
+        "--model",
+        "repeat_last",
+        "--data-root",
+        str(root),
+        "--sampler",
+        "all",
+        "--batch-size",
+        "16",
+    ]
     assert main([*args, "--out", str(tmp_path / "one")]) == 0
     torchrun = Path(sys.executable).parent / "torchrun"
-    proc = subprocess.run([str(torchrun), "--standalone", "--nproc_per_node", "2", "-m",
-                           "zoo.cli", *args, "--out", str(tmp_path / "two")],
-                          env={**os.environ, "OMP_NUM_THREADS": "1"}, capture_output=True,
-                          text=True, timeout=240)
+    proc = subprocess.run(
+        [
+            str(torchrun),
+            "--standalone",
+            "--nproc_per_node",
+            "2",
+            "-m",
+            "zoo.cli",
+            *args,
+            "--out",
+            str(tmp_path / "two"),
+        ],
+        env={**os.environ, "OMP_NUM_THREADS": "1"},
+        capture_output=True,
+        text=True,
+        timeout=240,
+    )
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert proc.stdout.count("wrote ") == 1  # the first process writes, the other does not
     one, two = (tmp_path / "one" / "results.csv"), (tmp_path / "two" / "results.csv")
@@ -155,21 +225,31 @@ def test_processes_score_disjoint_batches_that_cover_every_window():
     assert list(_my_batches(100, 16, DistInfo())) == sorted(sum(shares, []))
 
 
-def test_result_folders_are_replaced_whole_and_refuse_a_second_writer(swinging_cmu, tmp_path,
-                                                                      monkeypatch):
+def test_result_folders_are_replaced_whole_and_refuse_a_second_writer(
+    swinging_cmu, tmp_path, monkeypatch
+):
     from zoo.evaluate import EvalResult
     from zoo.io import FolderBusyError, folder_lock
 
     root, _ = swinging_cmu
     bench = get_benchmark("cmu")
-    result = evaluate(create_model("repeat_last", benchmark=bench), bench,
-                      model_name="repeat_last", sampler="ltd8", data_root=root)
+    result = evaluate(
+        create_model("repeat_last", benchmark=bench),
+        bench,
+        model_name="repeat_last",
+        sampler="ltd8",
+        data_root=root,
+    )
     out = tmp_path / "run"
     result.write(out)
     (out / "stale.txt").write_text("from an older run")
     result.write(out)
-    assert sorted(p.name for p in out.iterdir()) == ["protocol.json", "results.csv",
-                                                     "tables.md", "windows.npz"]
+    assert sorted(p.name for p in out.iterdir()) == [
+        "protocol.json",
+        "results.csv",
+        "tables.md",
+        "windows.npz",
+    ]
     with folder_lock(out):
         with pytest.raises(FolderBusyError, match="run: another zoo process is writing"):
             result.write(out)
@@ -184,8 +264,11 @@ def test_result_folders_are_replaced_whole_and_refuse_a_second_writer(swinging_c
         result.write(out)
     assert (out / "results.csv").read_bytes() == before
     assert EvalResult.read(out).windows is not None
-    assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".run.")
-            and not p.name.endswith(".lock")] == []
+    assert [
+        p.name
+        for p in tmp_path.iterdir()
+        if p.name.startswith(".run.") and not p.name.endswith(".lock")
+    ] == []
 
 
 @pytest.mark.parametrize("sampler", ["all", "stride5", "stride5_strict", "ltd8"])
@@ -205,6 +288,9 @@ def test_frame_counts_count_the_windows_holding_each_frame(sampler):
 def test_frame_counts_name_a_window_past_its_sequence():
     from zoo.data.windows import SamplerError, frame_counts
 
-    with pytest.raises(SamplerError, match=r"window 1 of sequence 0: frames \[8, 13\) run past "
-                                           r"its 12 frames"):
+    with pytest.raises(
+        SamplerError,
+        match=r"window 1 of sequence 0: frames \[8, 13\) run past "
+        r"its 12 frames",
+    ):
         frame_counts(np.array([[0, 0], [0, 8]]), [12], 5)

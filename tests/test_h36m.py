@@ -1,14 +1,15 @@
 """The Human3.6M adapter on files the test writes in the exact exp-map layout (99 per line)."""
+
 import numpy as np
 import pytest
 
+from zoo import create_model
 from zoo.benchmark import get_benchmark
 from zoo.data.expmap import DataFormatError
 from zoo.data.motion import load_h36m
 from zoo.data.windows import window_sampler
 from zoo.errors import DataNotFoundError
 from zoo.evaluate import evaluate
-from zoo import create_model
 
 ACTIONS = ("walking", "eating")
 
@@ -28,8 +29,11 @@ def write_h36m(root, subject=5, frames=(400, 500), bone_angle=0.02):
 def test_loads_halves_and_keeps_subactions(tmp_path):
     ds = load_h36m(write_h36m(tmp_path), "test", actions=ACTIONS)
     assert [(s.name, len(s), s.subaction) for s in ds.sequences] == [
-        ("S5/walking_1.txt", 200, 1), ("S5/walking_2.txt", 250, 2),
-        ("S5/eating_1.txt", 200, 1), ("S5/eating_2.txt", 250, 2)]
+        ("S5/walking_1.txt", 200, 1),
+        ("S5/walking_2.txt", 250, 2),
+        ("S5/eating_1.txt", 200, 1),
+        ("S5/eating_2.txt", 250, 2),
+    ]
     assert ds.sequences[0].positions.shape == (200, 32, 3) and ds.fps == 25
 
 
@@ -52,8 +56,9 @@ def test_repeat_last_runs_on_h36m_with_32_joint_scoring(tmp_path):
     root = write_h36m(tmp_path)
     bench = get_benchmark("h36m")
     dataset = load_h36m(root, "test", actions=ACTIONS)
-    result = evaluate(create_model("repeat_last", benchmark=bench), bench, model_name="rl",
-                      dataset=dataset)
+    result = evaluate(
+        create_model("repeat_last", benchmark=bench), bench, model_name="rl", dataset=dataset
+    )
     assert set(result.frame.joints) == {"all32", "used22"}
     assert result.protocol["windows_per_action"] == {"walking": 8, "eating": 8}
     df = result.frame[(result.frame.action == "average") & (result.frame.averaging == "frame")]

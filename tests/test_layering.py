@@ -1,6 +1,7 @@
 """The zoo's modules import one another one way (data -> models -> evaluate -> tables ->
 leaderboard -> cli): no module reaches, directly or through others, back to itself. Imports
 inside functions count: they hide a circle, they do not remove it."""
+
 import ast
 from pathlib import Path
 

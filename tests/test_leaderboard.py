@@ -1,4 +1,5 @@
 """zoo leaderboard: one command re-evaluates what it can and refuses stale protocols."""
+
 import json
 import shutil
 from pathlib import Path
@@ -6,9 +7,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
-
 from conftest import write_cmu_file
 from tiny_models import REGISTRY
+
 from zoo.evaluate import EvalResult
 from zoo.leaderboard import Plan, regenerate, write_leaderboard
 from zoo.registry import Registry
@@ -23,8 +24,7 @@ def cmu_and_registry(tmp_path):
     root = tmp_path / "cmu"
     for split, n in (("train", 2), ("test", 1)):
         for i in range(1, n + 1):
-            write_cmu_file(root / split / "walking" / f"walking_{i}.txt",
-                           0.01 * i * np.arange(800))
+            write_cmu_file(root / split / "walking" / f"walking_{i}.txt", 0.01 * i * np.arange(800))
     (tmp_path / "registry.yaml").write_text(REGISTRY)
     shutil.copy(HERE / "tiny_models.py", tmp_path / "tiny_models.py")
     return root, Registry.from_files(HERE.parent / "registry.yaml", tmp_path / "registry.yaml")
@@ -33,11 +33,19 @@ def cmu_and_registry(tmp_path):
 def test_regenerate_with_checkpoint_and_stale_result(tmp_path, capsys):
     root, registry = cmu_and_registry(tmp_path)
     checkpoints = tmp_path / "checkpoints"
-    train("tiny", "cmu", registry=registry, data_root=root, epochs=1, progress=False,
-          out_dir=checkpoints / "cmu" / "tiny")
+    train(
+        "tiny",
+        "cmu",
+        registry=registry,
+        data_root=root,
+        epochs=1,
+        progress=False,
+        out_dir=checkpoints / "cmu" / "tiny",
+    )
     out = tmp_path / "results"
-    written = regenerate("cmu", registry=registry, data_root=root, out_root=out,
-                         checkpoints=checkpoints)
+    written = regenerate(
+        "cmu", registry=registry, data_root=root, out_root=out, checkpoints=checkpoints
+    )
     assert [p.name for p in written] == ["ltd8", "all"]
     board = (out / "cmu" / "all" / "leaderboard.md").read_text()
     assert "| tiny " in board and "| repeat_last " in board
@@ -72,8 +80,16 @@ def test_fully_trained_checkpoint_joins_as_model_at_last(tmp_path):
     checkpoints = tmp_path / "checkpoints"
     # Two epochs that change nothing: validation never improves after epoch 1, so best.pt is
     # epoch 1 (early-stopped) and last.pt epoch 2 (fully trained).
-    train("tiny", "cmu", registry=registry, data_root=root, epochs=2, progress=False,
-          out_dir=checkpoints / "cmu" / "tiny", train_overrides={"lr": 0.0})
+    train(
+        "tiny",
+        "cmu",
+        registry=registry,
+        data_root=root,
+        epochs=2,
+        progress=False,
+        out_dir=checkpoints / "cmu" / "tiny",
+        train_overrides={"lr": 0.0},
+    )
     out = tmp_path / "results"
     regenerate("cmu", registry=registry, data_root=root, out_root=out, checkpoints=checkpoints)
     combined = pd.read_csv(out / "cmu" / "all" / "results.csv")
@@ -91,8 +107,14 @@ def test_completion_models_get_their_own_tables(tmp_path, capsys):
     regenerate("cmu", registry=registry, data_root=root, out_root=out, checkpoints=checkpoints)
     assert not (out / "cmu" / "all-completion").exists()
     # Validation during training gives the model each window's final frame.
-    train("tiny_completion", "cmu", registry=registry, data_root=root, progress=False,
-          out_dir=checkpoints / "cmu" / "tiny_completion")
+    train(
+        "tiny_completion",
+        "cmu",
+        registry=registry,
+        data_root=root,
+        progress=False,
+        out_dir=checkpoints / "cmu" / "tiny_completion",
+    )
     regenerate("cmu", registry=registry, data_root=root, out_root=out, checkpoints=checkpoints)
     completion = pd.read_csv(out / "cmu" / "all-completion" / "results.csv")
     assert set(completion.model) == {"tiny_completion", "interpolate"}
@@ -101,8 +123,11 @@ def test_completion_models_get_their_own_tables(tmp_path, capsys):
     assert set(prediction.model) == {"repeat_last"}  # no trained predictor here
     assert set(prediction.task) == {"prediction"}
     # The interpolation ends exactly on the given final frame.
-    last = completion[(completion.model == "interpolate") & (completion.frame == 25) &
-                      (completion.averaging == "frame")]
+    last = completion[
+        (completion.model == "interpolate")
+        & (completion.frame == 25)
+        & (completion.averaging == "frame")
+    ]
     assert (last.value.abs() < 1e-3).all()
 
 
@@ -120,37 +145,69 @@ def test_check_recomputes_every_row_and_names_what_differs(tmp_path, capsys):
 
     root, _ = cmu_and_registry(tmp_path)
     checkpoints, out = tmp_path / "checkpoints", tmp_path / "results"
-    common = ["--registry", str(tmp_path / "registry.yaml"), "--data-root", str(root),
-              "--out", str(out), "--checkpoints", str(checkpoints), "--weights",
-              str(tmp_path / "weights")]
-    train("tiny", "cmu", registry=Registry.from_files(HERE.parent / "registry.yaml",
-                                                      tmp_path / "registry.yaml"),
-          data_root=root, epochs=1, progress=False, out_dir=checkpoints / "cmu" / "tiny")
+    common = [
+        "--registry",
+        str(tmp_path / "registry.yaml"),
+        "--data-root",
+        str(root),
+        "--out",
+        str(out),
+        "--checkpoints",
+        str(checkpoints),
+        "--weights",
+        str(tmp_path / "weights"),
+    ]
+    train(
+        "tiny",
+        "cmu",
+        registry=Registry.from_files(HERE.parent / "registry.yaml", tmp_path / "registry.yaml"),
+        data_root=root,
+        epochs=1,
+        progress=False,
+        out_dir=checkpoints / "cmu" / "tiny",
+    )
     assert main(["leaderboard", "--benchmark", "cmu", *common]) == 0
     before = {p: p.stat().st_mtime_ns for p in out.rglob("*") if p.is_file()}
     capsys.readouterr()
     assert main(["leaderboard", "--check", *common]) == 0  # every committed benchmark: cmu
     summary = capsys.readouterr().out.strip().splitlines()[-1]
-    assert summary.startswith("checked 800 rows of 2 models in 2 tables against tolerance "
-                              "|difference| <= 1.5e-05 x |value| + 0.00024 mm (float32 rounding "
-                              "across CPUs): largest difference 0 ")
+    assert summary.startswith(
+        "checked 800 rows of 2 models in 2 tables against tolerance "
+        "|difference| <= 1.5e-05 x |value| + 0.00024 mm (float32 rounding "
+        "across CPUs): largest difference 0 "
+    )
     assert {p: p.stat().st_mtime_ns for p in out.rglob("*") if p.is_file()} == before
 
     table = out / "cmu" / "all" / "results.csv"
     frame = pd.read_csv(table)
-    frame.loc[(frame.model == "tiny") & (frame.horizon_ms == 400) & (frame.action == "average")
-              & (frame.averaging == "frame") & (frame.joints == "all38"), "value"] += 0.01
-    frame.loc[(frame.model == "repeat_last") & (frame.horizon_ms == 80) &
-              (frame.action == "average") & (frame.averaging == "cumulative") &
-              (frame.joints == "all38"), "std"] += 0.01
+    frame.loc[
+        (frame.model == "tiny")
+        & (frame.horizon_ms == 400)
+        & (frame.action == "average")
+        & (frame.averaging == "frame")
+        & (frame.joints == "all38"),
+        "value",
+    ] += 0.01
+    frame.loc[
+        (frame.model == "repeat_last")
+        & (frame.horizon_ms == 80)
+        & (frame.action == "average")
+        & (frame.averaging == "cumulative")
+        & (frame.joints == "all38"),
+        "std",
+    ] += 0.01
     frame.to_csv(table, index=False)
     (out / "cmu" / "ltd8" / "repeat_last" / "windows.npz").unlink()
     assert main(["leaderboard", "--check", "--benchmark", "cmu", *common]) == 1
     captured = capsys.readouterr()
-    assert "all/results.csv: model=tiny, action=average, metric=mpjpe, averaging=frame, " \
-           "joints=all38, horizon_ms=400: value committed" in captured.err
-    assert "all/results.csv: model=repeat_last, action=average, metric=mpjpe, averaging=" \
-           "cumulative, joints=all38, horizon_ms=80: std committed" in captured.err
+    assert (
+        "all/results.csv: model=tiny, action=average, metric=mpjpe, averaging=frame, "
+        "joints=all38, horizon_ms=400: value committed" in captured.err
+    )
+    assert (
+        "all/results.csv: model=repeat_last, action=average, metric=mpjpe, averaging="
+        "cumulative, joints=all38, horizon_ms=80: std committed" in captured.err
+    )
     assert "ltd8/repeat_last/windows.npz: missing" in captured.err
     assert "3 problem(s) above" in captured.out
 
@@ -186,10 +243,14 @@ def test_an_interrupted_leaderboard_leaves_the_old_folder_whole(tmp_path, monkey
 
     monkeypatch.setattr("zoo.leaderboard.plot_average", interrupted)
     with pytest.raises(KeyboardInterrupt):
-        regenerate("cmu", registry=registry, data_root=root, out_root=out,
-                   plan=Plan(recompute=True))
+        regenerate(
+            "cmu", registry=registry, data_root=root, out_root=out, plan=Plan(recompute=True)
+        )
     after = {p.relative_to(folder): p.read_bytes() for p in folder.rglob("*") if p.is_file()}
     assert after == before and (folder / "mpjpe.png").is_file()
-    leftovers = [p.name for p in (out / "cmu").iterdir()
-                 if p.name.startswith(".") and not p.name.endswith(".lock")]
+    leftovers = [
+        p.name
+        for p in (out / "cmu").iterdir()
+        if p.name.startswith(".") and not p.name.endswith(".lock")
+    ]
     assert leftovers == []

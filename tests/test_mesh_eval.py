@@ -1,4 +1,5 @@
 """Mesh metrics with hand-computed values, and the mesh path of the evaluator."""
+
 import math
 
 import numpy as np
@@ -8,14 +9,14 @@ import torch
 import yaml
 
 from zoo import benchmark as benchmark_module
+from zoo import create_model
 from zoo.benchmark import BenchmarkError, get_benchmark
 from zoo.data.mesh import MeshDataset, MeshError, MeshSequence, MeshTopology, regress_joints
 from zoo.data.spectral import SpectralBasis, SpectralError
 from zoo.evaluate import EvaluationError, evaluate
-from zoo.tables import markdown_tables
 from zoo.metrics import melv, regressed_mpjpe, vertex_rmse
 from zoo.models.repeat_last import RepeatLast
-from zoo import create_model
+from zoo.tables import markdown_tables
 
 # One 3-4-5 right triangle: its edges (0,1), (0,2), (1,2) have lengths 3, 4 and 5.
 TRIANGLE = torch.tensor([[0.0, 0, 0], [3, 0, 0], [0, 4, 0]])
@@ -31,8 +32,9 @@ def test_melv_by_hand():
     moved = TRIANGLE.clone()
     moved[1, 0] = 6
     expected = (3 + abs(math.sqrt(36 + 16) - 5)) / 3
-    torch.testing.assert_close(melv(moved[None, None], TRIANGLE[None], EDGES),
-                               torch.tensor([[expected]]))
+    torch.testing.assert_close(
+        melv(moved[None, None], TRIANGLE[None], EDGES), torch.tensor([[expected]])
+    )
     with pytest.raises(ValueError, match="melv: expected pred"):
         melv(pred[0], TRIANGLE[None], EDGES)
 
@@ -40,8 +42,8 @@ def test_melv_by_hand():
 def test_vertex_rmse_by_hand():
     target = TRIANGLE[None, None].expand(2, 2, 3, 3)  # bounding-box diagonal |(3, 4, 0)| = 5
     pred = target.clone()
-    pred[0, 0] += torch.tensor([1.0, 0, 0])   # every vertex off by 1 -> RMSE 1 -> 0.2
-    pred[1, 1, 2, 2] = 3.0                     # one vertex off by 3 -> sqrt(9 / 3) / 5
+    pred[0, 0] += torch.tensor([1.0, 0, 0])  # every vertex off by 1 -> RMSE 1 -> 0.2
+    pred[1, 1, 2, 2] = 3.0  # one vertex off by 3 -> sqrt(9 / 3) / 5
     out = vertex_rmse(pred, target)
     torch.testing.assert_close(out, torch.tensor([[0.2, 0.0], [0.0, math.sqrt(3) / 5]]))
     with pytest.raises(ValueError, match="vertex_rmse"):
@@ -52,13 +54,13 @@ def test_mpjpe_through_a_sparse_regressor_by_hand():
     # joint 0 = midpoint of vertices 0 and 1 = (1.5, 0, 0); joint 1 = vertex 2 = (0, 4, 0)
     regressor = sp.csr_matrix(np.array([[0.5, 0.5, 0.0], [0.0, 0.0, 1.0]]))
     target = TRIANGLE[None, None].repeat(1, 2, 1, 1)
-    torch.testing.assert_close(regress_joints(target, regressor)[0, 0],
-                               torch.tensor([[1.5, 0, 0], [0, 4, 0]]))
+    torch.testing.assert_close(
+        regress_joints(target, regressor)[0, 0], torch.tensor([[1.5, 0, 0], [0, 4, 0]])
+    )
     pred = target.clone()
-    pred[0, 1, 0] += torch.tensor([0.0, 0, 4])   # joint 0 moves by 2, joint 1 stays: mean 1
-    pred[0, 1, 2] += torch.tensor([0.0, 3, 4])   # joint 1 moves by 5: mean (2 + 5) / 2
-    torch.testing.assert_close(regressed_mpjpe(pred, target, regressor),
-                               torch.tensor([[0.0, 3.5]]))
+    pred[0, 1, 0] += torch.tensor([0.0, 0, 4])  # joint 0 moves by 2, joint 1 stays: mean 1
+    pred[0, 1, 2] += torch.tensor([0.0, 3, 4])  # joint 1 moves by 5: mean (2 + 5) / 2
+    torch.testing.assert_close(regressed_mpjpe(pred, target, regressor), torch.tensor([[0.0, 3.5]]))
     with pytest.raises(ValueError, match=r"regressor \(2, 3\) does not fit"):
         regress_joints(torch.zeros(1, 4, 3), regressor)
 
@@ -78,12 +80,21 @@ def scaling(rate: float, frames: int = 5) -> np.ndarray:
 
 def toy_dataset() -> MeshDataset:
     topology = MeshTopology(SQUARE_FACES, 4, name="square")
-    sequences = [MeshSequence("a0", "a", scaling(0.1), 25.0),
-                 MeshSequence("a1", "a", scaling(0.1), 25.0),
-                 MeshSequence("b0", "b", scaling(0.2), 25.0)]
+    sequences = [
+        MeshSequence("a0", "a", scaling(0.1), 25.0),
+        MeshSequence("a1", "a", scaling(0.1), 25.0),
+        MeshSequence("b0", "b", scaling(0.2), 25.0),
+    ]
     centroid = sp.csr_matrix(np.full((1, 4), 0.25))
-    return MeshDataset("toy", "test", topology, sequences, recipe={"toy": 1},
-                       joint_regressor=centroid, joint_names=["centre"])
+    return MeshDataset(
+        "toy",
+        "test",
+        topology,
+        sequences,
+        recipe={"toy": 1},
+        joint_regressor=centroid,
+        joint_names=["centre"],
+    )
 
 
 @pytest.fixture
@@ -93,8 +104,16 @@ def toy_bench(tmp_path, monkeypatch):
     monkeypatch.setitem(benchmark_module.MESH_DATASETS, "toy", lambda root, split: toy_dataset())
 
     def write(**fields):
-        spec = {"name": "toy", "representation": "mesh", "dataset": "toy", "split": "test",
-                "input_frames": 2, "output_frames": 3, "sampler": "all", **fields}
+        spec = {
+            "name": "toy",
+            "representation": "mesh",
+            "dataset": "toy",
+            "split": "test",
+            "input_frames": 2,
+            "output_frames": 3,
+            "sampler": "all",
+            **fields,
+        }
         path = tmp_path / f"toy{len(list(tmp_path.glob('*.yaml')))}.yaml"
         path.write_text(yaml.safe_dump(spec))
         return get_benchmark(path)
@@ -103,8 +122,7 @@ def toy_bench(tmp_path, monkeypatch):
 
 
 def rows(frame, model, metric, averaging="frame"):
-    sel = frame[(frame.model == model) & (frame.metric == metric) &
-                (frame.averaging == averaging)]
+    sel = frame[(frame.model == model) & (frame.metric == metric) & (frame.averaging == averaging)]
     return {a: g.sort_values("frame")["value"].to_numpy() for a, g in sel.groupby("action")}
 
 
@@ -119,23 +137,29 @@ def test_mesh_evaluation_by_hand(toy_bench, tmp_path):
     for action, rate in (("a", 0.1), ("b", 0.2)):
         scale = 1 + rate * (1 + k)
         expected[action] = {
-            "melv_gt": MEAN_EDGE * rate * k,                               # every edge scales
-            "rmse": rate * k * 10 / (scale * 10 * math.sqrt(2)),           # RMS |x0| = 10
-            "mpjpe": 5 * math.sqrt(2) * rate * k,                          # centroid (5, 5, 0)
+            "melv_gt": MEAN_EDGE * rate * k,  # every edge scales
+            "rmse": rate * k * 10 / (scale * 10 * math.sqrt(2)),  # RMS |x0| = 10
+            "mpjpe": 5 * math.sqrt(2) * rate * k,  # centroid (5, 5, 0)
         }
     for action in ("a", "b"):
-        np.testing.assert_allclose(rows(frame, "ground_truth", "melv")[action],
-                                   expected[action]["melv_gt"], rtol=1e-5)
+        np.testing.assert_allclose(
+            rows(frame, "ground_truth", "melv")[action], expected[action]["melv_gt"], rtol=1e-5
+        )
         np.testing.assert_allclose(rows(frame, "repeat_last", "melv")[action], 0, atol=1e-6)
-        np.testing.assert_allclose(rows(frame, "repeat_last", "rmse")[action],
-                                   expected[action]["rmse"], rtol=1e-5)
-        np.testing.assert_allclose(rows(frame, "repeat_last", "mpjpe")[action],
-                                   expected[action]["mpjpe"], rtol=1e-5)
+        np.testing.assert_allclose(
+            rows(frame, "repeat_last", "rmse")[action], expected[action]["rmse"], rtol=1e-5
+        )
+        np.testing.assert_allclose(
+            rows(frame, "repeat_last", "mpjpe")[action], expected[action]["mpjpe"], rtol=1e-5
+        )
     # Actions: unweighted mean (2 windows of a, 1 of b); cumulative: running mean over frames.
     average = (expected["a"]["rmse"] + expected["b"]["rmse"]) / 2
     np.testing.assert_allclose(rows(frame, "repeat_last", "rmse")["average"], average, rtol=1e-5)
-    np.testing.assert_allclose(rows(frame, "repeat_last", "rmse", "cumulative")["average"],
-                               np.cumsum(average) / k, rtol=1e-5)
+    np.testing.assert_allclose(
+        rows(frame, "repeat_last", "rmse", "cumulative")["average"],
+        np.cumsum(average) / k,
+        rtol=1e-5,
+    )
     assert set(frame.joints) == {"vertices", "regressor1"}
     assert set(frame[frame.metric == "mpjpe"].joints) == {"regressor1"}
     assert sorted(frame.horizon_ms.unique()) == [40, 80, 120]
@@ -153,8 +177,9 @@ def test_mesh_evaluation_by_hand(toy_bench, tmp_path):
 def test_spectral_ground_truth(toy_bench):
     full = toy_bench(spectral_k=4, ground_truths=["raw", "spectral"], melv_frames="raw")
     raw = evaluate(RepeatLast(2, 3, 4), full, model_name="repeat_last")
-    spectral = evaluate(RepeatLast(2, 3, 4), full, model_name="repeat_last",
-                        ground_truth="spectral")
+    spectral = evaluate(
+        RepeatLast(2, 3, 4), full, model_name="repeat_last", ground_truth="spectral"
+    )
     basis = SpectralBasis.load_or_compute(toy_dataset().topology, 4)
     assert spectral.protocol["ground_truth"] == "spectral4"
     assert spectral.protocol["spectral_basis"]["hash"] == basis.hash
@@ -162,16 +187,25 @@ def test_spectral_ground_truth(toy_bench):
     # k = V: the reconstruction is the data itself, so the numbers agree.
     np.testing.assert_allclose(spectral.frame.value, raw.frame.value, rtol=1e-4, atol=1e-5)
     # k = 1 keeps only the mean of each coordinate: nothing moves but the centroid.
-    low = evaluate(RepeatLast(2, 3, 4), toy_bench(spectral_k=1, ground_truth="spectral",
-                                                  ground_truths=["spectral"],
-                                                  melv_frames="raw"),
-                   model_name="repeat_last")
+    low = evaluate(
+        RepeatLast(2, 3, 4),
+        toy_bench(
+            spectral_k=1, ground_truth="spectral", ground_truths=["spectral"], melv_frames="raw"
+        ),
+        model_name="repeat_last",
+    )
     np.testing.assert_allclose(rows(low.frame, "ground_truth", "melv")["a"], 0, atol=1e-5)
-    np.testing.assert_allclose(rows(low.frame, "repeat_last", "mpjpe")["a"],
-                               rows(raw.frame, "repeat_last", "mpjpe")["a"], rtol=1e-5)
+    np.testing.assert_allclose(
+        rows(low.frame, "repeat_last", "mpjpe")["a"],
+        rows(raw.frame, "repeat_last", "mpjpe")["a"],
+        rtol=1e-5,
+    )
     with pytest.raises(SpectralError, match=r"k must be an integer in \[1, 4\]"):
-        evaluate(RepeatLast(2, 3, 4), toy_bench(spectral_k=5, ground_truth="spectral",
-                                                ground_truths=["spectral"]), model_name="x")
+        evaluate(
+            RepeatLast(2, 3, 4),
+            toy_bench(spectral_k=5, ground_truth="spectral", ground_truths=["spectral"]),
+            model_name="x",
+        )
 
 
 def test_basis_context_and_model_contract(toy_bench):
@@ -232,8 +266,9 @@ def test_skeleton_models_see_the_regressed_joints_of_the_same_windows(toy_bench)
             seen.append(history.clone())
             return super().forward(history)
 
-    joints = evaluate(JointsRepeatLast(**inputs), bench, model_name="joints_model",
-                      dataset=dataset, view="joints")
+    joints = evaluate(
+        JointsRepeatLast(**inputs), bench, model_name="joints_model", dataset=dataset, view="joints"
+    )
     # The model got the centroids of the observed frames: (5, 5, 0) scaled by 1 + rate * t.
     first = seen[0][0, :, 0]
     np.testing.assert_allclose(first[:, :2], 5 * np.array([[1.0, 1.0], [1.1, 1.1]]), rtol=1e-6)
@@ -241,8 +276,11 @@ def test_skeleton_models_see_the_regressed_joints_of_the_same_windows(toy_bench)
     # linear, so repeating the last regressed frame is regressing the repeated mesh).
     assert joints.protocol["protocol_id"] == mesh.protocol["protocol_id"]
     assert set(joints.frame.metric) == {"mpjpe"} and set(joints.frame.model) == {"joints_model"}
-    np.testing.assert_allclose(rows(joints.frame, "joints_model", "mpjpe")["average"],
-                               rows(mesh.frame, "repeat_last", "mpjpe")["average"], rtol=1e-6)
+    np.testing.assert_allclose(
+        rows(joints.frame, "joints_model", "mpjpe")["average"],
+        rows(mesh.frame, "repeat_last", "mpjpe")["average"],
+        rtol=1e-6,
+    )
     assert joints.protocol["provenance"]["model_input"] == "regressed joints (regressor1)"
 
     bare = MeshDataset("bare", "test", dataset.topology, dataset.sequences, recipe={})
@@ -259,8 +297,9 @@ def test_joints_view_body_parts_from_bvh_names():
     topology = MeshTopology(np.array([[0, 1, 2]]), 3)
     regressor = sp.csr_matrix(np.full((len(names), 3), 1 / 3))
     seq = MeshSequence("s", "a", np.arange(18, dtype=np.float32).reshape(2, 3, 3), 25.0)
-    view = MeshDataset("d", "test", topology, [seq], recipe={}, joint_regressor=regressor,
-                       joint_names=names).joints_view()
+    view = MeshDataset(
+        "d", "test", topology, [seq], recipe={}, joint_regressor=regressor, joint_names=names
+    ).joints_view()
     assert view.parts == {"upper": [2, 3, 5], "lower": [0, 1, 4]}
     assert view.sequences[0].positions.shape == (2, 6, 3)
     np.testing.assert_allclose(view.sequences[0].positions[1, 0], [12, 13, 14])  # the centroid
@@ -274,8 +313,11 @@ def test_linear_interpolation_completes_a_uniform_scaling_exactly(toy_bench):
     # The square scales linearly in time, so the straight line to the final frame is the truth.
     for metric in ("rmse", "mpjpe"):
         np.testing.assert_allclose(rows(frame, "interpolate", metric)["average"], 0, atol=1e-5)
-    np.testing.assert_allclose(rows(frame, "interpolate", "melv")["average"],
-                               rows(frame, "ground_truth", "melv")["average"], rtol=1e-5)
+    np.testing.assert_allclose(
+        rows(frame, "interpolate", "melv")["average"],
+        rows(frame, "ground_truth", "melv")["average"],
+        rtol=1e-5,
+    )
     assert result.protocol["task"] == "completion"
     with pytest.raises(ValueError, match=r"final_frame: expected \(B, P, 3\)"):
         model(torch.zeros(1, 2, 4, 3), None)
@@ -298,8 +340,11 @@ def test_melv_on_spectral_frames_by_default(toy_bench):
     low = evaluate(RepeatLast(2, 3, 4), toy_bench(spectral_k=1), model_name="repeat_last")
     np.testing.assert_allclose(rows(low.frame, "ground_truth", "melv")["a"], 0, atol=1e-5)
     assert (rows(raw.frame, "ground_truth", "melv")["a"] > 0.5).all()
-    np.testing.assert_allclose(rows(low.frame, "repeat_last", "rmse")["a"],
-                               rows(raw.frame, "repeat_last", "rmse")["a"], rtol=1e-6)
+    np.testing.assert_allclose(
+        rows(low.frame, "repeat_last", "rmse")["a"],
+        rows(raw.frame, "repeat_last", "rmse")["a"],
+        rtol=1e-6,
+    )
     with pytest.raises(BenchmarkError, match="'melv_frames: spectral' needs field 'spectral_k'"):
         toy_bench(melv_frames="spectral")
     with pytest.raises(BenchmarkError, match="field 'melv_frames' must be one of raw, spectral"):
@@ -314,22 +359,26 @@ def test_every_row_carries_its_standard_deviation_over_windows(toy_bench):
     rmse = frame[(frame.model == "repeat_last") & (frame.metric == "rmse")]
     by = {(r.action, r.averaging, r.frame): r for r in rmse.itertuples()}
     k = np.arange(1, 4)
-    per_window = {a: rate * k / ((1 + rate * (1 + k)) * math.sqrt(2))
-                  for a, rate in (("a", 0.1), ("b", 0.2))}
+    per_window = {
+        a: rate * k / ((1 + rate * (1 + k)) * math.sqrt(2)) for a, rate in (("a", 0.1), ("b", 0.2))
+    }
     for t in k:
         assert by["a", "frame", t].std == pytest.approx(0, abs=1e-7)  # two equal windows
         assert math.isnan(by["b", "frame", t].std)  # one window: no spread
         pooled = [per_window["a"][t - 1]] * 2 + [per_window["b"][t - 1]]
         assert by["average", "frame", t].std == pytest.approx(np.std(pooled, ddof=1), rel=1e-5)
         cumulative = [np.mean(per_window["a"][:t])] * 2 + [np.mean(per_window["b"][:t])]
-        assert by["average", "cumulative", t].std == pytest.approx(np.std(cumulative, ddof=1),
-                                                                   rel=1e-5)
+        assert by["average", "cumulative", t].std == pytest.approx(
+            np.std(cumulative, ddof=1), rel=1e-5
+        )
     tables = markdown_tables(frame, {result.protocol["protocol_id"]: result.protocol})
-    melv_table = tables[tables.index("## MELV (mm), averaging `frame`"):]
+    melv_table = tables[tables.index("## MELV (mm), averaging `frame`") :]
     assert "Each cell: mean (standard deviation over windows)." in melv_table
     assert "(0.000)" in melv_table.split("| ground_truth | a")[1].split("\n")[0]
-    assert "## RMSE (per vertex, normalised by the ground-truth frame's bounding-box diagonal)" \
+    assert (
+        "## RMSE (per vertex, normalised by the ground-truth frame's bounding-box diagonal)"
         in tables
+    )
 
 
 def test_autoencoder_floor_rows_beside_the_model(toy_bench, tmp_path):
@@ -351,8 +400,11 @@ def test_autoencoder_floor_rows_beside_the_model(toy_bench, tmp_path):
         diagonal = 10 * math.sqrt(2) * (1 + rate * (1 + np.arange(1, 4)))
         np.testing.assert_allclose(floor_rmse[action], math.sqrt(3) / diagonal, rtol=1e-5)
     # a rigid shift keeps every edge: the floor's MELV is the ground truth's own
-    np.testing.assert_allclose(rows(frame, "blurred:autoencoder", "melv")["a"],
-                               rows(frame, "ground_truth", "melv")["a"], rtol=1e-5)
+    np.testing.assert_allclose(
+        rows(frame, "blurred:autoencoder", "melv")["a"],
+        rows(frame, "ground_truth", "melv")["a"],
+        rtol=1e-5,
+    )
     assert "floor" in result.protocol["metrics"]
     out = write_leaderboard([result], tmp_path / "board")
     headline = (out / "leaderboard.md").read_text().split("## RMSE")[0]
@@ -360,7 +412,8 @@ def test_autoencoder_floor_rows_beside_the_model(toy_bench, tmp_path):
     model_line = next(line for line in headline.splitlines() if line.startswith("| blurred "))
     assert "**" not in floor_line and "**" in model_line
     assert "±" in floor_line  # its own interval, from its per-window errors
-    assert "`blurred:autoencoder`: the ground-truth future through the model's autoencoder" \
-        in headline
+    assert (
+        "`blurred:autoencoder`: the ground-truth future through the model's autoencoder" in headline
+    )
     plain = evaluate(RepeatLast(2, 3, 4), bench, model_name="repeat_last")
     assert not any(m.endswith(":autoencoder") for m in plain.frame.model)

@@ -16,13 +16,16 @@ def test_edges_and_laplacian_of_two_triangles():
     np.testing.assert_array_equal(lap.sum(axis=1), 0)
 
 
-@pytest.mark.parametrize("faces, n, message", [
-    (np.zeros((0, 3), int), 0, "empty mesh"),
-    (np.array([[0, 1, 5]]), 3, r"face indices must lie in \[0, 3\)"),
-    (np.array([[0, 1, 1]]), 3, "repeats a vertex"),
-    (np.array([[0, 1, 2], [0, 1, 3], [0, 1, 4]]), 5, "non-manifold.*edge \\[0, 1\\]"),
-    (np.array([[0, 1, 2]]), 4, "vertex 3 belongs to no face"),
-])
+@pytest.mark.parametrize(
+    "faces, n, message",
+    [
+        (np.zeros((0, 3), int), 0, "empty mesh"),
+        (np.array([[0, 1, 5]]), 3, r"face indices must lie in \[0, 3\)"),
+        (np.array([[0, 1, 1]]), 3, "repeats a vertex"),
+        (np.array([[0, 1, 2], [0, 1, 3], [0, 1, 4]]), 5, "non-manifold.*edge \\[0, 1\\]"),
+        (np.array([[0, 1, 2]]), 4, "vertex 3 belongs to no face"),
+    ],
+)
 def test_bad_meshes_are_named(faces, n, message):
     with pytest.raises(MeshError, match=message):
         MeshTopology(faces, n)
@@ -30,11 +33,13 @@ def test_bad_meshes_are_named(faces, n, message):
 
 def test_dataset_round_trip_and_wrong_vertex_count(tmp_path):
     t = square()
-    seq = MeshSequence("s0", "fall", np.random.default_rng(0).normal(size=(5, 4, 3)).astype("f4"),
-                       25.0)
+    seq = MeshSequence(
+        "s0", "fall", np.random.default_rng(0).normal(size=(5, 4, 3)).astype("f4"), 25.0
+    )
     ds = MeshDataset("toy", "test", t, [seq], recipe={"seed": 0})
     back = MeshDataset.load(ds.save(tmp_path / "toy"))
     assert back.topology.hash == t.hash and back.content_hash() == ds.content_hash()
     with pytest.raises(MeshError, match="do not fit topology"):
-        MeshDataset("toy", "test", t, [MeshSequence("bad", "x", np.zeros((2, 5, 3)), 25.0)],
-                    recipe={})
+        MeshDataset(
+            "toy", "test", t, [MeshSequence("bad", "x", np.zeros((2, 5, 3)), 25.0)], recipe={}
+        )

@@ -1,4 +1,5 @@
 """Skeleton models: the DCT, the MLP baseline and SPGSN."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -17,8 +18,11 @@ from zoo.registry import RegistryError
 CMU_ROOT = (REPO_ROOT / "../shared/data/cmu_mocap").resolve()
 SKELETON_MODELS = ["mlp", "spgsn", "spgsn_1body"]
 # Small configurations for the tests that only need the wiring, not the paper's size.
-SMALL = {"mlp": {"blocks": 4}, "spgsn": {"blocks": 2, "hidden": 16, "aggregation_dim": 8},
-         "spgsn_1body": {"blocks": 2, "hidden": 16, "aggregation_dim": 8}}
+SMALL = {
+    "mlp": {"blocks": 4},
+    "spgsn": {"blocks": 2, "hidden": 16, "aggregation_dim": 8},
+    "spgsn_1body": {"blocks": 2, "hidden": 16, "aggregation_dim": 8},
+}
 CMU_PARTS = {"upper": list(range(10, 25)), "lower": list(range(10))}
 
 
@@ -33,6 +37,7 @@ def motion(batch: int, frames: int, points: int = 25, seed: int = 0) -> torch.Te
 
 
 # ---- DCT -----------------------------------------------------------------------------------------
+
 
 @pytest.mark.parametrize("n", [1, 2, 10, 35, 50])
 def test_dct_matches_scipy_orthonormal_dct2(n):
@@ -50,9 +55,11 @@ def test_dct_round_trip_is_exact(n):
     assert torch.allclose(d_inv @ (d @ x), x, atol=1e-6, rtol=0)
     assert torch.allclose(d @ d_inv, torch.eye(n), atol=1e-6, rtol=0)
     # the inverse is scipy's orthonormal DCT-III
-    np.testing.assert_allclose(d_inv.double().numpy() @ x.double().numpy(),
-                               scipy.fft.idct(x.double().numpy(), type=2, norm="ortho", axis=0),
-                               atol=1e-5)
+    np.testing.assert_allclose(
+        d_inv.double().numpy() @ x.double().numpy(),
+        scipy.fft.idct(x.double().numpy(), type=2, norm="ortho", axis=0),
+        atol=1e-5,
+    )
 
 
 @pytest.mark.parametrize("n", [0, -3, 2.0, True])
@@ -62,6 +69,7 @@ def test_dct_rejects_bad_sizes(n):
 
 
 # ---- MLP baseline (siMLPe) -----------------------------------------------------------------------
+
 
 def test_untrained_mlp_is_repeat_last_to_a_micrometre_in_mm():
     model = zoo.create_model("mlp", benchmark="cmu").eval()
@@ -114,7 +122,7 @@ def test_mlp_training_loss_is_position_plus_velocity_l2_in_metres():
     predicted = model.step(history) / 1000
     target = future[:, :10] / 1000
     position = (predicted - target).norm(dim=-1).mean()
-    velocity = ((predicted[:, 1:] - predicted[:, :-1]) - (target[:, 1:] - target[:, :-1]))
+    velocity = (predicted[:, 1:] - predicted[:, :-1]) - (target[:, 1:] - target[:, :-1])
     expected = position + velocity.norm(dim=-1).mean()
     assert loss.ndim == 0 and torch.allclose(loss, expected, rtol=1e-5)
     loss.backward()
@@ -127,8 +135,9 @@ def test_mlp_is_the_published_architecture():
     assert model.spatial_in.in_features == model.spatial_out.out_features == 75
     assert all(block.weight.shape == (10, 10) for block in model.blocks)  # T_in -> T_in
     assert all(block.norm.normalized_shape == (75,) for block in model.blocks)  # spatial axis
-    assert not any(isinstance(m, (torch.nn.ReLU, torch.nn.GELU, torch.nn.Tanh))
-                   for m in model.modules())
+    assert not any(
+        isinstance(m, (torch.nn.ReLU, torch.nn.GELU, torch.nn.Tanh)) for m in model.modules()
+    )
 
 
 def test_spgsn_is_paper_sized():
@@ -138,19 +147,28 @@ def test_spgsn_is_paper_sized():
 
     parts = {k: list(v) for k, v in H36M.parts.items()}
     assert parts == {"upper": list(range(10, 22)), "lower": list(range(10))}  # the code's split
-    model = zoo.create_model("spgsn", input_frames=10, output_frames=10, num_points=22,
-                             parts=parts, dct_n=15)
+    model = zoo.create_model(
+        "spgsn", input_frames=10, output_frames=10, num_points=22, parts=parts, dct_n=15
+    )
     params = sum(p.numel() for p in model.parameters())
     assert abs(params / 5.66e6 - 1) < 0.10, params
     block = model.blocks[0]
-    assert [tuple(m.weight.shape) for m in block.embed_upper if hasattr(m, "weight")] == \
-        [(64, 256), (64, 64)]  # f_up: 256 -> 64 -> 64, bias-free
+    assert [tuple(m.weight.shape) for m in block.embed_upper if hasattr(m, "weight")] == [
+        (64, 256),
+        (64, 64),
+    ]  # f_up: 256 -> 64 -> 64, bias-free
     assert block.embed_upper[0].bias is None
 
 
-@pytest.mark.parametrize("kwargs, message", [
-    ({"chunk": 0}, "chunk"), ({"blocks": -1}, "blocks"), ({"hidden_dim": 0}, "hidden_dim"),
-    ({"init_gain": -1.0}, "init_gain")])
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [
+        ({"chunk": 0}, "chunk"),
+        ({"blocks": -1}, "blocks"),
+        ({"hidden_dim": 0}, "hidden_dim"),
+        ({"init_gain": -1.0}, "init_gain"),
+    ],
+)
 def test_mlp_rejects_bad_hyper_parameters(kwargs, message):
     with pytest.raises(ValueError, match=message):
         SiMLPe(10, 25, 25, **kwargs)
@@ -163,23 +181,33 @@ def test_mlp_rejects_wrong_input_shape():
 
 # ---- SPGSN (paper design) ------------------------------------------------------------------------
 
+
 def expected_filter_bank(graph: np.ndarray, a: np.ndarray) -> list[np.ndarray]:
     """The paper's filters, written out independently: A~ = (I + A / ||A||_F^2) / 2, h_0 = a00 A,
     h_1 = a10 I + a11 A~, h_k = sum_{j=1..k} a_kj A~^(2^(j-1)); a[k][j] is a_kj."""
     eye = np.eye(len(graph))
-    tilde = (eye + graph / np.sum(graph ** 2)) / 2
+    tilde = (eye + graph / np.sum(graph**2)) / 2
     filters = [a[0][0] * graph, a[1][0] * eye + a[1][1] * tilde]
     for k in range(2, len(a)):
-        filters.append(sum(a[k][j] * np.linalg.matrix_power(tilde, 2 ** (j - 1))
-                           for j in range(1, k + 1)))
+        filters.append(
+            sum(a[k][j] * np.linalg.matrix_power(tilde, 2 ** (j - 1)) for j in range(1, k + 1))
+        )
     return filters
 
 
 @pytest.mark.parametrize("order", [2, 3])
 def test_spgsn_filter_bank_at_initialisation_is_the_spec_polynomials(order):
     torch.manual_seed(order)
-    model = SPGSN(4, 3, 3, parts={"upper": [0], "lower": [1, 2]}, blocks=2, hidden=8,
-                  filter_order=order, dct_n=7)
+    model = SPGSN(
+        4,
+        3,
+        3,
+        parts={"upper": [0], "lower": [1, 2]},
+        blocks=2,
+        hidden=8,
+        filter_order=order,
+        dct_n=7,
+    )
     # a00 = 1, a_k,k-1 = 1, a_kk = -1, all others 0
     a = [[1.0]] + [[0.0] * (k - 1) + [1.0, -1.0] for k in range(1, order + 1)]
     banks = model.filter_banks()
@@ -191,27 +219,32 @@ def test_spgsn_filter_bank_at_initialisation_is_the_spec_polynomials(order):
             for k, h in enumerate(expected_filter_bank(graph, a)):
                 np.testing.assert_allclose(bank[block, k].detach().numpy(), h, atol=1e-6)
     graph = model.graphs["whole"][0].detach().double().numpy()
-    tilde = (np.eye(9) + graph / np.sum(graph ** 2)) / 2
-    np.testing.assert_allclose(banks["whole"][0, 1].detach().numpy(), np.eye(9) - tilde,
-                               atol=1e-6)  # h_1 = I - A~
-    np.testing.assert_allclose(banks["whole"][0, 2].detach().numpy(), tilde - tilde @ tilde,
-                               atol=1e-6)  # h_2 = A~ - A~^2
+    tilde = (np.eye(9) + graph / np.sum(graph**2)) / 2
+    np.testing.assert_allclose(
+        banks["whole"][0, 1].detach().numpy(), np.eye(9) - tilde, atol=1e-6
+    )  # h_1 = I - A~
+    np.testing.assert_allclose(
+        banks["whole"][0, 2].detach().numpy(), tilde - tilde @ tilde, atol=1e-6
+    )  # h_2 = A~ - A~^2
 
 
 def test_spgsn_filter_bank_follows_trained_coefficients():
     torch.manual_seed(3)
-    model = SPGSN(4, 3, 3, parts={"upper": [0], "lower": [1, 2]}, blocks=1, hidden=8,
-                  filter_order=3, dct_n=7)
+    model = SPGSN(
+        4, 3, 3, parts={"upper": [0], "lower": [1, 2]}, blocks=1, hidden=8, filter_order=3, dct_n=7
+    )
     with torch.no_grad():
         model.filter_coefficients.normal_()  # entries outside the paper's terms must not matter
     c = model.filter_coefficients[0].detach().double().numpy()
     # column layout [A, I, A~, A~^2, A~^4]: a00 = c[0,0]; a10 = c[1,1]; a_kj = c[k, j+1]
-    a = [[c[0, 0]], [c[1, 1], c[1, 2]]] + [[0.0] + [c[k, j + 1] for j in range(1, k + 1)]
-                                             for k in range(2, 4)]
+    a = [[c[0, 0]], [c[1, 1], c[1, 2]]] + [
+        [0.0] + [c[k, j + 1] for j in range(1, k + 1)] for k in range(2, 4)
+    ]
     graph = model.graphs["lower"][0].detach().double().numpy()
     for k, h in enumerate(expected_filter_bank(graph, a)):
-        np.testing.assert_allclose(model.filter_banks()["lower"][0, k].detach().numpy(), h,
-                                   atol=1e-5)
+        np.testing.assert_allclose(
+            model.filter_banks()["lower"][0, k].detach().numpy(), h, atol=1e-5
+        )
 
 
 def test_spgsn_scattering_tree_has_k_plus_1_to_the_l_leaves(monkeypatch):
@@ -219,6 +252,7 @@ def test_spgsn_scattering_tree_has_k_plus_1_to_the_l_leaves(monkeypatch):
 
     leaves = []
     original = ScatteringBlock._aggregate
+
     def recording(self, x):  # leaves (F, N_p, M, B, C): F * M channels
         leaves.append((x.shape[0] * x.shape[2], x.shape[1], x.shape[4]))
         return original(self, x)
@@ -262,9 +296,16 @@ def relabelled_copy(model: SPGSN, perm: list[int], parts: dict) -> tuple[SPGSN, 
     for name, joints in new_parts.items():
         order = node_order([perm[j] for j in joints], parts[name])
         state[f"graphs.{name}"] = state[f"graphs.{name}"][:, order][:, :, order]
-    copy = SPGSN(model.input_frames, model.output_frames, model.num_points, parts=new_parts,
-                 blocks=len(model.blocks), hidden=model.embed.out_features,
-                 aggregation_dim=model.blocks[0].attention_leaf.out_features, dct_n=model.dct_n)
+    copy = SPGSN(
+        model.input_frames,
+        model.output_frames,
+        model.num_points,
+        parts=new_parts,
+        blocks=len(model.blocks),
+        hidden=model.embed.out_features,
+        aggregation_dim=model.blocks[0].attention_leaf.out_features,
+        dct_n=model.dct_n,
+    )
     copy.load_state_dict(state)
     return copy.eval(), new_parts
 
@@ -281,8 +322,9 @@ def test_relabelling_the_joints_relabels_spgsn_output_and_nothing_else():
     with torch.no_grad():
         predicted = model(history)
         predicted_relabelled = relabelled(history[:, :, perm])
-        untouched_graphs = SPGSN(10, 25, 10, parts=new_parts, blocks=2, hidden=16,
-                                 aggregation_dim=8).eval()
+        untouched_graphs = SPGSN(
+            10, 25, 10, parts=new_parts, blocks=2, hidden=16, aggregation_dim=8
+        ).eval()
         untouched_graphs.load_state_dict(model.state_dict())
         wrong = untouched_graphs(history[:, :, perm])
     assert (predicted - history[:, -1:]).abs().max() > 10  # not a trivial output
@@ -294,18 +336,21 @@ def test_relabelling_the_joints_relabels_spgsn_output_and_nothing_else():
 def test_spgsn_with_all_coefficients_and_zero_readout_is_repeat_last():
     # Untrained (zero readout) SPGSN returns the inverse DCT of the padded input's kept
     # coefficients; with every coefficient kept that is exactly repeat-last.
-    model = SPGSN(10, 25, 25, parts=CMU_PARTS, blocks=1, hidden=8, dct_n=35,
-                  zero_readout=True).eval()
+    model = SPGSN(
+        10, 25, 25, parts=CMU_PARTS, blocks=1, hidden=8, dct_n=35, zero_readout=True
+    ).eval()
     history = motion(3, 10)
     with torch.no_grad():
         assert torch.allclose(model(history), history[:, -1:].expand(-1, 25, -1, -1), atol=1e-3)
-        truncated = SPGSN(10, 25, 25, parts=CMU_PARTS, blocks=1, hidden=8, dct_n=30,
-                          zero_readout=True).eval()
+        truncated = SPGSN(
+            10, 25, 25, parts=CMU_PARTS, blocks=1, hidden=8, dct_n=30, zero_readout=True
+        ).eval()
         padded = torch.cat([history, history[:, -1:].expand(-1, 25, -1, -1)], dim=1)
         d = dct_matrix(35)[:30]
         expected = d.T @ (d @ padded[0].reshape(35, 75))
-        assert torch.allclose(truncated.reconstruct(history)[0].reshape(35, 75), expected,
-                              atol=1e-3)
+        assert torch.allclose(
+            truncated.reconstruct(history)[0].reshape(35, 75), expected, atol=1e-3
+        )
         assert (expected - padded[0].reshape(35, 75)).abs().max() > 0.1  # truncation shows
 
 
@@ -327,23 +372,32 @@ def test_spgsn_paper_configuration():
     assert model.blocks[0].layers == 2 and model.blocks[0].filters == 3
     assert model.blocks[0].dropout.p == 0.5
     assert {k: tuple(v.shape) for k, v in model.graphs.items()} == {
-        "whole": (10, 75, 75), "upper": (10, 45, 45), "lower": (10, 30, 30)}
+        "whole": (10, 75, 75),
+        "upper": (10, 45, 45),
+        "lower": (10, 30, 30),
+    }
     whole_body = zoo.create_model("spgsn_1body", benchmark="cmu")
     assert set(whole_body.graphs) == {"whole"}
     assert not hasattr(whole_body.blocks[0], "embed_upper")
 
 
-@pytest.mark.parametrize("kwargs, message", [
-    ({"parts": {"upper": [0, 25], "lower": [1]}}, r"parts\['upper'\] holds 25; expected joint "
-                                                 r"indices in 0..24"),
-    ({"parts": {"upper": [0, 1], "lower": [1]}}, "must be disjoint"),
-    ({"parts": {"upper": [0]}}, "exactly the keys 'upper' and 'lower'"),
-    ({"parts": {"upper": [], "lower": [1]}}, r"parts\['upper'\] is empty"),
-    ({"parts": None}, "parts must be a mapping"),
-    ({"parts": CMU_PARTS, "dct_n": 36}, "dct_n = 36 exceeds the 35 frames"),
-    ({"parts": CMU_PARTS, "dropout": 1.0}, "dropout"),
-    ({"parts": CMU_PARTS, "scattering_layers": 0}, "scattering_layers"),
-])
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [
+        (
+            {"parts": {"upper": [0, 25], "lower": [1]}},
+            r"parts\['upper'\] holds 25; expected joint "
+            r"indices in 0..24",
+        ),
+        ({"parts": {"upper": [0, 1], "lower": [1]}}, "must be disjoint"),
+        ({"parts": {"upper": [0]}}, "exactly the keys 'upper' and 'lower'"),
+        ({"parts": {"upper": [], "lower": [1]}}, r"parts\['upper'\] is empty"),
+        ({"parts": None}, "parts must be a mapping"),
+        ({"parts": CMU_PARTS, "dct_n": 36}, "dct_n = 36 exceeds the 35 frames"),
+        ({"parts": CMU_PARTS, "dropout": 1.0}, "dropout"),
+        ({"parts": CMU_PARTS, "scattering_layers": 0}, "scattering_layers"),
+    ],
+)
 def test_spgsn_rejects_bad_arguments(kwargs, message):
     with pytest.raises(ValueError, match=message):
         SPGSN(10, 25, 25, **{"blocks": 1, "hidden": 8, **kwargs})
@@ -351,12 +405,21 @@ def test_spgsn_rejects_bad_arguments(kwargs, message):
 
 # ---- every skeleton model: registry, contract, evaluator ---------------------------------------
 
+
 @pytest.mark.parametrize("name", SKELETON_MODELS)
 def test_registered_model_follows_the_contract(name):
     entry = zoo.load_registry().get(name)
     assert entry.trainable and "joints" in entry.representation
-    assert {"optimizer", "lr", "weight_decay", "batch_size", "epochs", "grad_clip", "schedule",
-            "augment"} <= set(entry.train)
+    assert {
+        "optimizer",
+        "lr",
+        "weight_decay",
+        "batch_size",
+        "epochs",
+        "grad_clip",
+        "schedule",
+        "augment",
+    } <= set(entry.train)
     model = zoo.create_model(name, benchmark="cmu", **SMALL[name])
     history, future = motion(3, 10), motion(3, 25, seed=5)
     predicted = model.eval()(history)
@@ -378,13 +441,18 @@ def cmu_test_data():
     if not (CMU_ROOT / "test").is_dir():
         pytest.skip(f"CMU Mocap test data not found at {CMU_ROOT}")
     from zoo.benchmark import get_benchmark
+
     return get_benchmark("cmu").load(CMU_ROOT)
 
 
 @pytest.fixture(scope="module")
 def repeat_last_result(cmu_test_data):
-    return evaluate(zoo.create_model("repeat_last", benchmark="cmu"), "cmu",
-                    model_name="repeat_last", dataset=cmu_test_data)
+    return evaluate(
+        zoo.create_model("repeat_last", benchmark="cmu"),
+        "cmu",
+        model_name="repeat_last",
+        dataset=cmu_test_data,
+    )
 
 
 @pytest.mark.parametrize("name", SKELETON_MODELS)
@@ -401,9 +469,14 @@ def test_models_evaluate_on_real_cmu_test_data(name, cmu_test_data, repeat_last_
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("name, overrides, lr", [
-    ("mlp", {}, 3e-4), ("spgsn", {"blocks": 2, "hidden": 64}, 1e-3),
-    ("spgsn_1body", {"blocks": 2, "hidden": 64}, 1e-3)])
+@pytest.mark.parametrize(
+    "name, overrides, lr",
+    [
+        ("mlp", {}, 3e-4),
+        ("spgsn", {"blocks": 2, "hidden": 64}, 1e-3),
+        ("spgsn_1body", {"blocks": 2, "hidden": 64}, 1e-3),
+    ],
+)
 def test_models_learn_on_cmu_training_windows(name, overrides, lr):
     """150 Adam steps on real CMU training windows take the model below repeat-last."""
     if not (CMU_ROOT / "train").is_dir():

@@ -7,11 +7,19 @@ from zoo.efficiency import forward_gflop, measure
 from zoo.published import PublishedError, load_published, place
 
 
-def cmu_record(sampler="all", actions=("basketball", "jumping", "running", "soccer", "walking",
-                                       "washwindow")):
-    return {"benchmark": "cmu", "dataset": "cmu_mocap", "split": "test", "sampler": sampler,
-            "input_frames": 10, "output_frames": 25, "fps": 25.0,
-            "actions_present": list(actions)}
+def cmu_record(
+    sampler="all", actions=("basketball", "jumping", "running", "soccer", "walking", "washwindow")
+):
+    return {
+        "benchmark": "cmu",
+        "dataset": "cmu_mocap",
+        "split": "test",
+        "sampler": sampler,
+        "input_frames": 10,
+        "output_frames": 25,
+        "fps": 25.0,
+        "actions_present": list(actions),
+    }
 
 
 def test_reported_rows_only_where_the_protocol_matches():
@@ -33,12 +41,16 @@ def test_reported_rows_only_where_the_protocol_matches():
 
 def test_published_file_errors_name_the_entry(tmp_path):
     bad = tmp_path / "published.yaml"
-    bad.write_text("- {label: x, model: m, source: s, benchmark: cmu, metric: mpjpe, "
-                   "averaging: frame, joints: all38, protocol: {}}\n")
+    bad.write_text(
+        "- {label: x, model: m, source: s, benchmark: cmu, metric: mpjpe, "
+        "averaging: frame, joints: all38, protocol: {}}\n"
+    )
     with pytest.raises(PublishedError, match=r"entry 1 \(x\): give exactly one of per_action"):
         load_published(bad)
-    bad.write_text("- {label: y, model: m, source: s, benchmark: cmu, metric: mpjpe, "
-                   "averaging: frame, joints: all38, protocol: {}, average: {80: fast}}\n")
+    bad.write_text(
+        "- {label: y, model: m, source: s, benchmark: cmu, metric: mpjpe, "
+        "averaging: frame, joints: all38, protocol: {}, average: {80: fast}}\n"
+    )
     with pytest.raises(PublishedError, match=r"entry 1 \(y\): figures must map horizons"):
         load_published(bad)
     bad.write_text("- {label: z, metric: mpjpe}\n")
@@ -60,8 +72,13 @@ def test_costs_count_parameters_flops_and_time():
     model = Linear()
     history = torch.zeros(4, 10, 5, 3)
     assert forward_gflop(model, history) == pytest.approx(2 * 150 * 375 / 1e9)
-    row = measure(model, input_frames=10, output_frames=25, points=5,
-                  recipe={"batch_size": 8, "grad_clip": 1.0, "precision": "float32"})
+    row = measure(
+        model,
+        input_frames=10,
+        output_frames=25,
+        points=5,
+        recipe={"batch_size": 8, "grad_clip": 1.0, "precision": "float32"},
+    )
     assert row["parameters"] == 150 * 375 + 375
     assert row["latency_ms"] > 0 and row["train_samples_per_s"] > 0
     assert row["device"].startswith("CPU") and "thread" in row["device"]
@@ -69,5 +86,6 @@ def test_costs_count_parameters_flops_and_time():
     before = {k: v.clone() for k, v in model.state_dict().items()}
     measure(model, input_frames=10, output_frames=25, points=5, recipe={"batch_size": 8})
     assert all(torch.equal(before[k], v) for k, v in model.state_dict().items())
-    assert measure(model, input_frames=10, output_frames=25, points=5)["train_samples_per_s"] \
-        is None
+    assert (
+        measure(model, input_frames=10, output_frames=25, points=5)["train_samples_per_s"] is None
+    )

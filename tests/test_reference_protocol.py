@@ -6,21 +6,30 @@ frames, cut the windows (LTD's seeded 8 per file, or SPGSN's every window), writ
 joints into a copy of the ground truth, copy the duplicated joints, average the L2 error over
 joints, then over windows, then over actions.
 """
+
 import functools
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from zoo import create_model
 from zoo.benchmark import get_benchmark
 from zoo.data.skeleton import CMU
 from zoo.evaluate import evaluate
-from zoo import create_model
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "cmu_mocap"
 needs_cmu = pytest.mark.skipif(not DATA.is_dir(), reason=f"CMU data not found at {DATA}")
-ACTIONS = ["basketball", "basketball_signal", "directing_traffic", "jumping", "running", "soccer",
-           "walking", "washwindow"]
+ACTIONS = [
+    "basketball",
+    "basketball_signal",
+    "directing_traffic",
+    "jumping",
+    "running",
+    "soccer",
+    "walking",
+    "washwindow",
+]
 
 
 def oracle_rotmat(r):
@@ -33,7 +42,7 @@ def oracle_rotmat(r):
 def oracle_fk(frame):
     parents = CMU.parents
     n = len(parents)
-    rot = [oracle_rotmat(frame[3 + 3 * i:6 + 3 * i]) for i in range(n)]
+    rot = [oracle_rotmat(frame[3 + 3 * i : 6 + 3 * i]) for i in range(n)]
     xyz = [CMU.offsets[i].copy() for i in range(n)]
     for i in range(1, n):
         if parents[i] > 0:
@@ -42,7 +51,7 @@ def oracle_fk(frame):
     return np.stack(xyz)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def oracle_positions(path):
     raw = np.loadtxt(path, delimiter=",")
     return np.stack([oracle_fk(f) for f in raw])[range(0, len(raw), 2)]
@@ -56,7 +65,7 @@ def oracle_windows(seq, sampler, t_in, t_out):
         for _ in range(8):
             idx = rng.randint(0, n - 75)
             starts.append(idx + 50 - t_in)
-        return np.stack([seq[s:s + t_in + t_out] for s in starts])
+        return np.stack([seq[s : s + t_in + t_out] for s in starts])
     fs = np.arange(0, n - (t_in + t_out) + 1)
     return seq[fs[:, None] + np.arange(t_in + t_out)]
 
@@ -74,13 +83,16 @@ def oracle_repeat_last(sampler, t_in=10, t_out=25):
             windows = oracle_windows(oracle_positions(path), sampler, t_in, t_out)
             target = windows[:, t_in:]
             pred = target.copy()
-            pred[:, :, used] = windows[:, t_in - 1:t_in, used]
+            pred[:, :, used] = windows[:, t_in - 1 : t_in, used]
             pred[:, :, [16, 20, 29, 24, 27, 33, 36]] = pred[:, :, [15, 15, 15, 23, 23, 32, 32]]
             errors_all.append(np.linalg.norm(pred - target, axis=-1).mean(axis=-1))
-            errors_used.append(np.linalg.norm(pred[:, :, used] - target[:, :, used],
-                                              axis=-1).mean(axis=-1))
-        per_action[action] = (np.concatenate(errors_all).mean(0),
-                              np.concatenate(errors_used).mean(0))
+            errors_used.append(
+                np.linalg.norm(pred[:, :, used] - target[:, :, used], axis=-1).mean(axis=-1)
+            )
+        per_action[action] = (
+            np.concatenate(errors_all).mean(0),
+            np.concatenate(errors_used).mean(0),
+        )
     return per_action
 
 
@@ -89,21 +101,36 @@ def oracle_repeat_last(sampler, t_in=10, t_out=25):
 def test_repeat_last_reproduces_official_test_code(sampler):
     expected = oracle_repeat_last(sampler)
     bench = get_benchmark("cmu")
-    result = evaluate(create_model("repeat_last", benchmark=bench), bench,
-                      model_name="repeat_last", sampler=sampler, data_root=DATA)
+    result = evaluate(
+        create_model("repeat_last", benchmark=bench),
+        bench,
+        model_name="repeat_last",
+        sampler=sampler,
+        data_root=DATA,
+    )
     df = result.frame
     assert set(df["action"]) == set(expected) | {"average"}
     checked = 0
     for joints, which in (("all38", 0), ("used25", 1)):
         average = np.mean([v[which] for v in expected.values()], axis=0)
-        for action, per_frame in [*((a, v[which]) for a, v in expected.items()),
-                                  ("average", average)]:
-            for averaging, values in (("frame", per_frame),
-                                      ("cumulative", np.cumsum(per_frame) / np.arange(1, 26))):
-                rows = df[(df.action == action) & (df.joints == joints) &
-                          (df.averaging == averaging)].sort_values("frame")
-                np.testing.assert_allclose(rows["value"].to_numpy(), values, atol=0.01, rtol=0,
-                                           err_msg=f"{sampler} {action} {joints} {averaging}")
+        for action, per_frame in [
+            *((a, v[which]) for a, v in expected.items()),
+            ("average", average),
+        ]:
+            for averaging, values in (
+                ("frame", per_frame),
+                ("cumulative", np.cumsum(per_frame) / np.arange(1, 26)),
+            ):
+                rows = df[
+                    (df.action == action) & (df.joints == joints) & (df.averaging == averaging)
+                ].sort_values("frame")
+                np.testing.assert_allclose(
+                    rows["value"].to_numpy(),
+                    values,
+                    atol=0.01,
+                    rtol=0,
+                    err_msg=f"{sampler} {action} {joints} {averaging}",
+                )
                 checked += len(rows)
     assert checked == 2 * 2 * 25 * (len(expected) + 1)
     windows = result.protocol["windows_per_action"]
@@ -116,9 +143,16 @@ def test_repeat_last_reproduces_official_test_code(sampler):
 @needs_cmu
 def test_official_scoring_is_about_1_3_times_smaller_than_the_25_joint_mean():
     bench = get_benchmark("cmu")
-    df = evaluate(create_model("repeat_last", benchmark=bench), bench, model_name="repeat_last",
-                  sampler="ltd8", data_root=DATA).frame
+    df = evaluate(
+        create_model("repeat_last", benchmark=bench),
+        bench,
+        model_name="repeat_last",
+        sampler="ltd8",
+        data_root=DATA,
+    ).frame
     avg = df[(df.action == "average") & (df.averaging == "frame")]
-    ratio = (avg[avg.joints == "used25"]["value"].to_numpy() /
-             avg[avg.joints == "all38"]["value"].to_numpy())
+    ratio = (
+        avg[avg.joints == "used25"]["value"].to_numpy()
+        / avg[avg.joints == "all38"]["value"].to_numpy()
+    )
     assert np.all((ratio > 1.2) & (ratio < 1.4))

@@ -1,4 +1,5 @@
 """The registry API, its errors, and a user's own baseline added from outside zoo/."""
+
 import textwrap
 
 import pandas as pd
@@ -16,13 +17,18 @@ def test_list_and_create():
 
 
 def test_unknown_model_lists_valid_names():
-    with pytest.raises(RegistryError, match=r"unknown model 'nope'; registered models: .*repeat_last"):
+    with pytest.raises(
+        RegistryError, match=r"unknown model 'nope'; registered models: .*repeat_last"
+    ):
         zoo.create_model("nope", benchmark="cmu")
 
 
 def test_unknown_hparam_lists_valid_ones():
-    with pytest.raises(RegistryError, match=r"no hyper-parameter 'depth'; valid: input_frames, "
-                                            r"num_points, output_frames"):
+    with pytest.raises(
+        RegistryError,
+        match=r"no hyper-parameter 'depth'; valid: input_frames, "
+        r"num_points, output_frames",
+    ):
         zoo.create_model("repeat_last", benchmark="cmu", depth=3)
 
 
@@ -61,46 +67,113 @@ def test_user_baseline_from_outside_zoo(tmp_path, swinging_cmu, capsys):
     (tmp_path / "mine").mkdir()
     (tmp_path / "mine" / "my_baselines.py").write_text(BASELINE)
     registry = tmp_path / "mine" / "registry.yaml"
-    registry.write_text(textwrap.dedent("""\
+    registry.write_text(
+        textwrap.dedent("""\
         models:
           constant_velocity:
             class: my_baselines.py:ConstantVelocity
             representation: joints
             hparams: {damping: 1.0}
             reference: a user's baseline
-        """))
+        """)
+    )
     assert main(["list", "--registry", str(registry)]) == 0
     assert "constant_velocity" in capsys.readouterr().out
     outs = {}
     for model in ("constant_velocity", "repeat_last"):
         outs[model] = tmp_path / model
-        assert main(["eval", "--registry", str(registry), "--model", model, "--benchmark", "cmu",
-                     "--sampler", "all", "--data-root", str(root), "--out",
-                     str(outs[model])]) == 0
+        assert (
+            main(
+                [
+                    "eval",
+                    "--registry",
+                    str(registry),
+                    "--model",
+                    model,
+                    "--benchmark",
+                    "cmu",
+                    "--sampler",
+                    "all",
+                    "--data-root",
+                    str(root),
+                    "--out",
+                    str(outs[model]),
+                ]
+            )
+            == 0
+        )
     cv = pd.read_csv(outs["constant_velocity"] / "results.csv")
     rl = pd.read_csv(outs["repeat_last"] / "results.csv")
     assert set(cv.model) == {"constant_velocity"}
-    pick = lambda df: df[(df.action == "average") & (df.joints == "all38") &
-                         (df.averaging == "frame")].sort_values("frame")["value"].to_numpy()
+    pick = lambda df: (
+        df[(df.action == "average") & (df.joints == "all38") & (df.averaging == "frame")]
+        .sort_values("frame")["value"]
+        .to_numpy()
+    )
     # The swinging joint turns at constant angular speed: extrapolating its velocity beats
     # repeating its last position at every horizon.
     assert (pick(cv) < pick(rl)).all()
     # Overrides reach the user's class through the same validation as built-in models.
-    assert main(["eval", "--registry", str(registry), "--model", "constant_velocity", "--set",
-                 "damping=0.5", "--sampler", "ltd8", "--data-root", str(root), "--out",
-                 str(tmp_path / "half")]) == 0
-    assert main(["eval", "--registry", str(registry), "--model", "constant_velocity", "--set",
-                 "dampng=0.5", "--data-root", str(root), "--out", str(tmp_path / "typo")]) == 2
+    assert (
+        main(
+            [
+                "eval",
+                "--registry",
+                str(registry),
+                "--model",
+                "constant_velocity",
+                "--set",
+                "damping=0.5",
+                "--sampler",
+                "ltd8",
+                "--data-root",
+                str(root),
+                "--out",
+                str(tmp_path / "half"),
+            ]
+        )
+        == 0
+    )
+    assert (
+        main(
+            [
+                "eval",
+                "--registry",
+                str(registry),
+                "--model",
+                "constant_velocity",
+                "--set",
+                "dampng=0.5",
+                "--data-root",
+                str(root),
+                "--out",
+                str(tmp_path / "typo"),
+            ]
+        )
+        == 2
+    )
     assert "valid: damping" in capsys.readouterr().err
 
 
 def test_command_line_overrides_read_numbers_as_numbers():
     from zoo.cli import UsageError, parse_overrides
 
-    got = parse_overrides(["lr=1e-3", "blocks=4", "schedule={type: cosine, min_lr: 1e-6}",
-                           "name=mlp", "lrs=[3e-4, 1.0e-5]"])
-    assert got == {"lr": 1e-3, "blocks": 4, "schedule": {"type": "cosine", "min_lr": 1e-6},
-                   "name": "mlp", "lrs": [3e-4, 1e-5]}
+    got = parse_overrides(
+        [
+            "lr=1e-3",
+            "blocks=4",
+            "schedule={type: cosine, min_lr: 1e-6}",
+            "name=mlp",
+            "lrs=[3e-4, 1.0e-5]",
+        ]
+    )
+    assert got == {
+        "lr": 1e-3,
+        "blocks": 4,
+        "schedule": {"type": "cosine", "min_lr": 1e-6},
+        "name": "mlp",
+        "lrs": [3e-4, 1e-5],
+    }
     assert isinstance(got["blocks"], int)
     with pytest.raises(UsageError, match="expects key=value, got 'lr'"):
         parse_overrides(["lr"])
@@ -110,18 +183,23 @@ def test_entry_task_is_checked(tmp_path):
     from zoo.registry import Registry, RegistryError
 
     path = tmp_path / "r.yaml"
-    path.write_text("models:\n  m:\n    class: zoo.models.repeat_last.RepeatLast\n"
-                    "    representation: joints\n    task: forecasting\n")
+    path.write_text(
+        "models:\n  m:\n    class: zoo.models.repeat_last.RepeatLast\n"
+        "    representation: joints\n    task: forecasting\n"
+    )
     with pytest.raises(RegistryError, match="'task' must be one of prediction, completion"):
         Registry.from_files(path)
-    path.write_text("models:\n  m:\n    class: zoo.models.repeat_last.RepeatLast\n"
-                    "    representation: joints\n    hparams: {task: completion}\n")
+    path.write_text(
+        "models:\n  m:\n    class: zoo.models.repeat_last.RepeatLast\n"
+        "    representation: joints\n    hparams: {task: completion}\n"
+    )
     with pytest.raises(RegistryError, match="hparams task 'completion' but the entry's task"):
         Registry.from_files(path)
 
 
-def test_a_known_name_needs_an_explicit_override_that_results_record(tmp_path, swinging_cmu,
-                                                                     capsys):
+def test_a_known_name_needs_an_explicit_override_that_results_record(
+    tmp_path, swinging_cmu, capsys
+):
     import json
 
     root, _ = swinging_cmu
@@ -136,8 +214,19 @@ def test_a_known_name_needs_an_explicit_override_that_results_record(tmp_path, s
             reference: not the zoo's repeat_last
         """
     registry.write_text(textwrap.dedent(entry))
-    args = ["eval", "--registry", str(registry), "--model", "repeat_last", "--sampler", "ltd8",
-            "--data-root", str(root), "--out", str(tmp_path / "out")]
+    args = [
+        "eval",
+        "--registry",
+        str(registry),
+        "--model",
+        "repeat_last",
+        "--sampler",
+        "ltd8",
+        "--data-root",
+        str(root),
+        "--out",
+        str(tmp_path / "out"),
+    ]
     assert main(args) == 2
     err = capsys.readouterr().err
     assert f"{registry}: model 'repeat_last' is already defined in " in err
@@ -147,10 +236,25 @@ def test_a_known_name_needs_an_explicit_override_that_results_record(tmp_path, s
     provenance = json.loads((tmp_path / "out" / "protocol.json").read_text())["provenance"]
     assert provenance["class"] == "my_baselines.py:ConstantVelocity"
     assert provenance["registry"] == str(registry) and provenance["replaces"].endswith(
-        "registry.yaml")
+        "registry.yaml"
+    )
     # the zoo's own entries record theirs too
-    assert main(["eval", "--model", "repeat_last", "--sampler", "ltd8", "--data-root", str(root),
-                 "--out", str(tmp_path / "zoo")]) == 0
+    assert (
+        main(
+            [
+                "eval",
+                "--model",
+                "repeat_last",
+                "--sampler",
+                "ltd8",
+                "--data-root",
+                str(root),
+                "--out",
+                str(tmp_path / "zoo"),
+            ]
+        )
+        == 0
+    )
     provenance = json.loads((tmp_path / "zoo" / "protocol.json").read_text())["provenance"]
     assert provenance["class"] == "zoo.models.repeat_last.RepeatLast"
     assert provenance["registry"] == "registry.yaml" and "replaces" not in provenance

@@ -1,4 +1,5 @@
 """Forward kinematics and Rodrigues, checked against values computed by hand."""
+
 import math
 
 import numpy as np
@@ -10,9 +11,14 @@ from zoo.data.skeleton import CMU, H36M, Skeleton, forward_kinematics, rodrigues
 
 def chain() -> Skeleton:
     # root -> a (child of root: keeps its offset) -> b -> c
-    return Skeleton(name="chain4", parents=(-1, 0, 1, 2),
-                    offsets=np.array([[0, 0, 0], [0, 1, 0], [10, 0, 0], [0, 5, 0]], float),
-                    ignored=(0,), copy_to=(), copy_from=())
+    return Skeleton(
+        name="chain4",
+        parents=(-1, 0, 1, 2),
+        offsets=np.array([[0, 0, 0], [0, 1, 0], [10, 0, 0], [0, 5, 0]], float),
+        ignored=(0,),
+        copy_to=(),
+        copy_from=(),
+    )
 
 
 def test_rodrigues_quarter_turn_about_z():
@@ -30,9 +36,9 @@ def test_rodrigues_zero_is_identity():
 def test_fk_by_hand_row_vector_convention():
     sk = chain()
     e = torch.zeros(1, 4, 3, dtype=torch.float64)
-    e[0, 0] = torch.tensor([0, 0, 1.0])           # root rotation: never applied
-    e[0, 1] = torch.tensor([0, 0, math.pi / 2])   # a: +90 deg about z
-    e[0, 2] = torch.tensor([0, 0, math.pi / 2])   # b: another +90 deg about z
+    e[0, 0] = torch.tensor([0, 0, 1.0])  # root rotation: never applied
+    e[0, 1] = torch.tensor([0, 0, math.pi / 2])  # a: +90 deg about z
+    e[0, 2] = torch.tensor([0, 0, math.pi / 2])  # b: another +90 deg about z
     p = forward_kinematics(e, sk)[0]
     # a is a child of the root: p_a = offset_a, whatever its rotation.
     assert torch.allclose(p[1], torch.tensor([0, 1.0, 0], dtype=torch.float64))

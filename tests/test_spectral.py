@@ -1,4 +1,5 @@
 """Spectral basis: orthonormality, reconstruction, frequency order, topology checks, cache."""
+
 import shutil
 
 import numpy as np
@@ -105,13 +106,14 @@ def test_smooth_signals_live_in_low_frequencies():
     topo = grid(nx, ny)
     basis = SpectralBasis.compute(topo, topo.num_vertices)
     xy = grid_xy(nx, ny)
-    bumpy = np.concatenate([xy, 0.2 * (np.sin(np.pi * xy[:, :1]) *
-                                       np.cos(np.pi * xy[:, 1:]))], axis=1)
+    bumpy = np.concatenate(
+        [xy, 0.2 * (np.sin(np.pi * xy[:, :1]) * np.cos(np.pi * xy[:, 1:]))], axis=1
+    )
     noise = np.random.default_rng(0).normal(size=bumpy.shape)
     low = 16  # 16 of 256 frequencies
     for signal, lower, upper in ((bumpy, 0.995, 1.0), (noise, 0.0, 0.2)):
         c = basis.project(signal)
-        fraction = (c[:low] ** 2).sum() / (c ** 2).sum()
+        fraction = (c[:low] ** 2).sum() / (c**2).sum()
         assert lower <= fraction <= upper, fraction
     # Truncating to the low frequencies keeps the smooth shape to within a few percent.
     truncated = SpectralBasis.compute(topo, 32)
@@ -182,8 +184,9 @@ def test_corrupted_or_foreign_cache_is_an_error(tmp_path):
 
     # Another topology's basis under this topology's name: an error, not a recompute.
     path.unlink()
-    shutil.copy(SpectralBasis.load_or_compute(other, 10, tmp_path) and
-                cache_path(other, 10, tmp_path), path)
+    shutil.copy(
+        SpectralBasis.load_or_compute(other, 10, tmp_path) and cache_path(other, 10, tmp_path), path
+    )
     with pytest.raises(SpectralError, match="belongs to topology other"):
         SpectralBasis.load_or_compute(topo, 10, tmp_path)
 

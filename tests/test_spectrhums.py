@@ -3,6 +3,7 @@
 Small configurations on a small mesh: the basis is the low-frequency eigenvectors of the graph
 Laplacian of a 6 x 5 grid, computed here (the tests do not depend on zoo.data.spectral).
 """
+
 import hashlib
 import io
 
@@ -13,8 +14,13 @@ import torch.nn.functional as F
 from torch import nn
 
 from zoo.data.spectral import SpectralBasis
-from zoo.models.spectrhums import EncoderLayer, SpecTrHuMS, SpecTrHuMSError, SpectralAutoencoder, \
-    Welford
+from zoo.models.spectrhums import (
+    EncoderLayer,
+    SpectralAutoencoder,
+    SpecTrHuMS,
+    SpecTrHuMSError,
+    Welford,
+)
 from zoo.registry import load_registry
 from zoo.train import learning_rate, training_recipe
 
@@ -37,8 +43,9 @@ class GridBasis(SpectralBasis):
                 if r + 1 < rows:
                     a[i, i + cols] = a[i + cols, i] = 1
         values, vecs = np.linalg.eigh(np.diag(a.sum(1)) - a)
-        super().__init__(hashlib.sha256(a.tobytes()).hexdigest(), values[:k], vecs[:, :k],
-                         f"grid{rows}x{cols}")
+        super().__init__(
+            hashlib.sha256(a.tobytes()).hexdigest(), values[:k], vecs[:, :k], f"grid{rows}x{cols}"
+        )
 
 
 BASIS = GridBasis()
@@ -83,6 +90,7 @@ def all_coefficients():
 
 # ---- statistics --------------------------------------------------------------------------------
 
+
 def test_welford_equals_numpy_over_uneven_batches():
     rng = np.random.default_rng(0)
     rows = rng.normal(5.0, 3.0, size=(101, 4, 3))
@@ -117,12 +125,22 @@ def test_start_epoch_on_counted_frames_equals_the_repeated_frames():
     counts = torch.arange(20) % 4  # some frames in no window at all
     counted, repeated = make(), make()
     counted.start_epoch(2, lambda: iter([(distinct, counts)]))
-    repeated.start_epoch(2, lambda: iter([(distinct.repeat_interleave(counts, 0),
-                                           torch.ones(int(counts.sum()), dtype=torch.int64))]))
+    repeated.start_epoch(
+        2,
+        lambda: iter(
+            [
+                (
+                    distinct.repeat_interleave(counts, 0),
+                    torch.ones(int(counts.sum()), dtype=torch.int64),
+                )
+            ]
+        ),
+    )
     assert int(counted.coeff_frames) == int(repeated.coeff_frames) == int(counts.sum())
     for name in ("coeff_mean", "coeff_std", "latent_mean", "latent_std"):
-        torch.testing.assert_close(getattr(counted, name), getattr(repeated, name),
-                                   rtol=1e-5, atol=1e-5)
+        torch.testing.assert_close(
+            getattr(counted, name), getattr(repeated, name), rtol=1e-5, atol=1e-5
+        )
 
 
 def test_start_epoch_statistics_equal_numpy_over_the_training_frames():
@@ -159,26 +177,32 @@ def test_coefficient_standardisation_round_trip():
     model = trained_stats(make(), epoch=0)
     coeffs = all_coefficients().float()
     std = model.standardise_coefficients(coeffs)
-    torch.testing.assert_close(model.destandardise_coefficients(std), coeffs, rtol=1e-5,
-                               atol=1e-3)
+    torch.testing.assert_close(model.destandardise_coefficients(std), coeffs, rtol=1e-5, atol=1e-3)
     torch.testing.assert_close(std.mean(0), torch.zeros(BASIS.k, 3), rtol=0, atol=1e-4)
     torch.testing.assert_close(std.std(0), torch.ones(BASIS.k, 3), rtol=1e-4, atol=1e-4)
 
 
 # ---- the basis -----------------------------------------------------------------------------------
 
+
 def test_projection_and_reconstruction_are_single_matrix_products():
     model = make()
     vertices = motion(3)
     coeffs = model.project(vertices)
-    torch.testing.assert_close(coeffs.double(), BASIS.project(vertices.double()), rtol=1e-5,
-                               atol=1e-3)
-    torch.testing.assert_close(model.reconstruct(coeffs).double(),
-                               BASIS.reconstruct(coeffs.double()), rtol=1e-5, atol=1e-3)
-    torch.testing.assert_close(model._project_frames(vertices[:, :T_IN], vertices[:, T_IN:]),
-                               coeffs)
-    for fn, args in ((model.project, (vertices,)), (model.reconstruct, (coeffs,)),
-                     (model._project_frames, (vertices[:, :T_IN], vertices[:, T_IN:]))):
+    torch.testing.assert_close(
+        coeffs.double(), BASIS.project(vertices.double()), rtol=1e-5, atol=1e-3
+    )
+    torch.testing.assert_close(
+        model.reconstruct(coeffs).double(), BASIS.reconstruct(coeffs.double()), rtol=1e-5, atol=1e-3
+    )
+    torch.testing.assert_close(
+        model._project_frames(vertices[:, :T_IN], vertices[:, T_IN:]), coeffs
+    )
+    for fn, args in (
+        (model.project, (vertices,)),
+        (model.reconstruct, (coeffs,)),
+        (model._project_frames, (vertices[:, :T_IN], vertices[:, T_IN:])),
+    ):
         with torch.profiler.profile() as prof:
             fn(*args)
         names = [e.name for e in prof.events()]
@@ -207,6 +231,7 @@ def test_bfloat16_autocast_keeps_the_basis_products_and_decoder_output_in_float3
 
 # ---- the architecture ----------------------------------------------------------------------------
 
+
 def test_autoencoder_equals_its_layers_applied_one_after_the_other():
     torch.manual_seed(0)
     ae = SpectralAutoencoder(40, [4, 8], [16, 8], 3, 24).double()
@@ -228,13 +253,19 @@ def test_autoencoder_equals_its_layers_applied_one_after_the_other():
 def test_encoder_layer_equals_torch_post_norm_layer():
     torch.manual_seed(0)
     mine = EncoderLayer(16, 4, 32, 0.0).double()
-    ref = nn.TransformerEncoderLayer(16, 4, 32, 0.0, activation="gelu", batch_first=True,
-                                     norm_first=False).double()
+    ref = nn.TransformerEncoderLayer(
+        16, 4, 32, 0.0, activation="gelu", batch_first=True, norm_first=False
+    ).double()
     with torch.no_grad():
         ref.self_attn.in_proj_weight.copy_(mine.qkv.weight)
         ref.self_attn.in_proj_bias.copy_(mine.qkv.bias)
-        for a, b in ((ref.self_attn.out_proj, mine.attn_out), (ref.linear1, mine.ff1),
-                     (ref.linear2, mine.ff2), (ref.norm1, mine.norm1), (ref.norm2, mine.norm2)):
+        for a, b in (
+            (ref.self_attn.out_proj, mine.attn_out),
+            (ref.linear1, mine.ff1),
+            (ref.linear2, mine.ff2),
+            (ref.norm1, mine.norm1),
+            (ref.norm2, mine.norm2),
+        ):
             a.weight.copy_(b.weight)
             a.bias.copy_(b.bias)
     x = torch.randn(3, 9, 16, dtype=torch.float64)
@@ -244,20 +275,22 @@ def test_encoder_layer_equals_torch_post_norm_layer():
 def test_published_configuration_has_six_million_parameters():
     q, _ = np.linalg.qr(np.random.default_rng(0).standard_normal((600, 512)))
     basis = type("B", (), {"vectors": q, "hash": "random600x512", "k": 512})()
-    model = load_registry().create_model("spectrhums", input_frames=50, output_frames=25,
-                                         num_points=600, basis=basis)
+    model = load_registry().create_model(
+        "spectrhums", input_frames=50, output_frames=25, num_points=600, basis=basis
+    )
     assert sum(p.numel() for p in model.parameters()) == 6_006_755  # public code: 6.0 M
     assert sum(p.numel() for p in model.transformer.parameters()) == 4_870_144
 
 
 # ---- the window the transformer sees --------------------------------------------------------
 
+
 def test_prediction_output_ignores_the_future_frames_of_the_window():
     model = make().eval()
     z = torch.randn(2, W, SMALL["latent"])
     masked = model.masked_window(z)
     assert torch.equal(masked[:, :T_IN], z[:, :T_IN])
-    assert torch.equal(masked[:, T_IN:], z[:, T_IN - 1:T_IN].expand(-1, T_OUT, -1))
+    assert torch.equal(masked[:, T_IN:], z[:, T_IN - 1 : T_IN].expand(-1, T_OUT, -1))
     assert model.known_frames.tolist() == [True] * T_IN + [False] * T_OUT
     changed = z.clone()
     changed[:, T_IN:] += torch.randn(2, T_OUT, SMALL["latent"])
@@ -274,12 +307,12 @@ def test_completion_output_follows_the_final_frame_not_the_frames_in_between():
     z = torch.randn(2, W, SMALL["latent"])
     masked = model.masked_window(z)
     alpha = torch.arange(1, T_OUT + 1) / T_OUT
-    expected = z[:, T_IN - 1:T_IN] + alpha[:, None] * (z[:, -1:] - z[:, T_IN - 1:T_IN])
+    expected = z[:, T_IN - 1 : T_IN] + alpha[:, None] * (z[:, -1:] - z[:, T_IN - 1 : T_IN])
     torch.testing.assert_close(masked[:, T_IN:], expected)
     assert torch.equal(masked[:, -1], z[:, -1])
     assert model.known_frames.tolist() == [True] * T_IN + [False] * (T_OUT - 1) + [True]
     between, final = z.clone(), z.clone()
-    between[:, T_IN:W - 1] += 5.0
+    between[:, T_IN : W - 1] += 5.0
     final[:, -1] += 1.0
     with torch.no_grad():
         out = model.transform_window(z)
@@ -308,12 +341,13 @@ def test_training_feeds_the_transformer_the_masked_window(task):
         target = model.standardise_latents(model.encode(model.project(window)))
     torch.testing.assert_close(seen[0], model.masked_window(target))
     changed = window.clone()
-    changed[:, T_IN:W - 1] += 100.0  # frames the model must not see
+    changed[:, T_IN : W - 1] += 100.0  # frames the model must not see
     model.loss_terms(changed[:, :T_IN], changed[:, T_IN:])
     torch.testing.assert_close(seen[1], seen[0])
 
 
 # ---- phases and gradients ------------------------------------------------------------------------
+
 
 def _grads(loss, params):
     return torch.autograd.grad(loss, list(params), retain_graph=True, allow_unused=True)
@@ -330,16 +364,19 @@ def test_autoencoder_trains_alone_for_the_first_two_epochs():
         loss = model.training_loss(window[:, :T_IN], window[:, T_IN:])
         loss.backward()
         assert all(p.grad is None for p in model.transformer.parameters())
-        assert all(p.grad is not None and p.grad.abs().sum() > 0
-                   for p in model.autoencoder.parameters())
+        assert all(
+            p.grad is not None and p.grad.abs().sum() > 0 for p in model.autoencoder.parameters()
+        )
 
     model.start_epoch(2, frames)
     terms = model.loss_terms(window[:, :T_IN], window[:, T_IN:])
     assert terms["dynamic"] is not None and terms["dynamic"] > 0
     # the dynamic loss never reaches the autoencoder, the static loss never the transformer
     assert all(g is None for g in _grads(terms["dynamic"], model.autoencoder.parameters()))
-    assert all(g is not None and g.abs().sum() > 0
-               for g in _grads(terms["dynamic"], model.transformer.parameters()))
+    assert all(
+        g is not None and g.abs().sum() > 0
+        for g in _grads(terms["dynamic"], model.transformer.parameters())
+    )
     assert all(g is None for g in _grads(terms["static"], model.transformer.parameters()))
     torch.manual_seed(5)
     total = model.training_loss(window[:, :T_IN], window[:, T_IN:])
@@ -372,13 +409,15 @@ def test_engine_like_loop_leaves_the_transformer_alone_until_epoch_three():
             loss.backward()
             opt.step()
             losses.append(loss.item())
-        moved = any(not torch.equal(p, snapshot[n])
-                    for n, p in model.transformer.named_parameters())
+        moved = any(
+            not torch.equal(p, snapshot[n]) for n, p in model.transformer.named_parameters()
+        )
         assert moved == (epoch == 2)
     assert all(np.isfinite(losses))
 
 
 # ---- inference -----------------------------------------------------------------------------------
+
 
 def test_forward_shapes_and_rollout_feeds_predictions_back():
     model = trained_stats(make()).double().eval()
@@ -394,8 +433,9 @@ def test_forward_shapes_and_rollout_feeds_predictions_back():
             step = model(seen[:, -T_IN:])
             frames.append(step)
             seen = torch.cat([seen, step], dim=1)
-        torch.testing.assert_close(long, torch.cat(frames, 1)[:, :2 * T_OUT + 1], rtol=1e-6,
-                                   atol=1e-4)
+        torch.testing.assert_close(
+            long, torch.cat(frames, 1)[:, : 2 * T_OUT + 1], rtol=1e-6, atol=1e-4
+        )
 
 
 def test_output_is_the_decoded_prediction_in_vertices():
@@ -409,17 +449,25 @@ def test_output_is_the_decoded_prediction_in_vertices():
 
 # ---- errors --------------------------------------------------------------------------------------
 
+
 def test_errors_name_the_argument_and_what_was_expected():
     model = make()
-    with pytest.raises(SpecTrHuMSError, match=rf"history: {T_IN - 1} frames, expected {T_IN} "
-                                              rf"\(the model's window is {W}"):
+    with pytest.raises(
+        SpecTrHuMSError,
+        match=rf"history: {T_IN - 1} frames, expected {T_IN} "
+        rf"\(the model's window is {W}",
+    ):
         model(motion(1, frames=T_IN - 1))
-    with pytest.raises(SpecTrHuMSError, match=r"training frames: expected vertices "
-                                              r"\(B, T, 30, 3\)"):
+    with pytest.raises(
+        SpecTrHuMSError,
+        match=r"training frames: expected vertices "
+        r"\(B, T, 30, 3\)",
+    ):
         model.start_epoch(0, lambda: iter([(motion(2), torch.ones(2, dtype=torch.int64))]))
     with pytest.raises(SpecTrHuMSError, match=r"training frames: \(3,\) counts for 4 frames"):
-        model.start_epoch(0, lambda: iter([(motion(1, frames=4)[0],
-                                            torch.ones(3, dtype=torch.int64))]))
+        model.start_epoch(
+            0, lambda: iter([(motion(1, frames=4)[0], torch.ones(3, dtype=torch.int64))])
+        )
     with pytest.raises(SpecTrHuMSError, match=r"expected vertices \(B, T, 30, 3\)"):
         model(torch.zeros(1, T_IN, V + 1, 3))
     with pytest.raises(SpecTrHuMSError, match=r"basis: 30 vertices .* but num_points=31"):
@@ -429,18 +477,23 @@ def test_errors_name_the_argument_and_what_was_expected():
         SpecTrHuMS(T_IN, T_OUT, V, skewed, **SMALL)
     with pytest.raises(SpecTrHuMSError, match="basis: expected a spectral basis"):
         SpecTrHuMS(T_IN, T_OUT, V, None, **SMALL)
-    with pytest.raises(SpecTrHuMSError, match="task: 'forecast' unknown; valid: prediction, "
-                                              "completion"):
+    with pytest.raises(
+        SpecTrHuMSError, match="task: 'forecast' unknown; valid: prediction, completion"
+    ):
         make("forecast")
     with pytest.raises(SpecTrHuMSError, match="channels .* and pooling"):
         make(channels=(4, 8, 16))
     with pytest.raises(SpecTrHuMSError, match="call start_epoch"):
         model.training_loss(motion(1)[:, :T_IN], motion(1)[:, T_IN:])
-    with pytest.raises(SpecTrHuMSError, match=r"final_frame: this model was trained for "
-                                              r"prediction"):
+    with pytest.raises(
+        SpecTrHuMSError,
+        match=r"final_frame: this model was trained for "
+        r"prediction",
+    ):
         model(motion(1)[:, :T_IN], final_frame=motion(1)[:, -1])
-    with pytest.raises(SpecTrHuMSError, match="history: 4 frames, shorter than the model's "
-                                              "input_frames=6"):
+    with pytest.raises(
+        SpecTrHuMSError, match="history: 4 frames, shorter than the model's input_frames=6"
+    ):
         model.rollout(motion(1, frames=4), 10)
     completion = make("completion")
     with pytest.raises(SpecTrHuMSError, match="final_frame is required"):
@@ -453,14 +506,22 @@ def test_errors_name_the_argument_and_what_was_expected():
 
 # ---- checkpoints ---------------------------------------------------------------------------------
 
+
 def test_checkpoint_round_trip_keeps_the_standardisation_buffers():
     model = trained_stats(make(seed=0)).eval()
     buf = io.BytesIO()
     torch.save(model.state_dict(), buf)
     buf.seek(0)
     state = torch.load(buf, weights_only=True)
-    for name in ("coeff_mean", "coeff_std", "coeff_frames", "latent_mean", "latent_std",
-                 "latent_frames", "basis_id"):
+    for name in (
+        "coeff_mean",
+        "coeff_std",
+        "coeff_frames",
+        "latent_mean",
+        "latent_std",
+        "latent_frames",
+        "basis_id",
+    ):
         assert name in state
     assert "phi" not in state  # the basis travels with the data, by hash
     fresh = make(seed=1).eval()
@@ -491,8 +552,9 @@ def test_weights_check_the_numbers_of_their_basis_not_only_its_name():
     rounded = recomputed(BASIS, BASIS.vectors + noise)
     assert rounded.hash == BASIS.hash and rounded.checksum != BASIS.checksum
     model = make(basis=rounded, seed=1).eval()
-    model.load_state_dict({k: v.half().float() if k == "basis_probe" else v
-                           for k, v in state.items()})
+    model.load_state_dict(
+        {k: v.half().float() if k == "basis_probe" else v for k, v in state.items()}
+    )
     reference = make(seed=2).eval()
     reference.load_state_dict(state)
     with torch.no_grad():
@@ -505,8 +567,10 @@ def test_weights_check_the_numbers_of_their_basis_not_only_its_name():
     # ... or two eigenvectors mixed (a rotated eigenspace)
     mixed = BASIS.vectors.copy()
     c, s = np.cos(0.3), np.sin(0.3)
-    mixed[:, 5], mixed[:, 6] = c * BASIS.vectors[:, 5] + s * BASIS.vectors[:, 6], \
-        -s * BASIS.vectors[:, 5] + c * BASIS.vectors[:, 6]
+    mixed[:, 5], mixed[:, 6] = (
+        c * BASIS.vectors[:, 5] + s * BASIS.vectors[:, 6],
+        -s * BASIS.vectors[:, 5] + c * BASIS.vectors[:, 6],
+    )
     with pytest.raises(SpecTrHuMSError, match="another rotation"):
         make(basis=recomputed(BASIS, mixed)).load_state_dict(state)
     # Weights exported before the probe existed cannot be checked: refused, saying what to do.
@@ -516,12 +580,20 @@ def test_weights_check_the_numbers_of_their_basis_not_only_its_name():
 
 # ---- registry ------------------------------------------------------------------------------------
 
+
 def test_registry_entries_and_recipe():
     registry = load_registry()
-    pred = registry.create_model("spectrhums", input_frames=T_IN, output_frames=T_OUT,
-                                 num_points=V, basis=BASIS, **SMALL)
-    comp = registry.create_model("spectrhums_completion", input_frames=T_IN,
-                                 output_frames=T_OUT, num_points=V, basis=BASIS, **SMALL)
+    pred = registry.create_model(
+        "spectrhums", input_frames=T_IN, output_frames=T_OUT, num_points=V, basis=BASIS, **SMALL
+    )
+    comp = registry.create_model(
+        "spectrhums_completion",
+        input_frames=T_IN,
+        output_frames=T_OUT,
+        num_points=V,
+        basis=BASIS,
+        **SMALL,
+    )
     assert (pred.task, comp.task) == ("prediction", "completion")
     assert pred.k == BASIS.k and pred.window == W
     for name in ("spectrhums", "spectrhums_completion"):

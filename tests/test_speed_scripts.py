@@ -2,6 +2,7 @@
 ``main`` runs end to end at the smallest sizes (tiny models, one repeat): a smoke test of the
 scripts, not of the figures they print. speed_anny needs the ``anny`` package and the CMU BVH
 data, and a warm anny cache (test_anny.py builds it) to take seconds rather than minutes."""
+
 import importlib.util
 from pathlib import Path
 
@@ -11,8 +12,14 @@ import torch
 REPO = Path(__file__).resolve().parents[1]
 SPEED = REPO / "benchmarks" / "speed"
 CMU_BVH = REPO.parent / "shared" / "data" / "cmu_bvh"
-SCRIPTS = ["public_spgsn", "speed_anny", "speed_eval", "speed_spectral", "speed_spectrhums",
-           "speed_spgsn"]
+SCRIPTS = [
+    "public_spgsn",
+    "speed_anny",
+    "speed_eval",
+    "speed_spectral",
+    "speed_spectrhums",
+    "speed_spgsn",
+]
 
 
 def load(name: str):
@@ -45,8 +52,9 @@ def test_importing_does_no_work(name, capsys):
 
 
 def test_public_spgsn(capsys):
-    load("public_spgsn").main(["--steps", "1", "--batch-size", "2", "--num-stage", "1",
-                               "--hidden", "16"])
+    load("public_spgsn").main(
+        ["--steps", "1", "--batch-size", "2", "--num-stage", "1", "--hidden", "16"]
+    )
     assert "training step, batch 2" in capsys.readouterr().out
 
 
@@ -58,8 +66,9 @@ def test_speed_eval(swinging_cmu, capsys):
 
 
 def test_speed_spectral(capsys):
-    load("speed_spectral").main(["--k", "16", "--repeats", "1", "--sphere", "8", "10",
-                                 "--cloth-sequences", "2"])
+    load("speed_spectral").main(
+        ["--k", "16", "--repeats", "1", "--sphere", "8", "10", "--cloth-sequences", "2"]
+    )
     out = capsys.readouterr().out
     assert "uv_sphere_82" in out and "batch of 2 sequences" in out and "ratio" in out
 
@@ -77,8 +86,10 @@ def test_speed_spgsn(capsys):
     assert "public code" in out and "== mlp ==" in out and "aim (>=" in out
 
 
-@pytest.mark.skipif(importlib.util.find_spec("anny") is None,
-                    reason="the anny package is not installed (pip install anny==0.6.2)")
+@pytest.mark.skipif(
+    importlib.util.find_spec("anny") is None,
+    reason="the anny package is not installed (pip install anny==0.6.2)",
+)
 @pytest.mark.skipif(not CMU_BVH.is_dir(), reason=f"CMU BVH data not found at {CMU_BVH}")
 def test_speed_anny(capsys):
     load("speed_anny").main(["--trial", "09_03", "--frames", "8", "--batch", "4"])

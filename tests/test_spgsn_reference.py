@@ -17,14 +17,15 @@ Checked:
   fusion, with the fusion's two softmaxes swapped, and with the upper part reading the already
   updated lower part; and removing the model's fusion gives the reference without fusion.
 """
+
 from __future__ import annotations
 
 import copy
 
 import pytest
 import torch
-
 from test_models_skeleton import motion
+
 from zoo.models.spgsn import MM_PER_M, SPGSN, ScatteringBlock
 
 INPUT_FRAMES, OUTPUT_FRAMES, DCT_N = 6, 4, 8  # dct_n < 10 frames: the truncation is exercised
@@ -37,6 +38,7 @@ FUSIONS = ("paper", "none", "transposed", "sequential")
 
 
 # ---- the reference ------------------------------------------------------------------------------
+
 
 def dense(layer: torch.nn.Linear, x: torch.Tensor) -> torch.Tensor:
     """``x W^T + b`` of an ``nn.Linear``, written out."""
@@ -69,18 +71,23 @@ def reference_filters(model: SPGSN, part: str, block: int) -> list[torch.Tensor]
     a = model.filter_coefficients[block]
     graph = model.graphs[part][block]
     eye = torch.eye(len(graph), dtype=graph.dtype)
-    tilde = (eye + graph / (graph ** 2).sum()) / 2
+    tilde = (eye + graph / (graph**2).sum()) / 2
     filters = [a[0, 0] * graph]
     if order >= 1:
         filters.append(a[1, 1] * eye + a[1, 2] * tilde)
     for k in range(2, order + 1):
-        filters.append(sum(a[k, j + 1] * torch.linalg.matrix_power(tilde, 2 ** (j - 1))
-                           for j in range(1, k + 1)))
+        filters.append(
+            sum(
+                a[k, j + 1] * torch.linalg.matrix_power(tilde, 2 ** (j - 1))
+                for j in range(1, k + 1)
+            )
+        )
     return filters
 
 
-def scattering_leaves(block: ScatteringBlock, x: torch.Tensor,
-                      filters: list[torch.Tensor]) -> list[torch.Tensor]:
+def scattering_leaves(
+    block: ScatteringBlock, x: torch.Tensor, filters: list[torch.Tensor]
+) -> list[torch.Tensor]:
     """The tree: every node ``U`` (the root is ``x``, node x channel) has the children
     ``tanh(h_k U W_k)``, one weight per layer and filter; returns the ``(K+1)^L`` leaves."""
     layer_weights = [[block.first_weight[:, k] for k in range(len(filters))]]
@@ -103,8 +110,10 @@ def spectrum_aggregation(block: ScatteringBlock, leaves: list[torch.Tensor]) -> 
     h_sp = torch.relu((sum(leaves) / len(leaves)) @ block.spectrum.weight.T)
     assert block.spectrum.bias is None  # W_sp is a plain matrix
     sp_term = dense(block.attention_sp, h_sp)
-    scores = [dense(block.attention_out, torch.tanh(sp_term + dense(block.attention_leaf, h)))
-              for h in leaves]  # each (N_p, 1)
+    scores = [
+        dense(block.attention_out, torch.tanh(sp_term + dense(block.attention_leaf, h)))
+        for h in leaves
+    ]  # each (N_p, 1)
     out = torch.zeros_like(leaves[0])
     for n in range(len(out)):
         node_scores = torch.stack([s[n, 0] for s in scores])
@@ -115,8 +124,9 @@ def spectrum_aggregation(block: ScatteringBlock, leaves: list[torch.Tensor]) -> 
     return out
 
 
-def fuse(block: ScatteringBlock, upper: torch.Tensor, lower: torch.Tensor,
-         mode: str) -> tuple[torch.Tensor, torch.Tensor]:
+def fuse(
+    block: ScatteringBlock, upper: torch.Tensor, lower: torch.Tensor, mode: str
+) -> tuple[torch.Tensor, torch.Tensor]:
     """Bipartite fusion of one sample; affinity ``M = f_up(H_up) f_low(H_low)^T`` (upper x lower).
 
     ``paper``: each lower node takes the upper nodes weighed by the softmax of its column of M
@@ -137,19 +147,25 @@ def fuse(block: ScatteringBlock, upper: torch.Tensor, lower: torch.Tensor,
     if mode == "transposed":
         over_upper, over_lower = over_lower, over_upper
     new_lower = lower.clone()
-    for l in range(len(lower)):
+    for lo in range(len(lower)):
         for u in range(len(upper)):
-            new_lower[l] += over_upper[u, l] * upper[u]
+            new_lower[lo] += over_upper[u, lo] * upper[u]
     source = new_lower if mode == "sequential" else lower
     new_upper = upper.clone()
     for u in range(len(upper)):
-        for l in range(len(lower)):
-            new_upper[u] += over_lower[u, l] * source[l]
+        for lo in range(len(lower)):
+            new_upper[u] += over_lower[u, lo] * source[lo]
     return new_upper, new_lower
 
 
-def reference_block(block: ScatteringBlock, model: SPGSN, index: int, h: torch.Tensor,
-                    rows: dict[str, list[int]], fusion: str) -> torch.Tensor:
+def reference_block(
+    block: ScatteringBlock,
+    model: SPGSN,
+    index: int,
+    h: torch.Tensor,
+    rows: dict[str, list[int]],
+    fusion: str,
+) -> torch.Tensor:
     """One block on one sample ``h`` (node x channel), without its skip connection:
     ``MLP(H_whole + (H_up' (+) H_low'))`` (dropout is off in eval mode)."""
     aggregated = {}
@@ -167,8 +183,9 @@ def reference_block(block: ScatteringBlock, model: SPGSN, index: int, h: torch.T
     return torch.relu(dense(linear, combined))
 
 
-def reference_prediction(model: SPGSN, history: torch.Tensor, parts: dict | None,
-                         fusion: str = "paper") -> torch.Tensor:
+def reference_prediction(
+    model: SPGSN, history: torch.Tensor, parts: dict | None, fusion: str = "paper"
+) -> torch.Tensor:
     """The predicted frames ``(B, T_out, P, 3)``, one sample at a time: pad by repeating the
     last frame, DCT, keep ``dct_n`` coefficients (in ``model.unit``), embed (tanh), blocks with
     skips, readout added to the coefficients, inverse DCT."""
@@ -189,14 +206,25 @@ def reference_prediction(model: SPGSN, history: torch.Tensor, parts: dict | None
 
 # ---- helpers ------------------------------------------------------------------------------------
 
-def make_model(body_parts: bool, layers: int = 2, order: int = 2, seed: int = 0,
-               **overrides) -> SPGSN:
+
+def make_model(
+    body_parts: bool, layers: int = 2, order: int = 2, seed: int = 0, **overrides
+) -> SPGSN:
     """A small SPGSN in which every path shows in the output: the zero-initialised readout and
     the diffusion-wavelet filter coefficients (many exact zeros and +-1) are randomised."""
     torch.manual_seed(seed)
-    kwargs = dict(parts=PARTS if body_parts else None, body_parts=body_parts, blocks=2,
-                  hidden=8, scattering_layers=layers, filter_order=order, dct_n=DCT_N,
-                  aggregation_dim=4, fusion_dim=4, **overrides)
+    kwargs = dict(
+        parts=PARTS if body_parts else None,
+        body_parts=body_parts,
+        blocks=2,
+        hidden=8,
+        scattering_layers=layers,
+        filter_order=order,
+        dct_n=DCT_N,
+        aggregation_dim=4,
+        fusion_dim=4,
+        **overrides,
+    )
     model = SPGSN(INPUT_FRAMES, OUTPUT_FRAMES, POINTS, **kwargs)
     with torch.no_grad():
         # a departure from repeat-last of order 100 mm, whichever unit the network works in
@@ -235,12 +263,16 @@ def max_difference(a: torch.Tensor, b: torch.Tensor) -> float:
 
 # ---- 1. the forward pass ------------------------------------------------------------------------
 
-@pytest.mark.parametrize("layers, order, metre_inputs", [
-    (2, 2, True),  # the paper's tree: 9 leaves
-    (3, 1, True),  # a deeper tree (8 leaves): two deeper layers, each with its own weights
-    (2, 3, False),  # h_3 = sum_j a_3j A~^(2^(j-1)), up to A~^4; coefficients in mm
-    (1, 2, True),  # no deeper layer: the leaves are the first layer
-])
+
+@pytest.mark.parametrize(
+    "layers, order, metre_inputs",
+    [
+        (2, 2, True),  # the paper's tree: 9 leaves
+        (3, 1, True),  # a deeper tree (8 leaves): two deeper layers, each with its own weights
+        (2, 3, False),  # h_3 = sum_j a_3j A~^(2^(j-1)), up to A~^4; coefficients in mm
+        (1, 2, True),  # no deeper layer: the leaves are the first layer
+    ],
+)
 @pytest.mark.parametrize("body_parts", [True, False])
 def test_spgsn_forward_matches_the_equations(body_parts, layers, order, metre_inputs):
     model = make_model(body_parts, layers, order, metre_inputs=metre_inputs)
@@ -274,8 +306,10 @@ def test_one_backward_pass_reaches_every_parameter(body_parts):
     observed = observed_motion()
     future = motion(2, OUTPUT_FRAMES, points=POINTS, seed=6).double()
     model.training_loss(observed, future).backward()
-    grads = {name: torch.zeros_like(p) if p.grad is None else p.grad
-             for name, p in model.named_parameters()}
+    grads = {
+        name: torch.zeros_like(p) if p.grad is None else p.grad
+        for name, p in model.named_parameters()
+    }
     zero = 1e-12 * max(g.abs().max().item() for g in grads.values())
     mask = model.coefficient_mask.bool()
     unreached, not_cancelled = [], []
@@ -297,6 +331,7 @@ def test_one_backward_pass_reaches_every_parameter(body_parts):
 
 
 # ---- 3. the cross-part fusion -------------------------------------------------------------------
+
 
 def test_fusion_is_the_stated_bipartite_exchange(monkeypatch):
     model = as_float64(make_model(body_parts=True))

@@ -1,6 +1,7 @@
 """The results store: a result's identity is what was measured; nothing of another identity is
 replaced silently; the leaderboard reuses what still holds, recomputes what is new or stale, and
 never deletes a row it did not make."""
+
 import json
 import shutil
 import textwrap
@@ -10,9 +11,9 @@ import numpy as np
 import pandas as pd
 import pytest
 import torch
-
 from conftest import write_cmu_file
 from tiny_models import REGISTRY
+
 from zoo.cli import main
 from zoo.registry import Registry
 from zoo.train import train
@@ -46,21 +47,25 @@ def project(tmp_path):
     root = tmp_path / "cmu"
     for split, n in (("train", 2), ("test", 1)):
         for i in range(1, n + 1):
-            write_cmu_file(root / split / "walking" / f"walking_{i}.txt",
-                           0.01 * i * np.arange(800) + 0.002 * np.sin(np.arange(800) / 7))
+            write_cmu_file(
+                root / split / "walking" / f"walking_{i}.txt",
+                0.01 * i * np.arange(800) + 0.002 * np.sin(np.arange(800) / 7),
+            )
     (tmp_path / "tiny").mkdir()
     (tmp_path / "tiny" / "registry.yaml").write_text(REGISTRY)
     shutil.copy(HERE / "tiny_models.py", tmp_path / "tiny" / "tiny_models.py")
     (tmp_path / "mine").mkdir()
     (tmp_path / "mine" / "baselines.py").write_text(CONSTANT_VELOCITY)
-    (tmp_path / "mine" / "registry.yaml").write_text(textwrap.dedent("""\
+    (tmp_path / "mine" / "registry.yaml").write_text(
+        textwrap.dedent("""\
         models:
           constant_velocity:
             class: baselines.py:ConstantVelocity
             representation: joints
             hparams: {damping: 1.0}
             reference: my own baseline
-        """))
+        """)
+    )
     return tmp_path
 
 
@@ -71,8 +76,18 @@ def cli(capsys, *args):
 
 
 def board_args(project, *registries):
-    out = ["--benchmark", "cmu", "--data-root", project / "cmu", "--out", project / "results",
-           "--weights", project / "weights", "--checkpoints", project / "no-checkpoints"]
+    out = [
+        "--benchmark",
+        "cmu",
+        "--data-root",
+        project / "cmu",
+        "--out",
+        project / "results",
+        "--weights",
+        project / "weights",
+        "--checkpoints",
+        project / "no-checkpoints",
+    ]
     for registry in registries:
         out += ["--registry", project / registry / "registry.yaml"]
     return out
@@ -82,11 +97,20 @@ def shipped_tiny(project, epochs=1, seed=0):
     """The tiny model trained and exported as shipped weights (weights/cmu/tiny.*)."""
     from zoo.checkpoints import export_weights
 
-    registry = Registry.from_files(HERE.parent / "registry.yaml",
-                                   project / "tiny" / "registry.yaml")
+    registry = Registry.from_files(
+        HERE.parent / "registry.yaml", project / "tiny" / "registry.yaml"
+    )
     run = project / "checkpoints" / f"seed{seed}"
-    best = train("tiny", "cmu", registry=registry, data_root=project / "cmu", epochs=epochs,
-                 seed=seed, progress=False, out_dir=run)
+    best = train(
+        "tiny",
+        "cmu",
+        registry=registry,
+        data_root=project / "cmu",
+        epochs=epochs,
+        seed=seed,
+        progress=False,
+        out_dir=run,
+    )
     return export_weights(best, root=project / "weights", dtype="float32")
 
 
@@ -112,14 +136,16 @@ def test_a_users_row_survives_a_rebuild_without_its_registry(project, capsys):
 
 
 def test_a_stored_row_of_another_registry_is_never_replaced(project, capsys):
-    (project / "mine" / "registry.yaml").write_text(textwrap.dedent("""\
+    (project / "mine" / "registry.yaml").write_text(
+        textwrap.dedent("""\
         models:
           repeat_last:
             class: baselines.py:ConstantVelocity
             representation: joints
             override: true
             reference: a user's own row under a zoo name
-        """))
+        """)
+    )
     assert cli(capsys, "leaderboard", *board_args(project, "mine"))[0] == 0
     stored = project / "results" / "cmu" / "all" / "repeat_last" / "results.csv"
     before = stored.read_bytes()
@@ -129,8 +155,18 @@ def test_a_stored_row_of_another_registry_is_never_replaced(project, capsys):
 
 
 def eval_args(project, *extra):
-    return ["eval", "--registry", project / "mine" / "registry.yaml", "--model",
-            "constant_velocity", "--sampler", "ltd8", "--results", project / "results", *extra]
+    return [
+        "eval",
+        "--registry",
+        project / "mine" / "registry.yaml",
+        "--model",
+        "constant_velocity",
+        "--sampler",
+        "ltd8",
+        "--results",
+        project / "results",
+        *extra,
+    ]
 
 
 def test_eval_never_replaces_a_result_of_another_identity(project, capsys, tmp_path):
@@ -144,8 +180,9 @@ def test_eval_never_replaces_a_result_of_another_identity(project, capsys, tmp_p
     # other hyper-parameters: stored beside it under their own label, never in its place
     assert cli(capsys, *eval_args(project, *data, "--set", "damping=0.8"))[0] == 0
     assert (place.parent / "constant_velocity+damping=0.8" / "results.csv").is_file()
-    code, _, err = cli(capsys, *eval_args(project, *data, "--set", "damping=0.8", "--label",
-                                          "constant_velocity"))
+    code, _, err = cli(
+        capsys, *eval_args(project, *data, "--set", "damping=0.8", "--label", "constant_velocity")
+    )
     assert code == 2 and "model.hparams.damping: stored 1.0, now 0.8" in err
 
     # other data under the same benchmark name
@@ -183,28 +220,60 @@ def test_a_stale_row_is_recomputed_and_a_current_one_reused(project, capsys):
     code, _, err = cli(capsys, "leaderboard", *board_args(project, "tiny"))
     assert code == 0 and "recomputing tiny: trained.sha256: stored" in err
     assert "cmu: 2 row(s) reused, 2 recomputed" in err  # repeat_last reused on both tables
-    assert (table / "repeat_last" / "results.csv").stat().st_mtime_ns == \
-        written[table / "repeat_last" / "results.csv"]
+    assert (table / "repeat_last" / "results.csv").stat().st_mtime_ns == written[
+        table / "repeat_last" / "results.csv"
+    ]
 
 
 def test_a_user_checkpoint_names_its_registry(project, capsys):
-    registry = Registry.from_files(HERE.parent / "registry.yaml",
-                                   project / "tiny" / "registry.yaml")
-    best = train("tiny", "cmu", registry=registry, data_root=project / "cmu", epochs=1,
-                 progress=False, out_dir=project / "checkpoints" / "tiny")
+    registry = Registry.from_files(
+        HERE.parent / "registry.yaml", project / "tiny" / "registry.yaml"
+    )
+    best = train(
+        "tiny",
+        "cmu",
+        registry=registry,
+        data_root=project / "cmu",
+        epochs=1,
+        progress=False,
+        out_dir=project / "checkpoints" / "tiny",
+    )
     from zoo.checkpoints import read_checkpoint
 
     origin = read_checkpoint(best)["origin"]
     assert origin["class"] == "tiny_models.py:TinyTemporal"
     assert origin["registry"] == str(project / "tiny" / "registry.yaml")
-    code, _, err = cli(capsys, "eval", "--checkpoint", best, "--data-root", project / "cmu",
-                       "--out", project / "out")
+    code, _, err = cli(
+        capsys,
+        "eval",
+        "--checkpoint",
+        best,
+        "--data-root",
+        project / "cmu",
+        "--out",
+        project / "out",
+    )
     assert code == 2
-    assert f"holds model 'tiny' (class tiny_models.py:TinyTemporal) from registry file " \
-           f"{project / 'tiny' / 'registry.yaml'}" in err
+    assert (
+        f"holds model 'tiny' (class tiny_models.py:TinyTemporal) from registry file "
+        f"{project / 'tiny' / 'registry.yaml'}" in err
+    )
     assert f"pass --registry {project / 'tiny' / 'registry.yaml'}" in err
-    assert cli(capsys, "eval", "--checkpoint", best, "--data-root", project / "cmu", "--out",
-               project / "out", "--registry", project / "tiny" / "registry.yaml")[0] == 0
+    assert (
+        cli(
+            capsys,
+            "eval",
+            "--checkpoint",
+            best,
+            "--data-root",
+            project / "cmu",
+            "--out",
+            project / "out",
+            "--registry",
+            project / "tiny" / "registry.yaml",
+        )[0]
+        == 0
+    )
 
 
 def test_readme_add_a_constant_velocity_baseline_to_the_cmu_ltd8_leaderboard(project, capsys):
@@ -215,8 +284,9 @@ def test_readme_add_a_constant_velocity_baseline_to_the_cmu_ltd8_leaderboard(pro
     table = project / "results" / "cmu" / "ltd8"
     tiny = (table / "tiny" / "protocol.json").read_bytes()
 
-    code, out, err = cli(capsys, "leaderboard", "--model", "constant_velocity",
-                         *board_args(project, "tiny", "mine"))
+    code, out, err = cli(
+        capsys, "leaderboard", "--model", "constant_velocity", *board_args(project, "tiny", "mine")
+    )
     assert code == 0
     assert "recomputing constant_velocity: asked (--model)" in err
     assert "recomputing tiny" not in err and "recomputing repeat_last" not in err
@@ -224,8 +294,9 @@ def test_readme_add_a_constant_velocity_baseline_to_the_cmu_ltd8_leaderboard(pro
     board = (table / "leaderboard.md").read_text()
     assert "| constant_velocity " in board and "| tiny " in board
     record = json.loads((table / "constant_velocity" / "protocol.json").read_text())
-    assert record["provenance"]["identity"]["model"]["registry"] == \
-        str(project / "mine" / "registry.yaml")
+    assert record["provenance"]["identity"]["model"]["registry"] == str(
+        project / "mine" / "registry.yaml"
+    )
 
 
 def test_python_results_carry_the_command_lines_identity(project, capsys):
@@ -233,10 +304,12 @@ def test_python_results_carry_the_command_lines_identity(project, capsys):
 
     assert cli(capsys, *eval_args(project, "--data-root", project / "cmu"))[0] == 0
     stored = zoo.load_results("cmu", sampler="ltd8", root=project / "results")
-    registry = Registry.from_files(HERE.parent / "registry.yaml",
-                                   project / "mine" / "registry.yaml")
-    result = zoo.evaluate("constant_velocity", "cmu", sampler="ltd8", registry=registry,
-                          data_root=project / "cmu")
+    registry = Registry.from_files(
+        HERE.parent / "registry.yaml", project / "mine" / "registry.yaml"
+    )
+    result = zoo.evaluate(
+        "constant_velocity", "cmu", sampler="ltd8", registry=registry, data_root=project / "cmu"
+    )
     assert result.identity == stored["constant_velocity"].identity
     assert result.summary().shape[1] == 25
 

@@ -1,13 +1,14 @@
 """The evaluator's tasks (prediction, completion, long-term) as protocol elements."""
+
 import numpy as np
 import pytest
 import torch
-
 from test_evaluator import expected_repeat_last
+
+from zoo import create_model
 from zoo.benchmark import get_benchmark
 from zoo.cli import main
 from zoo.evaluate import EvaluationError, evaluate, predict
-from zoo import create_model
 
 
 class LastTwoFramesModel(torch.nn.Module):
@@ -27,16 +28,32 @@ def test_generic_longterm_loop_feeds_predictions_back():
 def test_longterm_repeat_last_by_hand(swinging_cmu):
     root, omega = swinging_cmu
     bench = get_benchmark("cmu")
-    result = evaluate(create_model("repeat_last", benchmark=bench), bench, model_name="rl",
-                      sampler="all", data_root=root, task="longterm", horizon=40)
-    df = result.frame[(result.frame.joints == "all38") & (result.frame.averaging == "frame") &
-                      (result.frame.action == "average")].sort_values("frame")
+    result = evaluate(
+        create_model("repeat_last", benchmark=bench),
+        bench,
+        model_name="rl",
+        sampler="all",
+        data_root=root,
+        task="longterm",
+        horizon=40,
+    )
+    df = result.frame[
+        (result.frame.joints == "all38")
+        & (result.frame.averaging == "frame")
+        & (result.frame.action == "average")
+    ].sort_values("frame")
     assert df.horizon_ms.max() == 1600 and set(result.frame.task) == {"longterm"}
-    np.testing.assert_allclose(df.value, expected_repeat_last(omega, np.arange(1, 41)) / 38,
-                               rtol=1e-5)
+    np.testing.assert_allclose(
+        df.value, expected_repeat_last(omega, np.arange(1, 41)) / 38, rtol=1e-5
+    )
     assert result.protocol["predicted_frames"] == 40
-    short = evaluate(create_model("repeat_last", benchmark=bench), bench, model_name="rl",
-                     sampler="all", data_root=root)
+    short = evaluate(
+        create_model("repeat_last", benchmark=bench),
+        bench,
+        model_name="rl",
+        sampler="all",
+        data_root=root,
+    )
     assert short.protocol["protocol_id"] != result.protocol["protocol_id"]
 
 
@@ -48,6 +65,20 @@ def test_task_errors_are_named(swinging_cmu, capsys):
         evaluate(model, bench, model_name="rl", data_root=root, task="completion")
     with pytest.raises(EvaluationError, match="longterm needs a horizon of more than"):
         evaluate(model, bench, model_name="rl", data_root=root, task="longterm")
-    assert main(["eval", "--model", "repeat_last", "--data-root", str(root), "--task",
-                 "longterm", "--horizon-frames", "20"]) == 2
+    assert (
+        main(
+            [
+                "eval",
+                "--model",
+                "repeat_last",
+                "--data-root",
+                str(root),
+                "--task",
+                "longterm",
+                "--horizon-frames",
+                "20",
+            ]
+        )
+        == 2
+    )
     assert "got 20" in capsys.readouterr().err

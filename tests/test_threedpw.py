@@ -1,6 +1,7 @@
 """3DPW: sequence files written here in the exact format (Python pickles of dicts with
 ``jointPositions``), read by the restricted unpickler; the benchmark scores them as LTD / SPGSN
 do (root-centred, 23 joints, 10 observed, 30 predicted, windows cut as if 50 were observed)."""
+
 import os
 import pickle
 
@@ -29,13 +30,17 @@ def write_sequence(path, tracks):
     """A 3DPW sequence file: the keys the dataset ships, jointPositions one array per actor."""
     path.parent.mkdir(parents=True, exist_ok=True)
     frames = len(tracks[0])
-    data = {"sequence": path.stem, "genders": ["m"] * len(tracks),
-            "betas": [np.zeros(10) for _ in tracks], "poses": [np.zeros((frames, 72))
-                                                             for _ in tracks],
-            "trans": [np.zeros((frames, 3)) for _ in tracks], "jointPositions": list(tracks),
-            "cam_poses": np.tile(np.eye(4), (frames, 1, 1)),
-            "campose_valid": [np.ones(frames) for _ in tracks],
-            "img_frame_ids": np.arange(frames)}
+    data = {
+        "sequence": path.stem,
+        "genders": ["m"] * len(tracks),
+        "betas": [np.zeros(10) for _ in tracks],
+        "poses": [np.zeros((frames, 72)) for _ in tracks],
+        "trans": [np.zeros((frames, 3)) for _ in tracks],
+        "jointPositions": list(tracks),
+        "cam_poses": np.tile(np.eye(4), (frames, 1, 1)),
+        "campose_valid": [np.ones(frames) for _ in tracks],
+        "img_frame_ids": np.arange(frames),
+    }
     with open(path, "wb") as f:
         pickle.dump(data, f, protocol=2)
     return path
@@ -54,7 +59,8 @@ def test_every_actor_is_a_root_centred_sequence_in_mm(root):
     assert [s.name for s in ds.sequences] == [
         "sequenceFiles/test/downtown_walking_00.pkl#0",
         "sequenceFiles/test/downtown_walking_00.pkl#1",
-        "sequenceFiles/test/office_phoneCall_00.pkl#0"]
+        "sequenceFiles/test/office_phoneCall_00.pkl#0",
+    ]
     seq = ds.sequences[1]
     assert seq.positions.shape == (100, 24, 3) and ds.fps == 30.0 and seq.action == "all"
     assert np.abs(seq.positions[:, 0]).max() == 0  # root-centred
@@ -71,13 +77,18 @@ def test_windows_are_cut_as_if_50_frames_were_observed():
 
 def test_repeat_last_by_hand(root):
     bench = get_benchmark("3dpw")
-    result = evaluate(create_model("repeat_last", benchmark=bench), bench,
-                      model_name="repeat_last", data_root=root)
+    result = evaluate(
+        create_model("repeat_last", benchmark=bench),
+        bench,
+        model_name="repeat_last",
+        data_root=root,
+    )
     frame = result.frame
     assert result.protocol["windows_per_action"] == {"all": 21 + 21 + 11}
     assert list(result.protocol["joint_protocols"]) == ["used23", "all24"]  # LTD scores 23
-    used = frame[(frame.joints == "used23") & (frame.averaging == "frame") &
-                 (frame.action == "all")].sort_values("frame")
+    used = frame[
+        (frame.joints == "used23") & (frame.averaging == "frame") & (frame.action == "all")
+    ].sort_values("frame")
     # only joint 5 moves; its speeds 2, 4 and 1 mm per frame, windows 21, 21 and 11
     speed = (21 * 2.0 + 21 * 4.0 + 11 * 1.0) / 53
     np.testing.assert_allclose(used["value"].to_numpy(), speed * np.arange(1, 31) / 23)
@@ -95,8 +106,11 @@ def test_a_pickle_that_would_run_code_is_refused(tmp_path, monkeypatch):
     path = tmp_path / "evil.pkl"
     with open(path, "wb") as f:
         pickle.dump({"jointPositions": [Payload()]}, f, protocol=2)
-    with pytest.raises(DataFormatError, match=r"evil\.pkl: refusing to load it: the pickle asks "
-                                              r"for (posix|os|nt)\.system"):
+    with pytest.raises(
+        DataFormatError,
+        match=r"evil\.pkl: refusing to load it: the pickle asks "
+        r"for (posix|os|nt)\.system",
+    ):
         read_3dpw_file(path)
     assert not (tmp_path / "pwned-by-pickle").exists()
 
@@ -107,8 +121,11 @@ def test_damaged_files_are_named(tmp_path):
     with pytest.raises(DataFormatError, match=r"cut\.pkl: not a readable 3DPW pickle"):
         read_3dpw_file(tmp_path / "cut.pkl")
     write_sequence(tmp_path / "shape.pkl", [np.zeros((50, 69))])
-    with pytest.raises(DataFormatError, match=r"shape\.pkl: jointPositions\[0\] must be a "
-                                              r"\(frames, 72\) array"):
+    with pytest.raises(
+        DataFormatError,
+        match=r"shape\.pkl: jointPositions\[0\] must be a "
+        r"\(frames, 72\) array",
+    ):
         read_3dpw_file(tmp_path / "shape.pkl")
     with open(tmp_path / "other.pkl", "wb") as f:
         pickle.dump([1, 2, 3], f, protocol=2)

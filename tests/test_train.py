@@ -1,4 +1,5 @@
 """The training engine: determinism, resume, checkpoints and their refusals, DDP."""
+
 import os
 import shutil
 import subprocess
@@ -9,13 +10,13 @@ import numpy as np
 import pandas as pd
 import pytest
 import torch
-
 from conftest import write_cmu_file
 from tiny_models import REGISTRY
+
 import zoo.train as train_module
+from zoo.checkpoints import CheckpointError, load_checkpoint, read_checkpoint, weights_digest
 from zoo.cli import main
 from zoo.registry import Registry
-from zoo.checkpoints import CheckpointError, load_checkpoint, read_checkpoint, weights_digest
 from zoo.train import TrainingError, train
 
 HERE = Path(__file__).resolve().parent
@@ -26,20 +27,19 @@ def setup(tmp_path):
     root = tmp_path / "cmu"
     for split, n in (("train", 3), ("test", 1)):
         for i in range(1, n + 1):
-            write_cmu_file(root / split / "walking" / f"walking_{i}.txt",
-                           0.01 * i * np.arange(800))
+            write_cmu_file(root / split / "walking" / f"walking_{i}.txt", 0.01 * i * np.arange(800))
     reg_file = tmp_path / "registry.yaml"
     reg_file.write_text(REGISTRY)
     shutil.copy(HERE / "tiny_models.py", tmp_path / "tiny_models.py")
-    registry = Registry.from_files(Path(__file__).resolve().parents[1] / "registry.yaml",
-                                   reg_file)
+    registry = Registry.from_files(Path(__file__).resolve().parents[1] / "registry.yaml", reg_file)
     return root, registry, reg_file
 
 
 def run(setup, out, **kw):
     root, registry, _ = setup
-    return train("tiny", "cmu", registry=registry, data_root=root, out_dir=out, progress=False,
-                 **kw)
+    return train(
+        "tiny", "cmu", registry=registry, data_root=root, out_dir=out, progress=False, **kw
+    )
 
 
 def digest(path):
@@ -63,15 +63,17 @@ def test_seeded_runs_match_and_checkpoint_carries_its_record(setup, tmp_path):
     assert ckpt["model"] == "tiny" and ckpt["hparams"]["hidden"] == 16
     assert ckpt["protocol"]["input_frames"] == 10 and ckpt["protocol"]["skeleton"] == "cmu38"
     assert [f["file"] for f in ckpt["training_data"]["files"]] == [
-        f"train/walking/walking_{i}.txt" for i in (1, 2, 3)]
+        f"train/walking/walking_{i}.txt" for i in (1, 2, 3)
+    ]
     assert all(len(f["sha256"]) == 64 for f in ckpt["training_data"]["files"])
     assert ckpt["code_version"] and ckpt["recipe"]["lr"] == 0.001
     assert ckpt["training"]["best"]["val_mpjpe"] > 0
     assert ckpt["training"]["epochs_run"] >= 1
 
 
-def test_bfloat16_precision_trains_under_autocast_with_float32_weights(setup, tmp_path,
-                                                                     monkeypatch):
+def test_bfloat16_precision_trains_under_autocast_with_float32_weights(
+    setup, tmp_path, monkeypatch
+):
     monkeypatch.setattr(train_module, "cpu_has_native_bfloat16", lambda: True)
     plain = run(setup, tmp_path / "fp32")
     mixed = run(setup, tmp_path / "bf16", train_overrides={"precision": "bfloat16"})
@@ -84,10 +86,14 @@ def test_bfloat16_precision_trains_under_autocast_with_float32_weights(setup, tm
 
 
 def test_bfloat16_on_a_cpu_without_native_bfloat16_warns_that_float32_is_faster(
-        setup, tmp_path, monkeypatch):
+    setup, tmp_path, monkeypatch
+):
     monkeypatch.setattr(train_module, "cpu_has_native_bfloat16", lambda: False)
-    with pytest.warns(RuntimeWarning, match=r"precision bfloat16 on a CPU without native "
-                                            r"bfloat16 .* precision=float32 is faster here"):
+    with pytest.warns(
+        RuntimeWarning,
+        match=r"precision bfloat16 on a CPU without native "
+        r"bfloat16 .* precision=float32 is faster here",
+    ):
         run(setup, tmp_path / "bf16", epochs=1, train_overrides={"precision": "bfloat16"})
 
 
@@ -111,12 +117,16 @@ def test_the_training_device_names_the_cpu_model_and_its_kernels():
 
 
 def test_checkpoint_provenance_names_repository_files_relative_to_it(tmp_path):
-    from zoo.paths import REPO_ROOT
     from zoo.checkpoints import checkpoint_provenance
+    from zoo.paths import REPO_ROOT
+
     meta = {"hparams": {"hidden": 16}, "training": {"epochs_run": 3}}
     inside = checkpoint_provenance(REPO_ROOT / "checkpoints" / "cmu" / "mlp" / "best.pt", meta)
-    assert inside == {"checkpoint": "checkpoints/cmu/mlp/best.pt", "hparams": {"hidden": 16},
-                      "training": {"epochs_run": 3}}
+    assert inside == {
+        "checkpoint": "checkpoints/cmu/mlp/best.pt",
+        "hparams": {"hidden": 16},
+        "training": {"epochs_run": 3},
+    }
     outside = checkpoint_provenance(tmp_path / "best.pt", meta)
     assert outside["checkpoint"] == str((tmp_path / "best.pt").resolve())
 
@@ -126,8 +136,9 @@ def test_resume_reaches_the_same_weights(setup, tmp_path):
     run(setup, tmp_path / "cut", epochs=3, stop_after_epoch=1)
     assert read_checkpoint(tmp_path / "cut" / "last.pt")["epoch"] == 0
     run(setup, tmp_path / "cut", epochs=3, resume=True)
-    assert weights_digest_of(read_checkpoint(tmp_path / "full" / "last.pt")["state_dict"]) == \
-        weights_digest_of(read_checkpoint(tmp_path / "cut" / "last.pt")["state_dict"])
+    assert weights_digest_of(
+        read_checkpoint(tmp_path / "full" / "last.pt")["state_dict"]
+    ) == weights_digest_of(read_checkpoint(tmp_path / "cut" / "last.pt")["state_dict"])
 
 
 def test_nan_loss_names_epoch_and_batch(setup, tmp_path):
@@ -139,16 +150,64 @@ def test_trained_checkpoint_evaluates_and_refuses_mismatches(setup, tmp_path, ca
     root, registry, reg_file = setup
     best = run(setup, tmp_path / "run")
     out = tmp_path / "eval"
-    assert main(["eval", "--registry", str(reg_file), "--checkpoint", str(best), "--data-root",
-                 str(root), "--sampler", "all", "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "eval",
+                "--registry",
+                str(reg_file),
+                "--checkpoint",
+                str(best),
+                "--data-root",
+                str(root),
+                "--sampler",
+                "all",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     assert (out / "results.csv").is_file()
     # the fully trained checkpoint gets its own label (and folder), never the early-stopped one's
-    assert main(["eval", "--registry", str(reg_file), "--checkpoint", str(best.parent / "last.pt"),
-                 "--data-root", str(root), "--sampler", "all", "--out", str(tmp_path / "last")]) == 0
+    assert (
+        main(
+            [
+                "eval",
+                "--registry",
+                str(reg_file),
+                "--checkpoint",
+                str(best.parent / "last.pt"),
+                "--data-root",
+                str(root),
+                "--sampler",
+                "all",
+                "--out",
+                str(tmp_path / "last"),
+            ]
+        )
+        == 0
+    )
     assert set(pd.read_csv(tmp_path / "last" / "results.csv").model) == {"tiny@last"}
     # another model
-    assert main(["eval", "--registry", str(reg_file), "--checkpoint", str(best), "--model",
-                 "repeat_last", "--data-root", str(root), "--out", str(tmp_path / "x")]) == 2
+    assert (
+        main(
+            [
+                "eval",
+                "--registry",
+                str(reg_file),
+                "--checkpoint",
+                str(best),
+                "--model",
+                "repeat_last",
+                "--data-root",
+                str(root),
+                "--out",
+                str(tmp_path / "x"),
+            ]
+        )
+        == 2
+    )
     assert "holds model 'tiny'" in capsys.readouterr().err
     # another protocol
     other = tmp_path / "cmu_short.yaml"
@@ -173,10 +232,14 @@ def test_recipe_errors_are_named(setup, tmp_path):
     with pytest.raises(TrainingError, match="unknown training-recipe key.*lrr"):
         run(setup, tmp_path / "r", train_overrides={"lrr": 1})
     with pytest.raises(TrainingError, match="warmup_steps must be a non-negative integer"):
-        run(setup, tmp_path / "r", train_overrides={"schedule": {"type": "constant",
-                                                                 "warmup_steps": -1}})
-    with pytest.raises(TrainingError, match="precision 'float16' unknown; valid: float32, "
-                                            "bfloat16"):
+        run(
+            setup,
+            tmp_path / "r",
+            train_overrides={"schedule": {"type": "constant", "warmup_steps": -1}},
+        )
+    with pytest.raises(
+        TrainingError, match="precision 'float16' unknown; valid: float32, bfloat16"
+    ):
         run(setup, tmp_path / "r", train_overrides={"precision": "float16"})
     with pytest.raises(TrainingError, match="nothing to train"):
         train("repeat_last", "cmu", registry=setup[1], data_root=setup[0], out_dir=tmp_path)
@@ -187,10 +250,30 @@ def test_two_process_ddp_ends_with_identical_weights(setup, tmp_path):
     torchrun = Path(sys.executable).parent / "torchrun"
     env = {**os.environ, "ZOO_REGISTRY": str(reg_file), "OMP_NUM_THREADS": "1"}
     out = tmp_path / "ddp"
-    proc = subprocess.run([str(torchrun), "--standalone", "--nproc_per_node", "2", "-m",
-                           "zoo.cli", "train", "--model", "tiny", "--data-root", str(root),
-                           "--out", str(out), "--epochs", "1", "--no-progress"],
-                          env=env, capture_output=True, text=True, timeout=240)
+    proc = subprocess.run(
+        [
+            str(torchrun),
+            "--standalone",
+            "--nproc_per_node",
+            "2",
+            "-m",
+            "zoo.cli",
+            "train",
+            "--model",
+            "tiny",
+            "--data-root",
+            str(root),
+            "--out",
+            str(out),
+            "--epochs",
+            "1",
+            "--no-progress",
+        ],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=240,
+    )
     assert proc.returncode == 0, proc.stderr[-2000:]
     digests = [(out / "ranks" / f"rank{r}.sha256").read_text() for r in (0, 1)]
     assert digests[0] == digests[1]
@@ -201,8 +284,13 @@ def test_learning_rate_schedules():
     from zoo.train import learning_rate
 
     step = {"type": "step", "every_epochs": 2, "gamma": 0.96}
-    assert [round(learning_rate(step, 1e-3, e, 50), 10) for e in range(5)] == \
-        [1e-3, 1e-3, 9.6e-4, 9.6e-4, 9.216e-4]
+    assert [round(learning_rate(step, 1e-3, e, 50), 10) for e in range(5)] == [
+        1e-3,
+        1e-3,
+        9.6e-4,
+        9.6e-4,
+        9.216e-4,
+    ]
     cosine = {"type": "cosine", "min_lr": 1e-6}
     assert learning_rate(cosine, 1e-4, 0, 100) == 1e-4
     assert abs(learning_rate(cosine, 1e-4, 50, 100) - (1e-6 + 0.5 * (1e-4 - 1e-6))) < 1e-15
@@ -211,17 +299,22 @@ def test_learning_rate_schedules():
     assert learning_rate(multi, 3e-4, 0, 1, 30000) == 1e-5
     warm = {**cosine, "warmup_steps": 4}
     assert [learning_rate(warm, 1e-4, 0, 100, s) for s in range(5)] == pytest.approx(
-        [2.5e-5, 5e-5, 7.5e-5, 1e-4, 1e-4], rel=1e-12)
+        [2.5e-5, 5e-5, 7.5e-5, 1e-4, 1e-4], rel=1e-12
+    )
 
 
 def test_resume_refuses_another_recipe_and_records_a_larger_budget(setup, tmp_path):
     out = tmp_path / "run"
     run(setup, out, epochs=2, max_batches=2)
-    for kw, field in (({"seed": 1}, "seed"),
-                      ({"train_overrides": {"batch_size": 16}}, "batch_size"),
-                      ({"train_overrides": {"lr": 0.5}}, "lr"),
-                      ({"train_overrides": {"schedule": {"type": "step", "every_epochs": 1,
-                                                         "gamma": 0.9}}}, "schedule")):
+    for kw, field in (
+        ({"seed": 1}, "seed"),
+        ({"train_overrides": {"batch_size": 16}}, "batch_size"),
+        ({"train_overrides": {"lr": 0.5}}, "lr"),
+        (
+            {"train_overrides": {"schedule": {"type": "step", "every_epochs": 1, "gamma": 0.9}}},
+            "schedule",
+        ),
+    ):
         with pytest.raises(CheckpointError, match=f"cannot resume with another recipe .*{field}"):
             run(setup, out, epochs=3, max_batches=2, resume=True, **kw)
     with pytest.raises(CheckpointError, match="already trained 2 epochs"):
@@ -231,26 +324,39 @@ def test_resume_refuses_another_recipe_and_records_a_larger_budget(setup, tmp_pa
     assert ckpt["recipe"]["epochs"] == 4 and ckpt["max_batches"] == 3
     assert ckpt["recipe_changes"] == [
         {"field": "epochs", "from": 2, "to": 4, "from_epoch": 3},
-        {"field": "max_batches", "from": 2, "to": 3, "from_epoch": 3}]
+        {"field": "max_batches", "from": 2, "to": 3, "from_epoch": 3},
+    ]
     assert [h["samples"] for h in ckpt["history"]][1:3] == [2 * 8, 3 * 8]
     # changes accumulate over resumes
     run(setup, out, epochs=5, max_batches=3, resume=True)
-    assert read_checkpoint(out / "last.pt")["recipe_changes"][-1] == \
-        {"field": "epochs", "from": 4, "to": 5, "from_epoch": 5}
+    assert read_checkpoint(out / "last.pt")["recipe_changes"][-1] == {
+        "field": "epochs",
+        "from": 4,
+        "to": 5,
+        "from_epoch": 5,
+    }
 
 
-@pytest.mark.parametrize("overrides, message", [
-    ({"grad_clip": -1}, "grad_clip must be a number > 0 or null"),
-    ({"grad_clip": 0}, "grad_clip must be a number > 0 or null"),
-    ({"lr": -0.1}, "lr must be a number >= 0"),
-    ({"lr": "fast"}, "lr must be a number >= 0"),
-    ({"weight_decay": -1e-4}, "weight_decay must be a number >= 0"),
-    ({"batch_size": 0}, "batch_size must be a positive integer"),
-    ({"schedule": {"type": "step", "gamma": 0.9}}, "step schedule needs every_epochs"),
-    ({"schedule": {"type": "multistep", "lrs": [1e-3]}}, "multistep schedule needs"),
-    ({"schedule": {"type": "multistep", "milestones_steps": [5], "lrs": [1e-3, 1e-4]},
-      "lr": 0.5}, "lr 0.5 is not what runs"),
-])
+@pytest.mark.parametrize(
+    "overrides, message",
+    [
+        ({"grad_clip": -1}, "grad_clip must be a number > 0 or null"),
+        ({"grad_clip": 0}, "grad_clip must be a number > 0 or null"),
+        ({"lr": -0.1}, "lr must be a number >= 0"),
+        ({"lr": "fast"}, "lr must be a number >= 0"),
+        ({"weight_decay": -1e-4}, "weight_decay must be a number >= 0"),
+        ({"batch_size": 0}, "batch_size must be a positive integer"),
+        ({"schedule": {"type": "step", "gamma": 0.9}}, "step schedule needs every_epochs"),
+        ({"schedule": {"type": "multistep", "lrs": [1e-3]}}, "multistep schedule needs"),
+        (
+            {
+                "schedule": {"type": "multistep", "milestones_steps": [5], "lrs": [1e-3, 1e-4]},
+                "lr": 0.5,
+            },
+            "lr 0.5 is not what runs",
+        ),
+    ],
+)
 def test_recipe_values_are_checked_before_training(setup, tmp_path, overrides, message):
     with pytest.raises(TrainingError, match=message):
         run(setup, tmp_path / "bad", train_overrides=overrides)
@@ -266,15 +372,24 @@ def test_init_from_starts_a_new_stage_from_those_weights_and_records_them(setup,
     first = run(setup, tmp_path / "a", epochs=1)
     source = read_checkpoint(first)
     # lr 0: the new stage changes nothing, so its weights are exactly the source's
-    still = read_checkpoint(run(setup, tmp_path / "b", epochs=1, init_from=first,
-                                train_overrides={"lr": 0.0, "schedule": None}))
+    still = read_checkpoint(
+        run(
+            setup,
+            tmp_path / "b",
+            epochs=1,
+            init_from=first,
+            train_overrides={"lr": 0.0, "schedule": None},
+        )
+    )
     for name, tensor in source["state_dict"].items():
         assert torch.equal(still["state_dict"][name], tensor), name
     record = still["init_from"]
     assert record["path"].endswith("a/best.pt") and len(record["sha256"]) == 64
     assert record["training"]["epochs_run"] == 1 and record["recipe"]["lr"] == 0.001
     # a stage of a stage keeps the whole chain
-    third = read_checkpoint(run(setup, tmp_path / "c", epochs=1, init_from=tmp_path / "b" / "last.pt"))
+    third = read_checkpoint(
+        run(setup, tmp_path / "c", epochs=1, init_from=tmp_path / "b" / "last.pt")
+    )
     assert third["init_from"]["init_from"]["sha256"] == record["sha256"]
     assert digest(tmp_path / "c" / "last.pt") != digest(first)
 
@@ -286,8 +401,15 @@ def test_init_from_shipped_weights_extends_a_published_row(setup, tmp_path):
 
     first = run(setup, tmp_path / "a", epochs=1)
     shipped = export_weights(first, root=tmp_path / "weights", dtype="float32")
-    still = read_checkpoint(run(setup, tmp_path / "b", epochs=1, init_from=shipped,
-                                train_overrides={"lr": 0.0, "schedule": None}))
+    still = read_checkpoint(
+        run(
+            setup,
+            tmp_path / "b",
+            epochs=1,
+            init_from=shipped,
+            train_overrides={"lr": 0.0, "schedule": None},
+        )
+    )
     for name, tensor in read_checkpoint(first)["state_dict"].items():
         assert torch.equal(still["state_dict"][name], tensor), name
     record = still["init_from"]
@@ -310,8 +432,11 @@ def test_init_from_refusals_name_the_file(setup, tmp_path):
     with pytest.raises(TrainingError, match=r"--init-from .*tiny\.safetensors: no such file"):
         run(setup, tmp_path / "b", init_from=tmp_path / "tiny.safetensors")
     (tmp_path / "tiny.npz").write_bytes(b"")
-    with pytest.raises(TrainingError, match=r"--init-from .*tiny\.npz: expected a training "
-                                           r"checkpoint .* or shipped weights"):
+    with pytest.raises(
+        TrainingError,
+        match=r"--init-from .*tiny\.npz: expected a training "
+        r"checkpoint .* or shipped weights",
+    ):
         run(setup, tmp_path / "b", init_from=tmp_path / "tiny.npz")
     with pytest.raises(TrainingError, match=r"would overwrite it; give the new stage its own"):
         run(setup, tmp_path / "a", init_from=first)

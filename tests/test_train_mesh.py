@@ -1,4 +1,5 @@
 """Training a mesh model through the engine; its checkpoint carries the basis hash."""
+
 import shutil
 import textwrap
 from pathlib import Path
@@ -6,12 +7,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-
 from tiny_models import MESH_REGISTRY
+
 from zoo import benchmark as benchmark_module
+from zoo.checkpoints import CheckpointError, load_checkpoint, read_checkpoint
 from zoo.data.mesh import MeshDataset, MeshSequence, MeshTopology
 from zoo.registry import Registry
-from zoo.checkpoints import CheckpointError, load_checkpoint, read_checkpoint
 from zoo.train import train
 
 HERE = Path(__file__).resolve().parent
@@ -19,7 +20,12 @@ HERE = Path(__file__).resolve().parent
 
 def grid(n):
     idx = np.arange(n * n).reshape(n, n)
-    a, b, c, d = idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel()
+    a, b, c, d = (
+        idx[:-1, :-1].ravel(),
+        idx[:-1, 1:].ravel(),
+        idx[1:, :-1].ravel(),
+        idx[1:, 1:].ravel(),
+    )
     return MeshTopology(np.concatenate([np.stack([a, b, d], 1), np.stack([a, d, c], 1)]), n * n)
 
 
@@ -40,11 +46,15 @@ def waving(topology, split, count=8, frames=12):
 @pytest.fixture
 def toy_mesh(tmp_path, monkeypatch):
     sizes = {"n": 4}
-    monkeypatch.setitem(benchmark_module.MESH_DATASETS, "toy_mesh",
-                        lambda root, split: waving(grid(sizes["n"]), split))
+    monkeypatch.setitem(
+        benchmark_module.MESH_DATASETS,
+        "toy_mesh",
+        lambda root, split: waving(grid(sizes["n"]), split),
+    )
     monkeypatch.setenv("ZOO_CACHE_DIR", str(tmp_path / "cache"))
     bench = tmp_path / "toy.yaml"
-    bench.write_text(textwrap.dedent("""\
+    bench.write_text(
+        textwrap.dedent("""\
         name: toy
         representation: mesh
         dataset: toy_mesh
@@ -53,7 +63,8 @@ def toy_mesh(tmp_path, monkeypatch):
         output_frames: 4
         sampler: all
         spectral_k: 6
-        """))
+        """)
+    )
     (tmp_path / "registry.yaml").write_text(MESH_REGISTRY)
     shutil.copy(HERE / "tiny_models.py", tmp_path / "tiny_models.py")
     registry = Registry.from_files(HERE.parent / "registry.yaml", tmp_path / "registry.yaml")
@@ -62,8 +73,9 @@ def toy_mesh(tmp_path, monkeypatch):
 
 def test_mesh_model_trains_and_checkpoint_refuses_another_basis(toy_mesh, tmp_path):
     bench, registry, sizes = toy_mesh
-    best = train("tiny_spectral", bench, registry=registry, out_dir=tmp_path / "run",
-                 progress=False)
+    best = train(
+        "tiny_spectral", bench, registry=registry, out_dir=tmp_path / "run", progress=False
+    )
     ckpt = read_checkpoint(best)
     assert ckpt["protocol"]["representation"] == "mesh" and ckpt["protocol"]["spectral_k"] == 6
     assert set(ckpt["context_hashes"]) == {"basis"} and "basis" not in ckpt["hparams"]
@@ -77,8 +89,9 @@ def test_mesh_model_trains_and_checkpoint_refuses_another_basis(toy_mesh, tmp_pa
         load_checkpoint(best, registry=registry, benchmark=bench)
 
 
-def test_skeleton_model_trains_on_a_mesh_benchmarks_regressed_joints(toy_mesh, tmp_path,
-                                                                     monkeypatch):
+def test_skeleton_model_trains_on_a_mesh_benchmarks_regressed_joints(
+    toy_mesh, tmp_path, monkeypatch
+):
     import scipy.sparse as sp
 
     from zoo.evaluate import evaluate
@@ -94,9 +107,16 @@ def test_skeleton_model_trains_on_a_mesh_benchmarks_regressed_joints(toy_mesh, t
         return data
 
     monkeypatch.setitem(benchmark_module.MESH_DATASETS, "toy_mesh", with_joints)
-    best = train("mlp", bench, registry=registry, out_dir=tmp_path / "mlp", progress=False,
-                 epochs=2, overrides={"blocks": 2},
-                 train_overrides={"batch_size": 4, "schedule": {"type": "constant"}})
+    best = train(
+        "mlp",
+        bench,
+        registry=registry,
+        out_dir=tmp_path / "mlp",
+        progress=False,
+        epochs=2,
+        overrides={"blocks": 2},
+        train_overrides={"batch_size": 4, "schedule": {"type": "constant"}},
+    )
     ckpt = read_checkpoint(best)
     assert ckpt["protocol"]["points"] == "regressed joints"
     assert ckpt["hparams"]["num_points"] == 3
@@ -112,28 +132,52 @@ def test_a_training_sampler_that_finds_no_window_is_named(toy_mesh, tmp_path):
     bench, registry, _ = toy_mesh
     whole = tmp_path / "whole.yaml"  # the window is the whole 12-frame sequence, as on cloth
     whole.write_text(bench.read_text().replace("output_frames: 4", "output_frames: 8"))
-    with pytest.raises(TrainingError, match="training sampler 'stride5_strict' finds no window "
-                                            "of 12 frames.*longest: 12 frames.*train_sampler"):
-        train("tiny_spectral", whole, registry=registry, out_dir=tmp_path / "run",
-              progress=False, train_overrides={"train_sampler": "stride5_strict"})
+    with pytest.raises(
+        TrainingError,
+        match="training sampler 'stride5_strict' finds no window "
+        "of 12 frames.*longest: 12 frames.*train_sampler",
+    ):
+        train(
+            "tiny_spectral",
+            whole,
+            registry=registry,
+            out_dir=tmp_path / "run",
+            progress=False,
+            train_overrides={"train_sampler": "stride5_strict"},
+        )
     assert not (tmp_path / "run").exists()  # nothing half-written
 
 
-def test_start_epoch_gets_every_training_frame_once_with_its_window_count(toy_mesh, tmp_path,
-                                                                          monkeypatch):
+def test_start_epoch_gets_every_training_frame_once_with_its_window_count(
+    toy_mesh, tmp_path, monkeypatch
+):
     """Statistics over the counted frames equal those over every frame of every window."""
     from zoo.data.windows import gather_windows
     from zoo.train import _windows, split_train_val
 
     bench, registry, _ = toy_mesh
-    monkeypatch.setitem(benchmark_module.MESH_DATASETS, "toy_mesh",
-                        lambda root, split: waving(grid(4), split, frames=30))
+    monkeypatch.setitem(
+        benchmark_module.MESH_DATASETS,
+        "toy_mesh",
+        lambda root, split: waving(grid(4), split, frames=30),
+    )
     seen = []
     model_class = registry.get("tiny_spectral").load_class()
-    monkeypatch.setattr(model_class, "start_epoch",
-                        lambda self, epoch, frames: seen.append(list(frames())), raising=False)
-    train("tiny_spectral", bench, registry=registry, out_dir=tmp_path / "run", progress=False,
-          epochs=1, train_overrides={"train_sampler": "all"})
+    monkeypatch.setattr(
+        model_class,
+        "start_epoch",
+        lambda self, epoch, frames: seen.append(list(frames())),
+        raising=False,
+    )
+    train(
+        "tiny_spectral",
+        bench,
+        registry=registry,
+        out_dir=tmp_path / "run",
+        progress=False,
+        epochs=1,
+        train_overrides={"train_sampler": "all"},
+    )
     frames = torch.cat([f for f, _ in seen[0]]).double()
     counts = torch.cat([c for _, c in seen[0]])
     assert len(seen) == 1 and bool((counts > 0).all())
@@ -144,5 +188,6 @@ def test_start_epoch_gets_every_training_frame_once_with_its_window_count(toy_me
     assert int(counts.sum()) == len(windows) > 2 * len(frames)  # each frame in several windows
     weights = counts.double()[:, None, None]
     torch.testing.assert_close((weights * frames).sum(0) / counts.sum(), windows.mean(0))
-    torch.testing.assert_close((weights * frames.square()).sum(0) / counts.sum(),
-                               windows.square().mean(0))
+    torch.testing.assert_close(
+        (weights * frames.square()).sum(0) / counts.sum(), windows.square().mean(0)
+    )

@@ -1,18 +1,19 @@
 """Shipped weights: export from a checkpoint, sha256-checked loading, ``pretrained=True``, and
 ``zoo eval`` / ``zoo leaderboard`` computing a trained row from exactly the stored tensors."""
+
 import json
 
 import pandas as pd
 import pytest
 import torch
+from test_train import run, setup  # noqa: F401  (setup is a fixture)
 
 import zoo
 import zoo.weights
-from test_train import run, setup  # noqa: F401  (setup is a fixture)
+from zoo.checkpoints import export_weights, load_weights, read_checkpoint
 from zoo.cli import main
 from zoo.evaluate import EvalResult
 from zoo.leaderboard import regenerate
-from zoo.checkpoints import export_weights, load_weights, read_checkpoint
 from zoo.weights import WeightsError, read_weights
 
 
@@ -51,8 +52,11 @@ def test_a_changed_weights_file_is_refused_naming_it(trained, tmp_path):
     data = bytearray(path.read_bytes())
     data[-1] ^= 1  # one bit of one weight
     path.write_bytes(bytes(data))
-    with pytest.raises(WeightsError, match=r"tiny\.safetensors: sha256 .* differs from its "
-                                           r"record"):
+    with pytest.raises(
+        WeightsError,
+        match=r"tiny\.safetensors: sha256 .* differs from its "
+        r"record",
+    ):
         read_weights(path)
     path.with_suffix(".json").unlink()
     with pytest.raises(WeightsError, match=r"tiny\.json does not exist"):
@@ -70,9 +74,11 @@ def test_foreign_weights_are_refused_naming_what_differs(trained, tmp_path, setu
     record = json.loads(path.with_suffix(".json").read_text())
     record["sha256"] = sha256_file(path)
     path.with_suffix(".json").write_text(json.dumps(record))
-    with pytest.raises(zoo.train.CheckpointError,
-                       match=r"tiny\.safetensors: weights do not fit model 'tiny' "
-                             r"\(Error\(s\) in loading state_dict"):
+    with pytest.raises(
+        zoo.train.CheckpointError,
+        match=r"tiny\.safetensors: weights do not fit model 'tiny' "
+        r"\(Error\(s\) in loading state_dict",
+    ):
         load_weights(path, registry=setup[1], data_root=setup[0])
     path.write_bytes(b"not safetensors")
     record["sha256"] = sha256_file(path)
@@ -86,13 +92,18 @@ def test_weights_for_another_protocol_are_refused(trained, tmp_path, setup):  # 
     record = json.loads(path.with_suffix(".json").read_text())
     record["protocol"]["output_frames"] = 10
     path.with_suffix(".json").write_text(json.dumps(record))
-    with pytest.raises(zoo.train.CheckpointError, match="weights .* another protocol.*"
-                                                        "output_frames"):
+    with pytest.raises(
+        zoo.train.CheckpointError, match="weights .* another protocol.*output_frames"
+    ):
         load_weights(path, registry=setup[1], benchmark="cmu")
 
 
-def test_pretrained_model_comes_from_the_shipped_weights(trained, tmp_path, setup,  # noqa: F811
-                                                          monkeypatch):
+def test_pretrained_model_comes_from_the_shipped_weights(
+    trained,
+    tmp_path,
+    setup,  # noqa: F811
+    monkeypatch,
+):
     monkeypatch.setattr(zoo.weights, "WEIGHTS_DIR", tmp_path / "weights")
     export_weights(trained / "last.pt")
     model = zoo.create_model("tiny@last", benchmark="cmu", registry=setup[1], pretrained=True)
@@ -100,37 +111,68 @@ def test_pretrained_model_comes_from_the_shipped_weights(trained, tmp_path, setu
     assert not model.training
     for name, tensor in model.state_dict().items():
         torch.testing.assert_close(tensor, expected[name].half().float(), rtol=0, atol=0)
-    with pytest.raises(WeightsError, match=r"no shipped weights for 'tiny' on benchmark 'cmu'.*"
-                                           r"shipped: cmu/tiny@last"):
+    with pytest.raises(
+        WeightsError,
+        match=r"no shipped weights for 'tiny' on benchmark 'cmu'.*"
+        r"shipped: cmu/tiny@last",
+    ):
         zoo.create_model("tiny", benchmark="cmu", registry=setup[1], pretrained=True)
     with pytest.raises(zoo.registry.RegistryError, match="needs benchmark"):
         zoo.create_model("tiny@last", registry=setup[1], pretrained=True)
 
 
-def test_eval_and_leaderboard_compute_the_row_from_the_weights(trained, tmp_path, setup,  # noqa: F811
-                                                               capsys):
+def test_eval_and_leaderboard_compute_the_row_from_the_weights(
+    trained,
+    tmp_path,
+    setup,  # noqa: F811
+    capsys,
+):
     root, registry, reg_file = setup
     weights = tmp_path / "weights"
     assert main(["weights", "export", str(trained / "last.pt"), "--root", str(weights)]) == 0
     assert main(["weights", "list", "--root", str(weights)]) == 0
     assert "tiny@last" in capsys.readouterr().out
     out = tmp_path / "eval"
-    assert main(["eval", "--weights", str(weights / "cmu" / "tiny@last.safetensors"),
-                 "--registry", str(reg_file), "--data-root", str(root), "--sampler", "ltd8",
-                 "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "eval",
+                "--weights",
+                str(weights / "cmu" / "tiny@last.safetensors"),
+                "--registry",
+                str(reg_file),
+                "--data-root",
+                str(root),
+                "--sampler",
+                "ltd8",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     evaluated = EvalResult.read(out)
-    assert evaluated.protocol["provenance"]["weights_sha256"] == \
-        read_weights(weights / "cmu" / "tiny@last.safetensors")[1]["sha256"]
+    assert (
+        evaluated.protocol["provenance"]["weights_sha256"]
+        == read_weights(weights / "cmu" / "tiny@last.safetensors")[1]["sha256"]
+    )
     # No checkpoints at all: the leaderboard still computes the row, from the weights.
-    regenerate("cmu", registry=registry, data_root=root, out_root=tmp_path / "results",
-               checkpoints=tmp_path / "no-checkpoints", weights=weights)
+    regenerate(
+        "cmu",
+        registry=registry,
+        data_root=root,
+        out_root=tmp_path / "results",
+        checkpoints=tmp_path / "no-checkpoints",
+        weights=weights,
+    )
     board = pd.read_csv(tmp_path / "results" / "cmu" / "ltd8" / "results.csv")
     row = board[board["model"] == "tiny@last"]
     assert len(row) > 0
     ltd8 = EvalResult.read(tmp_path / "results" / "cmu" / "ltd8" / "tiny@last")
     assert ltd8.protocol["provenance"]["weights"].endswith("tiny@last.safetensors")
-    same = evaluated.frame.merge(row, on=["action", "metric", "averaging", "joints",
-                                          "horizon_ms"], suffixes=("", "_board"))
+    same = evaluated.frame.merge(
+        row, on=["action", "metric", "averaging", "joints", "horizon_ms"], suffixes=("", "_board")
+    )
     assert (tmp_path / "results" / "cmu" / "training.png").stat().st_size > 0  # its curve
     assert len(same) == len(row)  # the same sampler in both: the same numbers
     pd.testing.assert_series_equal(same["value"], same["value_board"], check_names=False)

@@ -1,4 +1,5 @@
 """A tiny trainable model for engine tests, registered from outside zoo/ like a user's own."""
+
 import torch
 from torch import nn
 
@@ -40,8 +41,12 @@ class TinyTemporal(nn.Module):
 
     def __init__(self, input_frames, output_frames, num_points, hidden=16, poison=False):
         super().__init__()
-        self.net = nn.Sequential(nn.Linear(input_frames, hidden), nn.Dropout(0.2), nn.ReLU(),
-                                 nn.Linear(hidden, output_frames))
+        self.net = nn.Sequential(
+            nn.Linear(input_frames, hidden),
+            nn.Dropout(0.2),
+            nn.ReLU(),
+            nn.Linear(hidden, output_frames),
+        )
         self.poison = poison
 
     def forward(self, history):

@@ -1,4 +1,5 @@
 """motion-zoo: a model zoo and benchmark suite for 3D human motion prediction."""
+
 __version__ = "0.1.0"
 
 import sys as _sys
@@ -22,5 +23,12 @@ class _CallableModule(_types.ModuleType):
 zoo.evaluate.__class__ = _CallableModule
 zoo.compare.__class__ = _CallableModule
 
-__all__ = ["__version__", "compare", "create_model", "evaluate", "list_models", "load_results",
-           "load_registry"]
+__all__ = [
+    "__version__",
+    "compare",
+    "create_model",
+    "evaluate",
+    "list_models",
+    "load_results",
+    "load_registry",
+]

@@ -9,6 +9,7 @@ everything else, and nothing imports it.
     stored = zoo.load_results("cmu", sampler="ltd8")  # {label: EvalResult} from results/
     print(zoo.compare(result, stored["repeat_last"]).markdown())
 """
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -21,8 +22,13 @@ def list_models(representation: str | None = None) -> list[str]:
     return load_registry().list_models(representation)
 
 
-def create_model(name: str, benchmark: Any = None, registry: Registry | None = None,
-                 pretrained: bool = False, **overrides: Any):
+def create_model(
+    name: str,
+    benchmark: Any = None,
+    registry: Registry | None = None,
+    pretrained: bool = False,
+    **overrides: Any,
+):
     """A registered model. ``benchmark`` (a name or a :class:`zoo.benchmark.Benchmark`) supplies
     the shape arguments and context; ``overrides`` replace any hyper-parameter by name.
 
@@ -35,29 +41,45 @@ def create_model(name: str, benchmark: Any = None, registry: Registry | None = N
         from zoo.weights import pretrained_path
 
         if benchmark is None:
-            raise RegistryError(f"create_model({name!r}, pretrained=True) needs benchmark=...: "
-                                f"weights are trained for one benchmark")
+            raise RegistryError(
+                f"create_model({name!r}, pretrained=True) needs benchmark=...: "
+                f"weights are trained for one benchmark"
+            )
         if overrides:
-            raise RegistryError(f"pretrained weights fix the hyper-parameters; got overrides "
-                                f"{', '.join(sorted(overrides))}")
+            raise RegistryError(
+                f"pretrained weights fix the hyper-parameters; got overrides "
+                f"{', '.join(sorted(overrides))}"
+            )
         bench_name = benchmark if isinstance(benchmark, str) else benchmark.name
-        return load_weights(pretrained_path(name, bench_name), registry=registry,
-                            benchmark=benchmark)[0]
+        return load_weights(
+            pretrained_path(name, bench_name), registry=registry, benchmark=benchmark
+        )[0]
     if benchmark is not None:
         from zoo.benchmark import get_benchmark
 
         bench = get_benchmark(benchmark) if isinstance(benchmark, (str, Path)) else benchmark
         entry = registry.get(name)
-        overrides = {**bench.model_inputs(entry.context,
-                                          view=bench.view_for(entry.representation)),
-                     **overrides}
+        overrides = {
+            **bench.model_inputs(entry.context, view=bench.view_for(entry.representation)),
+            **overrides,
+        }
     return registry.create_model(name, **overrides)
 
 
-def evaluate(model: Any, benchmark: Any = "cmu", *, label: str | None = None,
-             sampler: str | None = None, data_root: str | Path | None = None,
-             registry: Registry | None = None, out: str | Path | None = None,
-             store: bool = False, replace: bool = False, device: str = "cpu", **options: Any):
+def evaluate(
+    model: Any,
+    benchmark: Any = "cmu",
+    *,
+    label: str | None = None,
+    sampler: str | None = None,
+    data_root: str | Path | None = None,
+    registry: Registry | None = None,
+    out: str | Path | None = None,
+    store: bool = False,
+    replace: bool = False,
+    device: str = "cpu",
+    **options: Any,
+):
     """Evaluate a model on a benchmark; an :class:`zoo.evaluate.EvalResult` (``.frame``: every
     row; ``.summary()``: the action average per horizon) carrying the same identity as
     ``zoo eval`` records.
@@ -75,15 +97,18 @@ def evaluate(model: Any, benchmark: Any = "cmu", *, label: str | None = None,
     from zoo.evaluate import protocol_for
     from zoo.leaderboard import stamp
     from zoo.model_source import ModelSource, object_identity
-    from zoo.store import check_replace, check_label, result_path, table_folder
+    from zoo.store import check_label, check_replace, result_path, table_folder
 
     bench = get_benchmark(benchmark) if isinstance(benchmark, (str, Path)) else benchmark
     dataset = bench.load(data_root)
     registry = registry or load_registry()
     if isinstance(model, torch.nn.Module):
         label = check_label(label or type(model).__name__)
-        view = "mesh" if bench.representation == "mesh" and not options.get("view") == "joints" \
+        view = (
+            "mesh"
+            if bench.representation == "mesh" and not options.get("view") == "joints"
             else "joints"
+        )
         view = options.pop("view", view)
         provenance = {"class": f"{type(model).__module__}.{type(model).__qualname__}"}
         loaded = None
@@ -92,39 +117,72 @@ def evaluate(model: Any, benchmark: Any = "cmu", *, label: str | None = None,
         source = ModelSource.of(
             model=None if path.suffix in (".pt", ".safetensors") else str(model),
             checkpoint=path if path.suffix == ".pt" else None,
-            weights=path if path.suffix == ".safetensors" else None, label=label)
+            weights=path if path.suffix == ".safetensors" else None,
+            label=label,
+        )
         loaded = source.load(registry, bench, dataset, data_root)
-        model, label, view, provenance = loaded.model, loaded.label, loaded.view, \
-            loaded.provenance
-    protocol = protocol_for(bench, dataset, sampler=sampler, task=options.get("task",
-                                                                              "prediction"),
-                            horizon=options.get("horizon"),
-                            ground_truth=options.get("ground_truth"),
-                            melv_frames=options.get("melv_frames"))
-    identity = loaded.identity(bench.name, protocol["protocol_id"]) if loaded is not None else \
-        object_identity(model, label, bench.name, protocol["protocol_id"])
+        model, label, view, provenance = loaded.model, loaded.label, loaded.view, loaded.provenance
+    protocol = protocol_for(
+        bench,
+        dataset,
+        sampler=sampler,
+        task=options.get("task", "prediction"),
+        horizon=options.get("horizon"),
+        ground_truth=options.get("ground_truth"),
+        melv_frames=options.get("melv_frames"),
+    )
+    identity = (
+        loaded.identity(bench.name, protocol["protocol_id"])
+        if loaded is not None
+        else object_identity(model, label, bench.name, protocol["protocol_id"])
+    )
     target = Path(out) if out is not None else None
     if store and target is None:
         melv = options.get("melv_frames")
         melv = melv if melv not in (None, getattr(bench, "melv_on", None)) else None
-        target = result_path(None, bench.name, table_folder(
-            protocol["sampler"], protocol["task"], options.get("ground_truth"),
-            options.get("horizon"), melv), label)
+        target = result_path(
+            None,
+            bench.name,
+            table_folder(
+                protocol["sampler"],
+                protocol["task"],
+                options.get("ground_truth"),
+                options.get("horizon"),
+                melv,
+            ),
+            label,
+        )
     if target is not None:
         from zoo.io import check_output_folder
 
         check_output_folder(target)
         check_replace(target, identity, replace=replace, protocol=protocol)
-    result = run(model, bench, model_name=label, sampler=sampler, dataset=dataset,
-                 device=device, provenance=provenance, view=view, **options)
+    result = run(
+        model,
+        bench,
+        model_name=label,
+        sampler=sampler,
+        dataset=dataset,
+        device=device,
+        provenance=provenance,
+        view=view,
+        **options,
+    )
     stamp(result, identity)
     if target is not None:
         result.write(target)
     return result
 
 
-def compare(a: Any, b: Any, *, benchmark: Any = None, sampler: str | None = None,
-            root: str | Path | None = None, **options: Any):
+def compare(
+    a: Any,
+    b: Any,
+    *,
+    benchmark: Any = None,
+    sampler: str | None = None,
+    root: str | Path | None = None,
+    **options: Any,
+):
     """Is A better than B? ``a`` and ``b``: results (from :func:`evaluate` or
     :func:`load_results`), result folders, or labels of stored results of ``benchmark``;
     ``options`` as :func:`zoo.compare.compare` takes them. Returns a
@@ -137,16 +195,24 @@ def compare(a: Any, b: Any, *, benchmark: Any = None, sampler: str | None = None
                 raise RegistryError(f"compare({x!r}, ...): a label needs benchmark=...")
             results = load_results(benchmark, sampler=sampler, root=root)
             if x not in results:
-                raise RegistryError(f"no stored result labelled {x!r} for benchmark "
-                                    f"{benchmark!r}; stored: {', '.join(results) or 'none'}")
+                raise RegistryError(
+                    f"no stored result labelled {x!r} for benchmark "
+                    f"{benchmark!r}; stored: {', '.join(results) or 'none'}"
+                )
             return results[x]
         return x
 
     return paired(resolve(a), resolve(b), **options)
 
 
-def load_results(benchmark: Any, *, sampler: str | None = None, task: str = "prediction",
-                 ground_truth: str | None = None, root: str | Path | None = None) -> dict:
+def load_results(
+    benchmark: Any,
+    *,
+    sampler: str | None = None,
+    task: str = "prediction",
+    ground_truth: str | None = None,
+    root: str | Path | None = None,
+) -> dict:
     """The stored results of one table, ``{label: EvalResult}`` (``results/<benchmark>/
     <table>/<label>/``), each with its protocol record and identity."""
     from zoo.benchmark import get_benchmark
@@ -154,7 +220,13 @@ def load_results(benchmark: Any, *, sampler: str | None = None, task: str = "pre
     from zoo.store import RESULTS_DIR, table_folder
 
     bench = get_benchmark(benchmark) if isinstance(benchmark, (str, Path)) else benchmark
-    folder = Path(root or RESULTS_DIR) / bench.name / table_folder(sampler or bench.sampler,
-                                                                  task, ground_truth)
-    return {p.name: EvalResult.read(p) for p in sorted(folder.glob("*/protocol.json"))
-            for p in [p.parent]}
+    folder = (
+        Path(root or RESULTS_DIR)
+        / bench.name
+        / table_folder(sampler or bench.sampler, task, ground_truth)
+    )
+    return {
+        p.name: EvalResult.read(p)
+        for p in sorted(folder.glob("*/protocol.json"))
+        for p in [p.parent]
+    }

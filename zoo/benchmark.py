@@ -8,6 +8,7 @@ Mesh benchmarks (``representation: mesh``, or a dataset of ``MESH_DATASETS``) al
 ``context: [basis]`` receive) and the ground truth they score against: ``raw`` vertices or
 ``spectral`` (the k-coefficient reconstruction, as SpecTrHuMS does).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -29,9 +30,21 @@ BENCHMARK_DIR = REPO_ROOT / "benchmarks"
 DATASETS = {"cmu_mocap": load_cmu, "h36m": load_h36m, "3dpw": load_3dpw}
 SKELETON_OF = {"cmu_mocap": CMU, "h36m": H36M, "3dpw": THREEDPW}
 _REQUIRED = ("name", "dataset", "split", "input_frames", "output_frames", "sampler")
-_OPTIONAL = ("train_split", "data_root", "samplers", "actions", "horizons_ms", "averaging",
-             "description", "representation", "spectral_k", "ground_truth", "ground_truths",
-             "melv_frames", "weights_from")
+_OPTIONAL = (
+    "train_split",
+    "data_root",
+    "samplers",
+    "actions",
+    "horizons_ms",
+    "averaging",
+    "description",
+    "representation",
+    "spectral_k",
+    "ground_truth",
+    "ground_truths",
+    "melv_frames",
+    "weights_from",
+)
 # Mesh datasets: name -> a loader ``(root: Path | None, split) -> MeshDataset`` or the
 # "module:function" that names one (``root``: where the data, or the cache of generated data,
 # lives; None: the loader's default).
@@ -85,8 +98,7 @@ class Benchmark:
     @property
     def skeleton(self) -> Skeleton:
         if self.representation == "mesh":
-            raise BenchmarkError(f"benchmark {self.name!r} is a mesh benchmark: it has no "
-                                 f"skeleton")
+            raise BenchmarkError(f"benchmark {self.name!r} is a mesh benchmark: it has no skeleton")
         return SKELETON_OF[self.dataset]
 
     def resolve_data_root(self, data_root: str | Path | None = None) -> Path | None:
@@ -113,8 +125,13 @@ class Benchmark:
             return "joints"
         return "mesh" if "mesh" in representations else "joints"
 
-    def model_inputs(self, context: tuple[str, ...] = (), data_root: str | Path | None = None,
-                     dataset=None, view: str = "mesh") -> dict[str, Any]:
+    def model_inputs(
+        self,
+        context: tuple[str, ...] = (),
+        data_root: str | Path | None = None,
+        dataset=None,
+        view: str = "mesh",
+    ) -> dict[str, Any]:
         """Constructor keywords a model gets from this benchmark (see zoo.models). Mesh
         benchmarks read them from ``dataset`` if given (any split: they share the topology),
         else load the test split; ``view='joints'`` gives a skeleton model's keywords for the
@@ -123,14 +140,18 @@ class Benchmark:
             if view == "joints":
                 return self._joints_view_inputs(context, data_root, dataset)
             return self._mesh_model_inputs(context, data_root, dataset)
-        inputs = {"input_frames": self.input_frames, "output_frames": self.output_frames,
-                  "num_points": len(self.skeleton.used)}
+        inputs = {
+            "input_frames": self.input_frames,
+            "output_frames": self.output_frames,
+            "num_points": len(self.skeleton.used),
+        }
         for name in context:
             if name == "parts":
                 inputs["parts"] = {k: list(v) for k, v in self.skeleton.parts.items()}
             else:
-                raise BenchmarkError(f"benchmark {self.name!r} cannot supply context {name!r}; "
-                                     f"it supplies: parts")
+                raise BenchmarkError(
+                    f"benchmark {self.name!r} cannot supply context {name!r}; it supplies: parts"
+                )
         return inputs
 
     # ---- mesh benchmarks ------------------------------------------------------------------------
@@ -141,8 +162,10 @@ class Benchmark:
 
         loader = MESH_DATASETS.get(self.dataset)
         if loader is None:
-            raise BenchmarkError(f"benchmark {self.name!r}: no mesh dataset {self.dataset!r} is "
-                                 f"registered; known: {', '.join(MESH_DATASETS)}")
+            raise BenchmarkError(
+                f"benchmark {self.name!r}: no mesh dataset {self.dataset!r} is "
+                f"registered; known: {', '.join(MESH_DATASETS)}"
+            )
         loader, options = loader if isinstance(loader, tuple) else (loader, {})
         if isinstance(loader, str):
             module, function = loader.split(":")
@@ -155,38 +178,51 @@ class Benchmark:
         from zoo.data.spectral import SpectralBasis
 
         if self.spectral_k is None:
-            raise BenchmarkError(f"benchmark {self.name!r} ({self.source}) sets no spectral_k: "
-                                 f"it has no spectral basis")
+            raise BenchmarkError(
+                f"benchmark {self.name!r} ({self.source}) sets no spectral_k: "
+                f"it has no spectral basis"
+            )
         dataset = dataset if dataset is not None else self.load_mesh(data_root)
         return SpectralBasis.load_or_compute(dataset.topology, self.spectral_k)
 
-    def _joints_view_inputs(self, context: tuple[str, ...], data_root: str | Path | None,
-                            dataset=None) -> dict[str, Any]:
+    def _joints_view_inputs(
+        self, context: tuple[str, ...], data_root: str | Path | None, dataset=None
+    ) -> dict[str, Any]:
         from zoo.data.mesh import JointsView
 
         dataset = dataset if dataset is not None else self.load_mesh(data_root)
         view = dataset if isinstance(dataset, JointsView) else dataset.joints_view()
-        inputs = {"input_frames": self.input_frames, "output_frames": self.output_frames,
-                  "num_points": view.num_joints}
+        inputs = {
+            "input_frames": self.input_frames,
+            "output_frames": self.output_frames,
+            "num_points": view.num_joints,
+        }
         for name in context:
             if name == "parts":
                 inputs["parts"] = view.parts
             else:
-                raise BenchmarkError(f"benchmark {self.name!r} cannot supply context {name!r} to "
-                                     f"a model of its regressed joints; it supplies: parts")
+                raise BenchmarkError(
+                    f"benchmark {self.name!r} cannot supply context {name!r} to "
+                    f"a model of its regressed joints; it supplies: parts"
+                )
         return inputs
 
-    def _mesh_model_inputs(self, context: tuple[str, ...], data_root: str | Path | None,
-                           dataset=None) -> dict[str, Any]:
+    def _mesh_model_inputs(
+        self, context: tuple[str, ...], data_root: str | Path | None, dataset=None
+    ) -> dict[str, Any]:
         dataset = dataset if dataset is not None else self.load_mesh(data_root)
-        inputs = {"input_frames": self.input_frames, "output_frames": self.output_frames,
-                  "num_points": dataset.topology.num_vertices}
+        inputs = {
+            "input_frames": self.input_frames,
+            "output_frames": self.output_frames,
+            "num_points": dataset.topology.num_vertices,
+        }
         for name in context:
             if name == "basis":
                 inputs["basis"] = self.spectral_basis(dataset)
             else:
-                raise BenchmarkError(f"benchmark {self.name!r} cannot supply context {name!r}; "
-                                     f"it supplies: basis")
+                raise BenchmarkError(
+                    f"benchmark {self.name!r} cannot supply context {name!r}; it supplies: basis"
+                )
         return inputs
 
 
@@ -200,9 +236,11 @@ def get_benchmark(name_or_path: str | Path) -> Benchmark:
     if path.suffix not in (".yaml", ".yml"):
         path = BENCHMARK_DIR / f"{name_or_path}.yaml"
         if not path.is_file():
-            raise BenchmarkError(f"unknown benchmark {str(name_or_path)!r}; available: "
-                                 f"{', '.join(list_benchmarks()) or '(none)'} "
-                                 f"(or pass the path of a benchmark YAML file)")
+            raise BenchmarkError(
+                f"unknown benchmark {str(name_or_path)!r}; available: "
+                f"{', '.join(list_benchmarks()) or '(none)'} "
+                f"(or pass the path of a benchmark YAML file)"
+            )
     if not path.is_file():
         raise BenchmarkError(f"benchmark file {path} does not exist")
     try:
@@ -216,13 +254,17 @@ def get_benchmark(name_or_path: str | Path) -> Benchmark:
         raise BenchmarkError(f"{path}: missing field(s) {', '.join(missing)}")
     unknown = sorted(set(raw) - set(_REQUIRED) - set(_OPTIONAL))
     if unknown:
-        raise BenchmarkError(f"{path}: unknown field(s) {', '.join(unknown)}; valid: "
-                             f"{', '.join(_REQUIRED + _OPTIONAL)}")
+        raise BenchmarkError(
+            f"{path}: unknown field(s) {', '.join(unknown)}; valid: "
+            f"{', '.join(_REQUIRED + _OPTIONAL)}"
+        )
     mesh = _check_mesh_fields(path, raw)
     known = MESH_DATASETS if mesh else SKELETON_OF
     if raw["dataset"] not in known:
-        raise BenchmarkError(f"{path}: field 'dataset': unknown {'mesh' if mesh else 'skeleton'} "
-                             f"dataset {raw['dataset']!r}; known: {', '.join(known)}")
+        raise BenchmarkError(
+            f"{path}: field 'dataset': unknown {'mesh' if mesh else 'skeleton'} "
+            f"dataset {raw['dataset']!r}; known: {', '.join(known)}"
+        )
     for key in ("input_frames", "output_frames"):
         if not isinstance(raw[key], int) or raw[key] < 1:
             raise BenchmarkError(f"{path}: field {key!r} must be a positive integer")
@@ -232,12 +274,20 @@ def get_benchmark(name_or_path: str | Path) -> Benchmark:
             check_sampler(s)
         except ValueError as e:
             raise BenchmarkError(f"{path}: {e}") from None
-    kwargs = {k: tuple(v) if isinstance(v, list) else v for k, v in raw.items()
-              if k in _OPTIONAL and k not in ("description", "samplers")}
+    kwargs = {
+        k: tuple(v) if isinstance(v, list) else v
+        for k, v in raw.items()
+        if k in _OPTIONAL and k not in ("description", "samplers")
+    }
     if mesh:
         kwargs["representation"] = "mesh"
-    bench = Benchmark(source=path, samplers=samplers, extra={"description": raw.get("description")},
-                      **{k: raw[k] for k in _REQUIRED}, **kwargs)
+    bench = Benchmark(
+        source=path,
+        samplers=samplers,
+        extra={"description": raw.get("description")},
+        **{k: raw[k] for k in _REQUIRED},
+        **kwargs,
+    )
     if bench.weights_from is not None:
         _check_weights_from(path, bench)
     return bench
@@ -247,51 +297,67 @@ def _check_weights_from(path: Path, bench: Benchmark) -> None:
     """``weights_from: OTHER``: OTHER's trained models are scored here, so what they were built
     for must be this benchmark's too (the basis itself is compared by hash when they load)."""
     if not isinstance(bench.weights_from, str) or bench.weights_from == bench.name:
-        raise BenchmarkError(f"{path}: field 'weights_from' must name another benchmark, got "
-                             f"{bench.weights_from!r}")
+        raise BenchmarkError(
+            f"{path}: field 'weights_from' must name another benchmark, got {bench.weights_from!r}"
+        )
     try:
         other = get_benchmark(bench.weights_from)
     except BenchmarkError as e:
         raise BenchmarkError(f"{path}: field 'weights_from': {e}") from None
     fields = ("representation", "input_frames", "output_frames", "spectral_k")
-    differ = [f"{f} {getattr(bench, f)!r} here, {getattr(other, f)!r} there" for f in fields
-              if getattr(bench, f) != getattr(other, f)]
+    differ = [
+        f"{f} {getattr(bench, f)!r} here, {getattr(other, f)!r} there"
+        for f in fields
+        if getattr(bench, f) != getattr(other, f)
+    ]
     if differ:
-        raise BenchmarkError(f"{path}: field 'weights_from: {other.name}': its models cannot be "
-                             f"scored here ({'; '.join(differ)})")
+        raise BenchmarkError(
+            f"{path}: field 'weights_from: {other.name}': its models cannot be "
+            f"scored here ({'; '.join(differ)})"
+        )
 
 
 def _check_mesh_fields(path: Path, raw: dict[str, Any]) -> bool:
     """Validate the mesh fields of a benchmark file; True if it is a mesh benchmark."""
-    representation = raw.get("representation",
-                             "mesh" if raw.get("dataset") in MESH_DATASETS else "joints")
+    representation = raw.get(
+        "representation", "mesh" if raw.get("dataset") in MESH_DATASETS else "joints"
+    )
     if representation not in ("joints", "mesh"):
-        raise BenchmarkError(f"{path}: field 'representation' must be joints or mesh, got "
-                             f"{representation!r}")
+        raise BenchmarkError(
+            f"{path}: field 'representation' must be joints or mesh, got {representation!r}"
+        )
     if representation != "mesh":
-        extra = [k for k in ("spectral_k", "ground_truth", "ground_truths", "melv_frames")
-                 if k in raw]
+        extra = [
+            k for k in ("spectral_k", "ground_truth", "ground_truths", "melv_frames") if k in raw
+        ]
         if extra:
-            raise BenchmarkError(f"{path}: field(s) {', '.join(extra)} belong to mesh benchmarks "
-                                 f"(representation: mesh)")
+            raise BenchmarkError(
+                f"{path}: field(s) {', '.join(extra)} belong to mesh benchmarks "
+                f"(representation: mesh)"
+            )
         return False
     k = raw.get("spectral_k")
     if k is not None and (isinstance(k, bool) or not isinstance(k, int) or k < 1):
         raise BenchmarkError(f"{path}: field 'spectral_k' must be a positive integer, got {k!r}")
     offered = raw.get("ground_truths") or [raw.get("ground_truth", "raw")]
     if raw.get("ground_truth", "raw") not in offered:
-        raise BenchmarkError(f"{path}: field 'ground_truth' ({raw.get('ground_truth', 'raw')!r}) "
-                             f"must be one of field 'ground_truths' {offered}")
+        raise BenchmarkError(
+            f"{path}: field 'ground_truth' ({raw.get('ground_truth', 'raw')!r}) "
+            f"must be one of field 'ground_truths' {offered}"
+        )
     for gt in (raw.get("ground_truth", "raw"), *offered):
         if gt not in GROUND_TRUTHS:
-            raise BenchmarkError(f"{path}: ground truth {gt!r} is not one of "
-                                 f"{', '.join(GROUND_TRUTHS)}")
+            raise BenchmarkError(
+                f"{path}: ground truth {gt!r} is not one of {', '.join(GROUND_TRUTHS)}"
+            )
         if gt == "spectral" and k is None:
             raise BenchmarkError(f"{path}: ground truth 'spectral' needs field 'spectral_k'")
     melv_frames = raw.get("melv_frames")
     if melv_frames is not None and melv_frames not in GROUND_TRUTHS:
-        raise BenchmarkError(f"{path}: field 'melv_frames' must be one of "
-                             f"{', '.join(GROUND_TRUTHS)}, got {melv_frames!r}")
+        raise BenchmarkError(
+            f"{path}: field 'melv_frames' must be one of "
+            f"{', '.join(GROUND_TRUTHS)}, got {melv_frames!r}"
+        )
     if melv_frames == "spectral" and k is None:
         raise BenchmarkError(f"{path}: field 'melv_frames: spectral' needs field 'spectral_k'")
     return True

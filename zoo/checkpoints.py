@@ -8,6 +8,7 @@ path and registry file, with the file's sha256. A checkpoint of a model that no 
 defines is refused naming the registry file to pass with ``--registry``; one whose name now
 belongs to another class is refused naming both classes.
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -22,8 +23,15 @@ from zoo.benchmark import Benchmark, get_benchmark
 from zoo.errors import ZooError
 from zoo.io import atomic_path, atomic_write_json, repo_relative, sha256_file
 from zoo.registry import ModelEntry, Registry, load_registry
-from zoo.weights import (RECORD_FORMAT, STORAGE_DTYPES, WeightsError, checkpoint_label,
-                         read_weights, record_file, weights_file)
+from zoo.weights import (
+    RECORD_FORMAT,
+    STORAGE_DTYPES,
+    WeightsError,
+    checkpoint_label,
+    read_weights,
+    record_file,
+    weights_file,
+)
 
 CHECKPOINT_FORMAT = "motion-zoo-checkpoint/1"
 
@@ -34,9 +42,13 @@ class CheckpointError(ZooError, ValueError):
 
 def model_origin(entry: ModelEntry) -> dict[str, Any]:
     """Where a trained model's class comes from, as checkpoints and weights record it."""
-    return {"name": entry.name, "class": entry.class_path, "registry": repo_relative(entry.source),
-            "registry_sha256": sha256_file(entry.source),
-            **({"replaces": entry.replaces} if entry.replaces else {})}
+    return {
+        "name": entry.name,
+        "class": entry.class_path,
+        "registry": repo_relative(entry.source),
+        "registry_sha256": sha256_file(entry.source),
+        **({"replaces": entry.replaces} if entry.replaces else {}),
+    }
 
 
 def recorded_entry(meta: dict[str, Any], registry: Registry, source: str) -> ModelEntry:
@@ -51,26 +63,37 @@ def recorded_entry(meta: dict[str, Any], registry: Registry, source: str) -> Mod
             registry.get(name)  # the registry's own error lists what is registered
         path = Path(recorded)
         path = path if path.is_absolute() else REPO_ROOT / path
-        where = (f"registry file {path}" if path.is_file() else
-                 f"registry file {path}, which does not exist here (find that file)")
-        raise CheckpointError(f"{source} holds model {name!r} (class {origin.get('class')}) "
-                              f"from {where}; no loaded registry defines it: pass --registry "
-                              f"{path} (or set ZOO_REGISTRY). A registry runs code: use only "
-                              f"registries you trust")
+        where = (
+            f"registry file {path}"
+            if path.is_file()
+            else f"registry file {path}, which does not exist here (find that file)"
+        )
+        raise CheckpointError(
+            f"{source} holds model {name!r} (class {origin.get('class')}) "
+            f"from {where}; no loaded registry defines it: pass --registry "
+            f"{path} (or set ZOO_REGISTRY). A registry runs code: use only "
+            f"registries you trust"
+        )
     entry = registry.get(name)
     if origin.get("class") and origin["class"] != entry.class_path:
-        raise CheckpointError(f"{source} holds model {name!r} of class {origin['class']} "
-                              f"(registry {origin.get('registry')}), but the loaded registry's "
-                              f"{name!r} is class {entry.class_path} ({entry.source}); load the "
-                              f"registry it was trained with")
+        raise CheckpointError(
+            f"{source} holds model {name!r} of class {origin['class']} "
+            f"(registry {origin.get('registry')}), but the loaded registry's "
+            f"{name!r} is class {entry.class_path} ({entry.source}); load the "
+            f"registry it was trained with"
+        )
     return entry
 
 
 def model_protocol(bench: Benchmark, view: str = "mesh") -> dict[str, Any]:
     """What a trained model's weights depend on: it must match wherever they are evaluated.
     ``view``: ``joints`` for a skeleton model trained on a mesh benchmark's regressed joints."""
-    protocol = {"benchmark": bench.name, "dataset": bench.dataset,
-                "input_frames": bench.input_frames, "output_frames": bench.output_frames}
+    protocol = {
+        "benchmark": bench.name,
+        "dataset": bench.dataset,
+        "input_frames": bench.input_frames,
+        "output_frames": bench.output_frames,
+    }
     if bench.representation == "mesh":
         protocol.update(representation="mesh", spectral_k=bench.spectral_k)
         if view == "joints":
@@ -126,13 +149,17 @@ def read_checkpoint(path: str | Path) -> dict[str, Any]:
         payload = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as e:  # torch raises several types for truncated or foreign files
         first = (str(e).splitlines() or [""])[0][:200]
-        raise CheckpointError(f"checkpoint {path} is empty, truncated or not a motion-zoo "
-                              f"checkpoint ({type(e).__name__}: {first}); train again, or "
-                              f"restore the file") from e
+        raise CheckpointError(
+            f"checkpoint {path} is empty, truncated or not a motion-zoo "
+            f"checkpoint ({type(e).__name__}: {first}); train again, or "
+            f"restore the file"
+        ) from e
     if not isinstance(payload, dict) or payload.get("format") != CHECKPOINT_FORMAT:
-        raise CheckpointError(f"checkpoint {path} is not a motion-zoo checkpoint (format "
-                              f"{payload.get('format') if isinstance(payload, dict) else None!r},"
-                              f" expected {CHECKPOINT_FORMAT!r})")
+        raise CheckpointError(
+            f"checkpoint {path} is not a motion-zoo checkpoint (format "
+            f"{payload.get('format') if isinstance(payload, dict) else None!r},"
+            f" expected {CHECKPOINT_FORMAT!r})"
+        )
     return payload
 
 
@@ -140,14 +167,24 @@ def checkpoint_provenance(path: str | Path, checkpoint: dict[str, Any]) -> dict[
     """What a result computed from ``checkpoint`` records about it: the file (relative to the
     repository when inside it, so stored results name no machine's folders), the
     hyper-parameters and the training summary."""
-    return {"checkpoint": repo_relative(path), "hparams": checkpoint["hparams"],
-            "training": checkpoint.get("training", {})}
+    return {
+        "checkpoint": repo_relative(path),
+        "hparams": checkpoint["hparams"],
+        "training": checkpoint.get("training", {}),
+    }
 
 
-def trained_model(meta: dict[str, Any], state_dict: dict[str, torch.Tensor], kind: str,
-                  path: str | Path, *,
-                  registry: Registry | None = None, benchmark: str | Benchmark | None = None,
-                  data_root: str | Path | None = None, dataset=None) -> nn.Module:
+def trained_model(
+    meta: dict[str, Any],
+    state_dict: dict[str, torch.Tensor],
+    kind: str,
+    path: str | Path,
+    *,
+    registry: Registry | None = None,
+    benchmark: str | Benchmark | None = None,
+    data_root: str | Path | None = None,
+    dataset=None,
+) -> nn.Module:
     """The model that ``meta`` (a checkpoint's or shipped weights' record: model, hparams,
     protocol, context_hashes) describes, holding ``state_dict``, in eval mode; refused with an
     error naming the ``kind`` ("checkpoint", "weights") and ``path`` it came from if it was
@@ -155,44 +192,63 @@ def trained_model(meta: dict[str, Any], state_dict: dict[str, torch.Tensor], kin
     source = f"{kind} {path}"
     registry = registry or load_registry()
     entry = recorded_entry(meta, registry, source)
-    bench = get_benchmark(benchmark or meta["protocol"]["benchmark"]) \
-        if not isinstance(benchmark, Benchmark) else benchmark
+    bench = (
+        get_benchmark(benchmark or meta["protocol"]["benchmark"])
+        if not isinstance(benchmark, Benchmark)
+        else benchmark
+    )
     view = bench.view_for(entry.representation)
     expected = model_protocol(bench, view)
-    diff = [f"{k} ({kind} {meta['protocol'].get(k)!r}, benchmark {v!r})"
-            for k, v in expected.items() if meta["protocol"].get(k) != v]
+    diff = [
+        f"{k} ({kind} {meta['protocol'].get(k)!r}, benchmark {v!r})"
+        for k, v in expected.items()
+        if meta["protocol"].get(k) != v
+    ]
     if diff and bench.weights_from and meta["protocol"].get("benchmark") == bench.weights_from:
         # trained on the benchmark this one takes weights from: the same data, other sizes
         source_protocol = model_protocol(get_benchmark(bench.weights_from), view)
-        diff = [f"{k} ({kind} {meta['protocol'].get(k)!r}, benchmark {bench.weights_from} "
-                f"{v!r})" for k, v in source_protocol.items() if meta["protocol"].get(k) != v]
+        diff = [
+            f"{k} ({kind} {meta['protocol'].get(k)!r}, benchmark {bench.weights_from} {v!r})"
+            for k, v in source_protocol.items()
+            if meta["protocol"].get(k) != v
+        ]
     if diff:
-        raise CheckpointError(f"{source} was trained for another protocol than benchmark "
-                              f"{bench.name!r}: " + "; ".join(diff))
+        raise CheckpointError(
+            f"{source} was trained for another protocol than benchmark "
+            f"{bench.name!r}: " + "; ".join(diff)
+        )
     hparams = dict(meta["hparams"])
     hashes = meta.get("context_hashes", {})
     if hashes:
         supplied = bench.model_inputs(entry.context, data_root, dataset, view)
         for key, trained_hash in hashes.items():
             if supplied[key].hash != trained_hash:
-                raise CheckpointError(f"{source}: its {key} hash {trained_hash[:16]} "
-                                      f"differs from benchmark {bench.name!r}'s "
-                                      f"{supplied[key].hash[:16]} (another basis or mesh); "
-                                      f"never silently recomputed, retrain for this data")
+                raise CheckpointError(
+                    f"{source}: its {key} hash {trained_hash[:16]} "
+                    f"differs from benchmark {bench.name!r}'s "
+                    f"{supplied[key].hash[:16]} (another basis or mesh); "
+                    f"never silently recomputed, retrain for this data"
+                )
             hparams[key] = supplied[key]
     model = registry.create_model(entry.name, **hparams)
     try:
         model.load_state_dict(state_dict)
     except RuntimeError as e:
-        raise CheckpointError(f"{source}: weights do not fit model {entry.name!r} "
-                              f"({str(e).splitlines()[0]})") from e
+        raise CheckpointError(
+            f"{source}: weights do not fit model {entry.name!r} ({str(e).splitlines()[0]})"
+        ) from e
     return model.eval()
 
 
-def load_checkpoint(path: str | Path, *, registry: Registry | None = None,
-                    benchmark: str | Benchmark | None = None, model_name: str | None = None,
-                    data_root: str | Path | None = None, dataset=None
-                    ) -> tuple[nn.Module, dict[str, Any]]:
+def load_checkpoint(
+    path: str | Path,
+    *,
+    registry: Registry | None = None,
+    benchmark: str | Benchmark | None = None,
+    model_name: str | None = None,
+    data_root: str | Path | None = None,
+    dataset=None,
+) -> tuple[nn.Module, dict[str, Any]]:
     """The trained model of a checkpoint, checked against the benchmark it will be evaluated on.
 
     With ``benchmark=None`` the checkpoint's own protocol is used. Data objects the model was
@@ -200,40 +256,69 @@ def load_checkpoint(path: str | Path, *, registry: Registry | None = None,
     """
     ckpt = read_checkpoint(path)
     if model_name is not None and model_name != ckpt["model"]:
-        raise CheckpointError(f"checkpoint {path} holds model {ckpt['model']!r}, not "
-                              f"{model_name!r}")
-    model = trained_model(ckpt, ckpt["state_dict"], "checkpoint", path, registry=registry,
-                          benchmark=benchmark, data_root=data_root, dataset=dataset)
+        raise CheckpointError(
+            f"checkpoint {path} holds model {ckpt['model']!r}, not {model_name!r}"
+        )
+    model = trained_model(
+        ckpt,
+        ckpt["state_dict"],
+        "checkpoint",
+        path,
+        registry=registry,
+        benchmark=benchmark,
+        data_root=data_root,
+        dataset=dataset,
+    )
     return model, ckpt
 
 
-def load_weights(path: str | Path, *, registry=None, benchmark=None, data_root=None,
-                 dataset=None) -> tuple[torch.nn.Module, dict[str, Any]]:
+def load_weights(
+    path: str | Path, *, registry=None, benchmark=None, data_root=None, dataset=None
+) -> tuple[torch.nn.Module, dict[str, Any]]:
     """The model of shipped weights, checked against ``benchmark`` (default: its own)."""
     state, record = read_weights(path)
-    model = trained_model(record, state, "weights", path, registry=registry,
-                          benchmark=benchmark, data_root=data_root, dataset=dataset)
+    model = trained_model(
+        record,
+        state,
+        "weights",
+        path,
+        registry=registry,
+        benchmark=benchmark,
+        data_root=data_root,
+        dataset=dataset,
+    )
     return model, record
 
 
-def export_weights(checkpoint: str | Path, *, label: str | None = None,
-                   root: str | Path | None = None, dtype: str = "float16") -> Path:
+def export_weights(
+    checkpoint: str | Path,
+    *,
+    label: str | None = None,
+    root: str | Path | None = None,
+    dtype: str = "float16",
+) -> Path:
     """Write a checkpoint's weights and record under ``<root>/<benchmark>/``; returns the
     ``.safetensors`` path. Both files are written atomically, the record last."""
     from safetensors.torch import save_file
 
     if dtype not in STORAGE_DTYPES:
-        raise WeightsError(f"weights dtype {dtype!r} unknown; valid: "
-                           f"{', '.join(STORAGE_DTYPES)}")
+        raise WeightsError(f"weights dtype {dtype!r} unknown; valid: {', '.join(STORAGE_DTYPES)}")
     ckpt = read_checkpoint(checkpoint)
     label = label or checkpoint_label(checkpoint, ckpt["model"])
     if not label or "/" in label or label.startswith("."):
-        raise WeightsError(f"weights label {label!r} must be a plain file name "
-                           f"(e.g. {ckpt['model']!r} or {ckpt['model'] + '@last'!r})")
+        raise WeightsError(
+            f"weights label {label!r} must be a plain file name "
+            f"(e.g. {ckpt['model']!r} or {ckpt['model'] + '@last'!r})"
+        )
     benchmark = ckpt["protocol"]["benchmark"]
     path = weights_file(benchmark, label, root)
-    tensors = {name: (t.to(STORAGE_DTYPES[dtype]) if t.is_floating_point() else t)
-               .detach().cpu().contiguous() for name, t in ckpt["state_dict"].items()}
+    tensors = {
+        name: (t.to(STORAGE_DTYPES[dtype]) if t.is_floating_point() else t)
+        .detach()
+        .cpu()
+        .contiguous()
+        for name, t in ckpt["state_dict"].items()
+    }
     with atomic_path(path) as tmp:
         save_file(tensors, str(tmp), metadata={"format": RECORD_FORMAT, "model": ckpt["model"]})
         digest = sha256_file(tmp)

@@ -1,10 +1,12 @@
 """The ``zoo`` command: list models, evaluate, regenerate leaderboards, train, build data."""
+
 from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import yaml
 
@@ -13,7 +15,6 @@ from zoo.evaluate import EVAL_BATCH
 from zoo.paths import REPO_ROOT
 from zoo.registry import load_registry
 from zoo.store import RESULTS_DIR
-
 
 
 class UsageError(ZooError, ValueError):
@@ -35,8 +36,11 @@ def _numbers_as_numbers(value: Any) -> Any:
     """YAML 1.1 reads ``1e-3`` (no dot) as a string; a number is meant, in a value or nested."""
     if isinstance(value, str):
         try:
-            return float(value) if value.strip().lower() not in ("nan", "inf", "-inf",
-                                                                 "infinity") else value
+            return (
+                float(value)
+                if value.strip().lower() not in ("nan", "inf", "-inf", "infinity")
+                else value
+            )
         except ValueError:
             return value
     if isinstance(value, dict):
@@ -58,20 +62,35 @@ def cmd_list(args) -> int:
     for name in registry.list_models(args.representation):
         e = registry.get(name)
         hp = ", ".join(f"{k}={v}" for k, v in e.hparams.items())
-        rows.append([name, "/".join(e.representation), "yes" if e.trainable else "no",
-                     hp if len(hp) < 70 else hp[:67] + "...", e.reference.split(".")[0]])
-    print(tabulate(rows, headers=["model", "representation", "trainable", "hparams",
-                                  "reference"], tablefmt="github"))
+        rows.append(
+            [
+                name,
+                "/".join(e.representation),
+                "yes" if e.trainable else "no",
+                hp if len(hp) < 70 else hp[:67] + "...",
+                e.reference.split(".")[0],
+            ]
+        )
+    print(
+        tabulate(
+            rows,
+            headers=["model", "representation", "trainable", "hparams", "reference"],
+            tablefmt="github",
+        )
+    )
     return 0
 
 
 def _source(args):
     from zoo.model_source import ModelSource
 
-    return ModelSource.of(model=args.model, checkpoint=getattr(args, "checkpoint", None),
-                          weights=getattr(args, "weights", None),
-                          overrides=parse_overrides(args.set),
-                          label=getattr(args, "label", None))
+    return ModelSource.of(
+        model=args.model,
+        checkpoint=getattr(args, "checkpoint", None),
+        weights=getattr(args, "weights", None),
+        overrides=parse_overrides(args.set),
+        label=getattr(args, "label", None),
+    )
 
 
 def _benchmark_of(args, source, default: str):
@@ -96,24 +115,38 @@ def cmd_eval(args) -> int:
     loaded.warn_if_untrained()
     samplers = args.sampler or [bench.sampler]
     if args.out and len(samplers) > 1:
-        raise UsageError("--out takes one --sampler; omit --out to write "
-                         "results/<benchmark>/<sampler>/<label>/ for each")
+        raise UsageError(
+            "--out takes one --sampler; omit --out to write "
+            "results/<benchmark>/<sampler>/<label>/ for each"
+        )
     from zoo.io import check_output_folder
 
     if args.melv_frames is not None and bench.representation != "mesh":
         raise UsageError(f"--melv-frames: benchmark {bench.name} is not a mesh benchmark")
     # Only a MELV other than the benchmark's default gets a folder of its own.
-    melv = args.melv_frames if args.melv_frames not in (None, getattr(bench, "melv_on", None)) \
+    melv = (
+        args.melv_frames
+        if args.melv_frames not in (None, getattr(bench, "melv_on", None))
         else None
+    )
     plans = []
     for sampler in samplers:  # every output place checked before any evaluation
         folder = table_folder(sampler, args.task, args.ground_truth, args.horizon_frames, melv)
-        out = Path(args.out) if args.out else result_path(args.results, bench.name, folder,
-                                                          loaded.label)
+        out = (
+            Path(args.out)
+            if args.out
+            else result_path(args.results, bench.name, folder, loaded.label)
+        )
         check_output_folder(out)
-        protocol = protocol_for(bench, dataset, sampler=sampler, task=args.task,
-                                horizon=args.horizon_frames, ground_truth=args.ground_truth,
-                                melv_frames=args.melv_frames)
+        protocol = protocol_for(
+            bench,
+            dataset,
+            sampler=sampler,
+            task=args.task,
+            horizon=args.horizon_frames,
+            ground_truth=args.ground_truth,
+            melv_frames=args.melv_frames,
+        )
         identity = loaded.identity(bench.name, protocol["protocol_id"])
         check_replace(out, identity, replace=args.replace, protocol=protocol)
         plans.append((sampler, out, identity))
@@ -121,11 +154,21 @@ def cmd_eval(args) -> int:
     # result; the first writes it.
     writer = init_distributed(args.device).rank == 0
     for sampler, out, identity in plans:
-        result = evaluate(loaded.model, bench, model_name=loaded.label, sampler=sampler,
-                          dataset=dataset, view=loaded.view, batch_size=args.batch_size,
-                          device=args.device, provenance=_jsonable(loaded.provenance),
-                          task=args.task, horizon=args.horizon_frames,
-                          ground_truth=args.ground_truth, melv_frames=args.melv_frames)
+        result = evaluate(
+            loaded.model,
+            bench,
+            model_name=loaded.label,
+            sampler=sampler,
+            dataset=dataset,
+            view=loaded.view,
+            batch_size=args.batch_size,
+            device=args.device,
+            provenance=_jsonable(loaded.provenance),
+            task=args.task,
+            horizon=args.horizon_frames,
+            ground_truth=args.ground_truth,
+            melv_frames=args.melv_frames,
+        )
         stamp(result, identity)
         if not writer:
             continue
@@ -144,8 +187,9 @@ def cmd_weights(args) -> int:
     root = Path(args.root)
     if args.action == "export":
         if not args.checkpoint:
-            raise UsageError("zoo weights export needs a CHECKPOINT (e.g. "
-                             "checkpoints/cmu/spgsn/best.pt)")
+            raise UsageError(
+                "zoo weights export needs a CHECKPOINT (e.g. checkpoints/cmu/spgsn/best.pt)"
+            )
         path = export_weights(args.checkpoint, label=args.label, root=root, dtype=args.dtype)
         print(f"wrote {path} and {path.with_suffix('.json').name}")
         return 0
@@ -155,11 +199,34 @@ def cmd_weights(args) -> int:
     for bench, label in available_weights(root):
         record = read_weights_record(weights_file(bench, label, root))
         training = record.get("training", {})
-        rows.append([bench, label, record["model"], f"{record['parameters'] / 1e6:.2f} M",
-                     record["dtype"], training.get("samples_seen"),
-                     f"{training.get('seconds', 0) / 60:.0f}", training.get("device_name")])
-    print(tabulate(rows, headers=["benchmark", "label", "model", "parameters", "stored as",
-                                  "training samples", "minutes", "device"], tablefmt="github"))
+        rows.append(
+            [
+                bench,
+                label,
+                record["model"],
+                f"{record['parameters'] / 1e6:.2f} M",
+                record["dtype"],
+                training.get("samples_seen"),
+                f"{training.get('seconds', 0) / 60:.0f}",
+                training.get("device_name"),
+            ]
+        )
+    print(
+        tabulate(
+            rows,
+            headers=[
+                "benchmark",
+                "label",
+                "model",
+                "parameters",
+                "stored as",
+                "training samples",
+                "minutes",
+                "device",
+            ],
+            tablefmt="github",
+        )
+    )
     return 0
 
 
@@ -171,30 +238,46 @@ def cmd_leaderboard(args) -> int:
     registry = _registry(args)
     check = CheckReport() if args.check else None
     if check and (args.recompute is not None or args.model or args.drop):
-        raise UsageError("--check recomputes every committed row and writes nothing; it takes "
-                         "no --recompute, --model or --drop")
+        raise UsageError(
+            "--check recomputes every committed row and writes nothing; it takes "
+            "no --recompute, --model or --drop"
+        )
     if not args.benchmark:
-        args.benchmark = committed_benchmarks(Path(args.out)) if check else \
-            list(default_benchmarks())
+        args.benchmark = (
+            committed_benchmarks(Path(args.out)) if check else list(default_benchmarks())
+        )
     names = [Path(b).stem for b in args.benchmark]
     unknown = sorted(set(args.recompute or ()) - set(names))
     if unknown:
-        raise UsageError(f"--recompute {' '.join(unknown)}: not among the benchmarks of this run "
-                         f"({', '.join(names)})")
+        raise UsageError(
+            f"--recompute {' '.join(unknown)}: not among the benchmarks of this run "
+            f"({', '.join(names)})"
+        )
     if check:
         for name in names:
             if not list((Path(args.out) / name).glob("*/results.csv")):
-                raise UsageError(f"--check: no committed table of {name} under {args.out} "
-                                 f"(expected {args.out}/{name}/<sampler>/results.csv)")
+                raise UsageError(
+                    f"--check: no committed table of {name} under {args.out} "
+                    f"(expected {args.out}/{name}/<sampler>/results.csv)"
+                )
     started = time.perf_counter()
     for bench, name in zip(args.benchmark, names):
-        plan = Plan(recompute=args.recompute is not None and (not args.recompute
-                                                             or name in args.recompute),
-                    models=frozenset(args.model or ()), drop=frozenset(args.drop or ()),
-                    check=check)
-        regenerate(bench, registry=registry, data_root=args.data_root, out_root=Path(args.out),
-                   checkpoints=Path(args.checkpoints), weights=Path(args.weights),
-                   device=args.device, plan=plan)
+        plan = Plan(
+            recompute=args.recompute is not None and (not args.recompute or name in args.recompute),
+            models=frozenset(args.model or ()),
+            drop=frozenset(args.drop or ()),
+            check=check,
+        )
+        regenerate(
+            bench,
+            registry=registry,
+            data_root=args.data_root,
+            out_root=Path(args.out),
+            checkpoints=Path(args.checkpoints),
+            weights=Path(args.weights),
+            device=args.device,
+            plan=plan,
+        )
     if check is None:
         from zoo.leaderboard import write_index
 
@@ -202,8 +285,10 @@ def cmd_leaderboard(args) -> int:
         return 0
     for problem in check.problems:
         print(f"zoo leaderboard --check: {problem}", file=sys.stderr)
-    print(f"{check.summary()} ({', '.join(names)}; {time.perf_counter() - started:.0f} "
-          f"s){'' if not check.problems else f'; {len(check.problems)} problem(s) above'}")
+    print(
+        f"{check.summary()} ({', '.join(names)}; {time.perf_counter() - started:.0f} "
+        f"s){'' if not check.problems else f'; {len(check.problems)} problem(s) above'}"
+    )
     return 1 if check.problems else 0
 
 
@@ -215,8 +300,10 @@ def committed_benchmarks(results: Path) -> list[str]:
     found = sorted(p.parent.parent.name for p in results.glob("*/*/results.csv"))
     unknown = sorted({b for b in found if b not in known})
     if unknown:
-        raise UsageError(f"{results}: tables of unknown benchmark(s) {', '.join(unknown)} "
-                         f"(known: {', '.join(sorted(known))})")
+        raise UsageError(
+            f"{results}: tables of unknown benchmark(s) {', '.join(unknown)} "
+            f"(known: {', '.join(sorted(known))})"
+        )
     return list(dict.fromkeys(found))
 
 
@@ -229,23 +316,36 @@ def cmd_compare(args) -> int:
             folders.append(Path(name))
             continue
         if not args.benchmark:
-            raise UsageError(f"{name!r} is not a result folder; give --benchmark to find "
-                             f"results/<benchmark>/<sampler>/{name}")
+            raise UsageError(
+                f"{name!r} is not a result folder; give --benchmark to find "
+                f"results/<benchmark>/<sampler>/{name}"
+            )
         from zoo.benchmark import get_benchmark
         from zoo.store import result_path, table_folder
 
         bench = get_benchmark(args.benchmark)
-        folder = result_path(args.results, bench.name,
-                             table_folder(args.sampler or bench.sampler, truth=args.ground_truth),
-                             name)
+        folder = result_path(
+            args.results,
+            bench.name,
+            table_folder(args.sampler or bench.sampler, truth=args.ground_truth),
+            name,
+        )
         if not (folder / "results.csv").is_file():
-            raise UsageError(f"{folder}: no result of {name!r} there (zoo eval or zoo "
-                             f"leaderboard writes it)")
+            raise UsageError(
+                f"{folder}: no result of {name!r} there (zoo eval or zoo leaderboard writes it)"
+            )
         folders.append(folder)
-    comparison = compare(folders[0], folders[1], metric=args.metric, joints=args.joints,
-                         averaging=args.averaging, block_frames=args.block_frames,
-                         confidence=args.confidence, replicates=args.replicates,
-                         seed=args.seed)
+    comparison = compare(
+        folders[0],
+        folders[1],
+        metric=args.metric,
+        joints=args.joints,
+        averaging=args.averaging,
+        block_frames=args.block_frames,
+        confidence=args.confidence,
+        replicates=args.replicates,
+        seed=args.seed,
+    )
     print(comparison.markdown())
     if args.out:
         comparison.write(args.out)
@@ -264,8 +364,16 @@ def cmd_render(args) -> int:
     dataset = bench.load(args.data_root)
     loaded = source.load(registry, bench, dataset, args.data_root)
     out = Path(args.out) if args.out else RESULTS_DIR / bench.name / "renders"
-    written = render_windows(loaded.model, loaded.label, bench, dataset, args.windows, out,
-                             task=args.task, horizon=args.horizon_frames)
+    written = render_windows(
+        loaded.model,
+        loaded.label,
+        bench,
+        dataset,
+        args.windows,
+        out,
+        task=args.task,
+        horizon=args.horizon_frames,
+    )
     print("wrote " + ", ".join(str(p) for p in written))
     return 0
 
@@ -280,9 +388,11 @@ def default_benchmarks():
     if cmu.resolve_data_root() is not None and cmu.resolve_data_root().is_dir():
         yield "cmu"
     else:
-        print(f"note: CMU Mocap not found at {cmu.resolve_data_root()}; evaluating the cloth "
-              f"benchmark only (zoo leaderboard --benchmark cmu --data-root PATH for CMU)",
-              file=sys.stderr)
+        print(
+            f"note: CMU Mocap not found at {cmu.resolve_data_root()}; evaluating the cloth "
+            f"benchmark only (zoo leaderboard --benchmark cmu --data-root PATH for CMU)",
+            file=sys.stderr,
+        )
 
 
 def cmd_train(args) -> int:
@@ -293,11 +403,22 @@ def cmd_train(args) -> int:
 
         check_writable(args.out, what=f"--out {args.out}")
     registry = _registry(args)
-    train(args.model, args.benchmark, registry=registry, epochs=args.epochs, out_dir=args.out,
-          data_root=args.data_root, overrides=parse_overrides(args.set),
-          train_overrides=parse_overrides(args.train_set), resume=args.resume, seed=args.seed,
-          device=args.device, max_batches=args.max_batches, progress=not args.no_progress,
-          init_from=args.init_from)
+    train(
+        args.model,
+        args.benchmark,
+        registry=registry,
+        epochs=args.epochs,
+        out_dir=args.out,
+        data_root=args.data_root,
+        overrides=parse_overrides(args.set),
+        train_overrides=parse_overrides(args.train_set),
+        resume=args.resume,
+        seed=args.seed,
+        device=args.device,
+        max_batches=args.max_batches,
+        progress=not args.no_progress,
+        init_from=args.init_from,
+    )
     return 0
 
 
@@ -311,20 +432,45 @@ def cmd_data(args) -> int:
         rows = []
         for name in list_benchmarks():
             b = get_benchmark(name)
-            rows.append([name, b.dataset, b.representation, b.split, b.train_split,
-                         str(b.resolve_data_root() or ("(generated)" if b.representation ==
-                                                       "mesh" else "(give --data-root)"))])
-        print(tabulate(rows, headers=["benchmark", "dataset", "representation", "test split",
-                                      "train split", "data root"], tablefmt="github"))
+            rows.append(
+                [
+                    name,
+                    b.dataset,
+                    b.representation,
+                    b.split,
+                    b.train_split,
+                    str(
+                        b.resolve_data_root()
+                        or ("(generated)" if b.representation == "mesh" else "(give --data-root)")
+                    ),
+                ]
+            )
+        print(
+            tabulate(
+                rows,
+                headers=[
+                    "benchmark",
+                    "dataset",
+                    "representation",
+                    "test split",
+                    "train split",
+                    "data root",
+                ],
+                tablefmt="github",
+            )
+        )
         return 0
     if not args.benchmark:
         raise UsageError(f"zoo data {args.action} needs a benchmark name (see zoo data list)")
     bench = get_benchmark(args.benchmark)
     if args.split not in (None, "all", bench.split, bench.train_split):
-        raise UsageError(f"--split {args.split!r}: benchmark {bench.name} has splits "
-                         f"{bench.split} (test) and {bench.train_split} (train), or 'all'")
-    splits = [bench.split, bench.train_split] if args.split == "all" else \
-        [args.split or bench.split]
+        raise UsageError(
+            f"--split {args.split!r}: benchmark {bench.name} has splits "
+            f"{bench.split} (test) and {bench.train_split} (train), or 'all'"
+        )
+    splits = (
+        [bench.split, bench.train_split] if args.split == "all" else [args.split or bench.split]
+    )
     if args.action in ("build", "describe"):
         for split in splits:
             dataset = bench.load(args.data_root, split=split)
@@ -337,8 +483,10 @@ def cmd_data(args) -> int:
             raise UsageError("zoo data export needs --out FILE.ply or FILE.glb")
         dataset = bench.load(args.data_root, split=splits[0])
         written = export_window(dataset, bench, args.window, args.out, sampler=args.sampler)
-        print(f"wrote {', '.join(str(p) for p in written[:3])}"
-              f"{f' and {len(written) - 3} more' if len(written) > 3 else ''}")
+        print(
+            f"wrote {', '.join(str(p) for p in written[:3])}"
+            f"{f' and {len(written) - 3} more' if len(written) > 3 else ''}"
+        )
         return 0
     raise UsageError(f"unknown data action {args.action!r}")
 
@@ -349,8 +497,15 @@ def _print_average(frame, horizons) -> None:
     avg = frame[(frame["action"] == "average") & frame["horizon_ms"].isin(horizons)]
     keys = ["model", "metric", "averaging", "joints"]
     table = avg.pivot_table(index=keys, columns="horizon_ms", values="value")
-    print(tabulate(table.reset_index(), headers=keys + [f"{h} ms" for h in table.columns],
-                   tablefmt="github", floatfmt=".4g", showindex=False))
+    print(
+        tabulate(
+            table.reset_index(),
+            headers=keys + [f"{h} ms" for h in table.columns],
+            tablefmt="github",
+            floatfmt=".4g",
+            showindex=False,
+        )
+    )
 
 
 def _jsonable(value):
@@ -378,8 +533,12 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
 
     def common(p, model_required=False):
-        p.add_argument("--registry", action="append", metavar="YAML",
-                       help="extra registry file (your own baselines); repeatable")
+        p.add_argument(
+            "--registry",
+            action="append",
+            metavar="YAML",
+            help="extra registry file (your own baselines); repeatable",
+        )
         p.add_argument("--data-root", help="dataset folder (default: the benchmark's)")
         p.add_argument("--device", default="cpu", help="torch device (default cpu)")
 
@@ -393,73 +552,125 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--model", help="registered model name")
     p.add_argument("--checkpoint", help="trained checkpoint (from zoo train)")
     p.add_argument("--weights", help="shipped weights (weights/<benchmark>/<label>.safetensors)")
-    p.add_argument("--benchmark", help="benchmark name or YAML path (default: the "
-                   "checkpoint's, else cmu)")
-    p.add_argument("--sampler", action="append",
-                   help="window sampler (ltd8, rand256, all, strideK, strideK_strict); "
-                        "repeatable; default the benchmark's")
+    p.add_argument(
+        "--benchmark", help="benchmark name or YAML path (default: the checkpoint's, else cmu)"
+    )
+    p.add_argument(
+        "--sampler",
+        action="append",
+        help="window sampler (ltd8, rand256, all, strideK, strideK_strict); "
+        "repeatable; default the benchmark's",
+    )
     p.add_argument("--out", help="output folder (default results/<benchmark>/<sampler>/<label>)")
     p.add_argument("--results", default=str(RESULTS_DIR), help="results root (default results/)")
-    p.add_argument("--label", help="the row's label and folder name (default: the model's name, "
-                                   "<model>@last for a last.pt, <model>+key=value with --set)")
-    p.add_argument("--replace", action="store_true",
-                   help="replace a stored result of another identity (other hyper-parameters, "
-                        "data, weights or code) in the same place")
-    p.add_argument("--set", action="append", metavar="KEY=VALUE",
-                   help="override a hyper-parameter; repeatable")
-    p.add_argument("--batch-size", type=_positive_int, default=EVAL_BATCH,
-                   help=f"windows per forward pass (default {EVAL_BATCH})")
-    p.add_argument("--task", default="prediction", choices=["prediction", "completion",
-                                                             "longterm"])
+    p.add_argument(
+        "--label",
+        help="the row's label and folder name (default: the model's name, "
+        "<model>@last for a last.pt, <model>+key=value with --set)",
+    )
+    p.add_argument(
+        "--replace",
+        action="store_true",
+        help="replace a stored result of another identity (other hyper-parameters, "
+        "data, weights or code) in the same place",
+    )
+    p.add_argument(
+        "--set", action="append", metavar="KEY=VALUE", help="override a hyper-parameter; repeatable"
+    )
+    p.add_argument(
+        "--batch-size",
+        type=_positive_int,
+        default=EVAL_BATCH,
+        help=f"windows per forward pass (default {EVAL_BATCH})",
+    )
+    p.add_argument("--task", default="prediction", choices=["prediction", "completion", "longterm"])
     p.add_argument("--horizon-frames", type=int, help="frames to predict for --task longterm")
-    p.add_argument("--ground-truth", choices=["raw", "spectral"],
-                   help="mesh benchmarks: score against raw or k-coefficient vertices")
-    p.add_argument("--melv-frames", choices=["raw", "spectral"],
-                   help="mesh benchmarks: MELV on the frames as they are (raw) or on their "
-                        "k-coefficient reconstructions (spectral, the default where the "
-                        "benchmark has a basis; as SpecTrHuMS measures)")
+    p.add_argument(
+        "--ground-truth",
+        choices=["raw", "spectral"],
+        help="mesh benchmarks: score against raw or k-coefficient vertices",
+    )
+    p.add_argument(
+        "--melv-frames",
+        choices=["raw", "spectral"],
+        help="mesh benchmarks: MELV on the frames as they are (raw) or on their "
+        "k-coefficient reconstructions (spectral, the default where the "
+        "benchmark has a basis; as SpecTrHuMS measures)",
+    )
     p.set_defaults(func=cmd_eval)
 
     p = sub.add_parser("leaderboard", help="re-evaluate and rebuild results/<benchmark>/")
     common(p)
-    p.add_argument("--benchmark", action="append",
-                   help="benchmark(s); default cloth, and cmu where its data is present")
+    p.add_argument(
+        "--benchmark",
+        action="append",
+        help="benchmark(s); default cloth, and cmu where its data is present",
+    )
     p.add_argument("--out", default=str(RESULTS_DIR), help="results root (default results/)")
-    p.add_argument("--weights", default=str(REPO_ROOT / "weights"),
-                   help="folder of shipped weights <benchmark>/<label>.safetensors (default "
-                        "weights/); a trained row with shipped weights is computed from them")
-    p.add_argument("--checkpoints", default=str(REPO_ROOT / "checkpoints"),
-                   help="folder of trained checkpoints <benchmark>/<model>/best.pt "
-                        "(default checkpoints/, where zoo train writes)")
-    p.add_argument("--check", action="store_true",
-                   help="write nothing: recompute every row of every committed table (default: "
-                        "every benchmark under --out) and exit 1 naming each value that differs "
-                        "by more than float32 rounding across CPUs (tolerance in the summary)")
-    p.add_argument("--model", action="append", metavar="NAME",
-                   help="add or refresh only this model's rows (repeatable); every other "
-                        "stored row is kept as it is")
-    p.add_argument("--recompute", nargs="*", metavar="BENCHMARK",
-                   help="recompute every row (of these benchmarks; alone: of all) instead of "
-                        "reusing stored rows whose identity holds")
-    p.add_argument("--drop", action="append", metavar="LABEL",
-                   help="remove this row's result folder from the tables (repeatable): the way "
-                        "to delete a row the leaderboard did not make")
+    p.add_argument(
+        "--weights",
+        default=str(REPO_ROOT / "weights"),
+        help="folder of shipped weights <benchmark>/<label>.safetensors (default "
+        "weights/); a trained row with shipped weights is computed from them",
+    )
+    p.add_argument(
+        "--checkpoints",
+        default=str(REPO_ROOT / "checkpoints"),
+        help="folder of trained checkpoints <benchmark>/<model>/best.pt "
+        "(default checkpoints/, where zoo train writes)",
+    )
+    p.add_argument(
+        "--check",
+        action="store_true",
+        help="write nothing: recompute every row of every committed table (default: "
+        "every benchmark under --out) and exit 1 naming each value that differs "
+        "by more than float32 rounding across CPUs (tolerance in the summary)",
+    )
+    p.add_argument(
+        "--model",
+        action="append",
+        metavar="NAME",
+        help="add or refresh only this model's rows (repeatable); every other "
+        "stored row is kept as it is",
+    )
+    p.add_argument(
+        "--recompute",
+        nargs="*",
+        metavar="BENCHMARK",
+        help="recompute every row (of these benchmarks; alone: of all) instead of "
+        "reusing stored rows whose identity holds",
+    )
+    p.add_argument(
+        "--drop",
+        action="append",
+        metavar="LABEL",
+        help="remove this row's result folder from the tables (repeatable): the way "
+        "to delete a row the leaderboard did not make",
+    )
     p.set_defaults(func=cmd_leaderboard)
 
-    p = sub.add_parser("compare", help="is A better than B? paired differences per horizon "
-                                       "with block-bootstrap intervals")
+    p = sub.add_parser(
+        "compare",
+        help="is A better than B? paired differences per horizon with block-bootstrap intervals",
+    )
     p.add_argument("a", help="model label (with --benchmark) or result folder")
     p.add_argument("b", help="model label (with --benchmark) or result folder")
     p.add_argument("--benchmark", help="benchmark whose results/<benchmark>/<sampler>/ to read")
     p.add_argument("--sampler", help="window sampler (default: the benchmark's)")
-    p.add_argument("--ground-truth", choices=["raw", "spectral"],
-                   help="mesh benchmarks: the results scored against this ground truth")
+    p.add_argument(
+        "--ground-truth",
+        choices=["raw", "spectral"],
+        help="mesh benchmarks: the results scored against this ground truth",
+    )
     p.add_argument("--results", default=str(RESULTS_DIR), help="results root (default results/)")
     p.add_argument("--metric", help="default: the benchmark's headline (mpjpe; rmse on meshes)")
     p.add_argument("--joints", help="joint protocol (default: the official one, e.g. all38)")
     p.add_argument("--averaging", default="frame", choices=["frame", "cumulative"])
-    p.add_argument("--block-frames", type=_positive_int,
-                   help="bootstrap block length in frames (default: two window lengths)")
+    p.add_argument(
+        "--block-frames",
+        type=_positive_int,
+        help="bootstrap block length in frames (default: two window lengths)",
+    )
     p.add_argument("--confidence", type=float, default=0.95)
     p.add_argument("--replicates", type=_positive_int, default=2000)
     p.add_argument("--seed", type=int, default=0)
@@ -471,12 +682,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--model")
     p.add_argument("--checkpoint")
     p.add_argument("--weights", help="shipped weights (weights/<benchmark>/<label>.safetensors)")
-    p.add_argument("--benchmark", help="mesh benchmark (default: the checkpoint's or weights', "
-                                       "else cloth)")
+    p.add_argument(
+        "--benchmark", help="mesh benchmark (default: the checkpoint's or weights', else cloth)"
+    )
     p.add_argument("--windows", type=int, nargs="+", default=[0, 1, 2])
     p.add_argument("--set", action="append", metavar="KEY=VALUE")
-    p.add_argument("--task", default="prediction", choices=["prediction", "completion",
-                                                             "longterm"])
+    p.add_argument("--task", default="prediction", choices=["prediction", "completion", "longterm"])
     p.add_argument("--horizon-frames", type=int)
     p.add_argument("--out", help="folder (default results/<benchmark>/renders)")
     p.set_defaults(func=cmd_render)
@@ -488,19 +699,26 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--data-root", help="dataset folder (default: the benchmark's)")
     p.add_argument("--window", type=int, default=0, help="export: window index (default 0)")
     p.add_argument("--sampler", help="export: window sampler (default: the benchmark's)")
-    p.add_argument("--out", help="export: FILE.glb (all frames side by side) or FILE.ply "
-                                 "(one file per frame)")
+    p.add_argument(
+        "--out", help="export: FILE.glb (all frames side by side) or FILE.ply (one file per frame)"
+    )
     p.set_defaults(func=cmd_data)
 
-    p = sub.add_parser("weights", help="export a checkpoint's weights for shipping, or list "
-                                       "the shipped ones")
+    p = sub.add_parser(
+        "weights", help="export a checkpoint's weights for shipping, or list the shipped ones"
+    )
     p.add_argument("action", choices=["export", "list"])
     p.add_argument("checkpoint", nargs="?", help="export: the checkpoint (best.pt or last.pt)")
     p.add_argument("--label", help="export: label (default <model>, or <model>@last for last.pt)")
-    p.add_argument("--dtype", default="float16", choices=["float16", "float32"],
-                   help="export: storage precision (default float16: half the size)")
-    p.add_argument("--root", default=str(REPO_ROOT / "weights"),
-                   help="weights folder (default weights/)")
+    p.add_argument(
+        "--dtype",
+        default="float16",
+        choices=["float16", "float32"],
+        help="export: storage precision (default float16: half the size)",
+    )
+    p.add_argument(
+        "--root", default=str(REPO_ROOT / "weights"), help="weights folder (default weights/)"
+    )
     p.set_defaults(func=cmd_weights)
 
     p = sub.add_parser("train", help="train a model on a benchmark's training split")
@@ -510,13 +728,20 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--epochs", type=int, help="default: the registry recipe's")
     p.add_argument("--out", help="run folder (default checkpoints/<benchmark>/<model>)")
     p.add_argument("--set", action="append", metavar="KEY=VALUE", help="model hyper-parameter")
-    p.add_argument("--train-set", action="append", metavar="KEY=VALUE",
-                   help="training-recipe override (lr, batch_size, ...)")
+    p.add_argument(
+        "--train-set",
+        action="append",
+        metavar="KEY=VALUE",
+        help="training-recipe override (lr, batch_size, ...)",
+    )
     p.add_argument("--resume", action="store_true", help="continue from the run's last state")
-    p.add_argument("--init-from", metavar="PATH",
-                   help="start from this checkpoint (best.pt or last.pt) or shipped weights "
-                        "(.safetensors) of the same model and benchmark, with a fresh optimiser "
-                        "and schedule: a new stage of training, recorded with the source's budget")
+    p.add_argument(
+        "--init-from",
+        metavar="PATH",
+        help="start from this checkpoint (best.pt or last.pt) or shipped weights "
+        "(.safetensors) of the same model and benchmark, with a fresh optimiser "
+        "and schedule: a new stage of training, recorded with the source's budget",
+    )
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--max-batches", type=int, help="cap batches per epoch (quick runs)")
     p.add_argument("--no-progress", action="store_true")
@@ -531,11 +756,14 @@ def check_device(device: str) -> None:
     try:
         kind = torch.device(device).type
     except (RuntimeError, ValueError):
-        raise UsageError(f"--device {device!r}: not a torch device; e.g. cpu, cuda, cuda:1") \
-            from None
+        raise UsageError(
+            f"--device {device!r}: not a torch device; e.g. cpu, cuda, cuda:1"
+        ) from None
     if kind == "cuda" and not torch.cuda.is_available():
-        raise UsageError(f"--device {device}: this machine has no CUDA device (torch "
-                         f"{torch.__version__}); use --device cpu")
+        raise UsageError(
+            f"--device {device}: this machine has no CUDA device (torch "
+            f"{torch.__version__}); use --device cpu"
+        )
     if kind not in ("cpu", "cuda"):
         raise UsageError(f"--device {device}: the zoo runs on cpu or cuda, not {kind}")
 
@@ -545,9 +773,11 @@ def _shape_overrides(overrides: dict[str, Any], benchmark: str | None) -> None:
 
     fixed = sorted(set(overrides) & set(SHAPE_ARGS))
     if fixed:
-        raise UsageError(f"--set {', '.join(fixed)}: fixed by the benchmark "
-                         f"({benchmark or 'cmu'}), not a hyper-parameter; use a benchmark YAML "
-                         f"file with other input_frames / output_frames to change them")
+        raise UsageError(
+            f"--set {', '.join(fixed)}: fixed by the benchmark "
+            f"({benchmark or 'cmu'}), not a hyper-parameter; use a benchmark YAML "
+            f"file with other input_frames / output_frames to change them"
+        )
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -563,8 +793,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"zoo {args.command}: error: {e}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print(f"zoo {args.command}: interrupted (nothing half-written is left; a training run "
-              f"continues with --resume)", file=sys.stderr)
+        print(
+            f"zoo {args.command}: interrupted (nothing half-written is left; a training run "
+            f"continues with --resume)",
+            file=sys.stderr,
+        )
         return 130
 
 

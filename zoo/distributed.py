@@ -1,5 +1,6 @@
 """Several processes (``torchrun``): which one this is, and how their shares come together.
 Training uses it for data-parallel steps, the evaluator to split windows across processes."""
+
 from __future__ import annotations
 
 import os

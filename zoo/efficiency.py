@@ -5,6 +5,7 @@ throughput (forward, backward, gradient clip and Adam, at the recipe's batch siz
 Timings depend on the machine and its load; they go into ``leaderboard.md`` beside the device
 that measured them, never into ``results.csv`` (which ``zoo leaderboard --check`` compares).
 """
+
 from __future__ import annotations
 
 import copy
@@ -37,8 +38,9 @@ def forward_gflop(model: torch.nn.Module, history: torch.Tensor) -> float:
     return counter.get_total_flops() / 1e9
 
 
-def latency_ms(model: torch.nn.Module, history: torch.Tensor,
-               repeats: int = LATENCY_REPEATS) -> float:
+def latency_ms(
+    model: torch.nn.Module, history: torch.Tensor, repeats: int = LATENCY_REPEATS
+) -> float:
     """Median wall time (ms) of one forward at batch 1, after one warm-up call."""
     times = []
     with torch.no_grad():
@@ -50,9 +52,16 @@ def latency_ms(model: torch.nn.Module, history: torch.Tensor,
     return 1000 * statistics.median(times)
 
 
-def training_samples_per_s(model: torch.nn.Module, task: str, recipe: dict[str, Any],
-                           input_frames: int, output_frames: int, points: int, device="cpu",
-                           steps: int = TRAINING_STEPS) -> float:
+def training_samples_per_s(
+    model: torch.nn.Module,
+    task: str,
+    recipe: dict[str, Any],
+    input_frames: int,
+    output_frames: int,
+    points: int,
+    device="cpu",
+    steps: int = TRAINING_STEPS,
+) -> float:
     """Training windows per second of full optimizer steps on a copy of ``model`` (the model
     itself is left untouched), after one warm-up step."""
     trainee = copy.deepcopy(model).to(device).train()
@@ -88,20 +97,32 @@ def machine(device="cpu") -> str:
     return f"{device_name(device)}, {_threads()}"
 
 
-def measure(model: torch.nn.Module, *, input_frames: int, output_frames: int, points: int,
-            task: str = "prediction", recipe: dict[str, Any] | None = None,
-            device="cpu") -> dict[str, Any]:
+def measure(
+    model: torch.nn.Module,
+    *,
+    input_frames: int,
+    output_frames: int,
+    points: int,
+    task: str = "prediction",
+    recipe: dict[str, Any] | None = None,
+    device="cpu",
+) -> dict[str, Any]:
     """The efficiency columns of one model; ``recipe`` (a trainable model's training recipe)
     adds its training throughput."""
     model = model.to(device).eval()
     history = _windows(1, input_frames, points, device)
-    row = {"parameters": sum(p.numel() for p in model.parameters()),
-           "gflop_per_sample": None, "latency_ms": None, "train_samples_per_s": None,
-           "device": machine(device)}
+    row = {
+        "parameters": sum(p.numel() for p in model.parameters()),
+        "gflop_per_sample": None,
+        "latency_ms": None,
+        "train_samples_per_s": None,
+        "device": machine(device),
+    }
     if task == "prediction":  # the other tasks take more than the history
         row["gflop_per_sample"] = forward_gflop(model, history)
         row["latency_ms"] = latency_ms(model, history)
     if recipe is not None and row["parameters"]:
         row["train_samples_per_s"] = training_samples_per_s(
-            model, task, recipe, input_frames, output_frames, points, device)
+            model, task, recipe, input_frames, output_frames, points, device
+        )
     return row

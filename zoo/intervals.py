@@ -15,6 +15,7 @@ actions, which are never resampled away (the protocol fixes them).
 A paired comparison of two models scored on the same windows bootstraps the per-window
 differences with the same blocks, which removes the variance the two models share.
 """
+
 from __future__ import annotations
 
 import math
@@ -57,14 +58,16 @@ def short_recordings(sequence: np.ndarray, start: np.ndarray, block_frames: int)
 @dataclass
 class _ActionBlocks:
     """One action's windows, sorted by (recording, start), with the blocks to draw from."""
-    rows: np.ndarray      # window rows of the action by recording and start, each
+
+    rows: np.ndarray  # window rows of the action by recording and start, each
     #                       recording followed by its first windows again (circular blocks)
-    offsets: np.ndarray   # first position (into rows) of every candidate block
-    lengths: np.ndarray   # its length in windows
+    offsets: np.ndarray  # first position (into rows) of every candidate block
+    lengths: np.ndarray  # its length in windows
 
 
-def _action_blocks(sequence: np.ndarray, start: np.ndarray, rows: np.ndarray,
-                   block_frames: int) -> _ActionBlocks:
+def _action_blocks(
+    sequence: np.ndarray, start: np.ndarray, rows: np.ndarray, block_frames: int
+) -> _ActionBlocks:
     """Circular blocks: every window of a recording starts one, and a block running past the
     recording's last window continues at its first, so every window is drawn equally often
     (the plain moving blocks under-draw both ends and bias the variance down)."""
@@ -77,26 +80,34 @@ def _action_blocks(sequence: np.ndarray, start: np.ndarray, rows: np.ndarray,
         length = min(block_windows(start[own], block_frames), max(1, math.ceil(len(own) / 2)))
         offsets.append(position + np.arange(len(own)))
         lengths.append(np.full(len(own), length))
-        extended.append(np.concatenate([own, own[:length - 1]]))
+        extended.append(np.concatenate([own, own[: length - 1]]))
         position += len(extended[-1])
-    return _ActionBlocks(np.concatenate(extended), np.concatenate(offsets),
-                         np.concatenate(lengths))
+    return _ActionBlocks(np.concatenate(extended), np.concatenate(offsets), np.concatenate(lengths))
 
 
-def block_bootstrap(errors: np.ndarray, sequence: np.ndarray, start: np.ndarray,
-                    actions: np.ndarray, block_frames: int, replicates: int = REPLICATES,
-                    seed: int = 0) -> np.ndarray:
+def block_bootstrap(
+    errors: np.ndarray,
+    sequence: np.ndarray,
+    start: np.ndarray,
+    actions: np.ndarray,
+    block_frames: int,
+    replicates: int = REPLICATES,
+    seed: int = 0,
+) -> np.ndarray:
     """Bootstrap replicates ``(replicates, T)`` of :func:`protocol_mean` of ``errors (W, T)``;
     ``sequence``, ``start`` and ``actions`` ``(W,)`` say where each window comes from."""
     errors = np.asarray(errors, dtype=np.float64)
     sequence, start, actions = (np.asarray(a) for a in (sequence, start, actions))
     if errors.ndim != 2 or not len(sequence) == len(start) == len(actions) == len(errors):
-        raise ValueError(f"block_bootstrap: expected errors (W, T) and W sequences, starts and "
-                         f"actions, got {errors.shape}, {len(sequence)}, {len(start)}, "
-                         f"{len(actions)}")
+        raise ValueError(
+            f"block_bootstrap: expected errors (W, T) and W sequences, starts and "
+            f"actions, got {errors.shape}, {len(sequence)}, {len(start)}, "
+            f"{len(actions)}"
+        )
     if not isinstance(block_frames, int) or block_frames < 1:
-        raise ValueError(f"block_bootstrap: block_frames must be a positive integer, got "
-                         f"{block_frames!r}")
+        raise ValueError(
+            f"block_bootstrap: block_frames must be a positive integer, got {block_frames!r}"
+        )
     rng = np.random.default_rng(seed)
     per_action = []
     for action in np.unique(actions):
@@ -104,8 +115,9 @@ def block_bootstrap(errors: np.ndarray, sequence: np.ndarray, start: np.ndarray,
         blocks = _action_blocks(sequence, start, rows, block_frames)
         n = len(rows)
         # Running sums over the action's windows: a block's sum is a difference of two rows.
-        cumsum = np.concatenate([np.zeros((1, errors.shape[1])),
-                                 np.cumsum(errors[blocks.rows], axis=0)])
+        cumsum = np.concatenate(
+            [np.zeros((1, errors.shape[1])), np.cumsum(errors[blocks.rows], axis=0)]
+        )
         draws = math.ceil(n / blocks.lengths.min()) + 1
         chosen = rng.integers(0, len(blocks.offsets), size=(replicates, draws))
         first, length = blocks.offsets[chosen], blocks.lengths[chosen]
@@ -116,8 +128,9 @@ def block_bootstrap(errors: np.ndarray, sequence: np.ndarray, start: np.ndarray,
     return np.mean(per_action, axis=0)
 
 
-def percentile_interval(replicates: np.ndarray, confidence: float = CONFIDENCE
-                        ) -> tuple[np.ndarray, np.ndarray]:
+def percentile_interval(
+    replicates: np.ndarray, confidence: float = CONFIDENCE
+) -> tuple[np.ndarray, np.ndarray]:
     """The ``confidence`` percentile interval ``(lo, hi)`` of bootstrap replicates, per column."""
     if not 0 < confidence < 1:
         raise ValueError(f"confidence must lie in (0, 1), got {confidence!r}")
@@ -126,8 +139,9 @@ def percentile_interval(replicates: np.ndarray, confidence: float = CONFIDENCE
     return lo, hi
 
 
-def naive_interval(errors: np.ndarray, actions: np.ndarray, confidence: float = CONFIDENCE
-                   ) -> tuple[np.ndarray, np.ndarray]:
+def naive_interval(
+    errors: np.ndarray, actions: np.ndarray, confidence: float = CONFIDENCE
+) -> tuple[np.ndarray, np.ndarray]:
     """The interval that treats every window as independent (normal, per-window standard
     errors): what the overlap makes far too narrow. For validation only."""
     from scipy.stats import norm

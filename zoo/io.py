@@ -1,4 +1,5 @@
 """Atomic file writes and provenance: nothing half-written is ever left behind."""
+
 from __future__ import annotations
 
 import hashlib
@@ -6,9 +7,10 @@ import json
 import os
 import subprocess
 import tempfile
+from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 from zoo.errors import ZooError
 from zoo.paths import REPO_ROOT
@@ -47,9 +49,10 @@ def folder_lock(path: str | Path) -> Iterator[None]:
         try:
             fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
-            raise FolderBusyError(f"{path}: another zoo process is writing this folder (lock "
-                                  f"{lock}); wait for it, or write elsewhere with --out") \
-                from None
+            raise FolderBusyError(
+                f"{path}: another zoo process is writing this folder (lock "
+                f"{lock}); wait for it, or write elsewhere with --out"
+            ) from None
         try:
             yield
         finally:
@@ -67,12 +70,15 @@ def check_output_folder(path: str | Path) -> None:
     path = Path(path)
     if path.exists():
         if not path.is_dir():
-            raise OutputError(f"--out {path}: exists and is not a folder; choose a new or empty "
-                              f"folder")
+            raise OutputError(
+                f"--out {path}: exists and is not a folder; choose a new or empty folder"
+            )
         if any(path.iterdir()) and not any((path / m).is_file() for m in RESULT_MARKERS):
-            raise OutputError(f"--out {path}: a folder of other files, not a zoo result folder "
-                              f"(no {' or '.join(RESULT_MARKERS)}); it would be replaced "
-                              f"whole, so choose a new or empty folder")
+            raise OutputError(
+                f"--out {path}: a folder of other files, not a zoo result folder "
+                f"(no {' or '.join(RESULT_MARKERS)}); it would be replaced "
+                f"whole, so choose a new or empty folder"
+            )
     check_writable(path.parent, what=f"--out {path}")
 
 
@@ -85,8 +91,9 @@ def check_writable(folder: str | Path, what: str | None = None) -> None:
             raise OSError(f"{parent} is not a folder")
         os.rmdir(tempfile.mkdtemp(prefix=".zoo-write-test-", dir=parent))
     except OSError as e:
-        raise OutputError(f"{what or folder}: cannot be written ({parent}: "
-                          f"{e.strerror or e})") from None
+        raise OutputError(
+            f"{what or folder}: cannot be written ({parent}: {e.strerror or e})"
+        ) from None
 
 
 class OutputError(ZooError, ValueError):
@@ -112,8 +119,9 @@ def replace_folder(path: str | Path, lock: bool = True) -> Iterator[Path]:
             os.chmod(tmp, 0o777 & ~_umask())
             old = None
             if path.exists():
-                old = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".old",
-                                            dir=path.parent))
+                old = Path(
+                    tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".old", dir=path.parent)
+                )
                 os.replace(path, old / path.name)
             os.replace(tmp, path)
             if old is not None:
@@ -162,8 +170,12 @@ def code_version() -> str:
     from zoo import __version__
 
     try:
-        commit = subprocess.run(["git", "-C", str(REPO_ROOT), "describe", "--always", "--dirty",
-                                 "--abbrev=12"], capture_output=True, text=True, timeout=10)
+        commit = subprocess.run(
+            ["git", "-C", str(REPO_ROOT), "describe", "--always", "--dirty", "--abbrev=12"],
+            capture_output=True,
+            text=True,
+            timeout=10,
+        )
         if commit.returncode == 0 and commit.stdout.strip():
             return f"{__version__}+g{commit.stdout.strip()}"
     except (OSError, subprocess.SubprocessError):

@@ -2,15 +2,16 @@
 reused while their identity holds, new and stale rows recomputed), write
 ``results/<benchmark>/<table>/`` (tables from :mod:`zoo.tables`, plots), or check the committed
 ones without writing (``CheckReport``)."""
+
 from __future__ import annotations
 
 import os
 import shutil
 import sys
 import time
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Iterable
 
 import numpy as np
 import pandas as pd
@@ -18,15 +19,29 @@ import pandas as pd
 from zoo.evaluate import evaluate
 from zoo.io import atomic_write_json, atomic_write_text, replace_folder, save_figure
 from zoo.model_source import ModelSource
-from zoo.store import RESULTS_DIR, StoreError, identity_differences, identity_id, \
-    stored_identity, table_folder
-from zoo.tables import check_comparable, headline_table, markdown_tables, metric_unit, \
-    protocol_differences
+from zoo.store import (
+    RESULTS_DIR,
+    StoreError,
+    identity_differences,
+    identity_id,
+    stored_identity,
+    table_folder,
+)
+from zoo.tables import (
+    check_comparable,
+    headline_table,
+    markdown_tables,
+    metric_unit,
+    protocol_differences,
+)
 
 
-def write_leaderboard(results: list, out_dir: str | Path,
-                      horizons_ms: Iterable[int] | None = None,
-                      efficiency: dict[str, dict] | None = None) -> Path:
+def write_leaderboard(
+    results: list,
+    out_dir: str | Path,
+    horizons_ms: Iterable[int] | None = None,
+    efficiency: dict[str, dict] | None = None,
+) -> Path:
     """Combine :class:`zoo.evaluate.EvalResult` objects of one protocol into ``out_dir``:
     ``results.csv``, ``leaderboard.md``, ``protocol.json`` and ``mpjpe.png``; ``efficiency``
     (per model, :func:`zoo.efficiency.measure`) fills the headline's cost columns and
@@ -38,8 +53,9 @@ def write_leaderboard(results: list, out_dir: str | Path,
     records = {r.protocol["protocol_id"]: r.protocol for r in results}
     check_comparable(records)
     frame = pd.concat([r.frame for r in results], ignore_index=True)
-    tables = markdown_tables(frame, records, horizons_ms,
-                             headline=headline_table(results, horizons_ms, efficiency))
+    tables = markdown_tables(
+        frame, records, horizons_ms, headline=headline_table(results, horizons_ms, efficiency)
+    )
     protocol = dict(results[0].protocol)
     protocol["provenance"] = {"runs": [r.protocol.get("provenance", {}) for r in results]}
     atomic_write_text(out_dir / "results.csv", frame.to_csv(index=False))
@@ -47,8 +63,10 @@ def write_leaderboard(results: list, out_dir: str | Path,
     atomic_write_json(out_dir / "protocol.json", protocol)
     if efficiency:
         labels = sorted(set(frame["model"]) & set(efficiency))
-        atomic_write_text(out_dir / "efficiency.csv", pd.DataFrame(
-            [{"model": m, **efficiency[m]} for m in labels]).to_csv(index=False))
+        atomic_write_text(
+            out_dir / "efficiency.csv",
+            pd.DataFrame([{"model": m, **efficiency[m]} for m in labels]).to_csv(index=False),
+        )
     plot_average(frame, out_dir / "mpjpe.png", title=tables.splitlines()[0].lstrip("# "))
     return out_dir
 
@@ -65,8 +83,9 @@ def plot_average(frame: pd.DataFrame, path: str | Path, title: str = "") -> None
     fig, axes = plt.subplots(1, len(panels), figsize=(4.5 * len(panels), 3.8), squeeze=False)
     for ax, key in zip(axes[0], panels):
         metric, averaging, joints = key
-        sub = avg[(avg["metric"] == metric) & (avg["averaging"] == averaging) &
-                  (avg["joints"] == joints)]
+        sub = avg[
+            (avg["metric"] == metric) & (avg["averaging"] == averaging) & (avg["joints"] == joints)
+        ]
         for model, rows in sub.groupby("model"):
             rows = rows.sort_values("horizon_ms")
             ax.plot(rows["horizon_ms"], rows["value"], marker=".", label=model)
@@ -79,8 +98,9 @@ def plot_average(frame: pd.DataFrame, path: str | Path, title: str = "") -> None
     save_figure(fig, path)
 
 
-def training_curves(weights_root: str | Path | None, benchmark: str
-                    ) -> dict[str, list[tuple[int, float]]]:
+def training_curves(
+    weights_root: str | Path | None, benchmark: str
+) -> dict[str, list[tuple[int, float]]]:
     """``{label: [(optimizer steps, validation MPJPE mm), ...]}`` of every shipped model of
     ``benchmark`` whose record holds its training history (exported from a ``last.pt``)."""
     from zoo.weights import available_weights, read_weights, weights_file
@@ -101,8 +121,9 @@ def training_curves(weights_root: str | Path | None, benchmark: str
     return curves
 
 
-def plot_training_curves(curves: dict[str, list[tuple[int, float]]], path: str | Path,
-                         title: str = "") -> None:
+def plot_training_curves(
+    curves: dict[str, list[tuple[int, float]]], path: str | Path, title: str = ""
+) -> None:
     """Validation MPJPE against optimizer steps, one line per trained model."""
     import matplotlib
 
@@ -130,6 +151,7 @@ class CheckReport:
 
     Tolerances follow from the arithmetic (see :data:`TOLERANCES`): a value is named when it
     differs from the committed one by more than ``tolerance(metric) * max(|value|, scale)``."""
+
     rows: int = 0
     tables: int = 0
     models: set = field(default_factory=set)
@@ -145,14 +167,20 @@ class CheckReport:
         i = int(np.argmax(share))
         if share.flat[i] > self.largest[0] or not self.largest[3]:
             relative = gap.flat[i] / max(abs(old.flat[i]), 1e-12)
-            self.largest = (float(share.flat[i]), float(relative), float(gap.flat[i]),
-                            where(i) if callable(where) else where)
+            self.largest = (
+                float(share.flat[i]),
+                float(relative),
+                float(gap.flat[i]),
+                where(i) if callable(where) else where,
+            )
 
     def summary(self) -> str:
         share, relative, absolute, where = self.largest
-        return (f"checked {self.rows} rows of {len(self.models)} models in {self.tables} tables "
-                f"against tolerance {tolerance_text()}: largest difference {absolute:.2g} "
-                f"({relative:.2g} relative, {share:.2f} of its tolerance) at {where or '-'}")
+        return (
+            f"checked {self.rows} rows of {len(self.models)} models in {self.tables} tables "
+            f"against tolerance {tolerance_text()}: largest difference {absolute:.2g} "
+            f"({relative:.2g} relative, {share:.2f} of its tolerance) at {where or '-'}"
+        )
 
 
 @dataclass
@@ -161,6 +189,7 @@ class Plan:
     ``models``: (re)compute only these models' rows, keep every other stored row as it is;
     ``drop``: labels whose result folders are removed (deliberately) from the tables;
     ``check``: write nothing, recompute every committed row and compare."""
+
     recompute: bool = False
     models: frozenset = frozenset()
     drop: frozenset = frozenset()
@@ -170,14 +199,23 @@ class Plan:
 @dataclass
 class Row:
     """One planned row of a table: a label and where its model comes from."""
+
     label: str
     name: str
     source: ModelSource
 
 
-def regenerate(benchmark, *, registry=None, data_root=None, out_root: str | Path | None = None,
-               checkpoints: str | Path | None = None, weights: str | Path | None = None,
-               device: str = "cpu", plan: Plan | None = None) -> list[Path]:
+def regenerate(
+    benchmark,
+    *,
+    registry=None,
+    data_root=None,
+    out_root: str | Path | None = None,
+    checkpoints: str | Path | None = None,
+    weights: str | Path | None = None,
+    device: str = "cpu",
+    plan: Plan | None = None,
+) -> list[Path]:
     """Bring ``<out_root>/<benchmark>/<table>/`` up to date for every sampler, task and (mesh
     benchmarks) ground truth of ``benchmark``: reuse each stored row whose identity
     (:mod:`zoo.store`) still holds, recompute rows that are new or stale (saying why), keep
@@ -194,18 +232,32 @@ def regenerate(benchmark, *, registry=None, data_root=None, out_root: str | Path
 
     board = Leaderboard(
         bench=get_benchmark(benchmark) if isinstance(benchmark, (str, Path)) else benchmark,
-        registry=registry or load_registry(), root=Path(out_root or RESULTS_DIR),
+        registry=registry or load_registry(),
+        root=Path(out_root or RESULTS_DIR),
         weights=Path(weights) if weights else None,
-        checkpoints=Path(checkpoints) if checkpoints else None, device=device,
-        plan=plan or Plan(), data_root=data_root)
+        checkpoints=Path(checkpoints) if checkpoints else None,
+        device=device,
+        plan=plan or Plan(),
+        data_root=data_root,
+    )
     return board.run()
 
 
 class Leaderboard:
     """The tables of one benchmark (see :func:`regenerate`)."""
 
-    def __init__(self, *, bench, registry, root: Path, weights: Path | None,
-                 checkpoints: Path | None, device: str, plan: Plan, data_root=None) -> None:
+    def __init__(
+        self,
+        *,
+        bench,
+        registry,
+        root: Path,
+        weights: Path | None,
+        checkpoints: Path | None,
+        device: str,
+        plan: Plan,
+        data_root=None,
+    ) -> None:
         self.bench, self.registry, self.root = bench, registry, root
         self.weights, self.checkpoints, self.device, self.plan = weights, checkpoints, device, plan
         self.dataset = bench.load(data_root)
@@ -214,16 +266,22 @@ class Leaderboard:
         self.loaded: dict = {}
         unknown = sorted(set(plan.models) - set(registry.list_models()))
         if unknown:
-            raise StoreError(f"--model {', '.join(unknown)}: not a registered model (add its "
-                             f"registry with --registry); registered: "
-                             f"{', '.join(registry.list_models())}")
+            raise StoreError(
+                f"--model {', '.join(unknown)}: not a registered model (add its "
+                f"registry with --registry); registered: "
+                f"{', '.join(registry.list_models())}"
+            )
 
     def run(self) -> list[Path]:
         bench = self.bench
-        truths = (bench.ground_truths or (bench.ground_truth,)) \
-            if bench.representation == "mesh" else (None,)
-        tasks = dict.fromkeys(["prediction", *(self.registry.get(n).task
-                                               for n in self.registry.list_models())])
+        truths = (
+            (bench.ground_truths or (bench.ground_truth,))
+            if bench.representation == "mesh"
+            else (None,)
+        )
+        tasks = dict.fromkeys(
+            ["prediction", *(self.registry.get(n).task for n in self.registry.list_models())]
+        )
         written, changed = [], False
         for sampler in bench.samplers:
             for task in tasks:
@@ -232,8 +290,10 @@ class Leaderboard:
                     started = time.perf_counter()
                     outcome = self._table(sampler, task, truth, folder)
                     if outcome:
-                        print(f"{bench.name}/{folder}: {time.perf_counter() - started:.0f} s",
-                              file=sys.stderr)
+                        print(
+                            f"{bench.name}/{folder}: {time.perf_counter() - started:.0f} s",
+                            file=sys.stderr,
+                        )
                     if outcome is not None:
                         written.append(self.root / bench.name / folder)
                         changed |= outcome
@@ -242,19 +302,24 @@ class Leaderboard:
             produced = {p.name for p in written}
             for table in sorted((self.root / bench.name).glob("*/results.csv")):
                 if table.parent.name not in produced:
-                    check.problems.append(f"{table}: a committed table that the leaderboard no "
-                                          f"longer produces")
+                    check.problems.append(
+                        f"{table}: a committed table that the leaderboard no longer produces"
+                    )
             return written
         self.costs.save()
         curves = training_curves(self.weights, bench.name) if self.weights else {}
         png = self.root / bench.name / "training.png"
         if curves and (changed or not png.is_file()):
-            plot_training_curves(curves, png, title=f"{bench.name}: validation MPJPE while "
-                                                    f"training (shipped models)")
+            plot_training_curves(
+                curves, png, title=f"{bench.name}: validation MPJPE while training (shipped models)"
+            )
         c = self.counts
-        print(f"{bench.name}: {c['reused']} row(s) reused, {c['recomputed']} recomputed, "
-              f"{c['kept']} kept as stored (not planned by this registry), {c['dropped']} "
-              f"dropped", file=sys.stderr)
+        print(
+            f"{bench.name}: {c['reused']} row(s) reused, {c['recomputed']} recomputed, "
+            f"{c['kept']} kept as stored (not planned by this registry), {c['dropped']} "
+            f"dropped",
+            file=sys.stderr,
+        )
         return written
 
     # ---- rows -----------------------------------------------------------------------------
@@ -272,19 +337,28 @@ class Leaderboard:
                 continue
             for label in (name, f"{name}@last"):
                 shipped = self._shipped(label)
-                checkpoint = self.checkpoints / bench.name / name / \
-                    ("last.pt" if label != name else "best.pt") if self.checkpoints else None
+                checkpoint = (
+                    self.checkpoints
+                    / bench.name
+                    / name
+                    / ("last.pt" if label != name else "best.pt")
+                    if self.checkpoints
+                    else None
+                )
                 if shipped is not None:
                     rows.append(Row(label, name, ModelSource.of(weights=shipped, label=label)))
                     if checkpoint is not None and checkpoint.is_file():
-                        print(f"{bench.name}: {label}: the shipped weights {shipped}, not "
-                              f"{checkpoint} (zoo weights export publishes a checkpoint)",
-                              file=sys.stderr)
+                        print(
+                            f"{bench.name}: {label}: the shipped weights {shipped}, not "
+                            f"{checkpoint} (zoo weights export publishes a checkpoint)",
+                            file=sys.stderr,
+                        )
                 elif checkpoint is not None and checkpoint.is_file():
                     if label != name and _no_further_than_best(checkpoint):
                         continue  # trained no further than its best epoch: best.pt's weights
-                    rows.append(Row(label, name, ModelSource.of(checkpoint=checkpoint,
-                                                                label=label)))
+                    rows.append(
+                        Row(label, name, ModelSource.of(checkpoint=checkpoint, label=label))
+                    )
         return rows
 
     def _shipped(self, label: str) -> Path | None:
@@ -310,14 +384,23 @@ class Leaderboard:
         bench, plan, check = self.bench, self.plan, self.plan.check
         path = self.root / bench.name / folder
         where = f"{bench.name}/{folder}"
-        stored = {p.name: p for p in sorted(path.iterdir())
-                  if p.is_dir() and (p / "protocol.json").is_file()} if path.is_dir() else {}
+        stored = (
+            {
+                p.name: p
+                for p in sorted(path.iterdir())
+                if p.is_dir() and (p / "protocol.json").is_file()
+            }
+            if path.is_dir()
+            else {}
+        )
         rows = [r for r in self._rows(task) if r.label not in plan.drop]
-        if task != "prediction" and not any(self.registry.get(r.name).trainable for r in rows) \
-                and not any(label not in {r.label for r in rows} for label in stored):
+        if (
+            task != "prediction"
+            and not any(self.registry.get(r.name).trainable for r in rows)
+            and not any(label not in {r.label for r in rows} for label in stored)
+        ):
             return None  # a table of baselines alone says nothing about this task
-        protocol = protocol_for(bench, self.dataset, sampler=sampler, task=task,
-                                ground_truth=truth)
+        protocol = protocol_for(bench, self.dataset, sampler=sampler, task=task, ground_truth=truth)
         fresh, reused, efficiency, reasons = [], [], {}, []
         for row in rows:
             if row.label not in self.loaded:  # built once, used by every table
@@ -333,8 +416,11 @@ class Leaderboard:
                 if old is not None:
                     reused.append(old)
                     if identity_differences(stored_identity(old), identity):
-                        print(f"{where}: {row.label}: kept as stored although stale (only "
-                              f"{', '.join(sorted(plan.models))} asked)", file=sys.stderr)
+                        print(
+                            f"{where}: {row.label}: kept as stored although stale (only "
+                            f"{', '.join(sorted(plan.models))} asked)",
+                            file=sys.stderr,
+                        )
                 continue
             elif plan.models:
                 why = "asked (--model)"
@@ -350,18 +436,27 @@ class Leaderboard:
                     continue
             if why is not None:
                 reasons.append(f"{row.label}: {why}")
-            result = evaluate(loaded.model, bench, model_name=row.label, sampler=sampler,
-                              dataset=self.dataset, device=self.device,
-                              provenance=loaded.provenance, ground_truth=truth,
-                              view=loaded.view, task=task)
+            result = evaluate(
+                loaded.model,
+                bench,
+                model_name=row.label,
+                sampler=sampler,
+                dataset=self.dataset,
+                device=self.device,
+                provenance=loaded.provenance,
+                ground_truth=truth,
+                view=loaded.view,
+                task=task,
+            )
             stamp(result, identity)
             fresh.append(result)
             if check is None:
                 self.counts["recomputed"] += 1
                 efficiency[row.label] = self._cost(row.name, loaded, task)
         planned = {r.label for r in rows}
-        foreign = [p for label, p in stored.items() if label not in planned
-                   and label not in plan.drop]
+        foreign = [
+            p for label, p in stored.items() if label not in planned and label not in plan.drop
+        ]
         dropped = [p for label, p in stored.items() if label in plan.drop]
         if check is not None:
             for p in foreign:
@@ -374,12 +469,16 @@ class Leaderboard:
             result = EvalResult.read(p)
             differences = protocol_differences(protocol, result.protocol)
             if differences:
-                print(f"{where}: {p.name}: its stored result was measured under another "
-                      f"protocol ({'; '.join(differences)}); left out of the leaderboard (kept "
-                      f"on disk)", file=sys.stderr)
+                print(
+                    f"{where}: {p.name}: its stored result was measured under another "
+                    f"protocol ({'; '.join(differences)}); left out of the leaderboard (kept "
+                    f"on disk)",
+                    file=sys.stderr,
+                )
                 continue
-            print(f"{where}: {p.name}: kept as stored ({_why_not_planned(p, self)})",
-                  file=sys.stderr)
+            print(
+                f"{where}: {p.name}: kept as stored ({_why_not_planned(p, self)})", file=sys.stderr
+            )
             kept.append(result)
         self.counts["kept"] += len(foreign)
         self.counts["dropped"] += len(dropped)
@@ -388,8 +487,13 @@ class Leaderboard:
             return None
         for reason in reasons:
             print(f"{where}: recomputing {reason}", file=sys.stderr)
-        if not fresh and not dropped and (path / "leaderboard.md").is_file() and \
-                _same_runs(path, results) and not self.costs.measured_now:
+        if (
+            not fresh
+            and not dropped
+            and (path / "leaderboard.md").is_file()
+            and _same_runs(path, results)
+            and not self.costs.measured_now
+        ):
             return False
         with replace_folder(path) as tmp:
             for p in [*reused, *foreign]:
@@ -398,8 +502,10 @@ class Leaderboard:
                 result.write(tmp / str(result.frame["model"].iloc[0]), replace=False)
             write_leaderboard(results, tmp, bench.horizons_ms, efficiency)
         gone = f", dropped {', '.join(p.name for p in dropped)}" if dropped else ""
-        print(f"wrote {path}/leaderboard.md ({len(results)} rows: {len(fresh)} evaluated now, "
-              f"{len(reused)} reused, {len(results) - len(fresh) - len(reused)} kept{gone})")
+        print(
+            f"wrote {path}/leaderboard.md ({len(results)} rows: {len(fresh)} evaluated now, "
+            f"{len(reused)} reused, {len(results) - len(fresh) - len(reused)} kept{gone})"
+        )
         return True
 
     def _cost(self, name: str, loaded, task: str) -> dict:
@@ -408,14 +514,29 @@ class Leaderboard:
 
         view = loaded.view
         points = self.bench.model_inputs(dataset=self.dataset, view=view)["num_points"]
-        key = {"class": loaded.entry.class_path, "hparams": loaded.hparams, "view": view,
-               "task": task, "recipe": loaded.recipe, "points": points,
-               "input_frames": self.bench.input_frames,
-               "output_frames": self.bench.output_frames}
-        return self.costs.get(key, lambda: measure(
-            loaded.model, input_frames=self.bench.input_frames,
-            output_frames=self.bench.output_frames, points=points, task=task,
-            recipe=loaded.recipe, device=self.device), self.device)
+        key = {
+            "class": loaded.entry.class_path,
+            "hparams": loaded.hparams,
+            "view": view,
+            "task": task,
+            "recipe": loaded.recipe,
+            "points": points,
+            "input_frames": self.bench.input_frames,
+            "output_frames": self.bench.output_frames,
+        }
+        return self.costs.get(
+            key,
+            lambda: measure(
+                loaded.model,
+                input_frames=self.bench.input_frames,
+                output_frames=self.bench.output_frames,
+                points=points,
+                task=task,
+                recipe=loaded.recipe,
+                device=self.device,
+            ),
+            self.device,
+        )
 
 
 COSTS_FILE = "costs.json"
@@ -439,8 +560,9 @@ class CostCache:
         from zoo.efficiency import machine
 
         key = {**key, "machine": machine(device)}
-        digest = hashlib.sha256(json.dumps(key, sort_keys=True, default=str).encode()) \
-            .hexdigest()[:16]
+        digest = hashlib.sha256(json.dumps(key, sort_keys=True, default=str).encode()).hexdigest()[
+            :16
+        ]
         if digest not in self.entries:
             self.entries[digest] = {"key": key, "costs": measure_()}
             self.measured_now += 1
@@ -465,8 +587,9 @@ def _same_runs(path: Path, results: list) -> bool:
         runs = json.loads((path / "protocol.json").read_text())["provenance"]["runs"]
     except (OSError, ValueError, KeyError):
         return False
-    return sorted(r.get("identity_id", "") for r in runs) == \
-        sorted(r.protocol["provenance"].get("identity_id", "") for r in results)
+    return sorted(r.get("identity_id", "") for r in runs) == sorted(
+        r.protocol["provenance"].get("identity_id", "") for r in results
+    )
 
 
 def _recorded_registry(folder: Path) -> str | None:
@@ -484,11 +607,13 @@ def _refuse_foreign_registry(folder: Path, loaded, label: str) -> None:
 
     recorded = _recorded_registry(folder)
     if recorded is not None and recorded != repo_relative(loaded.entry.source):
-        raise StoreError(f"{folder}: row {label!r} was evaluated with registry {recorded}, which "
-                         f"this run does not load (its {label!r} comes from "
-                         f"{repo_relative(loaded.entry.source)}); nothing was changed: pass "
-                         f"--registry {recorded}, or remove the row deliberately with --drop "
-                         f"{label}")
+        raise StoreError(
+            f"{folder}: row {label!r} was evaluated with registry {recorded}, which "
+            f"this run does not load (its {label!r} comes from "
+            f"{repo_relative(loaded.entry.source)}); nothing was changed: pass "
+            f"--registry {recorded}, or remove the row deliberately with --drop "
+            f"{label}"
+        )
 
 
 def _why_not_planned(folder: Path, board: Leaderboard) -> str:
@@ -497,10 +622,14 @@ def _why_not_planned(folder: Path, board: Leaderboard) -> str:
 
     loaded = {repo_relative(e.source) for e in board.registry.entries.values()}
     if recorded is not None and recorded not in loaded:
-        return f"registry {recorded} not loaded: --registry {recorded} recomputes it, --drop " \
-               f"{folder.name} removes it"
-    return f"no shipped weights {board.bench.name}/{folder.name}.safetensors and no checkpoint " \
-           f"to recompute it from; --drop {folder.name} removes it"
+        return (
+            f"registry {recorded} not loaded: --registry {recorded} recomputes it, --drop "
+            f"{folder.name} removes it"
+        )
+    return (
+        f"no shipped weights {board.bench.name}/{folder.name}.safetensors and no checkpoint "
+        f"to recompute it from; --drop {folder.name} removes it"
+    )
 
 
 def _no_further_than_best(checkpoint: Path) -> bool:
@@ -520,13 +649,15 @@ KEY_COLUMNS = ["model", "action", "metric", "averaging", "joints", "horizon_ms"]
 # coordinates (MELV: |edge length now - edge length before|, where generated meshes' own bytes
 # differ between CPUs by a unit in the last place). A real change is far above both: a value
 # moved by 0.01 mm is named.
-RELATIVE_TOLERANCE = 2.0 ** -16
-ABSOLUTE_TOLERANCE_MM = 2.0 ** -12
+RELATIVE_TOLERANCE = 2.0**-16
+ABSOLUTE_TOLERANCE_MM = 2.0**-12
 
 
 def tolerance_text() -> str:
-    return (f"|difference| <= {RELATIVE_TOLERANCE:.2g} x |value| + {ABSOLUTE_TOLERANCE_MM:.2g} "
-            f"mm (float32 rounding across CPUs)")
+    return (
+        f"|difference| <= {RELATIVE_TOLERANCE:.2g} x |value| + {ABSOLUTE_TOLERANCE_MM:.2g} "
+        f"mm (float32 rounding across CPUs)"
+    )
 
 
 def _allowed(metric, values: np.ndarray) -> np.ndarray:
@@ -548,38 +679,61 @@ def _check_table(results: list, folder: Path, check: CheckReport) -> None:
         check.problems.append(f"{folder}/results.csv: missing; the leaderboard makes this table")
         return
     committed = pd.read_csv(folder / "results.csv")
-    both = fresh.merge(committed, on=KEY_COLUMNS, how="outer", suffixes=("", "_committed"),
-                       indicator="side")
+    both = fresh.merge(
+        committed, on=KEY_COLUMNS, how="outer", suffixes=("", "_committed"), indicator="side"
+    )
     for row in both[both["side"] != "both"].itertuples():
         where = "committed only" if row.side == "right_only" else "recomputed only"
-        check.problems.append(f"{folder}/results.csv: {where}: " + ", ".join(
-            f"{k}={getattr(row, k)}" for k in KEY_COLUMNS))
+        check.problems.append(
+            f"{folder}/results.csv: {where}: "
+            + ", ".join(f"{k}={getattr(row, k)}" for k in KEY_COLUMNS)
+        )
     matched = both[both["side"] == "both"]
     for column in ("value", "std"):  # the mean and its standard deviation over windows
         if f"{column}_committed" not in matched:
-            check.problems.append(f"{folder}/results.csv: no column {column!r} (written by an "
-                                  f"older zoo); regenerate the table")
+            check.problems.append(
+                f"{folder}/results.csv: no column {column!r} (written by an "
+                f"older zoo); regenerate the table"
+            )
             continue
         new, old = matched[column].to_numpy(float), matched[f"{column}_committed"].to_numpy(float)
         difference = np.abs(new - old)
         relative = difference / np.maximum(np.abs(old), 1e-12)
         nan = np.isnan(new) | np.isnan(old)  # a NaN (one window's spread) matches only a NaN
-        differs = np.where(nan, np.isnan(new) != np.isnan(old),
-                           difference > _allowed(matched["metric"].to_numpy(), old))
+        differs = np.where(
+            nan,
+            np.isnan(new) != np.isnan(old),
+            difference > _allowed(matched["metric"].to_numpy(), old),
+        )
         keep = ~nan
         rows = matched[keep]
-        check.note(difference[keep], old[keep], _allowed(rows["metric"].to_numpy(), old[keep]),
-                   lambda i: f"{folder.parent.name}/{folder.name}/results.csv " + ", ".join(
-                       f"{k}={rows.iloc[i][k]}" for k in KEY_COLUMNS) + f" ({column})")
+        check.note(
+            difference[keep],
+            old[keep],
+            _allowed(rows["metric"].to_numpy(), old[keep]),
+            lambda i, rows=rows, column=column: (
+                f"{folder.parent.name}/{folder.name}/results.csv "
+                + ", ".join(f"{k}={rows.iloc[i][k]}" for k in KEY_COLUMNS)
+                + f" ({column})"
+            ),
+        )
         for row, rel in zip(matched[differs].itertuples(), relative[differs]):
-            check.problems.append(f"{folder}/results.csv: " + ", ".join(
-                f"{k}={getattr(row, k)}" for k in KEY_COLUMNS) + f": {column} committed "
+            check.problems.append(
+                f"{folder}/results.csv: "
+                + ", ".join(f"{k}={getattr(row, k)}" for k in KEY_COLUMNS)
+                + f": {column} committed "
                 f"{getattr(row, column + '_committed')!r}, recomputed {getattr(row, column)!r} "
-                f"(relative {rel:.2g}; tolerance {tolerance_text()})")
-    for row in matched[matched["protocol_id"] != matched["protocol_id_committed"]] \
-            .drop_duplicates("model").itertuples():
-        check.problems.append(f"{folder}/results.csv: {row.model}: protocol "
-                              f"{row.protocol_id_committed} committed, {row.protocol_id} now")
+                f"(relative {rel:.2g}; tolerance {tolerance_text()})"
+            )
+    for row in (
+        matched[matched["protocol_id"] != matched["protocol_id_committed"]]
+        .drop_duplicates("model")
+        .itertuples()
+    ):
+        check.problems.append(
+            f"{folder}/results.csv: {row.model}: protocol "
+            f"{row.protocol_id_committed} committed, {row.protocol_id} now"
+        )
     for r in results:
         if r.windows is None:
             continue
@@ -589,8 +743,9 @@ def _check_table(results: list, folder: Path, check: CheckReport) -> None:
             check.problems.append(f"{path}: missing (per-window errors of {label})")
             continue
         stored = WindowErrors.read(path)
-        same_windows = np.array_equal(stored.start, r.windows.start) and \
-            np.array_equal(stored.sequence, r.windows.sequence)
+        same_windows = np.array_equal(stored.start, r.windows.start) and np.array_equal(
+            stored.sequence, r.windows.sequence
+        )
         for key, values in r.windows.errors.items():
             old = stored.errors.get(key)
             if old is None or not same_windows:
@@ -600,13 +755,19 @@ def _check_table(results: list, folder: Path, check: CheckReport) -> None:
             gap = np.abs(old - values)
             relative = gap / np.maximum(np.abs(old), 1e-12)
             allowed = _allowed(key[1], old)
-            check.note(gap, old, allowed, f"{folder.parent.name}/{folder.name}/{label}/"
-                       f"{WINDOWS_FILE} {'/'.join(key)}")
+            check.note(
+                gap,
+                old,
+                allowed,
+                f"{folder.parent.name}/{folder.name}/{label}/{WINDOWS_FILE} {'/'.join(key)}",
+            )
             if (gap > allowed).any():
-                check.problems.append(f"{path}: {'/'.join(key)}: per-window errors differ "
-                                      f"beyond tolerance (relative up to {relative.max():.2g}, "
-                                      f"absolute up to {gap.max():.2g}; tolerance "
-                                      f"{tolerance_text()})")
+                check.problems.append(
+                    f"{path}: {'/'.join(key)}: per-window errors differ "
+                    f"beyond tolerance (relative up to {relative.max():.2g}, "
+                    f"absolute up to {gap.max():.2g}; tolerance "
+                    f"{tolerance_text()})"
+                )
 
 
 INDEX_PREAMBLE = """# Results
@@ -654,8 +815,11 @@ def write_index(out_root: str | Path) -> Path:
             continue
         lines += [f"## {bench_dir.name}", ""]
         if (bench_dir / "training.png").is_file():
-            lines += [f"Training curves of the shipped models: "
-                      f"[{bench_dir.name}/training.png]({bench_dir.name}/training.png)", ""]
+            lines += [
+                f"Training curves of the shipped models: "
+                f"[{bench_dir.name}/training.png]({bench_dir.name}/training.png)",
+                "",
+            ]
         for table in tables:
             folder = table.parent.relative_to(out_root).as_posix()
             text = table.read_text()
@@ -664,9 +828,13 @@ def write_index(out_root: str | Path) -> Path:
             for marker in ("\n### ", "\n## "):
                 cut = headline.find(marker, 1)
                 headline = headline[:cut] if cut >= 0 else headline
-            lines += [f"### {folder}", "",
-                      f"[leaderboard]({folder}/leaderboard.md) · [results.csv]({folder}/results.csv)"
-                      f" · [plot]({folder}/mpjpe.png)", ""]
+            lines += [
+                f"### {folder}",
+                "",
+                f"[leaderboard]({folder}/leaderboard.md) · [results.csv]({folder}/results.csv)"
+                f" · [plot]({folder}/mpjpe.png)",
+                "",
+            ]
             if headline:  # its heading and table; the leaderboard explains them
                 rows = headline.strip().splitlines()
                 lines += ["##" + rows[0], "", *[r for r in rows if r.startswith("|")], ""]

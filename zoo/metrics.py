@@ -5,11 +5,12 @@ Per-frame errors are computed per window as ``(B, T_out)`` tensors; :class:`Fram
 accumulates them per action (``update`` / ``compute``, as in torchmetrics); averaging over time
 (``frame`` or ``cumulative``) and over actions happens once, at the end.
 """
+
 from __future__ import annotations
 
 from collections import defaultdict
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Sequence
 
 import numpy as np
 import torch
@@ -40,27 +41,44 @@ class Metric:
     description: str
 
 
-METRICS = {m.name: m for m in (
-    Metric("mpjpe", "mm", ".2f", False, "mean L2 error of the regressed joints (mm)"),
-    # The SpecTrHuMS paper prints MELV as mean and standard deviation.
-    Metric("melv", "mm", ".3f", True,
-           "mean over unique edges of |len_t - len_ref| (mm), reference = last observed "
-           "ground-truth frame, on the frames of `melv_frames`; model `ground_truth` rows: the "
-           "same for the ground-truth future (the data baseline)"),
-    Metric("rmse", "per vertex, normalised by the ground-truth frame's bounding-box diagonal",
-           ".4f", False, "sqrt(mean_v |v_hat - v|^2) / |max_v v - min_v v| of the ground-truth "
-           "frame (the zoo's own definition; SpecTrHuMS publishes none)"),
-)}
+METRICS = {
+    m.name: m
+    for m in (
+        Metric("mpjpe", "mm", ".2f", False, "mean L2 error of the regressed joints (mm)"),
+        # The SpecTrHuMS paper prints MELV as mean and standard deviation.
+        Metric(
+            "melv",
+            "mm",
+            ".3f",
+            True,
+            "mean over unique edges of |len_t - len_ref| (mm), reference = last observed "
+            "ground-truth frame, on the frames of `melv_frames`; model `ground_truth` rows: the "
+            "same for the ground-truth future (the data baseline)",
+        ),
+        Metric(
+            "rmse",
+            "per vertex, normalised by the ground-truth frame's bounding-box diagonal",
+            ".4f",
+            False,
+            "sqrt(mean_v |v_hat - v|^2) / |max_v v - min_v v| of the ground-truth "
+            "frame (the zoo's own definition; SpecTrHuMS publishes none)",
+        ),
+    )
+}
 # The ``std`` column of every row, as the mesh protocol records describe it.
-STD_DESCRIPTION = ("standard deviation over windows (ddof 1) of the row's error; `average` rows "
-                   "pool the windows of every action")
+STD_DESCRIPTION = (
+    "standard deviation over windows (ddof 1) of the row's error; `average` rows "
+    "pool the windows of every action"
+)
 
 
 def mpjpe(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     """Mean per-joint position error: ``(..., J, 3)`` -> ``(...)``, L2 norm averaged over J."""
     if pred.shape != target.shape:
-        raise ValueError(f"mpjpe: prediction {tuple(pred.shape)} and target "
-                         f"{tuple(target.shape)} differ in shape")
+        raise ValueError(
+            f"mpjpe: prediction {tuple(pred.shape)} and target "
+            f"{tuple(target.shape)} differ in shape"
+        )
     return torch.linalg.vector_norm(pred - target, dim=-1).mean(dim=-1)
 
 
@@ -74,6 +92,7 @@ def cumulative_mean(per_frame: np.ndarray, axis: int = -1) -> np.ndarray:
 
 # ---- joint protocols of the skeleton benchmarks ---------------------------------------------
 
+
 def joint_protocols(skeleton: Skeleton) -> dict[str, str]:
     """Named joint protocols of a skeleton and what each means, the one the literature reports
     first (``skeleton.official``) first."""
@@ -83,17 +102,20 @@ def joint_protocols(skeleton: Skeleton) -> dict[str, str]:
             f"{len(skeleton.used)} predicted joints written into the "
             f"ground-truth {skeleton.num_joints}-joint pose, joints {list(skeleton.copy_to)} "
             f"overwritten by predicted joints {list(skeleton.copy_from)}, L2 error averaged over "
-            f"all {skeleton.num_joints} joints (static joints count as zero)"),
+            f"all {skeleton.num_joints} joints (static joints count as zero)"
+        ),
         f"used{len(skeleton.used)}": (
-            f"plain mean L2 error over the {len(skeleton.used)} predicted joints"),
+            f"plain mean L2 error over the {len(skeleton.used)} predicted joints"
+        ),
     }
     if skeleton.official == "used":
         protocols = dict(reversed(list(protocols.items())))
     return protocols
 
 
-def skeleton_errors(pred_used: torch.Tensor, target: torch.Tensor,
-                    skeleton: Skeleton) -> dict[str, torch.Tensor]:
+def skeleton_errors(
+    pred_used: torch.Tensor, target: torch.Tensor, skeleton: Skeleton
+) -> dict[str, torch.Tensor]:
     """Per-frame MPJPE ``(B, T)`` under each joint protocol.
 
     ``pred_used``: ``(B, T, len(used), 3)``; ``target``: the full ground truth ``(B, T, J, 3)``.
@@ -102,12 +124,15 @@ def skeleton_errors(pred_used: torch.Tensor, target: torch.Tensor,
     full = target.clone()
     full[:, :, used] = pred_used
     full[:, :, list(skeleton.copy_to)] = full[:, :, list(skeleton.copy_from)]
-    errors = {f"all{skeleton.num_joints}": mpjpe(full, target),
-              f"used{len(skeleton.used)}": mpjpe(pred_used, target[:, :, used])}
+    errors = {
+        f"all{skeleton.num_joints}": mpjpe(full, target),
+        f"used{len(skeleton.used)}": mpjpe(pred_used, target[:, :, used]),
+    }
     return {name: errors[name] for name in joint_protocols(skeleton)}
 
 
 # ---- accumulation ------------------------------------------------------------------------------
+
 
 class FrameErrorMean:
     """Running mean and standard deviation over windows of per-frame errors, per group (action).
@@ -123,16 +148,23 @@ class FrameErrorMean:
         self.counts: dict[str, int] = defaultdict(int)
 
     def update(self, errors: torch.Tensor | np.ndarray, groups: Sequence[str]) -> None:
-        errors = errors.detach().to("cpu", torch.float64).numpy() \
-            if isinstance(errors, torch.Tensor) else np.asarray(errors, dtype=np.float64)
+        errors = (
+            errors.detach().to("cpu", torch.float64).numpy()
+            if isinstance(errors, torch.Tensor)
+            else np.asarray(errors, dtype=np.float64)
+        )
         if errors.ndim != 2 or len(errors) != len(groups):
-            raise ValueError(f"FrameErrorMean.update: expected errors (B, T) with one group per "
-                             f"window, got {errors.shape} and {len(groups)} groups")
+            raise ValueError(
+                f"FrameErrorMean.update: expected errors (B, T) with one group per "
+                f"window, got {errors.shape} and {len(groups)} groups"
+            )
         groups = np.asarray(groups)
         for g in np.unique(groups):
             rows = errors[groups == g]
-            squares = {"frame": np.square(rows).sum(axis=0),
-                       "cumulative": np.square(cumulative_mean(rows, axis=1)).sum(axis=0)}
+            squares = {
+                "frame": np.square(rows).sum(axis=0),
+                "cumulative": np.square(cumulative_mean(rows, axis=1)).sum(axis=0),
+            }
             if g in self.sums:
                 self.sums[g] += rows.sum(axis=0)
                 for averaging, value in squares.items():
@@ -143,7 +175,8 @@ class FrameErrorMean:
             self.counts[g] += len(rows)
 
     def compute(self) -> dict[str, np.ndarray]:
-        """Per-group mean per-frame error ``(T,)``; the group ``average`` is their unweighted mean."""
+        """Per-group mean per-frame error ``(T,)``; the group ``average`` is their unweighted
+        mean."""
         means = {g: self.sums[g] / self.counts[g] for g in self.sums}
         if means:
             means["average"] = np.mean(np.stack(list(means.values())), axis=0)
@@ -153,8 +186,8 @@ class FrameErrorMean:
         """Per-group standard deviation over windows ``(T,)`` under ``averaging`` (NaN for a
         group of one window); ``average`` pools the windows of every group."""
         if averaging not in AVERAGING:
-            raise ValueError(f"averaging must be one of {', '.join(AVERAGING)}, got "
-                             f"{averaging!r}")
+            raise ValueError(f"averaging must be one of {', '.join(AVERAGING)}, got {averaging!r}")
+
         def spread(total, squares, count):
             if count < 2:
                 return np.full_like(total, np.nan)
@@ -162,37 +195,45 @@ class FrameErrorMean:
             if averaging == "cumulative":
                 mean = cumulative_mean(mean)
             with np.errstate(invalid="ignore"):  # an infinite error has no finite spread
-                return np.sqrt(np.maximum(squares - count * mean ** 2, 0.0) / (count - 1))
+                return np.sqrt(np.maximum(squares - count * mean**2, 0.0) / (count - 1))
 
-        out = {g: spread(self.sums[g], self.squares[g][averaging], self.counts[g])
-               for g in self.sums}
+        out = {
+            g: spread(self.sums[g], self.squares[g][averaging], self.counts[g]) for g in self.sums
+        }
         if out:
-            out["average"] = spread(sum(self.sums.values()),
-                                    sum(sq[averaging] for sq in self.squares.values()),
-                                    sum(self.counts.values()))
+            out["average"] = spread(
+                sum(self.sums.values()),
+                sum(sq[averaging] for sq in self.squares.values()),
+                sum(self.counts.values()),
+            )
         return out
 
 
 # ---- mesh metrics ------------------------------------------------------------------------------
+
 
 def edge_lengths(vertices: torch.Tensor, edges: np.ndarray | torch.Tensor) -> torch.Tensor:
     """Lengths of ``edges (E, 2)`` in ``vertices (..., V, 3)``: ``(..., E)``."""
     edges = torch.as_tensor(np.asarray(edges), dtype=torch.long, device=vertices.device)
     if edges.ndim != 2 or edges.shape[1] != 2:
         raise ValueError(f"edge_lengths: edges must be (E, 2), got {tuple(edges.shape)}")
-    return torch.linalg.vector_norm(vertices[..., edges[:, 0], :] - vertices[..., edges[:, 1], :],
-                                    dim=-1)
+    return torch.linalg.vector_norm(
+        vertices[..., edges[:, 0], :] - vertices[..., edges[:, 1], :], dim=-1
+    )
 
 
-def melv(pred: torch.Tensor, reference: torch.Tensor,
-         edges: np.ndarray | torch.Tensor) -> torch.Tensor:
+def melv(
+    pred: torch.Tensor, reference: torch.Tensor, edges: np.ndarray | torch.Tensor
+) -> torch.Tensor:
     """Mean edge length variation ``(B, T)``: for every frame of ``pred (B, T, V, 3)``, the mean
     over the unique undirected ``edges (E, 2)`` of ``|len_t - len_ref|``, with ``reference
     (B, V, 3)`` the last observed ground-truth frame. In the vertices' units (mm).
     Scored on the ground-truth future it gives the data's own figure (the baseline)."""
     if pred.ndim != 4 or reference.shape != pred.shape[:1] + pred.shape[2:]:
-        raise ValueError(f"melv: expected pred (B, T, V, 3) and reference (B, V, 3), got "
-                         f"{tuple(pred.shape)} and {tuple(reference.shape)}")
+        raise ValueError(
+            f"melv: expected pred (B, T, V, 3) and reference (B, V, 3), got "
+            f"{tuple(pred.shape)} and {tuple(reference.shape)}"
+        )
     ref = edge_lengths(reference, edges).unsqueeze(1)
     return (edge_lengths(pred, edges) - ref).abs().mean(dim=-1)
 
@@ -206,8 +247,10 @@ def vertex_rmse(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     publishes no code for it: this definition is the zoo's own.
     """
     if pred.shape != target.shape or pred.ndim != 4:
-        raise ValueError(f"vertex_rmse: expected prediction and target (B, T, V, 3) of one "
-                         f"shape, got {tuple(pred.shape)} and {tuple(target.shape)}")
+        raise ValueError(
+            f"vertex_rmse: expected prediction and target (B, T, V, 3) of one "
+            f"shape, got {tuple(pred.shape)} and {tuple(target.shape)}"
+        )
     rmse = (pred - target).pow(2).sum(dim=-1).mean(dim=-1).sqrt()
     diagonal = torch.linalg.vector_norm(target.amax(dim=-2) - target.amin(dim=-2), dim=-1)
     return rmse / diagonal

@@ -6,6 +6,7 @@ API, the leaderboard, training and rendering all go through it.
     source = ModelSource.of(checkpoint="checkpoints/cmu/mlp/last.pt")
     loaded = source.load(registry, bench, dataset)     # loaded.model, loaded.label == "mlp@last"
 """
+
 from __future__ import annotations
 
 import sys
@@ -28,6 +29,7 @@ class ModelSource:
     """One of: ``name`` (a registry model, ``overrides`` replacing hyper-parameters),
     ``checkpoint`` (a ``best.pt`` / ``last.pt`` of ``zoo train``) or ``weights`` (shipped
     ``.safetensors``). ``label`` names its rows (default: see :meth:`default_label`)."""
+
     name: str | None = None
     checkpoint: Path | None = None
     weights: Path | None = None
@@ -35,9 +37,14 @@ class ModelSource:
     label: str | None = None
 
     @classmethod
-    def of(cls, model: str | None = None, checkpoint: str | Path | None = None,
-           weights: str | Path | None = None, overrides: dict[str, Any] | None = None,
-           label: str | None = None) -> "ModelSource":
+    def of(
+        cls,
+        model: str | None = None,
+        checkpoint: str | Path | None = None,
+        weights: str | Path | None = None,
+        overrides: dict[str, Any] | None = None,
+        label: str | None = None,
+    ) -> ModelSource:
         """A source from command-line style arguments, refusing combinations that mean
         nothing (weights and a checkpoint; overrides of trained hyper-parameters)."""
         overrides = dict(overrides or {})
@@ -52,8 +59,13 @@ class ModelSource:
             from zoo.store import check_label
 
             check_label(label)
-        return cls(name=model, checkpoint=Path(checkpoint) if checkpoint else None,
-                   weights=Path(weights) if weights else None, overrides=overrides, label=label)
+        return cls(
+            name=model,
+            checkpoint=Path(checkpoint) if checkpoint else None,
+            weights=Path(weights) if weights else None,
+            overrides=overrides,
+            label=label,
+        )
 
     @property
     def kind(self) -> str:
@@ -92,57 +104,78 @@ class ModelSource:
 
         return variant_label(model_name, self.overrides)
 
-    def load(self, registry: Registry, bench, dataset=None, data_root=None) -> "LoadedModel":
+    def load(self, registry: Registry, bench, dataset=None, data_root=None) -> LoadedModel:
         """The model, built or loaded for ``bench`` (checked against what it was trained for),
         in eval mode, with what its results record."""
-        from zoo.checkpoints import checkpoint_provenance, load_checkpoint, load_weights, \
-            stored_hparams
+        from zoo.checkpoints import (
+            checkpoint_provenance,
+            load_checkpoint,
+            load_weights,
+            stored_hparams,
+        )
         from zoo.io import sha256_file
         from zoo.weights import weights_provenance
 
         if self.kind == "registry":
             entry = registry.get(self.name)
             view = bench.view_for(entry.representation)
-            hparams = registry.model_args(self.name, **{
-                **bench.model_inputs(entry.context, data_root, dataset, view), **self.overrides})
+            hparams = registry.model_args(
+                self.name,
+                **{**bench.model_inputs(entry.context, data_root, dataset, view), **self.overrides},
+            )
             model = registry.create_model(self.name, **hparams)
             plain, hashes = stored_hparams(hparams)
-            return LoadedModel(model=model, entry=entry, view=view,
-                               label=self.default_label(entry.name),
-                               provenance={**entry.provenance(), "hparams": plain},
-                               recipe=entry.train or None if entry.trainable else None,
-                               hparams={**plain, **({"context_hashes": hashes} if hashes else {})},
-                               trained=None)
+            return LoadedModel(
+                model=model,
+                entry=entry,
+                view=view,
+                label=self.default_label(entry.name),
+                provenance={**entry.provenance(), "hparams": plain},
+                recipe=entry.train or None if entry.trainable else None,
+                hparams={**plain, **({"context_hashes": hashes} if hashes else {})},
+                trained=None,
+            )
         if self.kind == "weights":
-            model, record = load_weights(self.weights, registry=registry, benchmark=bench,
-                                         data_root=data_root, dataset=dataset)
+            model, record = load_weights(
+                self.weights,
+                registry=registry,
+                benchmark=bench,
+                data_root=data_root,
+                dataset=dataset,
+            )
             provenance = weights_provenance(self.weights, record)
             trained = {"kind": "weights", "sha256": record["sha256"]}
         else:
-            model, record = load_checkpoint(self.checkpoint, registry=registry,
-                                            benchmark=bench, data_root=data_root,
-                                            dataset=dataset)
+            model, record = load_checkpoint(
+                self.checkpoint,
+                registry=registry,
+                benchmark=bench,
+                data_root=data_root,
+                dataset=dataset,
+            )
             provenance = checkpoint_provenance(self.checkpoint, record)
             trained = {"kind": "checkpoint", "sha256": sha256_file(self.checkpoint)}
         if self.name and self.name != record["model"]:
-            where = f"weights {self.weights}" if self.weights else \
-                f"checkpoint {self.checkpoint}"
-            raise SourceError(f"--model {self.name} but {where} holds model "
-                              f"{record['model']!r}")
+            where = f"weights {self.weights}" if self.weights else f"checkpoint {self.checkpoint}"
+            raise SourceError(f"--model {self.name} but {where} holds model {record['model']!r}")
         entry = registry.get(record["model"])
         hashes = record.get("context_hashes") or {}
-        return LoadedModel(model=model, entry=entry, view=bench.view_for(entry.representation),
-                           label=self.default_label(entry.name),
-                           provenance={**entry.provenance(), **provenance},
-                           recipe=record.get("recipe"),
-                           hparams={**record["hparams"],
-                                    **({"context_hashes": hashes} if hashes else {})},
-                           trained=trained)
+        return LoadedModel(
+            model=model,
+            entry=entry,
+            view=bench.view_for(entry.representation),
+            label=self.default_label(entry.name),
+            provenance={**entry.provenance(), **provenance},
+            recipe=record.get("recipe"),
+            hparams={**record["hparams"], **({"context_hashes": hashes} if hashes else {})},
+            trained=trained,
+        )
 
 
 @dataclass
 class LoadedModel:
     """A model ready to evaluate, and what its results record about it."""
+
     model: nn.Module
     entry: ModelEntry
     view: str
@@ -155,34 +188,54 @@ class LoadedModel:
     def model_identity(self) -> dict[str, Any]:
         from zoo.io import repo_relative
 
-        return {"name": self.entry.name, "class": self.entry.class_path,
-                "registry": repo_relative(self.entry.source),
-                **({"replaces": self.entry.replaces} if self.entry.replaces else {}),
-                "hparams": self.hparams}
+        return {
+            "name": self.entry.name,
+            "class": self.entry.class_path,
+            "registry": repo_relative(self.entry.source),
+            **({"replaces": self.entry.replaces} if self.entry.replaces else {}),
+            "hparams": self.hparams,
+        }
 
     def identity(self, benchmark: str, protocol_id: str) -> dict[str, Any]:
         from zoo.store import evaluation_code, result_identity
 
-        return result_identity(benchmark=benchmark, protocol_id=protocol_id, label=self.label,
-                               model=self.model_identity(), trained=self.trained,
-                               code=evaluation_code(type(self.model)))
+        return result_identity(
+            benchmark=benchmark,
+            protocol_id=protocol_id,
+            label=self.label,
+            model=self.model_identity(),
+            trained=self.trained,
+            code=evaluation_code(type(self.model)),
+        )
 
     def warn_if_untrained(self) -> None:
         if self.entry.trainable and self.trained is None:
-            print(f"warning: {self.entry.name} is trainable and no --checkpoint or --weights "
-                  f"was given: evaluating its untrained initialisation", file=sys.stderr)
+            print(
+                f"warning: {self.entry.name} is trainable and no --checkpoint or --weights "
+                f"was given: evaluating its untrained initialisation",
+                file=sys.stderr,
+            )
 
 
-def object_identity(model: nn.Module, label: str, benchmark: str,
-                    protocol_id: str) -> dict[str, Any]:
+def object_identity(
+    model: nn.Module, label: str, benchmark: str, protocol_id: str
+) -> dict[str, Any]:
     """The identity of results of a model object handed over directly (no registry): its
     class and a hash of its weights stand for its hyper-parameters and training."""
     from zoo.checkpoints import weights_digest
     from zoo.store import evaluation_code, result_identity
 
     cls = type(model)
-    return result_identity(benchmark=benchmark, protocol_id=protocol_id, label=label,
-                           model={"name": None, "class": f"{cls.__module__}.{cls.__qualname__}",
-                                  "registry": None, "hparams": None},
-                           trained={"kind": "object", "sha256": weights_digest(model)},
-                           code=evaluation_code(cls))
+    return result_identity(
+        benchmark=benchmark,
+        protocol_id=protocol_id,
+        label=label,
+        model={
+            "name": None,
+            "class": f"{cls.__module__}.{cls.__qualname__}",
+            "registry": None,
+            "hparams": None,
+        },
+        trained={"kind": "object", "sha256": weights_digest(model)},
+        code=evaluation_code(cls),
+    )

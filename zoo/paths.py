@@ -1,5 +1,6 @@
 """Where the repository is: the one module every other may import for its paths (it imports
 nothing of the zoo), so registry, benchmarks, caches and records need not import each other."""
+
 from __future__ import annotations
 
 from pathlib import Path

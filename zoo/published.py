@@ -1,6 +1,7 @@
 """Published figures (``zoo/published.yaml``) beside measured rows, never mixed with them: a
 figure is a ``reported`` row of a table only where its protocol matches the table's record; any
 other is listed under its own heading with every difference named."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -38,6 +39,7 @@ class Published:
 class Placed:
     """A published entry as one table sees it: its figures averaged over the table's actions
     (``values``) where it matches, or the differences that keep it out."""
+
     entry: Published
     values: dict[int, float]
     differences: list[str]
@@ -56,26 +58,48 @@ def load_published(path: str | Path = PUBLISHED_FILE) -> list[Published]:
         missing = [f for f in FIELDS if f not in entry]
         unknown = sorted(set(entry) - set(FIELDS) - {"per_action", "average", "differs"})
         if missing or unknown:
-            raise PublishedError(f"{where}: missing {missing}, unknown {unknown}; fields: "
-                                 f"{', '.join(FIELDS)}, per_action or average, differs")
+            raise PublishedError(
+                f"{where}: missing {missing}, unknown {unknown}; fields: "
+                f"{', '.join(FIELDS)}, per_action or average, differs"
+            )
         if ("per_action" in entry) == ("average" in entry):
             raise PublishedError(f"{where}: give exactly one of per_action and average")
         try:
-            per_action = {str(a): {int(h): float(v) for h, v in values.items()}
-                          for a, values in entry["per_action"].items()} \
-                if "per_action" in entry else None
-            average = {int(h): float(v) for h, v in entry["average"].items()} \
-                if "average" in entry else None
+            per_action = (
+                {
+                    str(a): {int(h): float(v) for h, v in values.items()}
+                    for a, values in entry["per_action"].items()
+                }
+                if "per_action" in entry
+                else None
+            )
+            average = (
+                {int(h): float(v) for h, v in entry["average"].items()}
+                if "average" in entry
+                else None
+            )
         except (AttributeError, TypeError, ValueError) as exc:
-            raise PublishedError(f"{where}: figures must map horizons (ms) to numbers "
-                                 f"({exc})") from exc
-        out.append(Published(**{f: entry[f] for f in FIELDS}, per_action=per_action,
-                             average=average, differs=entry.get("differs")))
+            raise PublishedError(
+                f"{where}: figures must map horizons (ms) to numbers ({exc})"
+            ) from exc
+        out.append(
+            Published(
+                **{f: entry[f] for f in FIELDS},
+                per_action=per_action,
+                average=average,
+                differs=entry.get("differs"),
+            )
+        )
     return out
 
 
-def place(record: dict[str, Any], metric: str, averaging: str, joints: str,
-          entries: list[Published] | None = None) -> list[Placed]:
+def place(
+    record: dict[str, Any],
+    metric: str,
+    averaging: str,
+    joints: str,
+    entries: list[Published] | None = None,
+) -> list[Placed]:
     """Every published entry of ``record``'s benchmark, as the headline table of that record
     (``metric``, ``averaging``, ``joints``) sees it."""
     entries = load_published() if entries is None else entries
@@ -83,8 +107,11 @@ def place(record: dict[str, Any], metric: str, averaging: str, joints: str,
     for entry in entries:
         if entry.benchmark != record.get("benchmark"):
             continue
-        differences = [f"{key}: {value!r} published, {record.get(key)!r} here"
-                       for key, value in entry.protocol.items() if record.get(key) != value]
+        differences = [
+            f"{key}: {value!r} published, {record.get(key)!r} here"
+            for key, value in entry.protocol.items()
+            if record.get(key) != value
+        ]
         for key, mine in (("metric", metric), ("averaging", averaging), ("joints", joints)):
             if getattr(entry, key) != mine:
                 differences.append(f"{key}: {getattr(entry, key)} published, {mine} here")
@@ -99,7 +126,9 @@ def place(record: dict[str, Any], metric: str, averaging: str, joints: str,
                 values = {}
             else:
                 common = set.intersection(*(set(entry.per_action[a]) for a in actions))
-                values = {h: sum(entry.per_action[a][h] for a in actions) / len(actions)
-                          for h in sorted(common)}
+                values = {
+                    h: sum(entry.per_action[a][h] for a in actions) / len(actions)
+                    for h in sorted(common)
+                }
         placed.append(Placed(entry, values, differences))
     return placed

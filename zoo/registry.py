@@ -6,6 +6,7 @@ files (a user's own baselines, outside ``zoo/``) join through ``load_registry(pa
 command line. A class is named ``package.module.Class`` or ``path/to/file.py:Class`` (a path
 relative to the registry file that names it).
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -28,8 +29,18 @@ DEFAULT_REGISTRY = REPO_ROOT / "registry.yaml"
 # Keywords every model receives from the benchmark (see zoo.models).
 SHAPE_ARGS = ("input_frames", "output_frames", "num_points")
 REPRESENTATIONS = ("joints", "mesh")
-_ENTRY_KEYS = {"class", "representation", "trainable", "hparams", "reference", "context",
-               "description", "train", "task", "override"}
+_ENTRY_KEYS = {
+    "class",
+    "representation",
+    "trainable",
+    "hparams",
+    "reference",
+    "context",
+    "description",
+    "train",
+    "task",
+    "override",
+}
 # What a model's forward does: prediction ``forward(history)``, or completion
 # ``forward(history, final_frame)`` (the window's last frame given). Tables keep them apart.
 ENTRY_TASKS = ("prediction", "completion")
@@ -59,8 +70,11 @@ class ModelEntry:
         """What every result of this model records about where it came from."""
         from zoo.io import repo_relative
 
-        return {"class": self.class_path, "registry": repo_relative(self.source),
-                **({"replaces": self.replaces} if self.replaces else {})}
+        return {
+            "class": self.class_path,
+            "registry": repo_relative(self.source),
+            **({"replaces": self.replaces} if self.replaces else {}),
+        }
 
     @property
     def valid_args(self) -> list[str]:
@@ -73,8 +87,9 @@ class ModelEntry:
                 file_part, cls_name = path.rsplit(":", 1)
                 file = (self.source.parent / file_part).resolve()
                 if not file.is_file():
-                    raise RegistryError(f"{self.source}: model {self.name!r}: class file {file} "
-                                        f"does not exist")
+                    raise RegistryError(
+                        f"{self.source}: model {self.name!r}: class file {file} does not exist"
+                    )
                 module_name = f"zoo_user_{abs(hash(str(file)))}"
                 module = sys.modules.get(module_name)
                 if module is None:
@@ -87,8 +102,9 @@ class ModelEntry:
                 module = importlib.import_module(module_name)
             return getattr(module, cls_name)
         except (ImportError, AttributeError, ValueError) as e:
-            raise RegistryError(f"{self.source}: model {self.name!r}: cannot load class "
-                                f"{path!r} ({e})") from e
+            raise RegistryError(
+                f"{self.source}: model {self.name!r}: cannot load class {path!r} ({e})"
+            ) from e
 
 
 class Registry:
@@ -96,7 +112,7 @@ class Registry:
         self.entries: dict[str, ModelEntry] = dict(entries or {})
 
     @classmethod
-    def from_files(cls, *paths: str | Path) -> "Registry":
+    def from_files(cls, *paths: str | Path) -> Registry:
         registry = cls()
         for path in paths:
             registry.add_file(path)
@@ -120,20 +136,26 @@ class Registry:
                 # A second model under a known name would publish rows under the first one's
                 # name and protocol: only an explicit override may, and its results say so.
                 if not (isinstance(raw, dict) and raw.get("override") is True):
-                    raise RegistryError(f"{path}: model {name!r} is already defined in "
-                                        f"{previous.source}; choose another name, or add "
-                                        f"'override: true' to this entry to replace it")
+                    raise RegistryError(
+                        f"{path}: model {name!r} is already defined in "
+                        f"{previous.source}; choose another name, or add "
+                        f"'override: true' to this entry to replace it"
+                    )
                 entry = dataclasses.replace(entry, replaces=str(previous.source))
             self.entries[name] = entry
 
     def list_models(self, representation: str | None = None) -> list[str]:
-        return sorted(n for n, e in self.entries.items()
-                      if representation is None or representation in e.representation)
+        return sorted(
+            n
+            for n, e in self.entries.items()
+            if representation is None or representation in e.representation
+        )
 
     def get(self, name: str) -> ModelEntry:
         if name not in self.entries:
-            raise RegistryError(f"unknown model {name!r}; registered models: "
-                                f"{', '.join(self.list_models())}")
+            raise RegistryError(
+                f"unknown model {name!r}; registered models: {', '.join(self.list_models())}"
+            )
         return self.entries[name]
 
     def model_args(self, name: str, **overrides: Any) -> dict[str, Any]:
@@ -141,14 +163,18 @@ class Registry:
         entry = self.get(name)
         unknown = sorted(set(overrides) - set(entry.valid_args))
         if unknown:
-            raise RegistryError(f"model {name!r} has no hyper-parameter "
-                                f"{', '.join(map(repr, unknown))}; valid: "
-                                f"{', '.join(entry.valid_args)}")
+            raise RegistryError(
+                f"model {name!r} has no hyper-parameter "
+                f"{', '.join(map(repr, unknown))}; valid: "
+                f"{', '.join(entry.valid_args)}"
+            )
         args = {**entry.hparams, **overrides}
         missing = [a for a in (*SHAPE_ARGS, *entry.context) if a not in args]
         if missing:
-            raise RegistryError(f"model {name!r} needs {', '.join(missing)}, which a benchmark "
-                                f"supplies: create_model({name!r}, benchmark='cmu') or pass them")
+            raise RegistryError(
+                f"model {name!r} needs {', '.join(missing)}, which a benchmark "
+                f"supplies: create_model({name!r}, benchmark='cmu') or pass them"
+            )
         return args
 
     def create_model(self, name: str, **overrides: Any):
@@ -159,8 +185,10 @@ class Registry:
         takes_any = any(p.kind is p.VAR_KEYWORD for p in params.values())
         unused = [a for a in args if a not in params and not takes_any]
         if unused:
-            raise RegistryError(f"{entry.source}: model {name!r}: class {entry.class_path} does "
-                                f"not accept {', '.join(unused)}")
+            raise RegistryError(
+                f"{entry.source}: model {name!r}: class {entry.class_path} does "
+                f"not accept {', '.join(unused)}"
+            )
         try:
             return cls(**args)
         except (ValueError, TypeError) as e:
@@ -168,8 +196,11 @@ class Registry:
                 # the zoo's own models check their arguments: the message is the answer
                 raise RegistryError(f"model {name!r}: {e}") from e
             # a user's model keeps its traceback (it is their code), introduced by one line
-            print(f"zoo: model {name!r} ({entry.class_path}, registry {entry.source}) raised "
-                  f"while being built:", file=sys.stderr)
+            print(
+                f"zoo: model {name!r} ({entry.class_path}, registry {entry.source}) raised "
+                f"while being built:",
+                file=sys.stderr,
+            )
             raise
 
 
@@ -177,21 +208,27 @@ def _parse_entry(path: Path, name: str, raw: Any) -> ModelEntry:
     where = f"{path}: model {name!r}"
     # Names become folder and file names (results/<benchmark>/<sampler>/<name>/).
     if not isinstance(name, str) or not re.fullmatch(r"[A-Za-z0-9_][A-Za-z0-9_.-]*", name):
-        raise RegistryError(f"{where}: a model name is letters, digits, '_', '.' and '-', not "
-                            f"starting with '.' or '-' (it names result folders)")
+        raise RegistryError(
+            f"{where}: a model name is letters, digits, '_', '.' and '-', not "
+            f"starting with '.' or '-' (it names result folders)"
+        )
     if not isinstance(raw, dict):
         raise RegistryError(f"{where}: entry must be a mapping")
     unknown = sorted(set(raw) - _ENTRY_KEYS)
     if unknown:
-        raise RegistryError(f"{where}: unknown field(s) {', '.join(unknown)}; valid fields: "
-                            f"{', '.join(sorted(_ENTRY_KEYS))}")
+        raise RegistryError(
+            f"{where}: unknown field(s) {', '.join(unknown)}; valid fields: "
+            f"{', '.join(sorted(_ENTRY_KEYS))}"
+        )
     if not isinstance(raw.get("class"), str):
         raise RegistryError(f"{where}: field 'class' (module.Class or file.py:Class) is required")
     rep = raw.get("representation")
     rep = (rep,) if isinstance(rep, str) else tuple(rep or ())
     if not rep or any(r not in REPRESENTATIONS for r in rep):
-        raise RegistryError(f"{where}: field 'representation' must be one or more of "
-                            f"{', '.join(REPRESENTATIONS)}, got {raw.get('representation')!r}")
+        raise RegistryError(
+            f"{where}: field 'representation' must be one or more of "
+            f"{', '.join(REPRESENTATIONS)}, got {raw.get('representation')!r}"
+        )
     hparams = raw.get("hparams") or {}
     if not isinstance(hparams, dict):
         raise RegistryError(f"{where}: field 'hparams' must be a mapping")
@@ -199,27 +236,40 @@ def _parse_entry(path: Path, name: str, raw: Any) -> ModelEntry:
     if clash:
         raise RegistryError(f"{where}: {', '.join(clash)} come from the benchmark, not hparams")
     if "override" in raw and not isinstance(raw["override"], bool):
-        raise RegistryError(f"{where}: field 'override' must be true or false, got "
-                            f"{raw['override']!r}")
+        raise RegistryError(
+            f"{where}: field 'override' must be true or false, got {raw['override']!r}"
+        )
     task = raw.get("task", "prediction")
     if task not in ENTRY_TASKS:
-        raise RegistryError(f"{where}: field 'task' must be one of {', '.join(ENTRY_TASKS)}, got "
-                            f"{task!r}")
+        raise RegistryError(
+            f"{where}: field 'task' must be one of {', '.join(ENTRY_TASKS)}, got {task!r}"
+        )
     if "task" in hparams and hparams["task"] != task:
-        raise RegistryError(f"{where}: hparams task {hparams['task']!r} but the entry's task is "
-                            f"{task!r} (field 'task', default prediction); they must agree")
-    return ModelEntry(name=name, class_path=raw["class"], representation=rep, task=task,
-                      trainable=bool(raw.get("trainable", False)), hparams=dict(hparams),
-                      reference=str(raw.get("reference", "")).strip(), source=path,
-                      context=tuple(raw.get("context") or ()),
-                      description=str(raw.get("description", "")).strip(),
-                      train=dict(raw.get("train") or {}))
+        raise RegistryError(
+            f"{where}: hparams task {hparams['task']!r} but the entry's task is "
+            f"{task!r} (field 'task', default prediction); they must agree"
+        )
+    return ModelEntry(
+        name=name,
+        class_path=raw["class"],
+        representation=rep,
+        task=task,
+        trainable=bool(raw.get("trainable", False)),
+        hparams=dict(hparams),
+        reference=str(raw.get("reference", "")).strip(),
+        source=path,
+        context=tuple(raw.get("context") or ()),
+        description=str(raw.get("description", "")).strip(),
+        train=dict(raw.get("train") or {}),
+    )
 
 
 def load_registry(*extra: str | Path) -> Registry:
     """The project's registry plus ``ZOO_REGISTRY`` files plus ``extra`` (later ones win)."""
     if not DEFAULT_REGISTRY.is_file():
-        raise RegistryError(f"{DEFAULT_REGISTRY} not found: install motion-zoo from its source "
-                            f"tree (pip install -e .) so the registry travels with the code")
+        raise RegistryError(
+            f"{DEFAULT_REGISTRY} not found: install motion-zoo from its source "
+            f"tree (pip install -e .) so the registry travels with the code"
+        )
     env = [p for p in os.environ.get("ZOO_REGISTRY", "").split(os.pathsep) if p]
     return Registry.from_files(DEFAULT_REGISTRY, *env, *extra)

@@ -4,10 +4,11 @@ For a mesh benchmark, ``render_windows`` draws a few test windows: one row per w
 (ground truth above, prediction below), one column per chosen horizon, each mesh shaded by its
 per-vertex error; the same frames are exported as ``.glb`` scenes a viewer can open.
 """
+
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 import torch
@@ -18,8 +19,14 @@ from zoo.evaluate import check_task, predict
 from zoo.io import atomic_path
 
 
-def predicted_windows(model, bench, dataset: MeshDataset, windows: Sequence[int],
-                      task: str = "prediction", horizon: int | None = None):
+def predicted_windows(
+    model,
+    bench,
+    dataset: MeshDataset,
+    windows: Sequence[int],
+    task: str = "prediction",
+    horizon: int | None = None,
+):
     """Ground truth ``(W, T_in + T, V, 3)`` and prediction ``(W, T, V, 3)`` of chosen windows."""
     t_in = bench.input_frames
     t_out = check_task(task, horizon, bench.output_frames)
@@ -30,9 +37,17 @@ def predicted_windows(model, bench, dataset: MeshDataset, windows: Sequence[int]
     return truth, pred.numpy(), rows
 
 
-def render_windows(model, model_name: str, bench, dataset: MeshDataset, windows: Sequence[int],
-                   out_dir: str | Path, horizons_ms: Sequence[int] = (80, 400, 1000),
-                   task: str = "prediction", horizon: int | None = None) -> list[Path]:
+def render_windows(
+    model,
+    model_name: str,
+    bench,
+    dataset: MeshDataset,
+    windows: Sequence[int],
+    out_dir: str | Path,
+    horizons_ms: Sequence[int] = (80, 400, 1000),
+    task: str = "prediction",
+    horizon: int | None = None,
+) -> list[Path]:
     """Write ``<model>_windows.png`` and one ``<model>_window<i>.glb`` per window."""
     import matplotlib
 
@@ -44,8 +59,11 @@ def render_windows(model, model_name: str, bench, dataset: MeshDataset, windows:
     truth, pred, index = predicted_windows(model, bench, dataset, windows, task, horizon)
     t_in = bench.input_frames
     frame_ms = 1000.0 / dataset.fps
-    columns = [int(round(h / frame_ms)) - 1 for h in horizons_ms
-               if 0 < round(h / frame_ms) <= pred.shape[1]]
+    columns = [
+        int(round(h / frame_ms)) - 1
+        for h in horizons_ms
+        if 0 < round(h / frame_ms) <= pred.shape[1]
+    ]
     faces = dataset.topology.faces
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -63,8 +81,12 @@ def render_windows(model, model_name: str, bench, dataset: MeshDataset, windows:
         for i, (title, verts, err) in enumerate(panels):
             r = 2 * row + (1 if err is not None else 0)
             col = 0 if i == 0 else 1 + (i - 1) // 2
-            ax = fig.add_subplot(2 * len(windows), len(columns) + 1,
-                                 r * (len(columns) + 1) + col + 1, projection="3d")
+            ax = fig.add_subplot(
+                2 * len(windows),
+                len(columns) + 1,
+                r * (len(columns) + 1) + col + 1,
+                projection="3d",
+            )
             tris = verts[faces]
             if err is None:
                 colours = np.full((len(faces), 4), (0.62, 0.62, 0.65, 1.0))
@@ -76,10 +98,13 @@ def render_windows(model, model_name: str, bench, dataset: MeshDataset, windows:
                 setter(centre[axis] - scale, centre[axis] + scale)
             ax.set_axis_off()
             label = "ground truth" if err is None else f"{model_name} (mean {err.mean():.1f} mm)"
-            ax.set_title(f"{title}\n{label}" if i else f"window {w}: {seq.name}\n{title}",
-                         fontsize=7)
-    fig.suptitle(f"{bench.name}: {model_name}, ground truth (grey) vs prediction (coloured by "
-                 f"vertex error)", fontsize=9)
+            ax.set_title(
+                f"{title}\n{label}" if i else f"window {w}: {seq.name}\n{title}", fontsize=7
+            )
+    fig.suptitle(
+        f"{bench.name}: {model_name}, ground truth (grey) vs prediction (coloured by vertex error)",
+        fontsize=9,
+    )
     fig.tight_layout()
     written = [out_dir / f"{model_name}_windows.png"]
     with atomic_path(written[0]) as tmp:
@@ -89,10 +114,12 @@ def render_windows(model, model_name: str, bench, dataset: MeshDataset, windows:
         scene = trimesh.Scene()
         extent = float(np.ptp(truth[row, ..., 0])) / 1000.0 * 1.3
         for j, c in enumerate(columns):
-            for k, (verts, colour) in enumerate(((truth[row, t_in + c], (150, 150, 150, 255)),
-                                                 (pred[row, c], (220, 90, 40, 255)))):
-                mesh = trimesh.Trimesh(verts / 1000.0 + [j * extent, k * extent, 0], faces,
-                                       process=False)
+            for k, (verts, colour) in enumerate(
+                ((truth[row, t_in + c], (150, 150, 150, 255)), (pred[row, c], (220, 90, 40, 255)))
+            ):
+                mesh = trimesh.Trimesh(
+                    verts / 1000.0 + [j * extent, k * extent, 0], faces, process=False
+                )
                 mesh.visual.face_colors = colour
                 scene.add_geometry(mesh, node_name=f"{'truth' if k == 0 else 'pred'}_{c + 1:03d}")
         path = out_dir / f"{model_name}_window{w}.glb"

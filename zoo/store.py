@@ -17,6 +17,7 @@ the user's own). Its **identity** is what was measured, recorded in ``protocol.j
 A store never replaces a result of another identity unless told to (the error names the fields
 that differ), and the leaderboard reuses a stored row exactly while its identity holds.
 """
+
 from __future__ import annotations
 
 import ast
@@ -25,7 +26,7 @@ import inspect
 import json
 import re
 import sys
-from functools import lru_cache
+from functools import cache
 from pathlib import Path
 from typing import Any
 
@@ -36,8 +37,11 @@ from zoo.paths import REPO_ROOT
 RESULTS_DIR = REPO_ROOT / "results"
 IDENTITY_VERSION = 1
 # Modules whose code computes every result (besides the model's own source).
-EVALUATION_CODE = {"evaluator": "zoo/evaluate.py", "metrics": "zoo/metrics.py",
-                   "windows": "zoo/data/windows.py"}
+EVALUATION_CODE = {
+    "evaluator": "zoo/evaluate.py",
+    "metrics": "zoo/metrics.py",
+    "windows": "zoo/data/windows.py",
+}
 LABEL_PATTERN = r"[A-Za-z0-9_][A-Za-z0-9_.@+=,-]*"
 
 
@@ -45,8 +49,13 @@ class StoreError(ZooError, ValueError):
     pass
 
 
-def table_folder(sampler: str, task: str = "prediction", truth: str | None = None,
-                 horizon: int | None = None, melv: str | None = None) -> str:
+def table_folder(
+    sampler: str,
+    task: str = "prediction",
+    truth: str | None = None,
+    horizon: int | None = None,
+    melv: str | None = None,
+) -> str:
     """The folder under ``<root>/<benchmark>/`` of one sampler, task, ground truth and (when
     not the benchmark's default) MELV frames: ``all``, ``all-completion``, ``all-longterm50``,
     ``all-gt_spectral``, ``all-melv_raw``, ..."""
@@ -62,9 +71,11 @@ def result_path(root: str | Path | None, benchmark: str, table: str, label: str)
 def check_label(label: str) -> str:
     """A row label names a folder: letters, digits and ``_ . @ + = , -``."""
     if not isinstance(label, str) or not re.fullmatch(LABEL_PATTERN, label) or len(label) > 120:
-        raise StoreError(f"label {label!r}: a label is letters, digits and '_.@+=,-' (at most "
-                         f"120, not starting with '.', '-' or another sign); it names the "
-                         f"result folder")
+        raise StoreError(
+            f"label {label!r}: a label is letters, digits and '_.@+=,-' (at most "
+            f"120, not starting with '.', '-' or another sign); it names the "
+            f"result folder"
+        )
     return label
 
 
@@ -85,6 +96,7 @@ def _compact(value: Any) -> str:
 
 
 # ---- code fingerprints ------------------------------------------------------------------------
+
 
 def _tree_text(node: Any) -> str:
     """A syntax tree as text: node types and field values, docstrings and empty fields left
@@ -107,11 +119,14 @@ def _tree_text(node: Any) -> str:
 
 def _is_docstring(body: list) -> bool:
     first = body[0] if body else None
-    return isinstance(first, ast.Expr) and isinstance(first.value, ast.Constant) and \
-        isinstance(first.value.value, str)
+    return (
+        isinstance(first, ast.Expr)
+        and isinstance(first.value, ast.Constant)
+        and isinstance(first.value.value, str)
+    )
 
 
-@lru_cache(maxsize=None)
+@cache
 def _file_fingerprint(path: str, mtime_ns: int) -> str:
     tree = ast.parse(Path(path).read_text(), filename=path)
     return hashlib.sha256(_tree_text(tree).encode()).hexdigest()[:16]
@@ -125,8 +140,11 @@ def code_fingerprint(*files: str | Path) -> str:
         path = Path(file)
         path = path if path.is_absolute() else REPO_ROOT / path
         digests.append(_file_fingerprint(str(path), path.stat().st_mtime_ns))
-    return digests[0] if len(digests) == 1 else \
-        hashlib.sha256("".join(digests).encode()).hexdigest()[:16]
+    return (
+        digests[0]
+        if len(digests) == 1
+        else hashlib.sha256("".join(digests).encode()).hexdigest()[:16]
+    )
 
 
 def model_source_files(cls: type) -> list[Path]:
@@ -160,10 +178,25 @@ def evaluation_code(model_class: type | None) -> dict[str, str]:
 
 # ---- identities ------------------------------------------------------------------------------
 
-def result_identity(*, benchmark: str, protocol_id: str, label: str, model: dict[str, Any],
-                    trained: dict[str, Any] | None, code: dict[str, str]) -> dict[str, Any]:
-    return {"version": IDENTITY_VERSION, "benchmark": benchmark, "protocol_id": protocol_id,
-            "label": label, "model": model, "trained": trained, "code": code}
+
+def result_identity(
+    *,
+    benchmark: str,
+    protocol_id: str,
+    label: str,
+    model: dict[str, Any],
+    trained: dict[str, Any] | None,
+    code: dict[str, str],
+) -> dict[str, Any]:
+    return {
+        "version": IDENTITY_VERSION,
+        "benchmark": benchmark,
+        "protocol_id": protocol_id,
+        "label": label,
+        "model": model,
+        "trained": trained,
+        "code": code,
+    }
 
 
 def identity_id(identity: dict[str, Any]) -> str:
@@ -201,13 +234,18 @@ def stored_identity(folder: str | Path) -> dict[str, Any] | None:
     try:
         record = json.loads(path.read_text())
     except (OSError, ValueError) as e:
-        raise StoreError(f"{path}: not readable JSON ({e}); remove the folder or re-evaluate "
-                         f"with --replace") from e
+        raise StoreError(
+            f"{path}: not readable JSON ({e}); remove the folder or re-evaluate with --replace"
+        ) from e
     return (record.get("provenance") or {}).get("identity")
 
 
-def check_replace(folder: str | Path, identity: dict[str, Any], replace: bool = False,
-                  protocol: dict[str, Any] | None = None) -> str:
+def check_replace(
+    folder: str | Path,
+    identity: dict[str, Any],
+    replace: bool = False,
+    protocol: dict[str, Any] | None = None,
+) -> str:
     """Whether ``folder`` may receive a result of ``identity``: ``new`` (nothing there),
     ``same`` (a result of this identity, re-measured), ``replace`` (another identity, and
     ``replace`` was asked); otherwise an error naming the fields that differ (with
@@ -225,8 +263,11 @@ def check_replace(folder: str | Path, identity: dict[str, Any], replace: bool = 
 
         stored = json.loads((folder / "protocol.json").read_text())
         differences += [f"protocol {d}" for d in protocol_differences(stored, protocol)]
-    shown = "; ".join(differences[:6]) + (f"; and {len(differences) - 6} more"
-                                          if len(differences) > 6 else "")
-    raise StoreError(f"{folder} holds a result of another identity ({shown}); store this one "
-                     f"beside it under its own --label, write elsewhere with --out, or replace "
-                     f"it with --replace")
+    shown = "; ".join(differences[:6]) + (
+        f"; and {len(differences) - 6} more" if len(differences) > 6 else ""
+    )
+    raise StoreError(
+        f"{folder} holds a result of another identity ({shown}); store this one "
+        f"beside it under its own --label, write elsewhere with --out, or replace "
+        f"it with --replace"
+    )

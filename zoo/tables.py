@@ -5,9 +5,11 @@ its block-bootstrap intervals. Below the evaluator and the leaderboard, which bo
 Rows whose protocol records differ raise :class:`ProtocolMismatchError`, which names the fields
 that differ.
 """
+
 from __future__ import annotations
 
-from typing import Any, Iterable
+from collections.abc import Iterable
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -47,9 +49,11 @@ def protocol_differences(a: dict[str, Any], b: dict[str, Any]) -> list[str]:
             fb = {f["file"]: f.get("sha256") for f in b[key]}
             only_a, only_b = sorted(set(fa) - set(fb)), sorted(set(fb) - set(fa))
             changed = sorted(f for f in set(fa) & set(fb) if fa[f] != fb[f])
-            parts = [f"only in first: {only_a}" if only_a else "",
-                     f"only in second: {only_b}" if only_b else "",
-                     f"different sha256: {changed}" if changed else ""]
+            parts = [
+                f"only in first: {only_a}" if only_a else "",
+                f"only in second: {only_b}" if only_b else "",
+                f"different sha256: {changed}" if changed else "",
+            ]
             out.append("files (" + "; ".join(p for p in parts if p) + ")")
         else:
             out.append(f"{key} ({a.get(key)!r} vs {b.get(key)!r})")
@@ -66,11 +70,16 @@ def check_comparable(records: dict[str, dict[str, Any]]) -> None:
             second = record.get("provenance", {}).get("model", pid)
             raise ProtocolMismatchError(
                 f"refusing to put rows of different protocols in one table: protocol "
-                f"{items[0][0]} ({first}) and {pid} ({second}) differ in " + "; ".join(diff))
+                f"{items[0][0]} ({first}) and {pid} ({second}) differ in " + "; ".join(diff)
+            )
 
 
-def markdown_tables(frame: pd.DataFrame, records: dict[str, dict[str, Any]],
-                    horizons_ms: Iterable[int] | None = None, headline: str = "") -> str:
+def markdown_tables(
+    frame: pd.DataFrame,
+    records: dict[str, dict[str, Any]],
+    horizons_ms: Iterable[int] | None = None,
+    headline: str = "",
+) -> str:
     """One Markdown table per (metric, averaging, joints), horizons as columns, after the
     ``headline`` table if given."""
     ids = sorted(frame["protocol_id"].unique())
@@ -80,28 +89,41 @@ def markdown_tables(frame: pd.DataFrame, records: dict[str, dict[str, Any]],
     check_comparable({i: records[i] for i in ids})
     record = records[ids[0]]
     horizons = list(horizons_ms or default_horizons(frame))
-    out = [f"# {record['benchmark']}: {record['dataset']} {record['split']}, "
-           f"sampler {record['sampler']}, {record['input_frames']} in / "
-           f"{record['output_frames']} out at {record['fps']:g} fps",
-           "", f"Protocol {ids[0]}; actions present: {', '.join(record['actions_present'])}; "
-           f"{record['action_averaging']}.", ""]
+    out = [
+        f"# {record['benchmark']}: {record['dataset']} {record['split']}, "
+        f"sampler {record['sampler']}, {record['input_frames']} in / "
+        f"{record['output_frames']} out at {record['fps']:g} fps",
+        "",
+        f"Protocol {ids[0]}; actions present: {', '.join(record['actions_present'])}; "
+        f"{record['action_averaging']}.",
+        "",
+    ]
     if headline:
         out += [headline, ""]
     # The headline's protocol first (per action), then the others.
     headline_metric, headline_joints = headline_key(record)
     first = (headline_metric, "frame", headline_joints)
-    groups = sorted(frame.groupby(["metric", "averaging", "joints"], sort=True),
-                    key=lambda item: item[0] != first)
+    groups = sorted(
+        frame.groupby(["metric", "averaging", "joints"], sort=True),
+        key=lambda item: item[0] != first,
+    )
     order = _action_order(record)
     for (metric, averaging, joints), group in groups:
         group = group[group["horizon_ms"].isin(horizons)]
 
-        def pivot(values: str) -> pd.DataFrame:
-            table = group.pivot_table(index=["model", "action"], columns="horizon_ms",
-                                      values=values, sort=False, dropna=False)
+        def pivot(values: str, group: pd.DataFrame = group) -> pd.DataFrame:
+            table = group.pivot_table(
+                index=["model", "action"],
+                columns="horizon_ms",
+                values=values,
+                sort=False,
+                dropna=False,
+            )
             table = table.reindex(columns=[h for h in horizons if h in table.columns])
-            return table.sort_index(level=["model", "action"], key=lambda idx: idx.map(order)
-                                    if idx.name == "action" else idx)
+            return table.sort_index(
+                level=["model", "action"],
+                key=lambda idx: idx.map(order) if idx.name == "action" else idx,
+            )
 
         table = pivot("value")
         description = record.get("joint_protocols", {}).get(joints, "")
@@ -111,15 +133,25 @@ def markdown_tables(frame: pd.DataFrame, records: dict[str, dict[str, Any]],
             spread = pivot("std")
             table = table.astype(object)
             for column in table.columns:
-                table[column] = [f"{m:{fmt}} ({s:{fmt}})" for m, s in
-                                 zip(table[column], spread[column])]
+                table[column] = [
+                    f"{m:{fmt}} ({s:{fmt}})" for m, s in zip(table[column], spread[column])
+                ]
             how += " Each cell: mean (standard deviation over windows)."
-        out += [f"## {metric.upper()} ({unit}), averaging `{averaging}`, joints `{joints}`", "",
-                how, "",
-                tabulate(table.reset_index(), headers=["model", "action"] +
-                         [f"{h} ms" for h in table.columns], tablefmt="github",
-                         floatfmt=fmt, showindex=False, disable_numparse=metric in WITH_STD),
-                ""]
+        out += [
+            f"## {metric.upper()} ({unit}), averaging `{averaging}`, joints `{joints}`",
+            "",
+            how,
+            "",
+            tabulate(
+                table.reset_index(),
+                headers=["model", "action"] + [f"{h} ms" for h in table.columns],
+                tablefmt="github",
+                floatfmt=fmt,
+                showindex=False,
+                disable_numparse=metric in WITH_STD,
+            ),
+            "",
+        ]
     return "\n".join(out)
 
 
@@ -159,9 +191,12 @@ def block_frames_default(windows) -> int:
     return 2 * windows.window_frames
 
 
-def headline_table(results: list, horizons_ms: Iterable[int] | None = None,
-                   efficiency: dict[str, dict[str, Any]] | None = None,
-                   published: list | None = None) -> str:
+def headline_table(
+    results: list,
+    horizons_ms: Iterable[int] | None = None,
+    efficiency: dict[str, dict[str, Any]] | None = None,
+    published: list | None = None,
+) -> str:
     """Models as rows, horizons as columns: the benchmark's headline metric (frame averaging,
     action average) with half its 95% block-bootstrap interval, in bold where a model is the
     best at that horizon or not distinguishable from it (their paired interval holds zero).
@@ -169,15 +204,18 @@ def headline_table(results: list, horizons_ms: Iterable[int] | None = None,
     ``efficiency``: per model, the columns of :func:`zoo.efficiency.measure`. ``published``:
     :func:`zoo.published.place` of this table (default: from ``zoo/published.yaml``); matching
     figures become ``reported`` rows, the others are listed below with their differences."""
+    from zoo.intervals import REPLICATES, block_bootstrap, percentile_interval, short_recordings
     from zoo.published import place
-    from zoo.intervals import REPLICATES, block_bootstrap, percentile_interval, \
-        short_recordings
 
     record = results[0].protocol
     metric, joints = headline_key(record)
     frame = pd.concat([r.frame for r in results], ignore_index=True)
-    rows = frame[(frame["metric"] == metric) & (frame["joints"] == joints) &
-                 (frame["averaging"] == "frame") & (frame["action"] == "average")]
+    rows = frame[
+        (frame["metric"] == metric)
+        & (frame["joints"] == joints)
+        & (frame["averaging"] == "frame")
+        & (frame["action"] == "average")
+    ]
     if rows.empty:
         return ""
     horizons = [h for h in (horizons_ms or default_horizons(frame)) if h in set(rows.horizon_ms)]
@@ -185,16 +223,22 @@ def headline_table(results: list, horizons_ms: Iterable[int] | None = None,
     frame_of = dict(zip(rows["horizon_ms"], rows["frame"]))
     columns = [int(frame_of[h]) - 1 for h in horizons]  # 0-based predicted frame of each
     # every row of the headline that has per-window errors (a model, its autoencoder floor)
-    errors = {m: r.windows.get(m, metric, joints)[:, columns].astype(np.float64)
-              for r in results if r.windows is not None
-              for (m, metric_, joints_) in r.windows.errors
-              if metric_ == metric and joints_ == joints and m in values.index}
+    errors = {
+        m: r.windows.get(m, metric, joints)[:, columns].astype(np.float64)
+        for r in results
+        if r.windows is not None
+        for (m, metric_, joints_) in r.windows.errors
+        if metric_ == metric and joints_ == joints and m in values.index
+    }
     windows = next((r.windows for r in results if r.windows is not None), None)
     block = block_frames_default(windows) if windows is not None else None
 
     def interval(values_: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        return percentile_interval(block_bootstrap(values_, windows.sequence, windows.start,
-                                                   windows.action, block, REPLICATES))
+        return percentile_interval(
+            block_bootstrap(
+                values_, windows.sequence, windows.start, windows.action, block, REPLICATES
+            )
+        )
 
     half = {}
     for m, e in errors.items():
@@ -225,68 +269,111 @@ def headline_table(results: list, horizons_ms: Iterable[int] | None = None,
     placed = place(record, metric, "frame", joints) if published is None else published
     for p in placed:
         if not p.differences:
-            table.append([f"{p.entry.label}: {p.entry.source}",
-                          *[f"{p.values[h]:{fmt}}" if h in p.values else "–" for h in horizons],
-                          *_cost_cells(None)])
+            table.append(
+                [
+                    f"{p.entry.label}: {p.entry.source}",
+                    *[f"{p.values[h]:{fmt}}" if h in p.values else "–" for h in horizons],
+                    *_cost_cells(None),
+                ]
+            )
     unit = metric_unit(metric)[0]
     if windows is None:
         how = "no per-window errors stored, so no intervals"
     else:
         short = short_recordings(windows.sequence, windows.start, block)
-        how = (f"± is half the 95% block-bootstrap interval (circular blocks of {block} frames "
-               f"within each recording, {REPLICATES} replicates, seed 0); **bold**: the lowest "
-               f"error at that horizon and every model whose paired 95% interval against it "
-               f"holds zero (not distinguishable from the best)")
+        how = (
+            f"± is half the 95% block-bootstrap interval (circular blocks of {block} frames "
+            f"within each recording, {REPLICATES} replicates, seed 0); **bold**: the lowest "
+            f"error at that horizon and every model whose paired 95% interval against it "
+            f"holds zero (not distinguishable from the best)"
+        )
         if short:
             names = [windows.sequences[i] for i in short]
-            how += (f". {len(names)} recording(s) hold fewer than two blocks of overlapping "
-                    f"windows ({', '.join(names[:6])}{', ...' if len(names) > 6 else ''}): the "
-                    f"bootstrap cannot see their full variance, so these intervals are too "
-                    f"narrow")
+            how += (
+                f". {len(names)} recording(s) hold fewer than two blocks of overlapping "
+                f"windows ({', '.join(names[:6])}{', ...' if len(names) > 6 else ''}): the "
+                f"bootstrap cannot see their full variance, so these intervals are too "
+                f"narrow"
+            )
     devices = sorted({e["device"] for e in efficiency.values() if e})
     if devices:
-        how += (f". Costs measured once per architecture on {'; '.join(devices)}: "
-                f"parameters; forward GFLOPs per window (torch's FlopCounterMode, a multiply-add "
-                f"counts 2); median latency of one window (batch 1); training windows per "
-                f"second (forward, backward, clip and Adam at the recipe's batch size and "
-                f"precision)")
+        how += (
+            f". Costs measured once per architecture on {'; '.join(devices)}: "
+            f"parameters; forward GFLOPs per window (torch's FlopCounterMode, a multiply-add "
+            f"counts 2); median latency of one window (batch 1); training windows per "
+            f"second (forward, backward, clip and Adam at the recipe's batch size and "
+            f"precision)"
+        )
     floors = [m for m in values.index if is_floor(m)]
     if floors:
-        how += (f". {', '.join(f'`{m}`' for m in floors)}: the ground-truth future through the "
-                f"model's autoencoder alone (it sees the future): the error left with a perfect "
-                f"transformer, a bound, never bold")
+        how += (
+            f". {', '.join(f'`{m}`' for m in floors)}: the ground-truth future through the "
+            f"model's autoencoder alone (it sees the future): the error left with a perfect "
+            f"transformer, a bound, never bold"
+        )
     if any(not p.differences for p in placed):
-        how += (". Rows marked (reported) are the papers' figures under this very protocol, "
-                "averaged over the actions present here")
-    out = [f"## Headline: {metric.upper()} ({unit}), averaging `frame`, joints `{joints}`, mean "
-           f"over actions", "", how + ".", "",
-           tabulate(table, headers=["model"] + [f"{h} ms" for h in horizons] + cost_headers,
-                    tablefmt="github", disable_numparse=True)]
+        how += (
+            ". Rows marked (reported) are the papers' figures under this very protocol, "
+            "averaged over the actions present here"
+        )
+    out = [
+        f"## Headline: {metric.upper()} ({unit}), averaging `frame`, joints `{joints}`, mean "
+        f"over actions",
+        "",
+        how + ".",
+        "",
+        tabulate(
+            table,
+            headers=["model"] + [f"{h} ms" for h in horizons] + cost_headers,
+            tablefmt="github",
+            disable_numparse=True,
+        ),
+    ]
     for p in placed:
         if not p.differences and p.entry.per_action:
             actions = list(record["actions_present"])
-            rows = [[a, *[f"{p.entry.per_action[a][h]:{fmt}}" if h in p.entry.per_action[a]
-                          else "–" for h in horizons]] for a in actions]
-            out += ["", f"### {p.entry.label}: per action ({p.entry.source})", "",
-                    tabulate(rows, headers=["action"] + [f"{h} ms" for h in horizons],
-                             tablefmt="github", disable_numparse=True)]
+            rows = [
+                [
+                    a,
+                    *[
+                        f"{p.entry.per_action[a][h]:{fmt}}" if h in p.entry.per_action[a] else "–"
+                        for h in horizons
+                    ],
+                ]
+                for a in actions
+            ]
+            out += [
+                "",
+                f"### {p.entry.label}: per action ({p.entry.source})",
+                "",
+                tabulate(
+                    rows,
+                    headers=["action"] + [f"{h} ms" for h in horizons],
+                    tablefmt="github",
+                    disable_numparse=True,
+                ),
+            ]
     others = [p for p in placed if p.differences]
     if others:
-        out += ["", "### Published under other protocols (not comparable with the rows above)",
-                ""]
+        out += ["", "### Published under other protocols (not comparable with the rows above)", ""]
         for p in others:
             figures = ", ".join(f"{h} ms {v:{fmt}}" for h, v in sorted(p.values.items()))
-            out.append(f"- {p.entry.label}, {p.entry.source}: {figures or 'no average'}; "
-                       f"differs: {'; '.join(p.differences)}.")
+            out.append(
+                f"- {p.entry.label}, {p.entry.source}: {figures or 'no average'}; "
+                f"differs: {'; '.join(p.differences)}."
+            )
     return "\n".join(out)
 
 
 def _cost_cells(row: dict[str, Any] | None) -> list[str]:
     if not row:
         return ["–"] * 4
-    gflop, latency, train = (row.get(k) for k in ("gflop_per_sample", "latency_ms",
-                                                  "train_samples_per_s"))
-    return [f"{row['parameters'] / 1e6:.3f} M" if row["parameters"] else "0",
-            "–" if gflop is None else f"{gflop:.3g}",
-            "–" if latency is None else f"{latency:.3g}",
-            "–" if train is None else f"{train:.3g}"]
+    gflop, latency, train = (
+        row.get(k) for k in ("gflop_per_sample", "latency_ms", "train_samples_per_s")
+    )
+    return [
+        f"{row['parameters'] / 1e6:.3f} M" if row["parameters"] else "0",
+        "–" if gflop is None else f"{gflop:.3g}",
+        "–" if latency is None else f"{latency:.3g}",
+        "–" if train is None else f"{train:.3g}",
+    ]

@@ -19,6 +19,7 @@ over every frame of every window weights each frame by its count).
 Distributed data-parallel: launched by ``torchrun``, each process takes its share of every
 global batch (gloo on CPU, nccl on GPU), gradients are averaged, and rank 0 writes.
 """
+
 from __future__ import annotations
 
 import math
@@ -33,12 +34,21 @@ import torch
 from torch import nn
 
 from zoo.benchmark import Benchmark, get_benchmark
+from zoo.checkpoints import (
+    CHECKPOINT_FORMAT,
+    CheckpointError,
+    model_origin,
+    model_protocol,
+    plain,
+    read_checkpoint,
+    save_checkpoint,
+    stored_hparams,
+    trained_model,
+    weights_digest,
+)
 from zoo.data.windows import frame_counts, gather_windows, window_sampler
 from zoo.distributed import DistInfo, init_distributed
 from zoo.errors import ZooError
-from zoo.checkpoints import (CHECKPOINT_FORMAT, CheckpointError, model_origin, model_protocol,
-                             plain, read_checkpoint, save_checkpoint, stored_hparams,
-                             trained_model, weights_digest)
 from zoo.evaluate import EVAL_BATCH, predict
 from zoo.io import code_version, repo_relative, sha256_file
 from zoo.metrics import mpjpe
@@ -73,68 +83,96 @@ class TrainingError(ZooError, RuntimeError):
 
 # ---- recipe ----------------------------------------------------------------------------------
 
-def training_recipe(entry_train: dict[str, Any], overrides: dict[str, Any] | None = None
-                    ) -> dict[str, Any]:
+
+def training_recipe(
+    entry_train: dict[str, Any], overrides: dict[str, Any] | None = None
+) -> dict[str, Any]:
     recipe = {**DEFAULT_RECIPE, **entry_train, **(overrides or {})}
     unknown = sorted(set(recipe) - set(DEFAULT_RECIPE))
     if unknown:
-        raise TrainingError(f"unknown training-recipe key(s) {', '.join(unknown)}; valid: "
-                            f"{', '.join(sorted(DEFAULT_RECIPE))}")
+        raise TrainingError(
+            f"unknown training-recipe key(s) {', '.join(unknown)}; valid: "
+            f"{', '.join(sorted(DEFAULT_RECIPE))}"
+        )
     if recipe["optimizer"] != "adam":
-        raise TrainingError(f"training recipe: optimizer {recipe['optimizer']!r} unknown; "
-                            f"valid: adam")
+        raise TrainingError(
+            f"training recipe: optimizer {recipe['optimizer']!r} unknown; valid: adam"
+        )
     schedule = recipe["schedule"] or {"type": "constant"}
     if not isinstance(schedule, dict) or schedule.get("type") not in SCHEDULES:
-        raise TrainingError(f"training recipe: schedule {schedule!r} has no known type; valid: "
-                            f"{', '.join(SCHEDULES)} (YAML needs a space after each colon: "
-                            f"'{{type: step, every_epochs: 2, gamma: 0.96}}')")
+        raise TrainingError(
+            f"training recipe: schedule {schedule!r} has no known type; valid: "
+            f"{', '.join(SCHEDULES)} (YAML needs a space after each colon: "
+            f"'{{type: step, every_epochs: 2, gamma: 0.96}}')"
+        )
     warmup = schedule.get("warmup_steps", 0)
     if isinstance(warmup, bool) or not isinstance(warmup, int) or warmup < 0:
-        raise TrainingError(f"training recipe: schedule warmup_steps must be a non-negative "
-                            f"integer, got {warmup!r}")
+        raise TrainingError(
+            f"training recipe: schedule warmup_steps must be a non-negative integer, got {warmup!r}"
+        )
     bad = [a for a in recipe["augment"] or () if a not in AUGMENTATIONS]
     if bad:
-        raise TrainingError(f"training recipe: augmentation {bad[0]!r} unknown; valid: "
-                            f"{', '.join(AUGMENTATIONS)}")
+        raise TrainingError(
+            f"training recipe: augmentation {bad[0]!r} unknown; valid: {', '.join(AUGMENTATIONS)}"
+        )
     if recipe["precision"] not in PRECISIONS:
-        raise TrainingError(f"training recipe: precision {recipe['precision']!r} unknown; "
-                            f"valid: {', '.join(PRECISIONS)}")
+        raise TrainingError(
+            f"training recipe: precision {recipe['precision']!r} unknown; "
+            f"valid: {', '.join(PRECISIONS)}"
+        )
     for key in ("batch_size", "epochs"):
         if isinstance(recipe[key], bool) or not isinstance(recipe[key], int) or recipe[key] < 1:
-            raise TrainingError(f"training recipe: {key} must be a positive integer, got "
-                                f"{recipe[key]!r}")
+            raise TrainingError(
+                f"training recipe: {key} must be a positive integer, got {recipe[key]!r}"
+            )
     # lr 0 is allowed: it runs the whole pipeline with frozen weights (tests use it).
     if not _positive_number(recipe["lr"], allow_zero=True):
         raise TrainingError(f"training recipe: lr must be a number >= 0, got {recipe['lr']!r}")
     if not _positive_number(recipe["weight_decay"], allow_zero=True):
-        raise TrainingError(f"training recipe: weight_decay must be a number >= 0, got "
-                            f"{recipe['weight_decay']!r}")
+        raise TrainingError(
+            f"training recipe: weight_decay must be a number >= 0, got {recipe['weight_decay']!r}"
+        )
     # A negative limit would flip the gradients' sign inside clip_grad_norm_.
     if recipe["grad_clip"] is not None and not _positive_number(recipe["grad_clip"]):
-        raise TrainingError(f"training recipe: grad_clip must be a number > 0 or null (no "
-                            f"clipping), got {recipe['grad_clip']!r}")
+        raise TrainingError(
+            f"training recipe: grad_clip must be a number > 0 or null (no "
+            f"clipping), got {recipe['grad_clip']!r}"
+        )
     if schedule["type"] == "step" and not (
-            isinstance(schedule.get("every_epochs"), int) and schedule["every_epochs"] >= 1
-            and _positive_number(schedule.get("gamma"))):
-        raise TrainingError(f"training recipe: a step schedule needs every_epochs (an integer "
-                            f">= 1) and gamma (a number > 0), got {schedule!r}")
+        isinstance(schedule.get("every_epochs"), int)
+        and schedule["every_epochs"] >= 1
+        and _positive_number(schedule.get("gamma"))
+    ):
+        raise TrainingError(
+            f"training recipe: a step schedule needs every_epochs (an integer "
+            f">= 1) and gamma (a number > 0), got {schedule!r}"
+        )
     if schedule["type"] == "multistep":
         lrs, milestones = schedule.get("lrs"), schedule.get("milestones_steps")
-        if not isinstance(lrs, list) or not isinstance(milestones, list) or not lrs \
-                or len(lrs) != len(milestones) + 1:
-            raise TrainingError(f"training recipe: a multistep schedule needs milestones_steps "
-                                f"[s1, ...] and one more rate in lrs [lr0, lr1, ...], got "
-                                f"{schedule!r}")
+        if (
+            not isinstance(lrs, list)
+            or not isinstance(milestones, list)
+            or not lrs
+            or len(lrs) != len(milestones) + 1
+        ):
+            raise TrainingError(
+                f"training recipe: a multistep schedule needs milestones_steps "
+                f"[s1, ...] and one more rate in lrs [lr0, lr1, ...], got "
+                f"{schedule!r}"
+            )
         # The schedule's own rates are what runs; a different lr would be recorded, not used.
         if recipe["lr"] != lrs[0]:
-            raise TrainingError(f"training recipe: lr {recipe['lr']!r} is not what runs: the "
-                                f"multistep schedule sets its own rates lrs = {lrs}; change "
-                                f"the schedule instead (--train-set 'schedule={{type: "
-                                f"multistep, milestones_steps: [...], lrs: [...]}}') and give "
-                                f"lr equal to its first rate")
+            raise TrainingError(
+                f"training recipe: lr {recipe['lr']!r} is not what runs: the "
+                f"multistep schedule sets its own rates lrs = {lrs}; change "
+                f"the schedule instead (--train-set 'schedule={{type: "
+                f"multistep, milestones_steps: [...], lrs: [...]}}') and give "
+                f"lr equal to its first rate"
+            )
     if not 0 < recipe["val_fraction"] < 0.5:
-        raise TrainingError(f"training recipe: val_fraction must lie in (0, 0.5), got "
-                            f"{recipe['val_fraction']}")
+        raise TrainingError(
+            f"training recipe: val_fraction must lie in (0, 0.5), got {recipe['val_fraction']}"
+        )
     return recipe
 
 
@@ -144,8 +182,9 @@ def _positive_number(value, allow_zero: bool = False) -> bool:
     return value >= 0 if allow_zero else value > 0
 
 
-def learning_rate(schedule: dict[str, Any], base_lr: float, epoch: int, epochs: int,
-                  step: int = 0) -> float:
+def learning_rate(
+    schedule: dict[str, Any], base_lr: float, epoch: int, epochs: int, step: int = 0
+) -> float:
     """The learning rate at 0-based ``epoch`` and global optimizer ``step``.
 
     Any schedule may add ``warmup_steps: N``: the rate grows linearly from ``lr / N`` over the
@@ -172,6 +211,7 @@ def learning_rate(schedule: dict[str, Any], base_lr: float, epoch: int, epochs: 
 
 # ---- data ------------------------------------------------------------------------------------
 
+
 def sequence_frames(sequence) -> np.ndarray:
     """The ``(T, P, 3)`` array of a skeleton (joint positions) or mesh (vertices) sequence."""
     return sequence.positions if hasattr(sequence, "positions") else sequence.vertices
@@ -190,8 +230,10 @@ def split_train_val(dataset, val_fraction: float, window: int) -> tuple[list, li
         return [a[:c] for a, c in zip(arrays, cuts)], [a[c:] for a, c in zip(arrays, cuts)]
     held = max(1, int(round(len(arrays) * val_fraction)))
     if held >= len(arrays):
-        raise TrainingError(f"{dataset.name}/{dataset.split}: {len(arrays)} sequences are too few "
-                            f"to hold {val_fraction:.0%} out for validation")
+        raise TrainingError(
+            f"{dataset.name}/{dataset.split}: {len(arrays)} sequences are too few "
+            f"to hold {val_fraction:.0%} out for validation"
+        )
     return arrays[:-held], arrays[-held:]
 
 
@@ -240,12 +282,25 @@ def _point_index(bench: Benchmark):
 
 # ---- the loop --------------------------------------------------------------------------------
 
-def train(model_name: str, benchmark: str | Benchmark, *, registry: Registry | None = None,
-          epochs: int | None = None, out_dir: str | Path | None = None,
-          data_root: str | Path | None = None, overrides: dict[str, Any] | None = None,
-          train_overrides: dict[str, Any] | None = None, resume: bool = False, seed: int = 0,
-          device: str = "cpu", max_batches: int | None = None, progress: bool = True,
-          stop_after_epoch: int | None = None, init_from: str | Path | None = None) -> Path:
+
+def train(
+    model_name: str,
+    benchmark: str | Benchmark,
+    *,
+    registry: Registry | None = None,
+    epochs: int | None = None,
+    out_dir: str | Path | None = None,
+    data_root: str | Path | None = None,
+    overrides: dict[str, Any] | None = None,
+    train_overrides: dict[str, Any] | None = None,
+    resume: bool = False,
+    seed: int = 0,
+    device: str = "cpu",
+    max_batches: int | None = None,
+    progress: bool = True,
+    stop_after_epoch: int | None = None,
+    init_from: str | Path | None = None,
+) -> Path:
     """Train ``model_name`` on ``benchmark``'s training split; returns the best checkpoint path.
 
     ``init_from`` (a checkpoint of the same model and protocol) starts from
@@ -258,41 +313,61 @@ def train(model_name: str, benchmark: str | Benchmark, *, registry: Registry | N
     bench = get_benchmark(benchmark) if isinstance(benchmark, (str, Path)) else benchmark
     entry = registry.get(model_name)
     if not entry.trainable:
-        raise TrainingError(f"model {model_name!r} has nothing to train (registry: trainable: "
-                            f"false)")
-    if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed < 2 ** 32:
+        raise TrainingError(
+            f"model {model_name!r} has nothing to train (registry: trainable: false)"
+        )
+    if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed < 2**32:
         raise TrainingError(f"seed must be an integer in 0..2**32-1, got {seed!r}")
-    if max_batches is not None and (isinstance(max_batches, bool)
-                                    or not isinstance(max_batches, int) or max_batches < 1):
-        raise TrainingError(f"max_batches (--max-batches) must be a positive integer, got "
-                            f"{max_batches!r}")
-    recipe = training_recipe(entry.train, {**(train_overrides or {}),
-                                           **({"epochs": epochs} if epochs is not None else {})})
+    if max_batches is not None and (
+        isinstance(max_batches, bool) or not isinstance(max_batches, int) or max_batches < 1
+    ):
+        raise TrainingError(
+            f"max_batches (--max-batches) must be a positive integer, got {max_batches!r}"
+        )
+    recipe = training_recipe(
+        entry.train,
+        {**(train_overrides or {}), **({"epochs": epochs} if epochs is not None else {})},
+    )
     dist_info = init_distributed(device)
-    if recipe["precision"] == "bfloat16" and torch.device(device).type == "cpu" \
-            and cpu_has_native_bfloat16() is False:
-        warnings.warn(f"training {model_name} with precision bfloat16 on a CPU without native "
-                      f"bfloat16 products (no avx512_bf16 or amx_bf16 flag): torch falls back "
-                      f"to a slow path (SpecTrHuMS: a step 21x slower than float32 on an AVX2 "
-                      f"CPU); --train-set precision=float32 is faster here", RuntimeWarning,
-                      stacklevel=2)
+    if (
+        recipe["precision"] == "bfloat16"
+        and torch.device(device).type == "cpu"
+        and cpu_has_native_bfloat16() is False
+    ):
+        warnings.warn(
+            f"training {model_name} with precision bfloat16 on a CPU without native "
+            f"bfloat16 products (no avx512_bf16 or amx_bf16 flag): torch falls back "
+            f"to a slow path (SpecTrHuMS: a step 21x slower than float32 on an AVX2 "
+            f"CPU); --train-set precision=float32 is faster here",
+            RuntimeWarning,
+            stacklevel=2,
+        )
     view = bench.view_for(entry.representation)
     dataset = bench.load(data_root, split=bench.train_split)
     if bench.representation == "mesh" and view == "joints":
         dataset = dataset.joints_view()  # a skeleton model on a mesh benchmark's joints
-    hparams = registry.model_args(model_name, **{**bench.model_inputs(entry.context, data_root,
-                                                                      dataset, view),
-                                                 **(overrides or {})})
+    hparams = registry.model_args(
+        model_name,
+        **{**bench.model_inputs(entry.context, data_root, dataset, view), **(overrides or {})},
+    )
     if init_from is not None and resume:
-        raise TrainingError("give --init-from (a new stage from other weights) or --resume (this "
-                            "run's last state), not both")
+        raise TrainingError(
+            "give --init-from (a new stage from other weights) or --resume (this "
+            "run's last state), not both"
+        )
     out_dir = Path(out_dir) if out_dir else REPO_ROOT / "checkpoints" / bench.name / model_name
     if init_from is not None and Path(init_from).resolve() in {
-            (out_dir / f).resolve() for f in ("best.pt", "last.pt")}:
-        raise TrainingError(f"--init-from {init_from}: this run would overwrite it; give the new "
-                            f"stage its own --out")
-    initial = initial_weights(init_from, model_name, bench, registry, data_root, dataset) \
-        if init_from is not None else None
+        (out_dir / f).resolve() for f in ("best.pt", "last.pt")
+    }:
+        raise TrainingError(
+            f"--init-from {init_from}: this run would overwrite it; give the new "
+            f"stage its own --out"
+        )
+    initial = (
+        initial_weights(init_from, model_name, bench, registry, data_root, dataset)
+        if init_from is not None
+        else None
+    )
 
     torch.manual_seed(seed)
     np.random.seed(seed)
@@ -302,24 +377,31 @@ def train(model_name: str, benchmark: str | Benchmark, *, registry: Registry | N
         try:
             model.load_state_dict(initial[0])
         except RuntimeError as e:
-            raise TrainingError(f"--init-from {init_from}: its weights do not fit {model_name} "
-                                f"with these hyper-parameters: {e}") from None
-    optimizer = torch.optim.Adam(model.parameters(), lr=recipe["lr"],
-                                 weight_decay=recipe["weight_decay"])
+            raise TrainingError(
+                f"--init-from {init_from}: its weights do not fit {model_name} "
+                f"with these hyper-parameters: {e}"
+            ) from None
+    optimizer = torch.optim.Adam(
+        model.parameters(), lr=recipe["lr"], weight_decay=recipe["weight_decay"]
+    )
     t_in, t_out = bench.input_frames, bench.output_frames
     length = t_in + t_out
     train_seqs, val_seqs = split_train_val(dataset, recipe["val_fraction"], length)
     train_pos, train_index = _windows(train_seqs, length, recipe["train_sampler"], t_in, t_out)
     val_pos, val_index = _windows(val_seqs, length, "all", t_in, t_out)
     if len(train_index) == 0:
-        raise TrainingError(f"{dataset.name}/{dataset.split}: training sampler "
-                            f"{recipe['train_sampler']!r} finds no window of {length} frames in "
-                            f"the training sequences (longest: "
-                            f"{max((len(a) for a in train_seqs), default=0)} frames); choose "
-                            f"another with --train-set train_sampler=NAME (e.g. all)")
+        raise TrainingError(
+            f"{dataset.name}/{dataset.split}: training sampler "
+            f"{recipe['train_sampler']!r} finds no window of {length} frames in "
+            f"the training sequences (longest: "
+            f"{max((len(a) for a in train_seqs), default=0)} frames); choose "
+            f"another with --train-set train_sampler=NAME (e.g. all)"
+        )
     if len(val_index) == 0:
-        raise TrainingError(f"{dataset.name}/{dataset.split}: no validation window of {length} "
-                            f"frames in the held-out sequences")
+        raise TrainingError(
+            f"{dataset.name}/{dataset.split}: no validation window of {length} "
+            f"frames in the held-out sequences"
+        )
     used = _point_index(bench)
 
     first_epoch, best, history = 0, {"val_mpjpe": math.inf, "epoch": -1}, []
@@ -330,8 +412,10 @@ def train(model_name: str, benchmark: str | Benchmark, *, registry: Registry | N
         state = read_checkpoint(last_path)
         init_record = state.get("init_from")
         if state["model"] != model_name or state["hparams"] != stored_hparams(hparams)[0]:
-            raise CheckpointError(f"{last_path}: cannot resume: it holds {state['model']!r} with "
-                                  f"other hyper-parameters")
+            raise CheckpointError(
+                f"{last_path}: cannot resume: it holds {state['model']!r} with "
+                f"other hyper-parameters"
+            )
         recipe_changes = resume_changes(last_path, state, recipe, seed, max_batches)
         model.load_state_dict(state["state_dict"])
         optimizer.load_state_dict(state["optimizer"])
@@ -341,19 +425,26 @@ def train(model_name: str, benchmark: str | Benchmark, *, registry: Registry | N
     objective = TrainingObjective(model, entry.task)
     # Some phases leave parameters without gradients (SpecTrHuMS's transformer while the
     # autoencoder trains alone), which DDP must be told to expect.
-    net = torch.nn.parallel.DistributedDataParallel(objective, find_unused_parameters=True) \
-        if dist_info.active else objective
+    net = (
+        torch.nn.parallel.DistributedDataParallel(objective, find_unused_parameters=True)
+        if dist_info.active
+        else objective
+    )
     batch_size = recipe["batch_size"]
     if batch_size % dist_info.world:
-        raise TrainingError(f"batch_size {batch_size} must divide evenly over "
-                            f"{dist_info.world} processes")
+        raise TrainingError(
+            f"batch_size {batch_size} must divide evenly over {dist_info.world} processes"
+        )
     # Incomplete last batches are dropped, so every process always gets an equal share.
     steps_per_epoch = max(1, len(train_index) // batch_size)
     if max_batches:
         steps_per_epoch = min(steps_per_epoch, max_batches)
-    meta = {**_metadata(entry, hparams, bench, dataset, recipe, seed, device, dist_info,
-                        view), "max_batches": max_batches, "recipe_changes": recipe_changes,
-            "init_from": init_record}
+    meta = {
+        **_metadata(entry, hparams, bench, dataset, recipe, seed, device, dist_info, view),
+        "max_batches": max_batches,
+        "recipe_changes": recipe_changes,
+        "init_from": init_record,
+    }
 
     def training_frames():
         """``(frames (N, P, 3), counts (N,))``: every distinct frame of the training windows
@@ -364,32 +455,48 @@ def train(model_name: str, benchmark: str | Benchmark, *, registry: Registry | N
         flat = np.concatenate(counts)
         held = flat > 0
         # each held frame as a one-frame window (sequence, frame) for gather_windows
-        frame_index = np.stack([np.repeat(np.arange(len(counts)), [len(c) for c in counts]),
-                                np.concatenate([np.arange(len(c)) for c in counts])], 1)[held]
+        frame_index = np.stack(
+            [
+                np.repeat(np.arange(len(counts)), [len(c) for c in counts]),
+                np.concatenate([np.arange(len(c)) for c in counts]),
+            ],
+            1,
+        )[held]
         weights = torch.from_numpy(flat[held])
-        batch = max(1, 2 ** 24 // (train_pos[0][:, used].shape[1] * 3))
+        batch = max(1, 2**24 // (train_pos[0][:, used].shape[1] * 3))
         for start in range(0, len(frame_index), batch):
-            frames = gather_windows(train_pos, frame_index[start:start + batch], 1)[:, 0, used]
-            yield (torch.from_numpy(np.ascontiguousarray(frames)).to(device),
-                   weights[start:start + batch].to(device))
+            frames = gather_windows(train_pos, frame_index[start : start + batch], 1)[:, 0, used]
+            yield (
+                torch.from_numpy(np.ascontiguousarray(frames)).to(device),
+                weights[start : start + batch].to(device),
+            )
 
     for epoch in range(first_epoch, recipe["epochs"]):
         if hasattr(model, "start_epoch"):  # e.g. warm-up phases, statistics over the data
             model.start_epoch(epoch, training_frames)
-        order = torch.randperm(len(train_index),
-                               generator=torch.Generator().manual_seed(seed * 100003 + epoch))
+        order = torch.randperm(
+            len(train_index), generator=torch.Generator().manual_seed(seed * 100003 + epoch)
+        )
         augment_rng = np.random.default_rng([seed, epoch])
         model.train()
-        bar = _progress(progress and dist_info.rank == 0, steps_per_epoch,
-                        f"{model_name} epoch {epoch + 1}/{recipe['epochs']}")
+        bar = _progress(
+            progress and dist_info.rank == 0,
+            steps_per_epoch,
+            f"{model_name} epoch {epoch + 1}/{recipe['epochs']}",
+        )
         started, seen, loss_sum = time.perf_counter(), 0, 0.0
         for step in range(steps_per_epoch):
-            lr = learning_rate(recipe["schedule"], recipe["lr"], epoch, recipe["epochs"],
-                               epoch * steps_per_epoch + step)
+            lr = learning_rate(
+                recipe["schedule"],
+                recipe["lr"],
+                epoch,
+                recipe["epochs"],
+                epoch * steps_per_epoch + step,
+            )
             for group in optimizer.param_groups:
                 group["lr"] = lr
-            rows = order[step * batch_size:(step + 1) * batch_size].numpy()
-            rows = rows[dist_info.rank::dist_info.world]  # this process's share of the batch
+            rows = order[step * batch_size : (step + 1) * batch_size].numpy()
+            rows = rows[dist_info.rank :: dist_info.world]  # this process's share of the batch
             windows = gather_windows(train_pos, train_index[rows], length)[:, :, used]
             if "time_reversal" in (recipe["augment"] or ()):
                 flip = augment_rng.random(len(windows)) < 0.5
@@ -399,9 +506,11 @@ def train(model_name: str, benchmark: str | Benchmark, *, registry: Registry | N
             with forward_precision(recipe["precision"], device):
                 loss = net(history_, future)
             if not torch.isfinite(loss):
-                raise TrainingError(f"{model_name}: loss is {loss.item()} at epoch {epoch + 1}, "
-                                    f"batch {step + 1}: training stopped (lower the lr or check "
-                                    f"the data)")
+                raise TrainingError(
+                    f"{model_name}: loss is {loss.item()} at epoch {epoch + 1}, "
+                    f"batch {step + 1}: training stopped (lower the lr or check "
+                    f"the data)"
+                )
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
             if recipe["grad_clip"]:
@@ -411,30 +520,55 @@ def train(model_name: str, benchmark: str | Benchmark, *, registry: Registry | N
             loss_sum += loss.item()
             if bar is not None:
                 bar.update(1)
-                bar.set_postfix(loss=f"{loss.item():.3f}",
-                                samples_per_s=f"{seen / (time.perf_counter() - started):.0f}")
+                bar.set_postfix(
+                    loss=f"{loss.item():.3f}",
+                    samples_per_s=f"{seen / (time.perf_counter() - started):.0f}",
+                )
         if bar is not None:
             bar.close()
         val = validate(model, val_pos, val_index, t_in, t_out, used, device, task=entry.task)
-        record = {"epoch": epoch + 1, "lr": lr, "train_loss": loss_sum / steps_per_epoch,
-                  "val_mpjpe": val, "seconds": time.perf_counter() - started,
-                  "samples": seen}
+        record = {
+            "epoch": epoch + 1,
+            "lr": lr,
+            "train_loss": loss_sum / steps_per_epoch,
+            "val_mpjpe": val,
+            "seconds": time.perf_counter() - started,
+            "samples": seen,
+        }
         history.append(record)
         if dist_info.rank == 0:
             if val < best["val_mpjpe"]:
                 best = {"val_mpjpe": val, "epoch": epoch + 1}
                 # the curve up to this epoch travels too: a run whose best is its last
                 # epoch ships one file, and its training plot with it
-                save_checkpoint(best_path, {**meta, "state_dict": model.state_dict(),
-                                  "history": list(history),
-                                  "training": _training_summary(recipe, history, best, device)})
-            save_checkpoint(last_path, {**meta, "state_dict": model.state_dict(),
-                              "optimizer": optimizer.state_dict(), "rng": torch.get_rng_state(),
-                              "epoch": epoch, "best": best, "history": history,
-                              "training": _training_summary(recipe, history, best, device)})
-            print(f"{model_name} epoch {epoch + 1}: train loss {record['train_loss']:.4f}, "
-                  f"val MPJPE {val:.2f} mm (best {best['val_mpjpe']:.2f} at epoch "
-                  f"{best['epoch']}), {record['seconds']:.1f} s", flush=True)
+                save_checkpoint(
+                    best_path,
+                    {
+                        **meta,
+                        "state_dict": model.state_dict(),
+                        "history": list(history),
+                        "training": _training_summary(recipe, history, best, device),
+                    },
+                )
+            save_checkpoint(
+                last_path,
+                {
+                    **meta,
+                    "state_dict": model.state_dict(),
+                    "optimizer": optimizer.state_dict(),
+                    "rng": torch.get_rng_state(),
+                    "epoch": epoch,
+                    "best": best,
+                    "history": history,
+                    "training": _training_summary(recipe, history, best, device),
+                },
+            )
+            print(
+                f"{model_name} epoch {epoch + 1}: train loss {record['train_loss']:.4f}, "
+                f"val MPJPE {val:.2f} mm (best {best['val_mpjpe']:.2f} at epoch "
+                f"{best['epoch']}), {record['seconds']:.1f} s",
+                flush=True,
+            )
         if stop_after_epoch is not None and epoch + 1 >= stop_after_epoch:
             break
     if dist_info.active:
@@ -447,26 +581,33 @@ def train(model_name: str, benchmark: str | Benchmark, *, registry: Registry | N
 BUDGET_FIELDS = ("epochs", "max_batches")
 
 
-def resume_changes(path: Path, state: dict[str, Any], recipe: dict[str, Any], seed: int,
-                   max_batches: int | None) -> list[dict[str, Any]]:
+def resume_changes(
+    path: Path, state: dict[str, Any], recipe: dict[str, Any], seed: int, max_batches: int | None
+) -> list[dict[str, Any]]:
     """The checkpoint's recorded recipe changes plus this resume's; refuses any change that is
     not the budget, naming the fields."""
     stored = state.get("recipe") or {}
     given = plain(recipe)
-    differ = [f"{key}: {stored.get(key)!r} in the checkpoint, {given.get(key)!r} now"
-              for key in sorted(set(stored) | set(given))
-              if key not in BUDGET_FIELDS and stored.get(key) != given.get(key)]
+    differ = [
+        f"{key}: {stored.get(key)!r} in the checkpoint, {given.get(key)!r} now"
+        for key in sorted(set(stored) | set(given))
+        if key not in BUDGET_FIELDS and stored.get(key) != given.get(key)
+    ]
     if state.get("seed") != seed:
         differ.append(f"seed: {state.get('seed')!r} in the checkpoint, {seed!r} now")
     if differ:
-        raise CheckpointError(f"{path}: cannot resume with another recipe ({'; '.join(differ)}); "
-                              f"only the budget (--epochs, --max-batches) may change on "
-                              f"resume. Resume with the checkpoint's values, or start a new "
-                              f"run with another --out")
+        raise CheckpointError(
+            f"{path}: cannot resume with another recipe ({'; '.join(differ)}); "
+            f"only the budget (--epochs, --max-batches) may change on "
+            f"resume. Resume with the checkpoint's values, or start a new "
+            f"run with another --out"
+        )
     done = state["epoch"] + 1
     if recipe["epochs"] < done:
-        raise CheckpointError(f"{path}: cannot resume with --epochs {recipe['epochs']}: the run "
-                              f"has already trained {done} epochs")
+        raise CheckpointError(
+            f"{path}: cannot resume with --epochs {recipe['epochs']}: the run "
+            f"has already trained {done} epochs"
+        )
     changes = list(state.get("recipe_changes") or [])
     now = {"epochs": recipe["epochs"], "max_batches": max_batches}
     before = {"epochs": stored.get("epochs"), "max_batches": state.get("max_batches")}
@@ -474,8 +615,14 @@ def resume_changes(path: Path, state: dict[str, Any], recipe: dict[str, Any], se
         # Checkpoints written before max_batches was recorded cannot say what it was.
         if field in stored or field in state:
             if before[field] != now[field]:
-                changes.append({"field": field, "from": before[field], "to": now[field],
-                                "from_epoch": done + 1})
+                changes.append(
+                    {
+                        "field": field,
+                        "from": before[field],
+                        "to": now[field],
+                        "from_epoch": done + 1,
+                    }
+                )
     return changes
 
 
@@ -497,15 +644,25 @@ class TrainingObjective(nn.Module):
 
 
 @torch.no_grad()
-def validate(model, positions, index, t_in, t_out, used, device, batch_size: int = EVAL_BATCH,
-             task: str = "prediction") -> float:
+def validate(
+    model,
+    positions,
+    index,
+    t_in,
+    t_out,
+    used,
+    device,
+    batch_size: int = EVAL_BATCH,
+    task: str = "prediction",
+) -> float:
     """Mean MPJPE (mm) over validation windows and predicted frames, on the predicted joints;
     a completion model (``task``) is given each window's last frame as its final frame."""
     model.eval()
     total, count = 0.0, 0
     for start in range(0, len(index), batch_size):
-        w = torch.from_numpy(gather_windows(positions, index[start:start + batch_size],
-                                            t_in + t_out)[:, :, used]).to(device)
+        w = torch.from_numpy(
+            gather_windows(positions, index[start : start + batch_size], t_in + t_out)[:, :, used]
+        ).to(device)
         err = mpjpe(predict(model, w[:, :t_in], task, t_out, w[:, -1]), w[:, t_in:])
         total += err.sum().item()
         count += err.numel()
@@ -514,16 +671,25 @@ def validate(model, positions, index, t_in, t_out, used, device, batch_size: int
 
 def _training_data(dataset) -> dict[str, Any]:
     if hasattr(dataset, "files"):
-        return {"dataset": dataset.name, "split": dataset.split,
-                "files": [{"file": f["file"], "sha256": f["sha256"]} for f in dataset.files()]}
+        return {
+            "dataset": dataset.name,
+            "split": dataset.split,
+            "files": [{"file": f["file"], "sha256": f["sha256"]} for f in dataset.files()],
+        }
     mesh = getattr(dataset, "mesh", dataset)  # a JointsView trains on its mesh's regressed joints
-    return {"dataset": mesh.name, "split": mesh.split, "recipe_hash": mesh.recipe_hash,
-            "content_hash": mesh.content_hash(), "topology_hash": mesh.topology.hash,
-            **({"points": f"regressor{dataset.num_joints}"} if mesh is not dataset else {})}
+    return {
+        "dataset": mesh.name,
+        "split": mesh.split,
+        "recipe_hash": mesh.recipe_hash,
+        "content_hash": mesh.content_hash(),
+        "topology_hash": mesh.topology.hash,
+        **({"points": f"regressor{dataset.num_joints}"} if mesh is not dataset else {}),
+    }
 
 
-def initial_weights(path: str | Path, model_name: str, bench: Benchmark, registry: Registry,
-                    data_root, dataset) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
+def initial_weights(
+    path: str | Path, model_name: str, bench: Benchmark, registry: Registry, data_root, dataset
+) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
     """The state dict a new training stage starts from, and what the run records about it: the
     file, its kind and sha256, and the source's own recipe, budget and origin (so a chain of
     stages keeps every budget). The source is a training checkpoint (``.pt``) or shipped weights
@@ -533,8 +699,10 @@ def initial_weights(path: str | Path, model_name: str, bench: Benchmark, registr
     protocol or data (the checks of ``trained_model``)."""
     path = Path(path)
     if path.suffix not in (".pt", ".safetensors"):
-        raise TrainingError(f"--init-from {path}: expected a training checkpoint (best.pt or "
-                            f"last.pt) or shipped weights (.safetensors with their .json record)")
+        raise TrainingError(
+            f"--init-from {path}: expected a training checkpoint (best.pt or "
+            f"last.pt) or shipped weights (.safetensors with their .json record)"
+        )
     if not path.is_file():
         raise TrainingError(f"--init-from {path}: no such file")
     if path.suffix == ".safetensors":
@@ -545,13 +713,27 @@ def initial_weights(path: str | Path, model_name: str, bench: Benchmark, registr
         state_dict, kind, digest = meta["state_dict"], "checkpoint", sha256_file(path)
     if meta["model"] != model_name:
         raise TrainingError(f"--init-from {path}: it holds {meta['model']!r}, not {model_name!r}")
-    source = trained_model(meta, state_dict, kind, path, registry=registry, benchmark=bench,
-                           data_root=data_root, dataset=dataset)
-    record = {"path": repo_relative(path), "kind": kind, "sha256": digest,
-              **({"dtype": meta["dtype"]} if kind == "weights" else {}),
-              "hparams": meta["hparams"],
-              **{k: meta.get(k) for k in ("recipe", "max_batches", "recipe_changes", "training",
-                                          "init_from")}}
+    source = trained_model(
+        meta,
+        state_dict,
+        kind,
+        path,
+        registry=registry,
+        benchmark=bench,
+        data_root=data_root,
+        dataset=dataset,
+    )
+    record = {
+        "path": repo_relative(path),
+        "kind": kind,
+        "sha256": digest,
+        **({"dtype": meta["dtype"]} if kind == "weights" else {}),
+        "hparams": meta["hparams"],
+        **{
+            k: meta.get(k)
+            for k in ("recipe", "max_batches", "recipe_changes", "training", "init_from")
+        },
+    }
     return source.state_dict(), record
 
 
@@ -574,11 +756,16 @@ def _metadata(entry, hparams, bench, dataset, recipe, seed, device, dist_info, v
 
 
 def _training_summary(recipe, history, best, device) -> dict[str, Any]:
-    return {"epochs_run": len(history), "epochs_planned": recipe["epochs"],
-            "samples_seen": int(sum(h["samples"] for h in history)),
-            "seconds": float(sum(h["seconds"] for h in history)), "device": str(device),
-            "device_name": device_name(device), "best": best,
-            "final_val_mpjpe": history[-1]["val_mpjpe"] if history else None}
+    return {
+        "epochs_run": len(history),
+        "epochs_planned": recipe["epochs"],
+        "samples_seen": int(sum(h["samples"] for h in history)),
+        "seconds": float(sum(h["seconds"] for h in history)),
+        "device": str(device),
+        "device_name": device_name(device),
+        "best": best,
+        "final_val_mpjpe": history[-1]["val_mpjpe"] if history else None,
+    }
 
 
 def device_name(device) -> str:
@@ -589,15 +776,18 @@ def device_name(device) -> str:
     # the model and the kernels torch picked (AVX2, AVX512, ...): a budget in minutes, and
     # whether mixed precision pays, depend on both
     model = cpu_info().get("model name") or platform.processor() or "CPU"
-    return (f"CPU {model} ({platform.machine()}, {torch.backends.cpu.get_cpu_capability()}), "
-            f"{os.cpu_count()} cores")
+    return (
+        f"CPU {model} ({platform.machine()}, {torch.backends.cpu.get_cpu_capability()}), "
+        f"{os.cpu_count()} cores"
+    )
 
 
 def _write_rank_digest(out_dir: Path, model: nn.Module, dist_info: DistInfo) -> None:
     from zoo.io import atomic_write_text
 
-    atomic_write_text(out_dir / "ranks" / f"rank{dist_info.rank}.sha256",
-                      weights_digest(model) + "\n")
+    atomic_write_text(
+        out_dir / "ranks" / f"rank{dist_info.rank}.sha256", weights_digest(model) + "\n"
+    )
 
 
 def _progress(enabled: bool, total: int, desc: str):

@@ -12,6 +12,7 @@ computed from exactly these stored values.
     zoo weights export checkpoints/cmu/spgsn/last.pt      # -> weights/cmu/spgsn@last.*
     zoo.create_model("spgsn", benchmark="cmu", pretrained=True)
 """
+
 from __future__ import annotations
 
 import json
@@ -52,16 +53,20 @@ def read_weights_record(path: str | Path) -> dict[str, Any]:
     record_path = record_file(path)
     for p in (path, record_path):
         if not p.is_file():
-            raise WeightsError(f"weights {path}: {p} does not exist (a shipped model needs its "
-                               f".safetensors file and the .json record beside it)")
+            raise WeightsError(
+                f"weights {path}: {p} does not exist (a shipped model needs its "
+                f".safetensors file and the .json record beside it)"
+            )
     try:
         record = json.loads(record_path.read_text())
     except (OSError, ValueError) as e:
         raise WeightsError(f"weights record {record_path} is not readable JSON ({e})") from e
     if not isinstance(record, dict) or record.get("format") != RECORD_FORMAT:
-        raise WeightsError(f"weights record {record_path}: format "
-                           f"{record.get('format') if isinstance(record, dict) else None!r}, "
-                           f"expected {RECORD_FORMAT!r}")
+        raise WeightsError(
+            f"weights record {record_path}: format "
+            f"{record.get('format') if isinstance(record, dict) else None!r}, "
+            f"expected {RECORD_FORMAT!r}"
+        )
     return record
 
 
@@ -76,9 +81,11 @@ def read_weights(path: str | Path) -> tuple[dict[str, torch.Tensor], dict[str, A
     record = read_weights_record(path)
     digest = sha256_file(path)
     if digest != record.get("sha256"):
-        raise WeightsError(f"weights {path}: sha256 {digest[:16]}... differs from its record's "
-                           f"{str(record.get('sha256'))[:16]}... ({record_path}): the file was "
-                           f"changed or damaged; restore it (git checkout) or export it again")
+        raise WeightsError(
+            f"weights {path}: sha256 {digest[:16]}... differs from its record's "
+            f"{str(record.get('sha256'))[:16]}... ({record_path}): the file was "
+            f"changed or damaged; restore it (git checkout) or export it again"
+        )
     try:
         tensors = load_file(str(path))
     except (SafetensorError, OSError) as e:
@@ -89,8 +96,9 @@ def read_weights(path: str | Path) -> tuple[dict[str, torch.Tensor], dict[str, A
 
 def available_weights(root: str | Path | None = None) -> list[tuple[str, str]]:
     """``(benchmark, label)`` of every shipped model under ``root``."""
-    return sorted((p.parent.name, p.stem)
-                  for p in Path(root or WEIGHTS_DIR).glob("*/*.safetensors"))
+    return sorted(
+        (p.parent.name, p.stem) for p in Path(root or WEIGHTS_DIR).glob("*/*.safetensors")
+    )
 
 
 def pretrained_path(name: str, benchmark: str, root: str | Path | None = None) -> Path:
@@ -99,14 +107,20 @@ def pretrained_path(name: str, benchmark: str, root: str | Path | None = None) -
     path = weights_file(benchmark, name, root)
     if not path.is_file():
         shipped = [f"{b}/{label}" for b, label in available_weights(root)]
-        raise WeightsError(f"no shipped weights for {name!r} on benchmark {benchmark!r} "
-                           f"({path} does not exist); shipped: "
-                           f"{', '.join(shipped) if shipped else 'none'}")
+        raise WeightsError(
+            f"no shipped weights for {name!r} on benchmark {benchmark!r} "
+            f"({path} does not exist); shipped: "
+            f"{', '.join(shipped) if shipped else 'none'}"
+        )
     return path
 
 
 def weights_provenance(path: str | Path, record: dict[str, Any]) -> dict[str, Any]:
     """What a result computed from shipped weights records about them."""
-    return {"weights": repo_relative(path), "weights_sha256": record["sha256"],
-            "weights_dtype": record["dtype"], "hparams": record["hparams"],
-            "training": record.get("training", {})}
+    return {
+        "weights": repo_relative(path),
+        "weights_sha256": record["sha256"],
+        "weights_dtype": record["dtype"],
+        "hparams": record["hparams"],
+        "training": record.get("training", {}),
+    }

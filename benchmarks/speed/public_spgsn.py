@@ -43,13 +43,14 @@ From a script in ``benchmarks/speed/`` (its folder is on ``sys.path``)::
     step, model = make_public_step(history_mm=history, future_mm=future)  # or batch_size=32
     step()                                # one full public training step, returns the loss
 """
+
 from __future__ import annotations
 
 import argparse
 import math
 import statistics
 import time
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 import torch
@@ -110,10 +111,10 @@ class GraphOperator(nn.Module):
             # Unsqueezed here, not by the caller: a view of a parameter made under no_grad and
             # passed to a module breaks FlopCounterMode's module tracker.
             graphs = graphs.unsqueeze(0)
-        h = torch.einsum('nkvi,fio->nkvfo', x, self.weight) + self.bias
-        h = h.transpose(2, 3)                                  # (N, K, F, V, d_out)
+        h = torch.einsum("nkvi,fio->nkvfo", x, self.weight) + self.bias
+        h = h.transpose(2, 3)  # (N, K, F, V, d_out)
         n, _, _, v, d = h.shape
-        out = torch.einsum('fuv,nkfvo->nkfuo', graphs, h)
+        out = torch.einsum("fuv,nkfvo->nkfuo", graphs, h)
         return out.contiguous().view(n, -1, v, d)
 
 
@@ -180,10 +181,10 @@ class ChannelAttention(nn.Module):
         self.b = nn.Parameter(torch.empty(d).uniform_(-1 / math.sqrt(d), 1 / math.sqrt(d)))
 
     def forward(self, y: torch.Tensor) -> torch.Tensor:
-        x = self.fc1(y)                                        # (N, C, V, d)
+        x = self.fc1(y)  # (N, C, V, d)
         query = F.relu(x.mean(1))
         h = torch.tanh(x @ self.w_h + (query @ self.w_q).unsqueeze(1) + self.b)
-        return torch.softmax(self.fc2(h), dim=1)               # (N, C, V, 1)
+        return torch.softmax(self.fc2(h), dim=1)  # (N, C, V, 1)
 
 
 def _bias_free(d_in: int, d_out: int) -> nn.Linear:
@@ -203,7 +204,8 @@ class PartedScattering(nn.Module):
         bound = 1 / math.sqrt(d)
         self.graphs = nn.ParameterList(
             nn.Parameter(torch.empty(n, n).uniform_(-bound, bound))
-            for n in (nodes, len(up), len(down)))
+            for n in (nodes, len(up), len(down))
+        )
         self.keep_probs = [torch.full((n, n), keep_prob) for n in (nodes, len(up), len(down))]
         self.unit = ScatteringUnit(d, d)
         self.fusion = PartFusion(d)
@@ -216,8 +218,8 @@ class PartedScattering(nn.Module):
         y_up = self.unit(x[:, self.up], g_up, masks[1])
         y_down = self.unit(x[:, self.down], g_down, masks[2])
         up_to_down, down_to_up = self.fusion(y_up, y_down)
-        y_down = y_down + torch.einsum('nwv,ncvd->ncwd', up_to_down, y_up)
-        y_up = y_up + torch.einsum('nvw,ncwd->ncvd', down_to_up, y_down)
+        y_down = y_down + torch.einsum("nwv,ncvd->ncwd", up_to_down, y_up)
+        y_up = y_up + torch.einsum("nvw,ncwd->ncvd", down_to_up, y_down)
         parts = torch.zeros_like(y)
         parts[:, :, self.up] = y_up
         parts[:, :, self.down] = y_down
@@ -234,8 +236,9 @@ class Block(nn.Module):
         self.bn_conv = nn.BatchNorm1d(nodes * d)
         self.bn_wave = nn.BatchNorm1d(nodes * d)
         self.attention = ChannelAttention(d)
-        self.graph = nn.Parameter(torch.empty(nodes, nodes).uniform_(-1 / math.sqrt(d),
-                                                                     1 / math.sqrt(d)))
+        self.graph = nn.Parameter(
+            torch.empty(nodes, nodes).uniform_(-1 / math.sqrt(d), 1 / math.sqrt(d))
+        )
         self.mix = GraphOperator(d, d)
         self.bn_mix = nn.BatchNorm1d(nodes * d)
         self.drop = nn.Dropout(dropout)
@@ -258,15 +261,25 @@ class Block(nn.Module):
 class PublicSPGSN(nn.Module):
     """Public ``GCN`` for CMU: DCT coefficients (N, 75, dct_n) -> (N, 75, dct_n)."""
 
-    def __init__(self, *, dct_n: int = DCT_N, hidden: int = 256, num_stage: int = 10,
-                 nodes: int = 75, upper_joints=UPPER_JOINTS, lower_joints=LOWER_JOINTS,
-                 dropout: float = 0.5, edge_prob: float = 0.4):
+    def __init__(
+        self,
+        *,
+        dct_n: int = DCT_N,
+        hidden: int = 256,
+        num_stage: int = 10,
+        nodes: int = 75,
+        upper_joints=UPPER_JOINTS,
+        lower_joints=LOWER_JOINTS,
+        dropout: float = 0.5,
+        edge_prob: float = 0.4,
+    ):
         super().__init__()
         up, down = coordinate_nodes(upper_joints), coordinate_nodes(lower_joints)
         self.embed = NodeLinear(dct_n, hidden, nodes)
         self.bn = nn.BatchNorm1d(nodes * hidden)
         self.blocks = nn.ModuleList(
-            Block(hidden, nodes, up, down, dropout, edge_prob) for _ in range(num_stage))
+            Block(hidden, nodes, up, down, dropout, edge_prob) for _ in range(num_stage)
+        )
         self.readout = NodeLinear(hidden, dct_n, nodes)
         self.drop = nn.Dropout(dropout)
 
@@ -298,13 +311,18 @@ def public_batch(history_mm: torch.Tensor, future_mm: torch.Tensor, dct_n: int =
     dim_used = torch.tensor([3 * j + c for j in used for c in range(3)])  # x, y, z per joint
     padded = torch.cat((torch.arange(t_in), torch.full((t - t_in,), t_in - 1)))
     dct = dct_matrix(t)[:dct_n]  # the zoo's orthonormal DCT-II (the public get_dct_matrix)
-    dct_input = torch.einsum('kt,ntc->nck', dct, all_seq[:, padded][:, :, dim_used])
+    dct_input = torch.einsum("kt,ntc->nck", dct, all_seq[:, padded][:, :, dim_used])
     return dct_input.contiguous(), all_seq, dim_used
 
 
-def public_training_step(model: nn.Module, optimizer: torch.optim.Optimizer,
-                         dct_input: torch.Tensor, all_seq: torch.Tensor,
-                         dim_used: torch.Tensor, dct_n: int = DCT_N) -> float:
+def public_training_step(
+    model: nn.Module,
+    optimizer: torch.optim.Optimizer,
+    dct_input: torch.Tensor,
+    all_seq: torch.Tensor,
+    dim_used: torch.Tensor,
+    dct_n: int = DCT_N,
+) -> float:
     """One iteration of the public ``train()``; returns the loss (mean L2 over all frames)."""
     out = model(dct_input)
     t, nodes = all_seq.shape[1], len(dim_used)
@@ -329,9 +347,13 @@ def smooth_motion(batch: int, frames: int, joints: int, seed: int) -> torch.Tens
     return offsets + (torch.randn(batch, frames, joints, 3, generator=g) * 5).cumsum(dim=1)
 
 
-def make_public_step(batch_size: int = 32, seed: int = 0, history_mm: torch.Tensor | None = None,
-                     future_mm: torch.Tensor | None = None, **model_kwargs
-                     ) -> tuple[Callable[[], float], PublicSPGSN]:
+def make_public_step(
+    batch_size: int = 32,
+    seed: int = 0,
+    history_mm: torch.Tensor | None = None,
+    future_mm: torch.Tensor | None = None,
+    **model_kwargs,
+) -> tuple[Callable[[], float], PublicSPGSN]:
     """A zero-argument callable doing one public training step (returns the loss), and the model.
 
     The batch is built once, outside the step, as the public data loader delivers it; pass
@@ -346,13 +368,16 @@ def make_public_step(batch_size: int = 32, seed: int = 0, history_mm: torch.Tens
         future_mm = future_mm - future_mm[:, :1] + history_mm[:, -1:]  # continue the history
     dct_input, all_seq, dim_used = public_batch(history_mm, future_mm, dct_n)
     optimizer = torch.optim.Adam(model.parameters(), lr=1e-3)
-    return (lambda: public_training_step(model, optimizer, dct_input, all_seq, dim_used, dct_n),
-            model)
+    return (
+        lambda: public_training_step(model, optimizer, dct_input, all_seq, dim_used, dct_n),
+        model,
+    )
 
 
 def forward_gflop_per_sample(model: PublicSPGSN) -> float:
     """Forward FLOPs at batch 1 (evaluation mode: batch norm needs two samples to train)."""
     from torch.utils.flop_counter import FlopCounterMode
+
     was_training = model.training
     model.eval()
     x = torch.randn(1, model.embed.adjacency.shape[0], model.readout.weight.shape[1])
@@ -371,8 +396,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--hidden", type=int, default=256)
     args = parser.parse_args(argv)
     torch.set_num_threads(args.threads)
-    step, model = make_public_step(batch_size=args.batch_size, num_stage=args.num_stage,
-                                   hidden=args.hidden)
+    step, model = make_public_step(
+        batch_size=args.batch_size, num_stage=args.num_stage, hidden=args.hidden
+    )
     params = sum(p.numel() for p in model.parameters())
     print(f"total params: {params / 1e6:.2f}M ({params})")
     print(f"forward GFLOP per sample: {forward_gflop_per_sample(model):.3f}")
@@ -382,8 +408,10 @@ def main(argv: list[str] | None = None) -> None:
         losses.append(step())
         times.append(time.perf_counter() - start)
     print("losses:", " ".join(f"{x:.2f}" for x in losses))
-    print(f"training step, batch {args.batch_size}, {torch.get_num_threads()} thread(s): median "
-          f"{statistics.median(times):.3f} s over {len(times)} steps after a warm-up")
+    print(
+        f"training step, batch {args.batch_size}, {torch.get_num_threads()} thread(s): median "
+        f"{statistics.median(times):.3f} s over {len(times)} steps after a warm-up"
+    )
 
 
 if __name__ == "__main__":

@@ -9,6 +9,7 @@ the figures leave out importing torch and anny. Skinning figures are float32 on 
 after one warm-up batch; "end to end" adds reading the BVH, resampling to 25 Hz and the
 retargeting of one trial.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -30,17 +31,25 @@ from zoo.data import anny_motion as am  # noqa: E402
 from zoo.data.bvh import CMU_BVH_JOINTS, read_bvh  # noqa: E402
 
 DEFAULT_BVH = REPO.parent / "shared" / "data" / "cmu_bvh"
-LOAD_SNIPPET = ("import time; import anny; from zoo.data.anny_motion import load_anny_model; "
-                "t = time.perf_counter(); load_anny_model({topology!r}); "
-                "print(time.perf_counter() - t)")
+LOAD_SNIPPET = (
+    "import time; import anny; from zoo.data.anny_motion import load_anny_model; "
+    "t = time.perf_counter(); load_anny_model({topology!r}); "
+    "print(time.perf_counter() - t)"
+)
 
 
 def timed_load(topology: str, cache: str | None) -> float:
     env = dict(os.environ)
     if cache is not None:
         env["ANNY_CACHE_DIR"] = cache
-    out = subprocess.run([sys.executable, "-c", LOAD_SNIPPET.format(topology=topology)],
-                         cwd=REPO, env=env, capture_output=True, text=True, check=True)
+    out = subprocess.run(
+        [sys.executable, "-c", LOAD_SNIPPET.format(topology=topology)],
+        cwd=REPO,
+        env=env,
+        capture_output=True,
+        text=True,
+        check=True,
+    )
     return float(out.stdout.strip().splitlines()[-1])
 
 
@@ -57,8 +66,11 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--trial", default="02_01", help="trial whose frames are skinned")
     parser.add_argument("--frames", type=int, default=1000, help="frames skinned per figure")
     parser.add_argument("--batch", type=int, action="append", help="skinning batch sizes")
-    parser.add_argument("--cold", action="store_true",
-                        help="also time the first build into an empty anny cache (minutes)")
+    parser.add_argument(
+        "--cold",
+        action="store_true",
+        help="also time the first build into an empty anny cache (minutes)",
+    )
     parser.add_argument("--threads", type=int, default=None, help="torch threads")
     args = parser.parse_args(argv)
     batches = args.batch or [1000, 256]
@@ -86,20 +98,35 @@ def main(argv: list[str] | None = None) -> None:
         target = am.retarget(model, bvh)
         params = target.pose_parameters(rots)
         prep = time.perf_counter() - t
-        tiled = np.concatenate([params] * (args.frames // len(params) + 1))[:args.frames]
+        tiled = np.concatenate([params] * (args.frames // len(params) + 1))[: args.frames]
         for batch in batches:
             rate = skin_rate(model, tiled, batch)
-            rows.append([topology, model.template_vertices.shape[0], batch,
-                         f"{rate:,.0f}", f"{1000 / rate:.2f}"])
+            rows.append(
+                [
+                    topology,
+                    model.template_vertices.shape[0],
+                    batch,
+                    f"{rate:,.0f}",
+                    f"{1000 / rate:.2f}",
+                ]
+            )
         t = time.perf_counter()
         am.skin(model, params, batch_size=max(batches))
         end_to_end = len(params) / (prep + time.perf_counter() - t)
-        rows.append([topology, model.template_vertices.shape[0], f"end to end ({trial.key}, "
-                     f"{len(params)} frames)", f"{end_to_end:,.0f}",
-                     f"{1000 / end_to_end:.2f}"])
+        rows.append(
+            [
+                topology,
+                model.template_vertices.shape[0],
+                f"end to end ({trial.key}, {len(params)} frames)",
+                f"{end_to_end:,.0f}",
+                f"{1000 / end_to_end:.2f}",
+            ]
+        )
     print(tabulate(rows, headers=["topology", "vertices", "batch", "frames/s", "ms/frame"]))
-    print(f"\n{args.frames} frames of {trial.key} per figure, float32, torch threads "
-          f"{torch.get_num_threads()}, anny {am.anny_version()}")
+    print(
+        f"\n{args.frames} frames of {trial.key} per figure, float32, torch threads "
+        f"{torch.get_num_threads()}, anny {am.anny_version()}"
+    )
 
 
 if __name__ == "__main__":

@@ -4,6 +4,7 @@ Prints windows per second of the zoo's evaluator (batched windows, batched error
 side in the same run, of a per-window loop doing the same work, with their ratio.
 Run: python benchmarks/speed/speed_eval.py [--data-root ../shared/data/cmu_mocap]
 """
+
 import argparse
 import statistics
 import time
@@ -29,8 +30,10 @@ def per_window_loop(dataset, bench, model):
         for row in index:
             w = torch.from_numpy(gather_windows(positions, row[None], t_in + t_out))
             pred = model(w[:, :t_in, used])
-            total += sum(e.sum().item() for e in skeleton_errors(pred, w[:, t_in:],
-                                                                 dataset.skeleton).values())
+            total += sum(
+                e.sum().item()
+                for e in skeleton_errors(pred, w[:, t_in:], dataset.skeleton).values()
+            )
     return len(index)
 
 
@@ -38,9 +41,13 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--data-root")
     parser.add_argument("--repeats", type=int, default=3)
-    parser.add_argument("--threads", type=int, default=None,
-                        help="torch threads (default: torch's own choice; on a loaded machine "
-                             "--threads 1 gives steadier figures)")
+    parser.add_argument(
+        "--threads",
+        type=int,
+        default=None,
+        help="torch threads (default: torch's own choice; on a loaded machine "
+        "--threads 1 gives steadier figures)",
+    )
     args = parser.parse_args(argv)
     if args.threads:
         torch.set_num_threads(args.threads)
@@ -62,8 +69,10 @@ def main(argv: list[str] | None = None) -> None:
     zoo_s, loop_s = statistics.median(zoo_times), statistics.median(loop_times)
     print(f"CMU test files: {len(dataset.sequences)} files, load + FK {load_s:.2f} s")
     print(f"sampler all: {windows} windows of {bench.input_frames}+{bench.output_frames} frames")
-    print(f"zoo evaluator    : {zoo_s:.3f} s  ({windows / zoo_s:,.0f} windows/s, "
-          f"both joint protocols, both averagings)")
+    print(
+        f"zoo evaluator    : {zoo_s:.3f} s  ({windows / zoo_s:,.0f} windows/s, "
+        f"both joint protocols, both averagings)"
+    )
     print(f"per-window loop  : {loop_s:.3f} s  ({windows / loop_s:,.0f} windows/s)")
     print(f"ratio            : {loop_s / zoo_s:.1f}x faster (median of {args.repeats})")
 

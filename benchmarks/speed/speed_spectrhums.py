@@ -33,6 +33,7 @@ of the script, not a measurement of the published configuration.)
 On a loaded machine, two threads wait on each other at every operation (small batches suffer
 most); ``--threads 1`` then gives steadier figures.
 """
+
 import argparse
 import os
 import statistics
@@ -50,20 +51,34 @@ from zoo.registry import load_registry
 from zoo.train import forward_precision
 
 V, K, T_IN, T_OUT, BATCH = 6890, 512, 50, 25, 32
-TINY = {"latent": 16, "channels": [4, 8], "pooling": [8, 4], "d_model": 16, "layers": 1,
-        "heads": 2, "ff": 32}
+TINY = {
+    "latent": 16,
+    "channels": [4, 8],
+    "pooling": [8, 4],
+    "d_model": 16,
+    "layers": 1,
+    "heads": 2,
+    "ff": 32,
+}
 STATS_FRAMES = 150  # a motion of 6 s at 25 Hz: 76 windows of 75 frames
 # The public SpecTrHuMS code on this machine type (figures given with the task).
-PUBLIC = {"params": 6.0e6, "latency_b1_ms": 14.0, "latency_b32_ms": 542.0,
-          "train_step_ms": 536.0, "train_samples_s": 60.0, "reconstruction_loop_s": 0.7}
+PUBLIC = {
+    "params": 6.0e6,
+    "latency_b1_ms": 14.0,
+    "latency_b32_ms": 542.0,
+    "train_step_ms": 536.0,
+    "train_samples_s": 60.0,
+    "reconstruction_loop_s": 0.7,
+}
 
 
 def random_basis(v: int, k: int, seed: int = 0) -> SpectralBasis:
     """A random orthonormal basis (same cost as a Laplacian eigenbasis of that size)."""
     g = torch.Generator().manual_seed(seed)
     q, _ = torch.linalg.qr(torch.randn(v, k, dtype=torch.float64, generator=g))
-    return SpectralBasis(f"random-{v}x{k}-seed{seed}", np.arange(k, dtype=float), q.numpy(),
-                         "random")
+    return SpectralBasis(
+        f"random-{v}x{k}-seed{seed}", np.arange(k, dtype=float), q.numpy(), "random"
+    )
 
 
 def median_seconds(fn, repeats: int, warm_up: bool = True) -> float:
@@ -100,16 +115,21 @@ class LayerByLayer(nn.Module):
         self.model = model
         t = model.transformer
         first = t.layers[0]
-        layer = nn.TransformerEncoderLayer(first.qkv.in_features, first.heads,
-                                           first.ff1.out_features, 0.0, activation="gelu")
+        layer = nn.TransformerEncoderLayer(
+            first.qkv.in_features, first.heads, first.ff1.out_features, 0.0, activation="gelu"
+        )
         self.encoder = nn.TransformerEncoder(layer, len(t.layers), enable_nested_tensor=False)
         with torch.no_grad():
             for ref, mine in zip(self.encoder.layers, t.layers):
                 ref.self_attn.in_proj_weight.copy_(mine.qkv.weight)
                 ref.self_attn.in_proj_bias.copy_(mine.qkv.bias)
-                for a, b in ((ref.self_attn.out_proj, mine.attn_out), (ref.linear1, mine.ff1),
-                             (ref.linear2, mine.ff2), (ref.norm1, mine.norm1),
-                             (ref.norm2, mine.norm2)):
+                for a, b in (
+                    (ref.self_attn.out_proj, mine.attn_out),
+                    (ref.linear1, mine.ff1),
+                    (ref.linear2, mine.ff2),
+                    (ref.norm1, mine.norm1),
+                    (ref.norm2, mine.norm2),
+                ):
                     a.weight.copy_(b.weight)
                     a.bias.copy_(b.bias)
 
@@ -137,8 +157,9 @@ class LayerByLayer(nn.Module):
         m = self.model
         b = coeffs.shape[0]
         picked = coeffs[torch.arange(b), torch.randint(0, m.window, (b,))]
-        static = F.mse_loss(self.decode(self.encode(picked)) / m.loss_unit_mm,
-                            picked / m.loss_unit_mm)
+        static = F.mse_loss(
+            self.decode(self.encode(picked)) / m.loss_unit_mm, picked / m.loss_unit_mm
+        )
         with torch.no_grad():
             target = m.standardise_latents(self.encode(coeffs))
         return static + F.mse_loss(self.transform(m.masked_window(target)), target)
@@ -146,7 +167,7 @@ class LayerByLayer(nn.Module):
     def predict(self, coeffs: torch.Tensor) -> torch.Tensor:
         m = self.model
         z = m.standardise_latents(self.encode(coeffs))
-        out = self.transform(m.fill_window(z))[:, m.input_frames:]
+        out = self.transform(m.fill_window(z))[:, m.input_frames :]
         return self.decode(m.destandardise_latents(out))
 
 
@@ -163,15 +184,20 @@ def gemm_rate(repeats: int) -> float:
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("--repeats", type=int, default=5)
-    parser.add_argument("--threads", type=int, default=None,
-                        help="torch threads (default: torch's own choice)")
+    parser.add_argument(
+        "--threads", type=int, default=None, help="torch threads (default: torch's own choice)"
+    )
     parser.add_argument("--vertices", type=int, default=V, help="vertices of the random basis")
     parser.add_argument("--k", type=int, default=K, help="coefficients of the random basis")
-    parser.add_argument("--tiny", action="store_true",
-                        help=f"a tiny model ({', '.join(f'{n} {x}' for n, x in TINY.items())})")
+    parser.add_argument(
+        "--tiny",
+        action="store_true",
+        help=f"a tiny model ({', '.join(f'{n} {x}' for n, x in TINY.items())})",
+    )
     args = parser.parse_args(argv)
     v, k = args.vertices, args.k
     if args.threads:
@@ -185,8 +211,14 @@ def main(argv: list[str] | None = None) -> None:
     basis_s = time.perf_counter() - t0
     registry = load_registry()
     hparams = {**registry.get("spectrhums").hparams, **(TINY if args.tiny else {})}
-    model = registry.create_model("spectrhums", input_frames=T_IN, output_frames=T_OUT,
-                                  num_points=v, basis=basis, **(TINY if args.tiny else {}))
+    model = registry.create_model(
+        "spectrhums",
+        input_frames=T_IN,
+        output_frames=T_OUT,
+        num_points=v,
+        basis=basis,
+        **(TINY if args.tiny else {}),
+    )
     params = sum(p.numel() for p in model.parameters())
 
     g = torch.Generator().manual_seed(1)
@@ -203,25 +235,33 @@ def main(argv: list[str] | None = None) -> None:
         def run():
             model.start_epoch(0, lambda: iter(batches))  # coefficient statistics
             model.start_epoch(2, lambda: iter(batches))  # and latent ones (joint phase)
-            return [b.clone() for b in (model.coeff_mean, model.coeff_std, model.latent_mean,
-                                        model.latent_std)]
+            return [
+                b.clone()
+                for b in (model.coeff_mean, model.coeff_std, model.latent_mean, model.latent_std)
+            ]
+
         return run
 
     counted = statistics_pass([(motion, counts)])
-    windowed = statistics_pass([(w, torch.ones(len(w), dtype=torch.int64))
-                                for w in per_window.flatten(0, 1).split(600)])
-    stats_counted, stats_windowed = paired_medians(counted, windowed,
-                                                   max(1, args.repeats // 5))
-    stats_differ = max(((a - b).abs().max() / b.abs().max()).item()
-                       for a, b in zip(counted(), windowed()))
+    windowed = statistics_pass(
+        [(w, torch.ones(len(w), dtype=torch.int64)) for w in per_window.flatten(0, 1).split(600)]
+    )
+    stats_counted, stats_windowed = paired_medians(counted, windowed, max(1, args.repeats // 5))
+    stats_differ = max(
+        ((a - b).abs().max() / b.abs().max()).item() for a, b in zip(counted(), windowed())
+    )
     coeffs = model.project(vertices)
     history, future = vertices[:, :T_IN], vertices[:, T_IN:]
 
     baseline = LayerByLayer(model)
     model.eval()  # the positional-encoding dropout off: the same sums on both sides
     with torch.no_grad():
-        same = (baseline.predict(coeffs[:4, :T_IN]) - model.predict_coefficients(
-            coeffs[:4, :T_IN])).abs().max().item()
+        same = (
+            (baseline.predict(coeffs[:4, :T_IN]) - model.predict_coefficients(coeffs[:4, :T_IN]))
+            .abs()
+            .max()
+            .item()
+        )
     optimizer = torch.optim.Adam(model.parameters(), lr=1e-4)
     # the baseline trains the same weights, its own copy of the transformer layers
     baseline_optimizer = torch.optim.Adam(baseline.parameters(), lr=1e-4)
@@ -232,6 +272,7 @@ def main(argv: list[str] | None = None) -> None:
             opt.zero_grad(set_to_none=True)
             loss.backward()
             opt.step()
+
         return run
 
     def coeff_loss():
@@ -239,11 +280,10 @@ def main(argv: list[str] | None = None) -> None:
         return terms["static"] + terms["dynamic"]
 
     model.train()
-    train_c, train_base = paired_medians(step(coeff_loss),
-                                         step(lambda: baseline.loss(coeffs), baseline_optimizer),
-                                         args.repeats)
-    train_v = median_seconds(step(lambda: model.training_loss(history, future)),
-                             args.repeats)
+    train_c, train_base = paired_medians(
+        step(coeff_loss), step(lambda: baseline.loss(coeffs), baseline_optimizer), args.repeats
+    )
+    train_v = median_seconds(step(lambda: model.training_loss(history, future)), args.repeats)
     train_flops = flops(step(coeff_loss))
 
     def coeff_loss_bf16():
@@ -252,8 +292,9 @@ def main(argv: list[str] | None = None) -> None:
 
     train_bf16 = median_seconds(step(coeff_loss_bf16), args.repeats)
     model.phase = "autoencoder"
-    train_ae = median_seconds(step(lambda: model.coefficient_loss_terms(coeffs)["static"]),
-                              args.repeats)
+    train_ae = median_seconds(
+        step(lambda: model.coefficient_loss_terms(coeffs)["static"]), args.repeats
+    )
     model.phase = "joint"
 
     model.eval()
@@ -261,9 +302,11 @@ def main(argv: list[str] | None = None) -> None:
         lat = {}
         for b in (1, BATCH):
             lat[("coeffs", b)], lat[("baseline", b)] = paired_medians(
-                lambda: model.predict_coefficients(coeffs[:b, :T_IN]),
-                lambda: baseline.predict(coeffs[:b, :T_IN]), args.repeats)
-            lat[("vertices", b)] = median_seconds(lambda: model(history[:b]), args.repeats)
+                lambda b=b: model.predict_coefficients(coeffs[:b, :T_IN]),
+                lambda b=b: baseline.predict(coeffs[:b, :T_IN]),
+                args.repeats,
+            )
+            lat[("vertices", b)] = median_seconds(lambda b=b: model(history[:b]), args.repeats)
         infer_flops = flops(lambda: model.predict_coefficients(coeffs[:, :T_IN]))
         predicted = model.predict_coefficients(coeffs[:, :T_IN])  # (32, 25, 512, 3)
         phi = basis.torch_vectors()
@@ -277,85 +320,152 @@ def main(argv: list[str] | None = None) -> None:
 
         one = median_seconds(lambda: model.reconstruct(predicted), args.repeats)
         loop = median_seconds(per_frame, max(1, args.repeats // 2), warm_up=False)  # slow
-        torch.testing.assert_close(looped.view(BATCH, T_OUT, v, 3),
-                                   model.reconstruct(predicted), rtol=1e-4, atol=1e-2)
+        torch.testing.assert_close(
+            looped.view(BATCH, T_OUT, v, 3), model.reconstruct(predicted), rtol=1e-4, atol=1e-2
+        )
     rate1 = gemm_rate(args.repeats)
     load1 = os.getloadavg()[0]
 
     samples_c, samples_v = BATCH / train_c, BATCH / train_v
-    print(f"SpecTrHuMS speed, {'tiny' if args.tiny else 'published'} configuration: k={k} "
-          f"coefficients on V={v} vertices (random orthonormal basis, QR {basis_s:.1f} s), "
-          f"window {T_IN}+{T_OUT}, latent {hparams['latent']}, {hparams['layers']} layers, "
-          f"{hparams['heads']} heads, ff {hparams['ff']}")
-    print(f"torch {torch.__version__}, {torch.get_num_threads()} threads, "
-          f"{args.repeats} repeats (medians), load average {load0:.1f} -> {load1:.1f}, "
-          f"matrix products {rate0:.0f} -> {rate1:.0f} GFLOP/s")
+    print(
+        f"SpecTrHuMS speed, {'tiny' if args.tiny else 'published'} configuration: k={k} "
+        f"coefficients on V={v} vertices (random orthonormal basis, QR {basis_s:.1f} s), "
+        f"window {T_IN}+{T_OUT}, latent {hparams['latent']}, {hparams['layers']} layers, "
+        f"{hparams['heads']} heads, ff {hparams['ff']}"
+    )
+    print(
+        f"torch {torch.__version__}, {torch.get_num_threads()} threads, "
+        f"{args.repeats} repeats (medians), load average {load0:.1f} -> {load1:.1f}, "
+        f"matrix products {rate0:.0f} -> {rate1:.0f} GFLOP/s"
+    )
     print()
     public_vertices_ms = PUBLIC["latency_b32_ms"] + PUBLIC["reconstruction_loop_s"] * 1e3
     rows = [
-        ("parameters", f"{params / 1e6:.3f} M", f"{PUBLIC['params'] / 1e6:.1f} M",
-         f"{params / PUBLIC['params']:.2f}x"),
-        ("train step b32, coefficients in (ms)", f"{train_c * 1e3:.0f}",
-         f"{PUBLIC['train_step_ms']:.0f}", ""),
-        ("train samples/s, coefficients in", f"{samples_c:.1f}",
-         f"{PUBLIC['train_samples_s']:.0f}", f"{samples_c / PUBLIC['train_samples_s']:.2f}x"),
-        ("train samples/s, vertices in", f"{samples_v:.1f}", f"{PUBLIC['train_samples_s']:.0f}",
-         f"{samples_v / PUBLIC['train_samples_s']:.2f}x"),
+        (
+            "parameters",
+            f"{params / 1e6:.3f} M",
+            f"{PUBLIC['params'] / 1e6:.1f} M",
+            f"{params / PUBLIC['params']:.2f}x",
+        ),
+        (
+            "train step b32, coefficients in (ms)",
+            f"{train_c * 1e3:.0f}",
+            f"{PUBLIC['train_step_ms']:.0f}",
+            "",
+        ),
+        (
+            "train samples/s, coefficients in",
+            f"{samples_c:.1f}",
+            f"{PUBLIC['train_samples_s']:.0f}",
+            f"{samples_c / PUBLIC['train_samples_s']:.2f}x",
+        ),
+        (
+            "train samples/s, vertices in",
+            f"{samples_v:.1f}",
+            f"{PUBLIC['train_samples_s']:.0f}",
+            f"{samples_v / PUBLIC['train_samples_s']:.2f}x",
+        ),
         ("train samples/s, autoencoder phase", f"{BATCH / train_ae:.0f}", "", ""),
-        ("train samples/s, coefficients in, precision bfloat16", f"{BATCH / train_bf16:.1f}",
-         f"{PUBLIC['train_samples_s']:.0f}",
-         f"{BATCH / train_bf16 / PUBLIC['train_samples_s']:.2f}x"),
-        ("latency b1, coefficients (ms)", f"{lat[('coeffs', 1)] * 1e3:.1f}",
-         f"{PUBLIC['latency_b1_ms']:.0f}",
-         f"{PUBLIC['latency_b1_ms'] / (lat[('coeffs', 1)] * 1e3):.2f}x"),
-        ("latency b32, coefficients (ms)", f"{lat[('coeffs', BATCH)] * 1e3:.0f}",
-         f"{PUBLIC['latency_b32_ms']:.0f}",
-         f"{PUBLIC['latency_b32_ms'] / (lat[('coeffs', BATCH)] * 1e3):.2f}x"),
+        (
+            "train samples/s, coefficients in, precision bfloat16",
+            f"{BATCH / train_bf16:.1f}",
+            f"{PUBLIC['train_samples_s']:.0f}",
+            f"{BATCH / train_bf16 / PUBLIC['train_samples_s']:.2f}x",
+        ),
+        (
+            "latency b1, coefficients (ms)",
+            f"{lat[('coeffs', 1)] * 1e3:.1f}",
+            f"{PUBLIC['latency_b1_ms']:.0f}",
+            f"{PUBLIC['latency_b1_ms'] / (lat[('coeffs', 1)] * 1e3):.2f}x",
+        ),
+        (
+            "latency b32, coefficients (ms)",
+            f"{lat[('coeffs', BATCH)] * 1e3:.0f}",
+            f"{PUBLIC['latency_b32_ms']:.0f}",
+            f"{PUBLIC['latency_b32_ms'] / (lat[('coeffs', BATCH)] * 1e3):.2f}x",
+        ),
         ("latency b1, vertices (ms)", f"{lat[('vertices', 1)] * 1e3:.1f}", "", ""),
-        ("latency b32, vertices (ms)", f"{lat[('vertices', BATCH)] * 1e3:.0f}",
-         f"{public_vertices_ms:.0f}*",
-         f"{public_vertices_ms / (lat[('vertices', BATCH)] * 1e3):.2f}x"),
+        (
+            "latency b32, vertices (ms)",
+            f"{lat[('vertices', BATCH)] * 1e3:.0f}",
+            f"{public_vertices_ms:.0f}*",
+            f"{public_vertices_ms / (lat[('vertices', BATCH)] * 1e3):.2f}x",
+        ),
         ("reconstruction 25x32 frames, one product (ms)", f"{one * 1e3:.1f}", "", ""),
-        ("reconstruction 25x32 frames, per frame (ms)", f"{loop * 1e3:.1f}",
-         f"~{PUBLIC['reconstruction_loop_s'] * 1e3:.0f}", f"one product {loop / one:.1f}x"),
-        (f"start_epoch statistics, {len(index)} windows (s)", f"{stats_counted:.2f}",
-         f"{stats_windowed:.2f}**", f"zoo speed-up {stats_windowed / stats_counted:.1f}x"),
+        (
+            "reconstruction 25x32 frames, per frame (ms)",
+            f"{loop * 1e3:.1f}",
+            f"~{PUBLIC['reconstruction_loop_s'] * 1e3:.0f}",
+            f"one product {loop / one:.1f}x",
+        ),
+        (
+            f"start_epoch statistics, {len(index)} windows (s)",
+            f"{stats_counted:.2f}",
+            f"{stats_windowed:.2f}**",
+            f"zoo speed-up {stats_windowed / stats_counted:.1f}x",
+        ),
     ]
     rows += [
-        ("layer-by-layer baseline, train step b32 (ms)", f"{train_base * 1e3:.0f}", "",
-         f"zoo speed-up {train_base / train_c:.2f}x"),
-        ("layer-by-layer baseline, latency b1 (ms)", f"{lat[('baseline', 1)] * 1e3:.1f}", "",
-         f"zoo speed-up {lat[('baseline', 1)] / lat[('coeffs', 1)]:.2f}x"),
-        ("layer-by-layer baseline, latency b32 (ms)", f"{lat[('baseline', BATCH)] * 1e3:.0f}",
-         "", f"zoo speed-up {lat[('baseline', BATCH)] / lat[('coeffs', BATCH)]:.2f}x"),
+        (
+            "layer-by-layer baseline, train step b32 (ms)",
+            f"{train_base * 1e3:.0f}",
+            "",
+            f"zoo speed-up {train_base / train_c:.2f}x",
+        ),
+        (
+            "layer-by-layer baseline, latency b1 (ms)",
+            f"{lat[('baseline', 1)] * 1e3:.1f}",
+            "",
+            f"zoo speed-up {lat[('baseline', 1)] / lat[('coeffs', 1)]:.2f}x",
+        ),
+        (
+            "layer-by-layer baseline, latency b32 (ms)",
+            f"{lat[('baseline', BATCH)] * 1e3:.0f}",
+            "",
+            f"zoo speed-up {lat[('baseline', BATCH)] / lat[('coeffs', BATCH)]:.2f}x",
+        ),
     ]
     width = max(len(r[0]) for r in rows)
     print(f"{'':{width}}  {'zoo':>10}  {'public':>10}  ratio (zoo vs public)")
     for name, ours, public, ratio in rows:
         print(f"{name:{width}}  {ours:>10}  {public:>10}  {ratio}")
-    print("* public: coefficients b32 plus its frame-by-frame reconstruction; the public code "
-          "takes coefficients, so its projection of the input is not counted")
-    print(f"** every frame of every window one by one (how the engine gave them before), "
-          f"{int(counts.sum())} frames against {STATS_FRAMES} counted ones; the statistics "
-          f"differ by at most {stats_differ:.1e} relative")
-    print("precision bfloat16: the training recipe's mixed precision (--train-set "
-          "precision=bfloat16): the loss under torch.autocast(bfloat16), weights, optimiser and "
-          "evaluation float32; the published training is float32")
-    print(f"layer-by-layer baseline: the same weights and sums computed with nn.Conv1d and "
-          f"nn.TransformerEncoder, timed alternately with the zoo's (same load); predictions "
-          f"agree to {same:.1e} mm")
+    print(
+        "* public: coefficients b32 plus its frame-by-frame reconstruction; the public code "
+        "takes coefficients, so its projection of the input is not counted"
+    )
+    print(
+        f"** every frame of every window one by one (how the engine gave them before), "
+        f"{int(counts.sum())} frames against {STATS_FRAMES} counted ones; the statistics "
+        f"differ by at most {stats_differ:.1e} relative"
+    )
+    print(
+        "precision bfloat16: the training recipe's mixed precision (--train-set "
+        "precision=bfloat16): the loss under torch.autocast(bfloat16), weights, optimiser and "
+        "evaluation float32; the published training is float32"
+    )
+    print(
+        f"layer-by-layer baseline: the same weights and sums computed with nn.Conv1d and "
+        f"nn.TransformerEncoder, timed alternately with the zoo's (same load); predictions "
+        f"agree to {same:.1e} mm"
+    )
     print()
-    print(f"train step (coefficients in): {train_flops / 1e9:.1f} GFLOP -> "
-          f"{train_flops / train_c / 1e9:.0f} GFLOP/s here; the public figure "
-          f"({PUBLIC['train_step_ms']:.0f} ms) implies "
-          f"{train_flops / (PUBLIC['train_step_ms'] / 1e3) / 1e9:.0f} GFLOP/s for the same work")
+    print(
+        f"train step (coefficients in): {train_flops / 1e9:.1f} GFLOP -> "
+        f"{train_flops / train_c / 1e9:.0f} GFLOP/s here; the public figure "
+        f"({PUBLIC['train_step_ms']:.0f} ms) implies "
+        f"{train_flops / (PUBLIC['train_step_ms'] / 1e3) / 1e9:.0f} GFLOP/s for the same work"
+    )
     floor = train_flops / (max(rate0, rate1) * 1e9)
-    print(f"floor for that step if every FLOP ran at the best matrix-product rate measured "
-          f"({max(rate0, rate1):.0f} GFLOP/s): {floor * 1e3:.0f} ms = {BATCH / floor:.0f} "
-          f"samples/s = {BATCH / floor / PUBLIC['train_samples_s']:.2f}x the public figure")
-    print(f"inference b32 (coefficients): {infer_flops / 1e9:.1f} GFLOP -> "
-          f"{infer_flops / lat[('coeffs', BATCH)] / 1e9:.0f} GFLOP/s here; the public figure "
-          f"implies {infer_flops / (PUBLIC['latency_b32_ms'] / 1e3) / 1e9:.0f} GFLOP/s")
+    print(
+        f"floor for that step if every FLOP ran at the best matrix-product rate measured "
+        f"({max(rate0, rate1):.0f} GFLOP/s): {floor * 1e3:.0f} ms = {BATCH / floor:.0f} "
+        f"samples/s = {BATCH / floor / PUBLIC['train_samples_s']:.2f}x the public figure"
+    )
+    print(
+        f"inference b32 (coefficients): {infer_flops / 1e9:.1f} GFLOP -> "
+        f"{infer_flops / lat[('coeffs', BATCH)] / 1e9:.0f} GFLOP/s here; the public figure "
+        f"implies {infer_flops / (PUBLIC['latency_b32_ms'] / 1e3) / 1e9:.0f} GFLOP/s"
+    )
 
 
 if __name__ == "__main__":

@@ -19,6 +19,7 @@ larger forward FLOPs per sample) is printed with the ceiling the FLOPs allow: a 
 cannot take less than its counted FLOPs at the best matrix-product rate measured in this run.
 ``--tiny`` (one block of width 16 on both sides) checks the script quickly; it measures nothing.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -27,8 +28,8 @@ import platform
 import statistics
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 import torch
 from torch.utils.flop_counter import FlopCounterMode
@@ -54,8 +55,15 @@ def table9_params_m(name: str, **overrides) -> float:
     from zoo.data.skeleton import H36M
 
     parts = {k: list(v) for k, v in H36M.parts.items()}
-    model = zoo.create_model(name, input_frames=10, output_frames=10, num_points=len(H36M.used),
-                             parts=parts, dct_n=15, **overrides)
+    model = zoo.create_model(
+        name,
+        input_frames=10,
+        output_frames=10,
+        num_points=len(H36M.used),
+        parts=parts,
+        dct_n=15,
+        **overrides,
+    )
     return sum(p.numel() for p in model.parameters()) / 1e6
 
 
@@ -72,8 +80,9 @@ def timed(fn: Callable[[], object], repeats: int, warmup: int = 1) -> tuple[floa
     return statistics.median(walls), statistics.median(cpus)
 
 
-def timed_interleaved(fns: dict[str, Callable[[], object]], repeats: int
-                      ) -> dict[str, tuple[float, float]]:
+def timed_interleaved(
+    fns: dict[str, Callable[[], object]], repeats: int
+) -> dict[str, tuple[float, float]]:
     """``timed`` for several functions, their runs alternated (one warm-up each first)."""
     for fn in fns.values():
         fn()
@@ -85,8 +94,7 @@ def timed_interleaved(fns: dict[str, Callable[[], object]], repeats: int
             fn()
             walls[name].append(time.perf_counter() - wall)
             cpus[name].append(time.process_time() - cpu)
-    return {name: (statistics.median(walls[name]), statistics.median(cpus[name]))
-            for name in fns}
+    return {name: (statistics.median(walls[name]), statistics.median(cpus[name])) for name in fns}
 
 
 def matmul_gflops(repeats: int) -> float:
@@ -95,7 +103,7 @@ def matmul_gflops(repeats: int) -> float:
     rates = []
     for m, k, n in ((1024, 1024, 1024), (4096, 256, 256)):
         a, b = torch.randn(m, k), torch.randn(k, n)
-        wall, _ = timed(lambda: a @ b, max(repeats, 5))
+        wall, _ = timed(lambda a=a, b=b: a @ b, max(repeats, 5))
         rates.append(2 * m * k * n / wall / 1e9)
     return max(rates)
 
@@ -107,8 +115,9 @@ def synthetic_motion(batch: int, frames: int, points: int, seed: int) -> torch.T
     return offsets + (torch.randn(batch, frames, points, 3, generator=g) * 5).cumsum(dim=1)
 
 
-def measure(name: str, repeats: int, bf16: bool, tiny: bool = False
-            ) -> tuple[dict[str, float], dict | None]:
+def measure(
+    name: str, repeats: int, bf16: bool, tiny: bool = False
+) -> tuple[dict[str, float], dict | None]:
     """Figures of registry model ``name``; for an SPGSN model also those of the public code's
     CMU model, timed interleaved with it on the same inputs."""
     bench = get_benchmark("cmu")
@@ -122,11 +131,14 @@ def measure(name: str, repeats: int, bf16: bool, tiny: bool = False
     ours: dict[str, float] = {"params_m": sum(p.numel() for p in model.parameters()) / 1e6}
     public = None
     if name.startswith("spgsn"):
-        public_step, public_model = make_public_step(history_mm=history, future_mm=future,
-                                                     **(TINY_PUBLIC if tiny else {}))
+        public_step, public_model = make_public_step(
+            history_mm=history, future_mm=future, **(TINY_PUBLIC if tiny else {})
+        )
         public_input = public_batch(history, future)[0]
-        public = {"params_m": sum(p.numel() for p in public_model.parameters()) / 1e6,
-                  "gflop_per_sample": forward_gflop_per_sample(public_model)}
+        public = {
+            "params_m": sum(p.numel() for p in public_model.parameters()) / 1e6,
+            "gflop_per_sample": forward_gflop_per_sample(public_model),
+        }
         if name == "spgsn":
             ours["table9_params_m"] = table9_params_m(name, **overrides)
 
@@ -138,21 +150,21 @@ def measure(name: str, repeats: int, bf16: bool, tiny: bool = False
         if public is not None:
             public_model.eval()
         for batch in (1, TRAIN_BATCH):
-            runs = {"ours": lambda: model(history[:batch])}
+            runs = {"ours": lambda batch=batch: model(history[:batch])}
             if public is not None:
-                runs["public"] = lambda: public_model(public_input[:batch])
-            for who, (wall, cpu) in timed_interleaved(runs, repeats).items():
+                runs["public"] = lambda batch=batch: public_model(public_input[:batch])
+            for who, (wall, _cpu) in timed_interleaved(runs, repeats).items():
                 figures = ours if who == "ours" else public
                 figures[f"latency_b{batch}_ms"] = wall * 1e3
-                figures[f"inference_b{batch}_gflops"] = \
-                    figures["gflop_per_sample"] * batch / wall
+                figures[f"inference_b{batch}_gflops"] = figures["gflop_per_sample"] * batch / wall
 
     recipe = entry.train
     model.train()
     if public is not None:
         public_model.train()
-    optimizer = torch.optim.Adam(model.parameters(), lr=recipe.get("lr", 1e-3),
-                                 weight_decay=recipe.get("weight_decay", 0.0))
+    optimizer = torch.optim.Adam(
+        model.parameters(), lr=recipe.get("lr", 1e-3), weight_decay=recipe.get("weight_decay", 0.0)
+    )
     clip = recipe.get("grad_clip")
 
     def loss_of(autocast: bool) -> torch.Tensor:
@@ -188,8 +200,9 @@ def measure(name: str, repeats: int, bf16: bool, tiny: bool = False
     return ours, public
 
 
-def report(name: str, f: dict[str, float], reference: dict[str, float] | None,
-           best_matmul_gflops: float) -> None:
+def report(
+    name: str, f: dict[str, float], reference: dict[str, float] | None, best_matmul_gflops: float
+) -> None:
     rows = [
         ("parameters (M)", "params_m", "{:.3f}", "ours/public"),
         ("forward GFLOP per sample", "gflop_per_sample", "{:.3f}", "ours/public"),
@@ -210,63 +223,85 @@ def report(name: str, f: dict[str, float], reference: dict[str, float] | None,
             ratio = ref / f[key] if kind == "speed-up" else f[key] / ref
             line += f"{fmt.format(ref):>14s}{ratio:>9.2f}x  ({kind})"
         print(line)
-    print(f"{'training GFLOP per step (fwd + bwd, counted)':42s}"
-          f"{f['train_gflop_per_step']:>12.1f}")
-    print(f"{'achieved GFLOP/s, training':42s}{f['train_gflops']:>12.1f}"
-          f"  (best matrix product this run: {best_matmul_gflops:.1f})")
-    print(f"{'achieved GFLOP/s, inference batch 1 / 32':42s}"
-          f"{f['inference_b1_gflops']:>12.1f} / {f['inference_b32_gflops']:.1f}")
+    print(f"{'training GFLOP per step (fwd + bwd, counted)':42s}{f['train_gflop_per_step']:>12.1f}")
+    print(
+        f"{'achieved GFLOP/s, training':42s}{f['train_gflops']:>12.1f}"
+        f"  (best matrix product this run: {best_matmul_gflops:.1f})"
+    )
+    print(
+        f"{'achieved GFLOP/s, inference batch 1 / 32':42s}"
+        f"{f['inference_b1_gflops']:>12.1f} / {f['inference_b32_gflops']:.1f}"
+    )
     # The FLOP-bound ceiling: every counted FLOP at the best matrix-product rate of this run.
     ceiling = TRAIN_BATCH * best_matmul_gflops / f["train_gflop_per_step"]
     print(f"{'training samples/s if every FLOP ran at best':42s}{ceiling:>12.2f}")
     cpu_share = f["train_step_b32_cpu_s"] / f["train_step_b32_s"]
-    print(f"{'CPU seconds per training step (share)':42s}{f['train_step_b32_cpu_s']:>12.3f}"
-          f"  ({cpu_share:.2f} CPU-s per wall-s)")
+    print(
+        f"{'CPU seconds per training step (share)':42s}{f['train_step_b32_cpu_s']:>12.3f}"
+        f"  ({cpu_share:.2f} CPU-s per wall-s)"
+    )
     if "bf16_train_step_b32_s" in f:
-        line = (f"{'bf16 autocast training samples/s':42s}"
-                f"{f['bf16_train_samples_per_s']:>12.2f}")
+        line = f"{'bf16 autocast training samples/s':42s}{f['bf16_train_samples_per_s']:>12.2f}"
         if reference:
             ratio = f["bf16_train_samples_per_s"] / reference["train_samples_per_s"]
             line += f"{reference['train_samples_per_s']:>14.2f}{ratio:>9.2f}x  (ours/public)"
         print(line)
     if "table9_params_m" in f:
-        print(f"{'parameters (M), paper Table 9 setting':42s}{f['table9_params_m']:>12.3f}"
-              f"{PAPER_TABLE9_PARAMS_M:>14.2f}"
-              f"{f['table9_params_m'] / PAPER_TABLE9_PARAMS_M:>9.2f}x  (ours/paper)")
+        print(
+            f"{'parameters (M), paper Table 9 setting':42s}{f['table9_params_m']:>12.3f}"
+            f"{PAPER_TABLE9_PARAMS_M:>14.2f}"
+            f"{f['table9_params_m'] / PAPER_TABLE9_PARAMS_M:>9.2f}x  (ours/paper)"
+        )
     if reference:
         speed = f["train_samples_per_s"] / reference["train_samples_per_s"]
         flops = f["gflop_per_sample"] / reference["gflop_per_sample"]
         met = speed >= TRAINING_SPEED_AIM and flops >= 1.0
-        print(f"aim (>= {TRAINING_SPEED_AIM}x the public float32 training samples/s at >= its "
-              f"FLOPs/sample): {speed:.2f}x at {flops:.2f}x FLOPs -> "
-              f"{'met' if met else 'NOT met'}; the FLOP-bound ceiling is "
-              f"{ceiling / reference['train_samples_per_s']:.2f}x")
+        print(
+            f"aim (>= {TRAINING_SPEED_AIM}x the public float32 training samples/s at >= its "
+            f"FLOPs/sample): {speed:.2f}x at {flops:.2f}x FLOPs -> "
+            f"{'met' if met else 'NOT met'}; the FLOP-bound ceiling is "
+            f"{ceiling / reference['train_samples_per_s']:.2f}x"
+        )
 
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--threads", type=int, default=None,
-                        help="torch intra-op threads (default: torch's own choice)")
+    parser.add_argument(
+        "--threads",
+        type=int,
+        default=None,
+        help="torch intra-op threads (default: torch's own choice)",
+    )
     parser.add_argument("--repeats", type=int, default=5, help="timed runs per figure (median)")
-    parser.add_argument("--bf16", action="store_true",
-                        help="also time a training step under CPU bf16 autocast")
+    parser.add_argument(
+        "--bf16", action="store_true", help="also time a training step under CPU bf16 autocast"
+    )
     parser.add_argument("--models", nargs="+", default=["spgsn", "mlp"])
-    parser.add_argument("--tiny", action="store_true",
-                        help="tiny models (one block, width 16): a quick check of the script")
+    parser.add_argument(
+        "--tiny",
+        action="store_true",
+        help="tiny models (one block, width 16): a quick check of the script",
+    )
     args = parser.parse_args(argv)
     if args.threads:
         torch.set_num_threads(args.threads)
     load_before = os.getloadavg()
-    print(f"machine: {os.cpu_count()} CPUs, {platform.processor() or platform.machine()}, "
-          f"torch {torch.__version__}, {torch.get_num_threads()} threads, "
-          f"CPU capability {torch.backends.cpu.get_cpu_capability()}")
+    print(
+        f"machine: {os.cpu_count()} CPUs, {platform.processor() or platform.machine()}, "
+        f"torch {torch.__version__}, {torch.get_num_threads()} threads, "
+        f"CPU capability {torch.backends.cpu.get_cpu_capability()}"
+    )
     best = matmul_gflops(args.repeats)
-    print(f"best float32 matrix-product rate now: {best:.1f} GFLOP/s; "
-          f"load average {load_before[0]:.2f}")
+    print(
+        f"best float32 matrix-product rate now: {best:.1f} GFLOP/s; "
+        f"load average {load_before[0]:.2f}"
+    )
     if load_before[0] > 0.5:
-        print("note: other processes are using the CPUs; wall-clock figures will be slower "
-              "than on an idle machine (with more threads than free cores, much slower: "
-              "try --threads 1)")
+        print(
+            "note: other processes are using the CPUs; wall-clock figures will be slower "
+            "than on an idle machine (with more threads than free cores, much slower: "
+            "try --threads 1)"
+        )
     results = {name: measure(name, args.repeats, args.bf16, args.tiny) for name in args.models}
     for name, (ours, public) in results.items():
         report(name, ours, public, best)

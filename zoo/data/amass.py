@@ -14,33 +14,52 @@ blend shapes, pose blend shapes (``R_j - I`` of every non-root joint), rigid tra
 kinematic tree, and skinning with the model's weights. The ``smplx`` package would do the same,
 but its code is under a non-commercial licence (MPI), which this MIT project cannot depend on.
 """
+
 from __future__ import annotations
 
 import hashlib
 import math
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Iterable, Mapping
+from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
 import torch
 
 from zoo.data.expmap import DataFormatError
-from zoo.io import sha256_file
 from zoo.data.mesh import MeshDataset, MeshSequence, MeshTopology
 from zoo.data.skeleton import kinematic_chain, rodrigues
+from zoo.io import sha256_file
 
 AMASS_KEYS = ("poses", "betas", "trans", "gender", "mocap_framerate")
-MODEL_KEYS = ("v_template", "shapedirs", "posedirs", "J_regressor", "weights", "kintree_table",
-              "f")
+MODEL_KEYS = ("v_template", "shapedirs", "posedirs", "J_regressor", "weights", "kintree_table", "f")
 TARGET_FPS = 25.0
 # The 22 body joints of SMPL/SMPL-H (root included): SpecTrHuMS regresses these from the mesh.
 SMPLH_BODY_JOINTS = (
-    "pelvis", "left_hip", "right_hip", "spine1", "left_knee", "right_knee", "spine2",
-    "left_ankle", "right_ankle", "spine3", "left_foot", "right_foot", "neck", "left_collar",
-    "right_collar", "head", "left_shoulder", "right_shoulder", "left_elbow", "right_elbow",
-    "left_wrist", "right_wrist",
+    "pelvis",
+    "left_hip",
+    "right_hip",
+    "spine1",
+    "left_knee",
+    "right_knee",
+    "spine2",
+    "left_ankle",
+    "right_ankle",
+    "spine3",
+    "left_foot",
+    "right_foot",
+    "neck",
+    "left_collar",
+    "right_collar",
+    "head",
+    "left_shoulder",
+    "right_shoulder",
+    "left_elbow",
+    "right_elbow",
+    "left_wrist",
+    "right_wrist",
 )
 DATASET_FORMAT = 1
 SKIN_BATCH = 256
@@ -55,6 +74,7 @@ def frame_stride(fps: float, target_fps: float = TARGET_FPS) -> int:
 
 
 # ---- the body model --------------------------------------------------------------------------
+
 
 def _load_npz(path: Path, what: str) -> dict[str, np.ndarray]:
     try:
@@ -100,8 +120,9 @@ class SMPLH:
     def num_betas(self) -> int:
         return self.shapedirs.shape[2]
 
-    def forward(self, poses: torch.Tensor, betas: torch.Tensor
-                ) -> tuple[torch.Tensor, torch.Tensor]:
+    def forward(
+        self, poses: torch.Tensor, betas: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
         """Vertices ``(T, V, 3)`` and joints ``(T, J, 3)`` (model units) of axis-angle
         ``poses (T, 3 J)`` for one body ``betas (n <= B,)``; no translation is applied."""
         dtype = self.v_template.dtype
@@ -109,13 +130,15 @@ class SMPLH:
         betas = torch.as_tensor(betas, dtype=dtype)
         n_joints = self.num_joints
         if poses.ndim != 2 or poses.shape[1] != 3 * n_joints:
-            raise ValueError(f"{self.path}: poses must be (T, {3 * n_joints}), got "
-                             f"{tuple(poses.shape)}")
+            raise ValueError(
+                f"{self.path}: poses must be (T, {3 * n_joints}), got {tuple(poses.shape)}"
+            )
         if betas.ndim != 1 or betas.shape[0] > self.num_betas:
-            raise ValueError(f"{self.path}: betas must be (n <= {self.num_betas},), got "
-                             f"{tuple(betas.shape)}")
+            raise ValueError(
+                f"{self.path}: betas must be (n <= {self.num_betas},), got {tuple(betas.shape)}"
+            )
         t = poses.shape[0]
-        v_shaped = self.v_template + self.shapedirs[..., :betas.shape[0]] @ betas  # (V, 3)
+        v_shaped = self.v_template + self.shapedirs[..., : betas.shape[0]] @ betas  # (V, 3)
         joints = self.j_regressor @ v_shaped  # (J, 3)
         rot = rodrigues(poses.reshape(t, n_joints, 3), exact=True)  # (T, J, 3, 3)
         eye = torch.eye(3, dtype=dtype)
@@ -137,8 +160,9 @@ class SMPLH:
 def _require_keys(path: Path, data, keys, what: str) -> None:
     for key in keys:
         if key not in data:
-            raise DataFormatError(f"{path}: {what} has no key {key!r} (expected keys "
-                                  f"{', '.join(keys)})")
+            raise DataFormatError(
+                f"{path}: {what} has no key {key!r} (expected keys {', '.join(keys)})"
+            )
 
 
 def load_smplh(path: str | Path) -> SMPLH:
@@ -159,36 +183,50 @@ def load_smplh(path: str | Path) -> SMPLH:
     _check_shape(path, "f", data["f"], (None, 3))
     for key in ("v_template", "shapedirs", "posedirs", "J_regressor", "weights"):
         if not np.issubdtype(data[key].dtype, np.floating) or not np.isfinite(data[key]).all():
-            raise DataFormatError(f"{path}: key {key!r} must hold finite floats, got "
-                                  f"{data[key].dtype}")
+            raise DataFormatError(
+                f"{path}: key {key!r} must hold finite floats, got {data[key].dtype}"
+            )
     if not np.array_equal(kintree[1].astype(np.int64), np.arange(n_j)):
-        raise DataFormatError(f"{path}: kintree_table row 1 must list the joints 0..{n_j - 1} "
-                              f"in order")
+        raise DataFormatError(
+            f"{path}: kintree_table row 1 must list the joints 0..{n_j - 1} in order"
+        )
     parents_raw = kintree[0].astype(np.int64)
     parents = [-1] + [int(p) for p in parents_raw[1:]]
     for j, p in enumerate(parents[1:], start=1):
         if not 0 <= p < j:
-            raise DataFormatError(f"{path}: kintree_table gives joint {j} the parent {p}; "
-                                  f"parents must come before their children")
+            raise DataFormatError(
+                f"{path}: kintree_table gives joint {j} the parent {p}; "
+                f"parents must come before their children"
+            )
     faces = data["f"]
     if not np.issubdtype(faces.dtype, np.integer) or faces.min() < 0 or faces.max() >= n_v:
         raise DataFormatError(f"{path}: key 'f' must hold vertex indices in [0, {n_v})")
     weight_sums = data["weights"].sum(axis=1)
     if np.abs(weight_sums - 1).max() > 1e-4:
-        raise DataFormatError(f"{path}: skinning weights of vertex "
-                              f"{int(np.argmax(np.abs(weight_sums - 1)))} sum to "
-                              f"{weight_sums[np.argmax(np.abs(weight_sums - 1))]:.6f}, not 1")
+        raise DataFormatError(
+            f"{path}: skinning weights of vertex "
+            f"{int(np.argmax(np.abs(weight_sums - 1)))} sum to "
+            f"{weight_sums[np.argmax(np.abs(weight_sums - 1))]:.6f}, not 1"
+        )
 
     def t(key):
         return torch.as_tensor(np.asarray(data[key], dtype=np.float64))
 
-    return SMPLH(path=path, v_template=t("v_template"), shapedirs=t("shapedirs"),
-                 posedirs=t("posedirs"), j_regressor=t("J_regressor"), weights=t("weights"),
-                 parents=tuple(parents), faces=np.asarray(faces, dtype=np.int64),
-                 sha256=sha256_file(path))
+    return SMPLH(
+        path=path,
+        v_template=t("v_template"),
+        shapedirs=t("shapedirs"),
+        posedirs=t("posedirs"),
+        j_regressor=t("J_regressor"),
+        weights=t("weights"),
+        parents=tuple(parents),
+        faces=np.asarray(faces, dtype=np.int64),
+        sha256=sha256_file(path),
+    )
 
 
 # ---- AMASS motion ----------------------------------------------------------------------------
+
 
 @dataclass
 class AmassMotion:
@@ -209,8 +247,7 @@ def read_amass(path: str | Path, num_joints: int | None = None) -> AmassMotion:
     poses = data["poses"]
     _check_shape(path, "poses", poses, (None, None if num_joints is None else 3 * num_joints))
     if poses.shape[1] % 3:
-        raise DataFormatError(f"{path}: key 'poses' has {poses.shape[1]} columns, not 3 per "
-                              f"joint")
+        raise DataFormatError(f"{path}: key 'poses' has {poses.shape[1]} columns, not 3 per joint")
     if len(poses) == 0:
         raise DataFormatError(f"{path}: key 'poses' holds no frames")
     betas = data["betas"]
@@ -218,33 +255,43 @@ def read_amass(path: str | Path, num_joints: int | None = None) -> AmassMotion:
     _check_shape(path, "trans", data["trans"], (len(poses), 3))
     gender = data["gender"]
     if gender.ndim != 0 or gender.dtype.kind not in "US":
-        raise DataFormatError(f"{path}: key 'gender' must be a string, got {gender.dtype} "
-                              f"{gender.shape}")
+        raise DataFormatError(
+            f"{path}: key 'gender' must be a string, got {gender.dtype} {gender.shape}"
+        )
     gender = gender.item()
     gender = gender.decode() if isinstance(gender, bytes) else str(gender)
     rate = data["mocap_framerate"]
     if rate.size != 1 or not np.issubdtype(rate.dtype, np.number):
-        raise DataFormatError(f"{path}: key 'mocap_framerate' must be one number, got "
-                              f"{rate.dtype} {rate.shape}")
+        raise DataFormatError(
+            f"{path}: key 'mocap_framerate' must be one number, got {rate.dtype} {rate.shape}"
+        )
     fps = float(rate.reshape(()))
     if not np.isfinite(fps) or fps <= 0:
         raise DataFormatError(f"{path}: key 'mocap_framerate' must be positive, got {fps}")
     for key, arr in (("poses", poses), ("betas", betas), ("trans", data["trans"])):
         if not np.issubdtype(arr.dtype, np.number) or not np.isfinite(arr).all():
             raise DataFormatError(f"{path}: key {key!r} must hold finite numbers")
-    return AmassMotion(path=path, poses=poses.astype(np.float64),
-                       betas=betas.astype(np.float64), trans=data["trans"].astype(np.float64),
-                       gender=gender.strip().lower(), fps=fps)
+    return AmassMotion(
+        path=path,
+        poses=poses.astype(np.float64),
+        betas=betas.astype(np.float64),
+        trans=data["trans"].astype(np.float64),
+        gender=gender.strip().lower(),
+        fps=fps,
+    )
 
 
-def amass_vertices(model: SMPLH, motion: AmassMotion, *, batch_size: int = SKIN_BATCH
-                   ) -> tuple[np.ndarray, int]:
+def amass_vertices(
+    model: SMPLH, motion: AmassMotion, *, batch_size: int = SKIN_BATCH
+) -> tuple[np.ndarray, int]:
     """The SpecTrHuMS mesh sequence of ``motion``: vertices ``(T', V, 3)`` in mm (float32) at
     stride ``frame_stride(fps)``, root orientation zeroed, no translation; and the stride."""
     if motion.poses.shape[1] != 3 * model.num_joints:
-        raise DataFormatError(f"{motion.path}: key 'poses' has {motion.poses.shape[1]} columns; "
-                              f"the model {model.path.name} has {model.num_joints} joints "
-                              f"({3 * model.num_joints} columns)")
+        raise DataFormatError(
+            f"{motion.path}: key 'poses' has {motion.poses.shape[1]} columns; "
+            f"the model {model.path.name} has {model.num_joints} joints "
+            f"({3 * model.num_joints} columns)"
+        )
     stride = frame_stride(motion.fps)
     poses = motion.poses[::stride].copy()
     poses[:, :3] = 0.0  # no root orientation
@@ -253,12 +300,13 @@ def amass_vertices(model: SMPLH, motion: AmassMotion, *, batch_size: int = SKIN_
     chunks = []
     with torch.no_grad():
         for start in range(0, len(poses), batch_size):
-            v, _ = model.forward(torch.as_tensor(poses[start:start + batch_size]), betas)
+            v, _ = model.forward(torch.as_tensor(poses[start : start + batch_size]), betas)
             chunks.append((v * 1000.0).float().numpy())
     return np.concatenate(chunks), stride
 
 
 # ---- the dataset builder ---------------------------------------------------------------------
+
 
 def amass_files(root: str | Path) -> list[Path]:
     """Every motion ``.npz`` under ``root`` (AMASS's per-subject ``shape.npz`` left out)."""
@@ -271,9 +319,16 @@ def amass_files(root: str | Path) -> list[Path]:
     return files
 
 
-def build_amass(root: str | Path, model: str | Path | Mapping[str, str | Path], *, split: str,
-                name: str = "amass", files: Iterable[str | Path] | None = None,
-                cache_dir: str | Path | None = None, progress: bool = True) -> MeshDataset:
+def build_amass(
+    root: str | Path,
+    model: str | Path | Mapping[str, str | Path],
+    *,
+    split: str,
+    name: str = "amass",
+    files: Iterable[str | Path] | None = None,
+    cache_dir: str | Path | None = None,
+    progress: bool = True,
+) -> MeshDataset:
     """AMASS motion files on SMPL-H as a ``MeshDataset`` (SpecTrHuMS recipe, mm).
 
     - ``root``: a folder of AMASS ``.npz`` files (e.g. one sub-dataset such as BMLrub);
@@ -293,29 +348,45 @@ def build_amass(root: str | Path, model: str | Path | Mapping[str, str | Path], 
     from zoo.data.mesh import cache_root
 
     root = Path(root)
-    paths = amass_files(root) if files is None else [
-        Path(f) if Path(f).is_absolute() else root / f for f in files]
-    models = ({"any": Path(model)} if isinstance(model, (str, Path)) else
-              {str(k).lower(): Path(v) for k, v in model.items()})
+    paths = (
+        amass_files(root)
+        if files is None
+        else [Path(f) if Path(f).is_absolute() else root / f for f in files]
+    )
+    models = (
+        {"any": Path(model)}
+        if isinstance(model, (str, Path))
+        else {str(k).lower(): Path(v) for k, v in model.items()}
+    )
     if not models:
         raise ValueError("model: no SMPL-H model file given")
     loaded = {g: load_smplh(p) for g, p in models.items()}
     faces = {m.faces.tobytes() for m in loaded.values()}
     if len(faces) != 1 or len({m.num_vertices for m in loaded.values()}) != 1:
-        raise DataFormatError(f"model: the SMPL-H files {[str(p) for p in models.values()]} do "
-                              f"not share one triangulation")
-    reg_gender = "any" if "any" in loaded else ("neutral" if "neutral" in loaded else
-                                                sorted(loaded)[0])
+        raise DataFormatError(
+            f"model: the SMPL-H files {[str(p) for p in models.values()]} do "
+            f"not share one triangulation"
+        )
+    reg_gender = (
+        "any" if "any" in loaded else ("neutral" if "neutral" in loaded else sorted(loaded)[0])
+    )
     reg_model = loaded[reg_gender]
     if reg_model.num_joints < len(SMPLH_BODY_JOINTS):
-        raise DataFormatError(f"{reg_model.path}: {reg_model.num_joints} joints, fewer than the "
-                              f"{len(SMPLH_BODY_JOINTS)} SMPL body joints")
-    regressor = sp.csr_matrix(reg_model.j_regressor[:len(SMPLH_BODY_JOINTS)].numpy())
+        raise DataFormatError(
+            f"{reg_model.path}: {reg_model.num_joints} joints, fewer than the "
+            f"{len(SMPLH_BODY_JOINTS)} SMPL body joints"
+        )
+    regressor = sp.csr_matrix(reg_model.j_regressor[: len(SMPLH_BODY_JOINTS)].numpy())
     recipe = {
-        "builder": "zoo.data.amass.build_amass", "format": DATASET_FORMAT, "source": "amass",
-        "split": split, "recipe": "SpecTrHuMS: body + hand pose, subject betas, no root "
-                                   "orientation, no translation",
-        "frame_policy": "stride floor(fps / 25)", "units": "mm", "dtype": "float32",
+        "builder": "zoo.data.amass.build_amass",
+        "format": DATASET_FORMAT,
+        "source": "amass",
+        "split": split,
+        "recipe": "SpecTrHuMS: body + hand pose, subject betas, no root "
+        "orientation, no translation",
+        "frame_policy": "stride floor(fps / 25)",
+        "units": "mm",
+        "dtype": "float32",
         "models": {g: m.sha256 for g, m in sorted(loaded.items())},
         "regressor": {"model": reg_gender, "joints": len(SMPLH_BODY_JOINTS)},
         "files": [{"file": _relative(p, root), "sha256": sha256_file(p)} for p in paths],
@@ -329,26 +400,47 @@ def build_amass(root: str | Path, model: str | Path | Mapping[str, str | Path], 
     first = next(iter(loaded.values()))
     topology = MeshTopology(first.faces, first.num_vertices, name=f"{name}-smplh")
     sequences = []
-    for path, entry in zip(tqdm(paths, desc=f"{name}-{split}", unit="file",
-                                disable=not progress), recipe["files"]):
+    for path, entry in zip(
+        tqdm(paths, desc=f"{name}-{split}", unit="file", disable=not progress), recipe["files"]
+    ):
         motion = read_amass(path, first.num_joints)
         body = loaded.get("any") or loaded.get(motion.gender)
         if body is None:
-            raise DataFormatError(f"{path}: gender {motion.gender!r} has no model (given: "
-                                  f"{', '.join(sorted(loaded))})")
+            raise DataFormatError(
+                f"{path}: gender {motion.gender!r} has no model (given: "
+                f"{', '.join(sorted(loaded))})"
+            )
         vertices, stride = amass_vertices(body, motion)
         rel = entry["file"]
         parts = Path(rel).parts
-        sequences.append(MeshSequence(
-            name=rel, action=parts[0] if len(parts) > 1 else name, vertices=vertices,
-            fps=motion.fps / stride, identity=_body_identity(motion, body),
-            meta={"file": rel, "sha256": entry["sha256"], "gender": motion.gender,
-                  "source_fps": motion.fps, "stride": stride,
-                  "effective_fps": motion.fps / stride, "source_frames": len(motion.poses),
-                  "betas_used": int(min(len(motion.betas), body.num_betas))}))
-    dataset = MeshDataset(name=f"{name}-{split}", split=split, topology=topology,
-                          sequences=sequences, recipe=recipe, joint_regressor=regressor,
-                          joint_names=list(SMPLH_BODY_JOINTS))
+        sequences.append(
+            MeshSequence(
+                name=rel,
+                action=parts[0] if len(parts) > 1 else name,
+                vertices=vertices,
+                fps=motion.fps / stride,
+                identity=_body_identity(motion, body),
+                meta={
+                    "file": rel,
+                    "sha256": entry["sha256"],
+                    "gender": motion.gender,
+                    "source_fps": motion.fps,
+                    "stride": stride,
+                    "effective_fps": motion.fps / stride,
+                    "source_frames": len(motion.poses),
+                    "betas_used": int(min(len(motion.betas), body.num_betas)),
+                },
+            )
+        )
+    dataset = MeshDataset(
+        name=f"{name}-{split}",
+        split=split,
+        topology=topology,
+        sequences=sequences,
+        recipe=recipe,
+        joint_regressor=regressor,
+        joint_names=list(SMPLH_BODY_JOINTS),
+    )
     dataset.save(folder)
     return dataset
 
@@ -371,4 +463,3 @@ def _canonical(data: Any) -> str:
     from zoo.io import canonical_json
 
     return canonical_json(data)
-

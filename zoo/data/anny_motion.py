@@ -42,15 +42,17 @@ and no exact vertex regressor exists. Two things are kept, so MPJPE is defined:
 - the rig's exact posed bone heads per frame, beside the dataset (``load_rig_joints``), for
   skeleton models trained on the same motion and for checking the regressor.
 """
+
 from __future__ import annotations
 
 import hashlib
 import importlib.metadata
 import math
+from collections.abc import Iterable, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Iterable, Literal, Sequence
+from typing import Any, Literal
 
 import numpy as np
 import scipy.sparse as sp
@@ -58,21 +60,31 @@ import torch
 from scipy.optimize import nnls
 from scipy.spatial.transform import Rotation, Slerp
 
-from zoo.data.bvh import (BVH, CMU_BVH_JOINTS, bone_directions, forward_kinematics,
-                          read_bvh)
+from zoo.data.bvh import BVH, CMU_BVH_JOINTS, bone_directions, forward_kinematics, read_bvh
 from zoo.data.expmap import DataFormatError
-from zoo.io import sha256_file
 from zoo.data.mesh import MeshDataset, MeshSequence, MeshTopology, cache_root
 from zoo.errors import DataNotFoundError
-from zoo.io import atomic_path
+from zoo.io import atomic_path, sha256_file
 
 # BVH name -> Anny ``cmu_mb`` bone name where they differ (all others are the same).
 BVH_TO_ANNY = {"LeftHandIndex1": "LeftHandFinger1", "RightHandIndex1": "RightHandFinger1"}
 # Bones whose rest correction is their parent's (step 3 of the mapping above), BVH names.
-NO_DIRECTION_BONES = frozenset({
-    "Hips", "LHipJoint", "RHipJoint", "Spine1", "LeftShoulder", "RightShoulder", "LThumb",
-    "RThumb", "LeftFingerBase", "RightFingerBase", "LeftHandIndex1", "RightHandIndex1",
-})
+NO_DIRECTION_BONES = frozenset(
+    {
+        "Hips",
+        "LHipJoint",
+        "RHipJoint",
+        "Spine1",
+        "LeftShoulder",
+        "RightShoulder",
+        "LThumb",
+        "RThumb",
+        "LeftFingerBase",
+        "RightFingerBase",
+        "LeftHandIndex1",
+        "RightHandIndex1",
+    }
+)
 # Change of axes BVH (Y up) -> Anny (Z up): (x, y, z) -> (x, -z, y).
 AXES_M = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
 
@@ -87,8 +99,14 @@ DEFAULT_PHENOTYPE = {k: 0.5 for k in PHENOTYPE_LABELS}
 # MI: each parameter uniform on this range, drawn per sequence. Age 0.67..0.85 are adults (16 to
 # about 69 years on anny's morphological-age calibration); the others stay clear of the extreme
 # blend shapes.
-MI_PHENOTYPE_RANGES = {"gender": (0.0, 1.0), "age": (0.67, 0.85), "muscle": (0.1, 0.9),
-                       "weight": (0.1, 0.9), "height": (0.1, 0.9), "proportions": (0.1, 0.9)}
+MI_PHENOTYPE_RANGES = {
+    "gender": (0.0, 1.0),
+    "age": (0.67, 0.85),
+    "muscle": (0.1, 0.9),
+    "weight": (0.1, 0.9),
+    "height": (0.1, 0.9),
+    "proportions": (0.1, 0.9),
+}
 TARGET_FPS = 25.0
 TEST_EVERY = 5  # split rule: trial numbers divisible by 5 are test, the others train
 DATASET_FORMAT = 1
@@ -116,14 +134,21 @@ def anny_version() -> str:
     try:
         return importlib.metadata.version("anny")
     except importlib.metadata.PackageNotFoundError as e:
-        raise AnnyUnavailable("the anny package is not installed; pip install anny==0.6.2 "
-                              "(Apache-2.0 code, CC0 assets)") from e
+        raise AnnyUnavailable(
+            "the anny package is not installed; pip install anny==0.6.2 "
+            "(Apache-2.0 code, CC0 assets)"
+        ) from e
 
 
 # ---- the Anny model --------------------------------------------------------------------------
 
-def load_anny_model(topology: Literal["full", "low"] = "low", *, dtype: torch.dtype =
-                    torch.float32, anny_cache_dir: str | Path | None = None):
+
+def load_anny_model(
+    topology: Literal["full", "low"] = "low",
+    *,
+    dtype: torch.dtype = torch.float32,
+    anny_cache_dir: str | Path | None = None,
+):
     """``anny.Anny(rig="cmu_mb")`` at the ``full`` (13,718 vertices) or ``low`` (1,229) topology.
 
     The first build of a topology takes minutes; anny caches it (``ANNY_CACHE_DIR``, or
@@ -139,11 +164,16 @@ def load_anny_model(topology: Literal["full", "low"] = "low", *, dtype: torch.dt
         anny.paths.set_anny_cache_path(Path(anny_cache_dir))
     model = anny.Anny(rig="cmu_mb", topology=TOPOLOGIES[topology])
     model = model.to(dtype)
-    missing = [BVH_TO_ANNY.get(n, n) for n in CMU_BVH_JOINTS
-               if BVH_TO_ANNY.get(n, n) not in model.bone_labels]
+    missing = [
+        BVH_TO_ANNY.get(n, n)
+        for n in CMU_BVH_JOINTS
+        if BVH_TO_ANNY.get(n, n) not in model.bone_labels
+    ]
     if missing or len(model.bone_labels) != len(CMU_BVH_JOINTS):
-        raise RuntimeError(f"anny's cmu_mb rig does not have the 31 CMU bones (missing "
-                           f"{missing}; has {model.bone_labels})")
+        raise RuntimeError(
+            f"anny's cmu_mb rig does not have the 31 CMU bones (missing "
+            f"{missing}; has {model.bone_labels})"
+        )
     return model
 
 
@@ -158,22 +188,27 @@ def phenotype_tensor(model, phenotype: dict[str, float] | None) -> dict[str, tor
     phenotype = dict(DEFAULT_PHENOTYPE if phenotype is None else phenotype)
     unknown = set(phenotype) - set(PHENOTYPE_LABELS)
     if unknown:
-        raise ValueError(f"unknown phenotype parameter(s) {sorted(unknown)}; expected "
-                         f"{list(PHENOTYPE_LABELS)}")
-    return {k: torch.tensor([float(phenotype.get(k, 0.5))], dtype=model.dtype)
-            for k in PHENOTYPE_LABELS}
+        raise ValueError(
+            f"unknown phenotype parameter(s) {sorted(unknown)}; expected {list(PHENOTYPE_LABELS)}"
+        )
+    return {
+        k: torch.tensor([float(phenotype.get(k, 0.5))], dtype=model.dtype) for k in PHENOTYPE_LABELS
+    }
 
 
 def rest_skeleton(model, phenotype: dict[str, float] | None = None) -> dict[str, np.ndarray]:
     """Rest bone heads and tails ``(31, 3)`` (float64, metres, Anny bone order)."""
     with torch.no_grad():
         out = model(phenotype_kwargs=phenotype_tensor(model, phenotype), return_bone_ends=True)
-    return {"heads": out["rest_bone_heads"][0].double().numpy(),
-            "tails": out["rest_bone_tails"][0].double().numpy(),
-            "vertices": out["rest_vertices"][0].double().numpy()}
+    return {
+        "heads": out["rest_bone_heads"][0].double().numpy(),
+        "tails": out["rest_bone_tails"][0].double().numpy(),
+        "vertices": out["rest_vertices"][0].double().numpy(),
+    }
 
 
 # ---- rotations -------------------------------------------------------------------------------
+
 
 def rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """The smallest rotation ``(3, 3)`` taking direction ``a`` onto direction ``b``."""
@@ -215,8 +250,9 @@ def snapped_fps(frame_time: float) -> float:
     return float(nearest) if nearest > 0 and abs(fps - nearest) <= 1e-3 * nearest else fps
 
 
-def resample_times(num_frames: int, source_fps: float, target_fps: float = TARGET_FPS
-                   ) -> np.ndarray:
+def resample_times(
+    num_frames: int, source_fps: float, target_fps: float = TARGET_FPS
+) -> np.ndarray:
     """Output frame times (s) ``k / target_fps`` for all k within the source's span."""
     if num_frames < 1:
         return np.zeros(0)
@@ -225,8 +261,9 @@ def resample_times(num_frames: int, source_fps: float, target_fps: float = TARGE
     return np.arange(count) / target_fps
 
 
-def resample_rotations(local_rotations: np.ndarray, source_fps: float,
-                       target_fps: float = TARGET_FPS) -> np.ndarray:
+def resample_rotations(
+    local_rotations: np.ndarray, source_fps: float, target_fps: float = TARGET_FPS
+) -> np.ndarray:
     """``(F, J, 3, 3)`` at ``source_fps`` -> ``(F', J, 3, 3)`` at ``target_fps`` by slerp."""
     n, joints = local_rotations.shape[:2]
     times = resample_times(n, source_fps, target_fps)
@@ -237,11 +274,13 @@ def resample_rotations(local_rotations: np.ndarray, source_fps: float,
     out = np.empty((len(times), joints, 3, 3))
     for j in range(joints):
         out[:, j] = Slerp(source_times, Rotation.from_matrix(local_rotations[:, j]))(
-            times).as_matrix()
+            times
+        ).as_matrix()
     return out
 
 
 # ---- the retargeting -------------------------------------------------------------------------
+
 
 class CMUAnnyRetarget:
     """BVH local rotations -> Anny ``cmu_mb`` pose parameters for one file and one identity.
@@ -250,16 +289,24 @@ class CMUAnnyRetarget:
     order (``rest_skeleton``); ``bvh`` supplies the skeleton and zero-pose directions.
     """
 
-    def __init__(self, bvh: BVH, anny_labels: Sequence[str], anny_parents: Sequence[int],
-                 rest_heads: np.ndarray, rest_tails: np.ndarray) -> None:
+    def __init__(
+        self,
+        bvh: BVH,
+        anny_labels: Sequence[str],
+        anny_parents: Sequence[int],
+        rest_heads: np.ndarray,
+        rest_tails: np.ndarray,
+    ) -> None:
         self.bvh = bvh
         self.anny_labels = list(anny_labels)
         lookup = {BVH_TO_ANNY.get(n, n): j for j, n in enumerate(bvh.names)}
         missing = [a for a in self.anny_labels if a not in lookup]
         if missing or len(lookup) != len(self.anny_labels):
-            raise DataFormatError(f"{bvh.path}: the BVH joints {list(bvh.names)} do not map "
-                                  f"onto Anny's cmu_mb bones {self.anny_labels} (missing "
-                                  f"{missing})")
+            raise DataFormatError(
+                f"{bvh.path}: the BVH joints {list(bvh.names)} do not map "
+                f"onto Anny's cmu_mb bones {self.anny_labels} (missing "
+                f"{missing})"
+            )
         # bvh_index[c]: the BVH joint driving Anny bone c.
         self.bvh_index = np.array([lookup[a] for a in self.anny_labels])
         self.anny_parents = list(anny_parents)
@@ -269,10 +316,16 @@ class CMUAnnyRetarget:
                 raise DataFormatError(
                     f"{bvh.path}: joint {bvh.names[self.bvh_index[c]]!r} has parent "
                     f"{bvh.names[bvh_parent] if bvh_parent >= 0 else None!r} in the BVH but "
-                    f"{self.anny_labels[p] if p >= 0 else None!r} in Anny's rig")
-        self.directed = np.array([
-            bvh.names[j] not in NO_DIRECTION_BONES and bool(bvh.has_direction[j]) and
-            self.anny_parents[c] >= 0 for c, j in enumerate(self.bvh_index)])
+                    f"{self.anny_labels[p] if p >= 0 else None!r} in Anny's rig"
+                )
+        self.directed = np.array(
+            [
+                bvh.names[j] not in NO_DIRECTION_BONES
+                and bool(bvh.has_direction[j])
+                and self.anny_parents[c] >= 0
+                for c, j in enumerate(self.bvh_index)
+            ]
+        )
         anny_dirs = rest_tails - rest_heads
         bvh_dirs = bvh.tail_offsets @ AXES_M.T  # zero-pose directions in Anny axes
         corrections = np.empty((len(self.anny_labels), 3, 3))
@@ -282,12 +335,13 @@ class CMUAnnyRetarget:
                 continue
             corrections[c] = corrections[p]
             if self.directed[c]:
-                corrections[c] = rotation_between(corrections[p] @ anny_dirs[c],
-                                                  bvh_dirs[self.bvh_index[c]]) @ corrections[p]
+                corrections[c] = (
+                    rotation_between(corrections[p] @ anny_dirs[c], bvh_dirs[self.bvh_index[c]])
+                    @ corrections[p]
+                )
         self.corrections = corrections
 
-    def pose_parameters(self, local_rotations: np.ndarray, root: str = "identity"
-                        ) -> np.ndarray:
+    def pose_parameters(self, local_rotations: np.ndarray, root: str = "identity") -> np.ndarray:
         """``(F, 31, 4, 4)`` float64 pose parameters (Anny bone order) of BVH rotations
         ``(F, J, 3, 3)`` (BVH joint order)."""
         if root not in ROOT_MODES:
@@ -307,8 +361,9 @@ class CMUAnnyRetarget:
         out[..., 3, 3] = 1.0
         return out
 
-    def expected_directions(self, local_rotations: np.ndarray, root: str = "identity"
-                            ) -> np.ndarray:
+    def expected_directions(
+        self, local_rotations: np.ndarray, root: str = "identity"
+    ) -> np.ndarray:
         """``(F, 31, 3)`` unit bone directions the BVH's own FK gives, in Anny axes and Anny
         bone order (root rotation as ``pose_parameters`` treats it); NaN for undirected bones."""
         rotations = local_rotations.copy()
@@ -325,22 +380,29 @@ class CMUAnnyRetarget:
 
 def retarget(model, bvh: BVH, phenotype: dict[str, float] | None = None) -> CMUAnnyRetarget:
     rest = rest_skeleton(model, phenotype)
-    return CMUAnnyRetarget(bvh, model.bone_labels, model.bone_parents, rest["heads"],
-                           rest["tails"])
+    return CMUAnnyRetarget(bvh, model.bone_labels, model.bone_parents, rest["heads"], rest["tails"])
 
 
 def motion_rotations(bvh: BVH, target_fps: float = TARGET_FPS) -> np.ndarray:
     """The file's local rotations without the T-pose frame 0, resampled to ``target_fps``."""
     if bvh.num_frames < 2:
-        raise DataFormatError(f"{bvh.path}: {bvh.num_frames} frame(s); need the T-pose frame "
-                              f"and at least one motion frame")
-    return resample_rotations(bvh.local_rotations(slice(1, None)), snapped_fps(bvh.frame_time),
-                              target_fps)
+        raise DataFormatError(
+            f"{bvh.path}: {bvh.num_frames} frame(s); need the T-pose frame "
+            f"and at least one motion frame"
+        )
+    return resample_rotations(
+        bvh.local_rotations(slice(1, None)), snapped_fps(bvh.frame_time), target_fps
+    )
 
 
-def skin(model, pose_parameters: np.ndarray | torch.Tensor,
-         phenotype: dict[str, float] | None = None, *, batch_size: int = SKIN_BATCH,
-         return_bone_ends: bool = False) -> dict[str, np.ndarray]:
+def skin(
+    model,
+    pose_parameters: np.ndarray | torch.Tensor,
+    phenotype: dict[str, float] | None = None,
+    *,
+    batch_size: int = SKIN_BATCH,
+    return_bone_ends: bool = False,
+) -> dict[str, np.ndarray]:
     """Skinned vertices ``(F, V, 3)`` in millimetres (float32), batch by batch.
 
     With ``return_bone_ends``, also the posed bone ``heads`` and ``tails`` ``(F, 31, 3)`` (mm).
@@ -350,14 +412,20 @@ def skin(model, pose_parameters: np.ndarray | torch.Tensor,
     chunks: dict[str, list[np.ndarray]] = {"vertices": [], "heads": [], "tails": []}
     with torch.no_grad():
         for start in range(0, len(poses), batch_size):
-            out = model(pose_parameters=poses[start:start + batch_size], phenotype_kwargs=pheno,
-                        return_bone_ends=return_bone_ends)
+            out = model(
+                pose_parameters=poses[start : start + batch_size],
+                phenotype_kwargs=pheno,
+                return_bone_ends=return_bone_ends,
+            )
             chunks["vertices"].append((out["vertices"] * 1000.0).float().numpy())
             if return_bone_ends:
                 chunks["heads"].append((out["bone_heads"] * 1000.0).double().numpy())
                 chunks["tails"].append((out["bone_tails"] * 1000.0).double().numpy())
-    result = {"vertices": np.concatenate(chunks["vertices"]) if chunks["vertices"] else
-              np.zeros((0, model.template_vertices.shape[0], 3), np.float32)}
+    result = {
+        "vertices": np.concatenate(chunks["vertices"])
+        if chunks["vertices"]
+        else np.zeros((0, model.template_vertices.shape[0], 3), np.float32)
+    }
     if return_bone_ends:
         result["heads"] = np.concatenate(chunks["heads"])
         result["tails"] = np.concatenate(chunks["tails"])
@@ -376,8 +444,10 @@ def angle_degrees(u: np.ndarray, v: np.ndarray) -> np.ndarray:
 # Training trials (trial numbers not divisible by 5) whose frames fit the regressor: walking,
 # running, jumping, climbing and sitting, bending over, dance, dribbling.
 REGRESSOR_TRIALS = ("02_01", "02_03", "02_04", "01_08", "02_06", "05_03", "06_04", "09_01")
-REGRESSOR_SETTINGS = {"full": {"support": 100, "frames_per_trial": 20, "identities": 8},
-                      "low": {"support": 40, "frames_per_trial": 20, "identities": 8}}
+REGRESSOR_SETTINGS = {
+    "full": {"support": 100, "frames_per_trial": 20, "identities": 8},
+    "low": {"support": 40, "frames_per_trial": 20, "identities": 8},
+}
 
 
 @dataclass
@@ -398,9 +468,15 @@ def mi_phenotype(seed: int, key: str) -> dict[str, float]:
     return {k: float(rng.uniform(*MI_PHENOTYPE_RANGES[k])) for k in PHENOTYPE_LABELS}
 
 
-def fit_joint_regressor(model, bvh_files: Sequence[str | Path], *,
-                        support: int, frames_per_trial: int, identities: int,
-                        seed: int = 0) -> tuple[sp.csr_matrix, dict[str, float]]:
+def fit_joint_regressor(
+    model,
+    bvh_files: Sequence[str | Path],
+    *,
+    support: int,
+    frames_per_trial: int,
+    identities: int,
+    seed: int = 0,
+) -> tuple[sp.csr_matrix, dict[str, float]]:
     """Fit each bone head as a convex combination of its ``support`` nearest rest vertices.
 
     Fit data: ``frames_per_trial`` evenly spaced 25 Hz frames of each BVH file, skinned for the
@@ -413,8 +489,7 @@ def fit_joint_regressor(model, bvh_files: Sequence[str | Path], *,
     for path in bvh_files:
         bvh = read_bvh(path, CMU_BVH_JOINTS)
         rots = motion_rotations(bvh)
-        rots = rots[np.unique(np.linspace(0, len(rots) - 1, frames_per_trial).round()
-                              .astype(int))]
+        rots = rots[np.unique(np.linspace(0, len(rots) - 1, frames_per_trial).round().astype(int))]
         for pheno in phenotypes:
             target = retarget(model, bvh, pheno)
             out = skin(model, target.pose_parameters(rots), pheno, return_bone_ends=True)
@@ -432,8 +507,9 @@ def fit_joint_regressor(model, bvh_files: Sequence[str | Path], *,
         a = vertices[:, idx, :].astype(np.float64).transpose(0, 2, 1).reshape(-1, len(idx))
         y = heads[:, c, :].reshape(-1)
         lam = 1e3 * math.sqrt(len(y))
-        w, _ = nnls(np.vstack([a, np.full((1, len(idx)), lam)]), np.append(y, lam),
-                    maxiter=50 * len(idx))
+        w, _ = nnls(
+            np.vstack([a, np.full((1, len(idx)), lam)]), np.append(y, lam), maxiter=50 * len(idx)
+        )
         if w.sum() <= 0:
             raise RuntimeError(f"joint regressor fit failed for bone {CMU_BVH_JOINTS[row]}")
         w /= w.sum()
@@ -442,22 +518,28 @@ def fit_joint_regressor(model, bvh_files: Sequence[str | Path], *,
         cols += idx[keep].tolist()
         vals += (w[keep] / w[keep].sum()).tolist()
     matrix = sp.csr_matrix((vals, (rows, cols)), shape=(len(CMU_BVH_JOINTS), num_v))
-    err = np.linalg.norm(np.einsum("jv,fvc->fjc", matrix.toarray(), vertices.astype(np.float64))
-                         - heads[:, order], axis=-1)
-    stats = {"fit_mean_mm": round(float(err.mean()), 3),
-             "fit_p99_mm": round(float(np.percentile(err, 99)), 3),
-             "fit_frames": float(len(vertices))}
+    err = np.linalg.norm(
+        np.einsum("jv,fvc->fjc", matrix.toarray(), vertices.astype(np.float64)) - heads[:, order],
+        axis=-1,
+    )
+    stats = {
+        "fit_mean_mm": round(float(err.mean()), 3),
+        "fit_p99_mm": round(float(np.percentile(err, 99)), 3),
+        "fit_frames": float(len(vertices)),
+    }
     return matrix, stats
 
 
-def regressor_error(regressor: sp.spmatrix, vertices: np.ndarray, heads_bvh_order: np.ndarray
-                    ) -> np.ndarray:
+def regressor_error(
+    regressor: sp.spmatrix, vertices: np.ndarray, heads_bvh_order: np.ndarray
+) -> np.ndarray:
     """Per frame and joint distance (mm) between regressed joints and the rig's bone heads."""
     joints = np.einsum("jv,fvc->fjc", regressor.toarray(), vertices.astype(np.float64))
     return np.linalg.norm(joints - heads_bvh_order, axis=-1)
 
 
 # ---- trials, split and cache -----------------------------------------------------------------
+
 
 @dataclass(frozen=True)
 class Trial:
@@ -475,18 +557,27 @@ class Trial:
         return "test" if self.number % TEST_EVERY == 0 else "train"
 
 
-SPLIT_RULE = (f"by trial: trial numbers divisible by {TEST_EVERY} (NN_05, NN_10, ...) are test, "
-              f"all others train; subjects with fewer than {TEST_EVERY} trials are train only")
+SPLIT_RULE = (
+    f"by trial: trial numbers divisible by {TEST_EVERY} (NN_05, NN_10, ...) are test, "
+    f"all others train; subjects with fewer than {TEST_EVERY} trials are train only"
+)
 
 
 def _trial_from_path(path: Path, relpath: str, description: str, where: str) -> Trial:
     stem = path.stem
     parts = stem.split("_")
     if len(parts) != 2 or not all(p.isdigit() for p in parts):
-        raise DataFormatError(f"{where}: BVH file name {path.name!r} is not SUBJECT_TRIAL.bvh "
-                              f"(e.g. 02_01.bvh)")
-    return Trial(key=stem, path=path, relpath=relpath, subject=parts[0], number=int(parts[1]),
-                 description=description or f"subject {parts[0]}")
+        raise DataFormatError(
+            f"{where}: BVH file name {path.name!r} is not SUBJECT_TRIAL.bvh (e.g. 02_01.bvh)"
+        )
+    return Trial(
+        key=stem,
+        path=path,
+        relpath=relpath,
+        subject=parts[0],
+        number=int(parts[1]),
+        description=description or f"subject {parts[0]}",
+    )
 
 
 def list_trials(bvh_root: str | Path) -> list[Trial]:
@@ -494,8 +585,10 @@ def list_trials(bvh_root: str | Path) -> list[Trial]:
     there is none, every ``data/*/*.bvh``; descriptions fall back to the subject."""
     root = Path(bvh_root)
     if not root.is_dir():
-        raise FileNotFoundError(f"{root}: CMU BVH folder not found (expected shared/data/cmu_bvh "
-                                f"with MANIFEST.tsv and data/NNN/NN_TT.bvh)")
+        raise FileNotFoundError(
+            f"{root}: CMU BVH folder not found (expected shared/data/cmu_bvh "
+            f"with MANIFEST.tsv and data/NNN/NN_TT.bvh)"
+        )
     manifest = root / "MANIFEST.tsv"
     trials: list[Trial] = []
     if manifest.is_file():
@@ -505,22 +598,25 @@ def list_trials(bvh_root: str | Path) -> list[Trial]:
         header = lines[0].split("\t")
         for column in ("path", "description"):
             if column not in header:
-                raise DataFormatError(f"{manifest}, line 1: no {column!r} column in the header "
-                                      f"{header}")
+                raise DataFormatError(
+                    f"{manifest}, line 1: no {column!r} column in the header {header}"
+                )
         ipath, idesc = header.index("path"), header.index("description")
         for lineno, line in enumerate(lines[1:], start=2):
             if not line.strip():
                 continue
             fields = line.split("\t")
             if len(fields) != len(header):
-                raise DataFormatError(f"{manifest}, line {lineno}: {len(fields)} fields, the "
-                                      f"header has {len(header)}")
+                raise DataFormatError(
+                    f"{manifest}, line {lineno}: {len(fields)} fields, the header has {len(header)}"
+                )
             rel = fields[ipath]
             path = root / rel
             if not path.is_file():
                 raise DataFormatError(f"{manifest}, line {lineno}: listed file {rel} is missing")
-            trials.append(_trial_from_path(path, rel, fields[idesc].strip(),
-                                           f"{manifest}, line {lineno}"))
+            trials.append(
+                _trial_from_path(path, rel, fields[idesc].strip(), f"{manifest}, line {lineno}")
+            )
     else:
         for path in sorted(root.glob("data/*/*.bvh")):
             trials.append(_trial_from_path(path, str(path.relative_to(root)), "", str(path)))
@@ -533,8 +629,9 @@ def list_trials(bvh_root: str | Path) -> list[Trial]:
     return sorted(trials, key=lambda t: (t.subject, t.number))
 
 
-def select_trials(bvh_root: str | Path, split: str, trials: Iterable[str] | None = None
-                  ) -> list[Trial]:
+def select_trials(
+    bvh_root: str | Path, split: str, trials: Iterable[str] | None = None
+) -> list[Trial]:
     """The trials of ``split``; ``trials`` (keys like ``"02_01"``) restricts them further."""
     if split not in SPLITS:
         raise ValueError(f"split must be one of {SPLITS}, got {split!r}")
@@ -546,12 +643,16 @@ def select_trials(bvh_root: str | Path, split: str, trials: Iterable[str] | None
     for key in trials:
         key = Path(str(key)).stem
         if key not in by_key:
-            raise ValueError(f"trials: {key!r} is not a trial under {bvh_root} (available: "
-                             f"{', '.join(sorted(by_key))})")
+            raise ValueError(
+                f"trials: {key!r} is not a trial under {bvh_root} (available: "
+                f"{', '.join(sorted(by_key))})"
+            )
         trial = by_key[key]
         if trial.split != split:
-            raise ValueError(f"trials: {key!r} belongs to the {trial.split} split, not {split} "
-                             f"(split rule: {SPLIT_RULE})")
+            raise ValueError(
+                f"trials: {key!r} belongs to the {trial.split} split, not {split} "
+                f"(split rule: {SPLIT_RULE})"
+            )
         if trial not in chosen:
             chosen.append(trial)
     if not chosen:
@@ -586,46 +687,70 @@ def _model(topology: str):
     return _MODELS[topology]
 
 
-def joint_regressor(bvh_root: str | Path, topology: str, *, cache_dir: str | Path | None = None,
-                    model=None) -> JointRegressor:
+def joint_regressor(
+    bvh_root: str | Path, topology: str, *, cache_dir: str | Path | None = None, model=None
+) -> JointRegressor:
     """The topology's joint regressor, fitted once (``fit_joint_regressor`` on
     ``REGRESSOR_TRIALS``) and cached in ``<cache>/anny/``."""
     by_key = {t.key: t for t in list_trials(bvh_root)}
     missing = [k for k in REGRESSOR_TRIALS if k not in by_key]
     if missing:
-        raise ValueError(f"{bvh_root}: the joint regressor is fitted on trials "
-                         f"{list(REGRESSOR_TRIALS)}; missing {missing}")
+        raise ValueError(
+            f"{bvh_root}: the joint regressor is fitted on trials "
+            f"{list(REGRESSOR_TRIALS)}; missing {missing}"
+        )
     files = [by_key[k] for k in REGRESSOR_TRIALS]
-    recipe = {"method": "nnls-posed-v1", "threads": 1, "anny_version": anny_version(),
-              "rig": "cmu_mb",
-              "topology": TOPOLOGIES[topology], "seed": 0, **REGRESSOR_SETTINGS[topology],
-              "trials": [{"trial": t.key, "sha256": sha256_file(t.path)} for t in files]}
+    recipe = {
+        "method": "nnls-posed-v1",
+        "threads": 1,
+        "anny_version": anny_version(),
+        "rig": "cmu_mb",
+        "topology": TOPOLOGIES[topology],
+        "seed": 0,
+        **REGRESSOR_SETTINGS[topology],
+        "trials": [{"trial": t.key, "sha256": sha256_file(t.path)} for t in files],
+    }
     path = cache_root(cache_dir) / "anny" / f"joint_regressor-{topology}-{_recipe_hash(recipe)}.npz"
     if path.is_file():
         with np.load(path) as z:
-            matrix = sp.csr_matrix((z["data"], z["indices"], z["indptr"]),
-                                   shape=tuple(z["shape"]))
+            matrix = sp.csr_matrix((z["data"], z["indices"], z["indptr"]), shape=tuple(z["shape"]))
             stats = {k: float(z[k]) for k in ("fit_mean_mm", "fit_p99_mm", "fit_frames")}
     else:
         model = _model(topology) if model is None else model
         with one_thread():
-            matrix, stats = fit_joint_regressor(model, [t.path for t in files],
-                                                seed=0, **REGRESSOR_SETTINGS[topology])
+            matrix, stats = fit_joint_regressor(
+                model, [t.path for t in files], seed=0, **REGRESSOR_SETTINGS[topology]
+            )
         with atomic_path(path) as tmp:
             with open(tmp, "wb") as f:
-                np.savez(f, data=matrix.data, indices=matrix.indices, indptr=matrix.indptr,
-                         shape=np.asarray(matrix.shape), **stats)
-    return JointRegressor(matrix=matrix, joint_names=list(CMU_BVH_JOINTS),
-                          recipe={**recipe, **stats})
+                np.savez(
+                    f,
+                    data=matrix.data,
+                    indices=matrix.indices,
+                    indptr=matrix.indptr,
+                    shape=np.asarray(matrix.shape),
+                    **stats,
+                )
+    return JointRegressor(
+        matrix=matrix, joint_names=list(CMU_BVH_JOINTS), recipe={**recipe, **stats}
+    )
 
 
 # ---- the dataset builder ---------------------------------------------------------------------
 
-def build_cmu_anny(bvh_root: str | Path, *, identities: Literal["one", "many"],
-                   topology: Literal["full", "low"], split: Literal["train", "test"],
-                   seed: int = 0, cache_dir: str | Path | None = None,
-                   trials: Iterable[str] | None = None, progress: bool = True,
-                   root: Literal["identity", "no_heading"] = "identity") -> MeshDataset:
+
+def build_cmu_anny(
+    bvh_root: str | Path,
+    *,
+    identities: Literal["one", "many"],
+    topology: Literal["full", "low"],
+    split: Literal["train", "test"],
+    seed: int = 0,
+    cache_dir: str | Path | None = None,
+    trials: Iterable[str] | None = None,
+    progress: bool = True,
+    root: Literal["identity", "no_heading"] = "identity",
+) -> MeshDataset:
     """CMU BVH trials on the Anny body as a ``MeshDataset`` (vertices in mm, 25 Hz).
 
     - ``identities``: ``"one"`` (OI: Anny's default phenotype, every parameter 0.5) or
@@ -654,19 +779,31 @@ def build_cmu_anny(bvh_root: str | Path, *, identities: Literal["one", "many"],
     chosen = select_trials(bvh_root, split, trials)
     regressor = joint_regressor(bvh_root, topology, cache_dir=cache_dir)
     recipe = {
-        "builder": "zoo.data.anny_motion.build_cmu_anny", "format": DATASET_FORMAT,
-        "source": "cmu_bvh", "identities": identities, "topology": topology,
-        "anny_topology": TOPOLOGIES[topology], "rig": "cmu_mb", "split": split,
-        "split_rule": SPLIT_RULE, "root": root,
+        "builder": "zoo.data.anny_motion.build_cmu_anny",
+        "format": DATASET_FORMAT,
+        "source": "cmu_bvh",
+        "identities": identities,
+        "topology": topology,
+        "anny_topology": TOPOLOGIES[topology],
+        "rig": "cmu_mb",
+        "split": split,
+        "split_rule": SPLIT_RULE,
+        "root": root,
         # The seed only draws MI bodies: OI datasets of any seed are one dataset.
         "seed": int(seed) if identities == "many" else None,
-        "anny_version": anny_version(), "fps": TARGET_FPS,
+        "anny_version": anny_version(),
+        "fps": TARGET_FPS,
         "resampling": "drop frame 0 (T-pose); slerp of local rotations to 25 Hz",
         "mapping": "SPEC section 7: Z-Y-X local rotations, M (x,y,z)->(x,-z,y), rest "
-                   "correction C per bone, pose [[C_parent^T R' C, 0], [0, 1]]",
-        "units": "mm", "dtype": "float32", "threads": 1,
-        "phenotypes": (DEFAULT_PHENOTYPE if identities == "one" else
-                       {"ranges": MI_PHENOTYPE_RANGES, "draw": "mi_phenotype(seed, trial)"}),
+        "correction C per bone, pose [[C_parent^T R' C, 0], [0, 1]]",
+        "units": "mm",
+        "dtype": "float32",
+        "threads": 1,
+        "phenotypes": (
+            DEFAULT_PHENOTYPE
+            if identities == "one"
+            else {"ranges": MI_PHENOTYPE_RANGES, "draw": "mi_phenotype(seed, trial)"}
+        ),
         "trials": [{"trial": t.key, "sha256": sha256_file(t.path)} for t in chosen],
         "joint_regressor": regressor.recipe,
     }
@@ -677,8 +814,9 @@ def build_cmu_anny(bvh_root: str | Path, *, identities: Literal["one", "many"],
         if cached.recipe_hash == _recipe_hash(recipe):
             return cached
     model = _model(topology)
-    topo = MeshTopology(model_faces(model), model.template_vertices.shape[0],
-                        name=f"anny-{TOPOLOGIES[topology]}")
+    topo = MeshTopology(
+        model_faces(model), model.template_vertices.shape[0], name=f"anny-{TOPOLOGIES[topology]}"
+    )
     to_bvh = [model.bone_labels.index(BVH_TO_ANNY.get(n, n)) for n in CMU_BVH_JOINTS]
     sequences, rig_joints = [], []
     from tqdm.auto import tqdm
@@ -694,17 +832,35 @@ def build_cmu_anny(bvh_root: str | Path, *, identities: Literal["one", "many"],
             out = skin(model, target.pose_parameters(rots, root), pheno, return_bone_ends=True)
         frames_done += len(rots)
         bar.set_postfix(frames=frames_done)
-        sequences.append(MeshSequence(
-            name=trial.key, action=trial.description, vertices=out["vertices"], fps=TARGET_FPS,
-            identity="default" if identities == "one" else f"mi{seed}-{trial.key}",
-            meta={"trial": trial.key, "bvh": trial.relpath, "sha256": entry["sha256"],
-                  "subject": trial.subject, "source_frames": bvh.num_frames - 1,
-                  "source_fps": snapped_fps(bvh.frame_time), "phenotype": dict(pheno),
-                  "root": root}))
+        sequences.append(
+            MeshSequence(
+                name=trial.key,
+                action=trial.description,
+                vertices=out["vertices"],
+                fps=TARGET_FPS,
+                identity="default" if identities == "one" else f"mi{seed}-{trial.key}",
+                meta={
+                    "trial": trial.key,
+                    "bvh": trial.relpath,
+                    "sha256": entry["sha256"],
+                    "subject": trial.subject,
+                    "source_frames": bvh.num_frames - 1,
+                    "source_fps": snapped_fps(bvh.frame_time),
+                    "phenotype": dict(pheno),
+                    "root": root,
+                },
+            )
+        )
         rig_joints.append(out["heads"][:, to_bvh].astype(np.float32))
-    dataset = MeshDataset(name=name, split=split, topology=topo, sequences=sequences,
-                          recipe=recipe, joint_regressor=regressor.matrix,
-                          joint_names=list(CMU_BVH_JOINTS))
+    dataset = MeshDataset(
+        name=name,
+        split=split,
+        topology=topo,
+        sequences=sequences,
+        recipe=recipe,
+        joint_regressor=regressor.matrix,
+        joint_names=list(CMU_BVH_JOINTS),
+    )
     with atomic_path(folder / "rig_joints.npz") as tmp:
         with open(tmp, "wb") as f:
             np.savez(f, **{f"seq{i}": j for i, j in enumerate(rig_joints)})
@@ -722,11 +878,14 @@ def load_rig_joints(folder: str | Path) -> list[np.ndarray]:
         return [z[f"seq{i}"] for i in range(len(z.files))]
 
 
-def cmu_anny_dataset(root: str | Path | None, split: str, *, identities: str,
-                     topology: str) -> MeshDataset:
+def cmu_anny_dataset(
+    root: str | Path | None, split: str, *, identities: str, topology: str
+) -> MeshDataset:
     """The benchmark loader (``zoo.benchmark.MESH_DATASETS``): ``root`` is the CMU BVH folder
     (the benchmark's ``data_root``); built on first use, then loaded from the cache."""
     if root is None:
-        raise DataNotFoundError("no CMU BVH folder given: pass --data-root pointing at the folder "
-                                "holding MANIFEST.tsv and data/ (../shared/data/cmu_bvh here)")
+        raise DataNotFoundError(
+            "no CMU BVH folder given: pass --data-root pointing at the folder "
+            "holding MANIFEST.tsv and data/ (../shared/data/cmu_bvh here)"
+        )
     return build_cmu_anny(root, identities=identities, topology=topology, split=split)

@@ -15,12 +15,13 @@ Conventions (those of the format, used by the CMU BVH conversion in ``shared/dat
   its children's offsets. Joints whose tail offset is zero (the CMU Hips, Spine1, hands: all their
   children sit at the joint itself) have no direction; ``bone_directions`` gives NaN for them.
 """
+
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
-from typing import Iterable
 
 import numpy as np
 import torch
@@ -33,15 +34,41 @@ POSITION_CHANNELS = ("Xposition", "Yposition", "Zposition")
 _AXIS = {"X": 0, "Y": 1, "Z": 2}
 # The 31 joints of the CMU BVH conversion (MotionBuilder-friendly "mb2"), in file order.
 CMU_BVH_JOINTS = (
-    "Hips", "LHipJoint", "LeftUpLeg", "LeftLeg", "LeftFoot", "LeftToeBase", "RHipJoint",
-    "RightUpLeg", "RightLeg", "RightFoot", "RightToeBase", "LowerBack", "Spine", "Spine1", "Neck",
-    "Neck1", "Head", "LeftShoulder", "LeftArm", "LeftForeArm", "LeftHand", "LeftFingerBase",
-    "LeftHandIndex1", "LThumb", "RightShoulder", "RightArm", "RightForeArm", "RightHand",
-    "RightFingerBase", "RightHandIndex1", "RThumb",
+    "Hips",
+    "LHipJoint",
+    "LeftUpLeg",
+    "LeftLeg",
+    "LeftFoot",
+    "LeftToeBase",
+    "RHipJoint",
+    "RightUpLeg",
+    "RightLeg",
+    "RightFoot",
+    "RightToeBase",
+    "LowerBack",
+    "Spine",
+    "Spine1",
+    "Neck",
+    "Neck1",
+    "Head",
+    "LeftShoulder",
+    "LeftArm",
+    "LeftForeArm",
+    "LeftHand",
+    "LeftFingerBase",
+    "LeftHandIndex1",
+    "LThumb",
+    "RightShoulder",
+    "RightArm",
+    "RightForeArm",
+    "RightHand",
+    "RightFingerBase",
+    "RightHandIndex1",
+    "RThumb",
 )
 # The lower body (hips and both legs): the first 11 joints in file order; the rest is upper body
 # (SPGSN's two parts on this skeleton).
-CMU_BVH_LOWER_BODY = CMU_BVH_JOINTS[:CMU_BVH_JOINTS.index("LowerBack")]
+CMU_BVH_LOWER_BODY = CMU_BVH_JOINTS[: CMU_BVH_JOINTS.index("LowerBack")]
 # Tail offsets shorter than this (in the file's units) give a bone no direction.
 MIN_BONE_LENGTH = 1e-9
 
@@ -75,8 +102,9 @@ class BVH:
         try:
             return self.names.index(name)
         except ValueError:
-            raise KeyError(f"{self.path}: no joint {name!r} (joints: {', '.join(self.names)})") \
-                from None
+            raise KeyError(
+                f"{self.path}: no joint {name!r} (joints: {', '.join(self.names)})"
+            ) from None
 
     @cached_property
     def channel_offsets(self) -> tuple[int, ...]:
@@ -159,9 +187,9 @@ def axis_rotation(angle_rad: np.ndarray, axis: str) -> np.ndarray:
     return r
 
 
-def forward_kinematics(bvh: BVH, local_rotations: np.ndarray,
-                       root_positions: np.ndarray | None = None
-                       ) -> tuple[np.ndarray, np.ndarray]:
+def forward_kinematics(
+    bvh: BVH, local_rotations: np.ndarray, root_positions: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """World rotations ``(F, J, 3, 3)`` and joint positions ``(F, J, 3)`` (file units).
 
     ``local_rotations (F, J, 3, 3)`` (e.g. ``bvh.local_rotations()``, possibly edited, such as
@@ -169,13 +197,17 @@ def forward_kinematics(bvh: BVH, local_rotations: np.ndarray,
     """
     local_rotations = np.asarray(local_rotations, dtype=np.float64)
     if local_rotations.ndim != 4 or local_rotations.shape[1:] != (bvh.num_joints, 3, 3):
-        raise ValueError(f"{bvh.path}: local rotations must be (F, {bvh.num_joints}, 3, 3), got "
-                         f"{local_rotations.shape}")
+        raise ValueError(
+            f"{bvh.path}: local rotations must be (F, {bvh.num_joints}, 3, 3), got "
+            f"{local_rotations.shape}"
+        )
     # File order is depth-first: parents come first, as kinematic_chain needs.
     world, positions = kinematic_chain(
-        list(bvh.parents), torch.from_numpy(local_rotations), torch.from_numpy(
-            np.asarray(bvh.offsets, dtype=np.float64)),
-        None if root_positions is None else torch.as_tensor(root_positions, dtype=torch.float64))
+        list(bvh.parents),
+        torch.from_numpy(local_rotations),
+        torch.from_numpy(np.asarray(bvh.offsets, dtype=np.float64)),
+        None if root_positions is None else torch.as_tensor(root_positions, dtype=torch.float64),
+    )
     return world.numpy(), positions.numpy()
 
 
@@ -190,6 +222,7 @@ def bone_directions(bvh: BVH, world_rotations: np.ndarray) -> np.ndarray:
 
 
 # ---- reading -------------------------------------------------------------------------------------
+
 
 def read_bvh(path: str | Path, expected_joints: Iterable[str] | None = None) -> BVH:
     """Parse a BVH file; malformed input raises ``DataFormatError`` naming file and line.
@@ -206,8 +239,9 @@ def read_bvh(path: str | Path, expected_joints: Iterable[str] | None = None) -> 
     return parse_bvh(text, path, expected_joints)
 
 
-def parse_bvh(text: str, path: str | Path = "<bvh>",
-              expected_joints: Iterable[str] | None = None) -> BVH:
+def parse_bvh(
+    text: str, path: str | Path = "<bvh>", expected_joints: Iterable[str] | None = None
+) -> BVH:
     """Parse BVH ``text``; ``path`` names the source in error messages."""
     path = Path(path)
     lines = text.splitlines()
@@ -216,10 +250,16 @@ def parse_bvh(text: str, path: str | Path = "<bvh>",
     if expected_joints is not None:
         _check_joint_set(path, names, expected_joints)
     frame_time, motion = _parse_motion(path, lines, motion_line, sum(len(c) for c in channels))
-    return BVH(path=path, names=tuple(names), parents=tuple(parents),
-               offsets=np.asarray(offsets, dtype=np.float64).reshape(-1, 3),
-               channels=tuple(tuple(c) for c in channels), end_sites=end_sites,
-               frame_time=frame_time, motion=motion)
+    return BVH(
+        path=path,
+        names=tuple(names),
+        parents=tuple(parents),
+        offsets=np.asarray(offsets, dtype=np.float64).reshape(-1, 3),
+        channels=tuple(tuple(c) for c in channels),
+        end_sites=end_sites,
+        frame_time=frame_time,
+        motion=motion,
+    )
 
 
 def _check_joint_set(path: Path, names: list[str], expected: Iterable[str]) -> None:
@@ -228,12 +268,15 @@ def _check_joint_set(path: Path, names: list[str], expected: Iterable[str]) -> N
     listing = ", ".join(expected)
     for name in names:
         if name not in expected_set:
-            raise DataFormatError(f"{path}: unexpected joint {name!r}; expected the joint set "
-                                  f"{{{listing}}}")
+            raise DataFormatError(
+                f"{path}: unexpected joint {name!r}; expected the joint set {{{listing}}}"
+            )
     missing = [n for n in expected if n not in set(names)]
     if missing:
-        raise DataFormatError(f"{path}: joint(s) {', '.join(map(repr, missing))} missing; "
-                              f"expected the joint set {{{listing}}}")
+        raise DataFormatError(
+            f"{path}: joint(s) {', '.join(map(repr, missing))} missing; "
+            f"expected the joint set {{{listing}}}"
+        )
 
 
 class _HierarchyParser:
@@ -260,8 +303,9 @@ class _HierarchyParser:
             tokens = self.lines[self.i - 1].split()
             if tokens:
                 return self.i, tokens
-        raise DataFormatError(f"{self.path}: file ends where {what} was expected "
-                              f"(after line {len(self.lines)})")
+        raise DataFormatError(
+            f"{self.path}: file ends where {what} was expected (after line {len(self.lines)})"
+        )
 
     def parse(self):
         lineno, tokens = self.next_tokens("HIERARCHY")
@@ -273,8 +317,11 @@ class _HierarchyParser:
         self.joint(tokens[1], -1, lineno)
         lineno, tokens = self.next_tokens("MOTION")
         if tokens != ["MOTION"]:
-            raise self.error(f"expected 'MOTION' after the hierarchy (one ROOT only), found "
-                             f"{' '.join(tokens)!r}", lineno)
+            raise self.error(
+                f"expected 'MOTION' after the hierarchy (one ROOT only), found "
+                f"{' '.join(tokens)!r}",
+                lineno,
+            )
         return self.names, self.parents, self.offsets, self.channels, self.end_sites, lineno
 
     def joint(self, name: str, parent: int, lineno: int) -> None:
@@ -315,8 +362,10 @@ class _HierarchyParser:
                     raise self.error(f"joint {name!r} has a second End Site")
                 self.end_sites[index] = self.end_site(name)
             else:
-                raise self.error(f"unexpected {' '.join(tokens)!r} in joint {name!r} (expected "
-                                 f"OFFSET, CHANNELS, JOINT, End Site or '}}')")
+                raise self.error(
+                    f"unexpected {' '.join(tokens)!r} in joint {name!r} (expected "
+                    f"OFFSET, CHANNELS, JOINT, End Site or '}}')"
+                )
         if not offset_seen:
             raise self.error(f"joint {name!r} has no OFFSET", lineno)
         if not channels_seen:
@@ -326,8 +375,9 @@ class _HierarchyParser:
         self.expect_brace("{", f"End Site of {name!r}")
         lineno, tokens = self.next_tokens(f"the OFFSET of the End Site of {name!r}")
         if tokens[0] != "OFFSET":
-            raise self.error(f"expected the OFFSET of the End Site of {name!r}, found "
-                             f"{' '.join(tokens)!r}")
+            raise self.error(
+                f"expected the OFFSET of the End Site of {name!r}, found {' '.join(tokens)!r}"
+            )
         offset = self.numbers(tokens, f"OFFSET of the End Site of {name!r}")
         self.expect_brace("}", f"End Site of {name!r}")
         return np.asarray(offset, dtype=np.float64)
@@ -352,24 +402,31 @@ class _HierarchyParser:
         try:
             count = int(tokens[1])
         except (IndexError, ValueError):
-            raise self.error(f"CHANNELS of joint {name!r}: expected a channel count, found "
-                             f"{' '.join(tokens[1:])!r}") from None
+            raise self.error(
+                f"CHANNELS of joint {name!r}: expected a channel count, found "
+                f"{' '.join(tokens[1:])!r}"
+            ) from None
         chans = tokens[2:]
         if len(chans) != count:
-            raise self.error(f"CHANNELS of joint {name!r}: the count says {count}, "
-                             f"{len(chans)} channel names follow")
+            raise self.error(
+                f"CHANNELS of joint {name!r}: the count says {count}, "
+                f"{len(chans)} channel names follow"
+            )
         allowed = ROTATION_CHANNELS + POSITION_CHANNELS
         for c in chans:
             if c not in allowed:
-                raise self.error(f"CHANNELS of joint {name!r}: unknown channel {c!r} "
-                                 f"(allowed: {', '.join(allowed)})")
+                raise self.error(
+                    f"CHANNELS of joint {name!r}: unknown channel {c!r} "
+                    f"(allowed: {', '.join(allowed)})"
+                )
         if len(set(chans)) != len(chans):
             raise self.error(f"CHANNELS of joint {name!r}: a channel is repeated in {chans}")
         return chans
 
 
-def _parse_motion(path: Path, lines: list[str], motion_line: int, num_channels: int
-                  ) -> tuple[float, np.ndarray]:
+def _parse_motion(
+    path: Path, lines: list[str], motion_line: int, num_channels: int
+) -> tuple[float, np.ndarray]:
     i = motion_line  # 0-based index of the line after MOTION
 
     def header(key: str) -> tuple[int, str]:
@@ -382,30 +439,35 @@ def _parse_motion(path: Path, lines: list[str], motion_line: int, num_channels: 
         i += 1
         if not line.startswith(key):
             raise DataFormatError(f"{path}, line {i}: expected '{key} <value>', found {line!r}")
-        return i, line[len(key):].strip()
+        return i, line[len(key) :].strip()
 
     lineno, value = header("Frames:")
     try:
         num_frames = int(value)
     except ValueError:
-        raise DataFormatError(f"{path}, line {lineno}: frame count {value!r} is not an "
-                              f"integer") from None
+        raise DataFormatError(
+            f"{path}, line {lineno}: frame count {value!r} is not an integer"
+        ) from None
     if num_frames < 0:
         raise DataFormatError(f"{path}, line {lineno}: negative frame count {num_frames}")
     lineno, value = header("Frame Time:")
     try:
         frame_time = float(value)
     except ValueError:
-        raise DataFormatError(f"{path}, line {lineno}: frame time {value!r} is not a "
-                              f"number") from None
+        raise DataFormatError(
+            f"{path}, line {lineno}: frame time {value!r} is not a number"
+        ) from None
     if not np.isfinite(frame_time) or frame_time <= 0:
-        raise DataFormatError(f"{path}, line {lineno}: frame time must be positive, got "
-                              f"{frame_time}")
+        raise DataFormatError(
+            f"{path}, line {lineno}: frame time must be positive, got {frame_time}"
+        )
     rows = [(n, line) for n, line in enumerate(lines[i:], start=i + 1) if line.strip()]
     if len(rows) != num_frames:
         where = f"line {rows[num_frames][0]}" if len(rows) > num_frames else "the end"
-        raise DataFormatError(f"{path}: header says {num_frames} frames, found {len(rows)} frame "
-                              f"lines (mismatch at {where})")
+        raise DataFormatError(
+            f"{path}: header says {num_frames} frames, found {len(rows)} frame "
+            f"lines (mismatch at {where})"
+        )
     if num_frames == 0:
         return frame_time, np.zeros((0, num_channels))
     try:  # fast path: one parse of all values
@@ -420,17 +482,22 @@ def _parse_motion(path: Path, lines: list[str], motion_line: int, num_channels: 
         for lineno, line in rows:
             fields = line.split()
             if len(fields) != num_channels:
-                raise DataFormatError(f"{path}, line {lineno}: expected {num_channels} channel "
-                                      f"values (the hierarchy's channels), found {len(fields)}")
+                raise DataFormatError(
+                    f"{path}, line {lineno}: expected {num_channels} channel "
+                    f"values (the hierarchy's channels), found {len(fields)}"
+                )
             for column, field_ in enumerate(fields, start=1):
                 try:
                     float(field_)
                 except ValueError:
-                    raise DataFormatError(f"{path}, line {lineno}, value {column}: {field_!r} "
-                                          f"is not a number") from None
+                    raise DataFormatError(
+                        f"{path}, line {lineno}, value {column}: {field_!r} is not a number"
+                    ) from None
         raise DataFormatError(f"{path}: could not parse the motion")  # not reached
     bad_rows, bad_cols = np.nonzero(~np.isfinite(motion))
     if bad_rows.size:
-        raise DataFormatError(f"{path}, line {rows[bad_rows[0]][0]}, value {bad_cols[0] + 1}: "
-                              f"{motion[bad_rows[0], bad_cols[0]]} is not finite")
+        raise DataFormatError(
+            f"{path}, line {rows[bad_rows[0]][0]}, value {bad_cols[0] + 1}: "
+            f"{motion[bad_rows[0], bad_cols[0]]} is not finite"
+        )
     return frame_time, motion

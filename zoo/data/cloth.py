@@ -32,24 +32,32 @@ Vertices are stored in millimetres, like every mesh dataset of the zoo. ``load_c
 split under ``<cache root>/datasets/cloth-<recipe hash>`` (cache root: ``$ZOO_CACHE_DIR`` or
 ``<repo>/cache``): a different recipe lands in a different folder.
 """
+
 from __future__ import annotations
 
 import dataclasses
 import os
 import sys
 import time
+from collections.abc import Sequence
 from concurrent.futures import ProcessPoolExecutor
 from contextlib import nullcontext
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
-from zoo.data.mesh import MeshDataset, MeshError, MeshSequence, MeshTopology, cache_root, \
-    quantise_vertices
+from zoo.data.mesh import (
+    MeshDataset,
+    MeshError,
+    MeshSequence,
+    MeshTopology,
+    cache_root,
+    quantise_vertices,
+)
 
 SPLITS = {"train": 0, "test": 1, "val": 2}
 ACTION = "fall"
@@ -63,24 +71,24 @@ GENERATOR_VERSION = 2  # 2: heading and tilt optional, off by default
 class ClothConfig:
     """Everything that determines the generated data (it is the dataset's recipe)."""
 
-    grid: tuple[int, int] = (22, 22)        # vertices along x and y
-    size_m: float = 1.0                     # side length of the cloth
-    jitter: float = 0.3                     # interior rest positions: +-jitter/2 of the spacing
-    topology_seed: int = 7                  # diagonals and jitter: one topology per dataset
-    seed: int = 0                           # per-sequence draws (pins, tilt, heading)
+    grid: tuple[int, int] = (22, 22)  # vertices along x and y
+    size_m: float = 1.0  # side length of the cloth
+    jitter: float = 0.3  # interior rest positions: +-jitter/2 of the spacing
+    topology_seed: int = 7  # diagonals and jitter: one topology per dataset
+    seed: int = 0  # per-sequence draws (pins, tilt, heading)
     fps: float = 25.0
-    frames: int = 50                        # 2 s at 25 Hz, frame 0 included
-    substeps: int = 20                      # XPBD steps per frame (2 ms at 25 Hz)
-    gravity: float = 9.81                   # m/s^2 along -z
-    stretch_compliance: float = 0.0         # XPBD compliance of edges (0: inextensible)
-    bend_compliance: float = 1e-4           # XPBD compliance of bending pairs
-    damping: float = 1.0                    # velocity damping per second
+    frames: int = 50  # 2 s at 25 Hz, frame 0 included
+    substeps: int = 20  # XPBD steps per frame (2 ms at 25 Hz)
+    gravity: float = 9.81  # m/s^2 along -z
+    stretch_compliance: float = 0.0  # XPBD compliance of edges (0: inextensible)
+    bend_compliance: float = 1e-4  # XPBD compliance of bending pairs
+    damping: float = 1.0  # velocity damping per second
     # The paper's cloth varies only its two pinned vertices; a random start pose (tilt up to
     # max_tilt_deg about a random horizontal axis, a random heading) is an option.
     max_tilt_deg: float = 0.0
     random_heading: bool = False
-    thickness: float = 0.5                  # self-collision distance, in grid spacings (0: off)
-    tethers: bool = True                    # long-range attachments to the pinned vertices
+    thickness: float = 0.5  # self-collision distance, in grid spacings (0: off)
+    tethers: bool = True  # long-range attachments to the pinned vertices
     train_sequences: int = 400
     test_sequences: int = 100
     val_sequences: int = 0
@@ -97,8 +105,13 @@ class ClothConfig:
         for s in SPLITS:
             fields.pop(f"{s}_sequences")
         fields["grid"] = list(self.grid)
-        return {"generator": "zoo.data.cloth", "version": GENERATOR_VERSION, **fields,
-                "split": split, "sequences": self.sequences(split)}
+        return {
+            "generator": "zoo.data.cloth",
+            "version": GENERATOR_VERSION,
+            **fields,
+            "split": split,
+            "sequences": self.sequences(split),
+        }
 
 
 def _check_split(split: str) -> None:
@@ -107,6 +120,7 @@ def _check_split(split: str) -> None:
 
 
 # ---- the cloth --------------------------------------------------------------------------------
+
 
 def cloth_mesh(config: ClothConfig = ClothConfig()) -> tuple[MeshTopology, np.ndarray]:
     """The triangulation and the flat rest positions ``(V, 3)`` in metres (z = 0, centred)."""
@@ -146,8 +160,9 @@ def _constraints(topology: MeshTopology, rest: np.ndarray, config: ClothConfig) 
     edges = topology.edges
     # Bending pairs: the two vertices opposite each interior edge.
     faces = topology.faces
-    face_edges = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]),
-                         axis=1)
+    face_edges = np.sort(
+        np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1
+    )
     opposite = np.concatenate([faces[:, 2], faces[:, 0], faces[:, 1]])
     order = np.lexsort((face_edges[:, 1], face_edges[:, 0]))
     fe, op = face_edges[order], opposite[order]
@@ -155,8 +170,9 @@ def _constraints(topology: MeshTopology, rest: np.ndarray, config: ClothConfig) 
     bend = np.sort(np.stack([op[shared], op[shared + 1]], axis=1), axis=1)
     bend = np.unique(bend, axis=0)
     pairs = np.concatenate([edges, bend])
-    compliance = np.concatenate([np.full(len(edges), config.stretch_compliance),
-                                 np.full(len(bend), config.bend_compliance)])
+    compliance = np.concatenate(
+        [np.full(len(edges), config.stretch_compliance), np.full(len(bend), config.bend_compliance)]
+    )
     lengths = np.linalg.norm(rest[pairs[:, 1]] - rest[pairs[:, 0]], axis=1)
     # Greedy colouring: a constraint takes the lowest colour that neither of its vertices has.
     colours_of: list[set[int]] = [set() for _ in range(topology.num_vertices)]
@@ -193,9 +209,12 @@ def _draw_initial(rest: np.ndarray, config: ClothConfig, split: str, index: int)
     tilt = np.deg2rad(rng.uniform(0, config.max_tilt_deg))
     axis = np.array([np.cos(tilt_axis), np.sin(tilt_axis), 0.0])
     rotation = _axis_angle(axis, tilt) @ _axis_angle(np.array([0, 0, 1.0]), heading)
-    meta = {"pinned": pins.tolist(), "heading_deg": round(float(np.rad2deg(heading)), 6),
-            "tilt_deg": round(float(np.rad2deg(tilt)), 6),
-            "tilt_axis_deg": round(float(np.rad2deg(tilt_axis)), 6)}
+    meta = {
+        "pinned": pins.tolist(),
+        "heading_deg": round(float(np.rad2deg(heading)), 6),
+        "tilt_deg": round(float(np.rad2deg(tilt)), 6),
+        "tilt_axis_deg": round(float(np.rad2deg(tilt_axis)), 6),
+    }
     return pins, rest @ rotation.T, meta
 
 
@@ -204,14 +223,17 @@ def _axis_angle(axis: np.ndarray, angle: float) -> np.ndarray:
     return np.eye(3) + np.sin(angle) * k + (1 - np.cos(angle)) * k @ k
 
 
-def simulate_cloth(config: ClothConfig, split: str, indices: Sequence[int],
-                   progress: bool = False) -> tuple[np.ndarray, list[dict[str, Any]]]:
+def simulate_cloth(
+    config: ClothConfig, split: str, indices: Sequence[int], progress: bool = False
+) -> tuple[np.ndarray, list[dict[str, Any]]]:
     """Simulate sequences ``indices`` of ``split`` together: vertices ``(N, frames, V, 3)``
     float32 in mm, and each sequence's draws (pinned vertices, tilt, heading)."""
     _check_split(split)
     if config.frames < 1 or config.substeps < 1 or config.fps <= 0:
-        raise MeshError(f"cloth: frames, substeps and fps must be positive, got {config.frames},"
-                        f" {config.substeps}, {config.fps}")
+        raise MeshError(
+            f"cloth: frames, substeps and fps must be positive, got {config.frames},"
+            f" {config.substeps}, {config.fps}"
+        )
     topology, rest = cloth_mesh(config)
     cons = _constraints(topology, rest, config)
     n_seq, n_vert = len(indices), topology.num_vertices
@@ -236,10 +258,18 @@ def simulate_cloth(config: ClothConfig, split: str, indices: Sequence[int],
     for i, j, rest_len, comp in cons.groups:
         # XPBD with one sweep per substep: dlambda = -C / (w_i + w_j + alpha / dt^2); a
         # constraint whose two ends are pinned has nothing to move.
-        denom = inv_mass[i] + inv_mass[j] + comp[:, None] / dt ** 2
+        denom = inv_mass[i] + inv_mass[j] + comp[:, None] / dt**2
         gain = np.divide(1.0, denom, out=np.zeros_like(denom), where=denom > 0)
-        groups.append((i, j, rest_len[:, None].astype(DTYPE), gain.astype(DTYPE),
-                       inv_mass[i][..., None], inv_mass[j][..., None]))
+        groups.append(
+            (
+                i,
+                j,
+                rest_len[:, None].astype(DTYPE),
+                gain.astype(DTYPE),
+                inv_mass[i][..., None],
+                inv_mass[j][..., None],
+            )
+        )
     tethers = []
     if config.tethers:
         pins = np.stack(pin_sets)  # (N, 2)
@@ -278,13 +308,14 @@ def simulate_cloth(config: ClothConfig, split: str, indices: Sequence[int],
             x = p
         out[frame] = x * 1000.0
     if not np.isfinite(out).all():
-        raise MeshError("cloth: the simulation diverged (non-finite positions); lower the time "
-                        "step (more substeps) or raise the compliance")
+        raise MeshError(
+            "cloth: the simulation diverged (non-finite positions); lower the time "
+            "step (more substeps) or raise the compliance"
+        )
     return np.ascontiguousarray(out.transpose(2, 0, 1, 3)), metas
 
 
-def _tether_lengths(topology: MeshTopology, rest: np.ndarray,
-                    pins: np.ndarray) -> list[np.ndarray]:
+def _tether_lengths(topology: MeshTopology, rest: np.ndarray, pins: np.ndarray) -> list[np.ndarray]:
     """For the k-th pin of every sequence (``pins (N, 2)``), every vertex's rest geodesic
     distance to it along mesh edges ``(V, N)`` (the long range attachments of Kim, Chentanez and
     Mueller 2012)."""
@@ -331,8 +362,9 @@ def _separate(p: np.ndarray, pairs: np.ndarray, inv_mass: np.ndarray, thickness:
     moves = np.concatenate([-wa[:, None] * push, wb[:, None] * push])
     count = np.bincount(index, minlength=n)
     moved = np.nonzero(count)[0]
-    delta = np.stack([np.bincount(index, moves[:, k], minlength=n)[moved] for k in range(3)],
-                     axis=1)
+    delta = np.stack(
+        [np.bincount(index, moves[:, k], minlength=n)[moved] for k in range(3)], axis=1
+    )
     flat[moved] += delta / count[moved, None]
 
 
@@ -352,9 +384,13 @@ def _simulate_chunk(args: tuple[ClothConfig, str, list[int]]):
     return indices, vertices, metas
 
 
-def generate_cloth(split: str = "test", config: ClothConfig = ClothConfig(),
-                   batch: int = 100, progress: bool = False,
-                   workers: int | None = 1) -> MeshDataset:
+def generate_cloth(
+    split: str = "test",
+    config: ClothConfig = ClothConfig(),
+    batch: int = 100,
+    progress: bool = False,
+    workers: int | None = 1,
+) -> MeshDataset:
     """Simulate every sequence of ``split`` (``batch`` sequences at a time, spread over
     ``workers`` processes; None: one per CPU) into a MeshDataset. A sequence depends only on
     (seed, split, index), so the result is the same for any ``batch`` and ``workers``."""
@@ -365,8 +401,10 @@ def generate_cloth(split: str = "test", config: ClothConfig = ClothConfig(),
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
         raise MeshError(f"cloth: workers must be a positive integer, got {workers!r}")
     topology, _ = cloth_mesh(config)
-    chunks = [(config, split, list(range(start, min(count, start + batch))))
-              for start in range(0, count, batch)]
+    chunks = [
+        (config, split, list(range(start, min(count, start + batch))))
+        for start in range(0, count, batch)
+    ]
     bar = None
     if progress:
         from tqdm import tqdm
@@ -377,29 +415,47 @@ def generate_cloth(split: str = "test", config: ClothConfig = ClothConfig(),
         done = pool.map(_simulate_chunk, chunks) if pool else map(_simulate_chunk, chunks)
         for indices, vertices, metas in done:  # in order, whatever finishes first
             for index, verts, meta in zip(indices, vertices, metas):
-                sequences.append(MeshSequence(name=f"{split}/{index:05d}", action=ACTION,
-                                              vertices=verts, fps=config.fps, meta=meta))
+                sequences.append(
+                    MeshSequence(
+                        name=f"{split}/{index:05d}",
+                        action=ACTION,
+                        vertices=verts,
+                        fps=config.fps,
+                        meta=meta,
+                    )
+                )
             if bar is not None:
                 bar.update(len(indices))
     if bar is not None:
         bar.close()
-    return MeshDataset(name="cloth", split=split, topology=topology, sequences=sequences,
-                       recipe=config.recipe(split))
+    return MeshDataset(
+        name="cloth",
+        split=split,
+        topology=topology,
+        sequences=sequences,
+        recipe=config.recipe(split),
+    )
 
 
-def cloth_dir(split: str = "test", config: ClothConfig = ClothConfig(),
-              cache_dir: str | Path | None = None) -> Path:
+def cloth_dir(
+    split: str = "test", config: ClothConfig = ClothConfig(), cache_dir: str | Path | None = None
+) -> Path:
     """The cache folder of a split: ``<cache_dir>/cloth-<recipe hash>``; ``cache_dir`` defaults
     to ``<cache root>/datasets``."""
-    recipe_hash = MeshDataset("cloth", split, cloth_mesh(config)[0], [],
-                              config.recipe(split)).recipe_hash
+    recipe_hash = MeshDataset(
+        "cloth", split, cloth_mesh(config)[0], [], config.recipe(split)
+    ).recipe_hash
     base = Path(cache_dir) if cache_dir is not None else cache_root() / "datasets"
     return base / f"cloth-{recipe_hash}"
 
 
-def load_cloth(split: str = "test", config: ClothConfig | None = None,
-               cache_dir: str | Path | None = None, progress: bool = False,
-               workers: int | None = 1) -> MeshDataset:
+def load_cloth(
+    split: str = "test",
+    config: ClothConfig | None = None,
+    cache_dir: str | Path | None = None,
+    progress: bool = False,
+    workers: int | None = 1,
+) -> MeshDataset:
     """The cloth split, from its cache folder or generated (and saved there) if absent.
 
     A folder with the right name whose recorded recipe differs is an error, never reused.
@@ -410,16 +466,21 @@ def load_cloth(split: str = "test", config: ClothConfig | None = None,
     if (folder / "dataset.json").is_file() and (folder / "meshes.npz").is_file():
         dataset = MeshDataset.load(folder)
         if dataset.recipe != recipe:
-            raise MeshError(f"{folder}: cached cloth dataset was made by another recipe (its "
-                            f"hash {dataset.recipe_hash}); delete the folder to rebuild it")
+            raise MeshError(
+                f"{folder}: cached cloth dataset was made by another recipe (its "
+                f"hash {dataset.recipe_hash}); delete the folder to rebuild it"
+            )
         return dataset
     started = time.perf_counter()
     dataset = generate_cloth(split, config, progress=progress, workers=workers)
     dataset.save(folder, step_mm=config.position_step_mm)
     if progress:
-        print(f"cloth {split}: {len(dataset.sequences)} sequences generated in "
-              f"{time.perf_counter() - started:.1f} s by {workers or os.cpu_count()} "
-              f"process(es) -> {folder}", file=sys.stderr)
+        print(
+            f"cloth {split}: {len(dataset.sequences)} sequences generated in "
+            f"{time.perf_counter() - started:.1f} s by {workers or os.cpu_count()} "
+            f"process(es) -> {folder}",
+            file=sys.stderr,
+        )
     return dataset
 
 
@@ -436,5 +497,6 @@ def cloth_full_dataset(root: str | Path | None, split: str) -> MeshDataset:
     workers = os.environ.get("ZOO_WORKERS")
     if workers is not None and (not workers.isdigit() or int(workers) < 1):
         raise MeshError(f"ZOO_WORKERS must be a positive integer, got {workers!r}")
-    return load_cloth(split, CLOTH_FULL, cache_dir=root, progress=True,
-                      workers=int(workers) if workers else None)
+    return load_cloth(
+        split, CLOTH_FULL, cache_dir=root, progress=True, workers=int(workers) if workers else None
+    )

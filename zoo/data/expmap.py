@@ -2,6 +2,7 @@
 
 One frame per line, comma separated: root position (3) then 3 numbers per joint.
 """
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -26,8 +27,10 @@ def read_expmap_file(path: str | Path, skeleton: Skeleton) -> np.ndarray:
     except OSError as e:
         raise DataFormatError(f"{path}: cannot read exp-map file ({e.strerror})") from e
     except UnicodeDecodeError as e:
-        raise DataFormatError(f"{path}: not a text file (byte {e.start} is not UTF-8); an "
-                              f"exp-map file holds comma-separated numbers") from None
+        raise DataFormatError(
+            f"{path}: not a text file (byte {e.start} is not UTF-8); an "
+            f"exp-map file holds comma-separated numbers"
+        ) from None
     lines = [(n, line) for n, line in enumerate(text.splitlines(), start=1) if line.strip()]
     if not lines:
         raise DataFormatError(f"{path}: file holds no frames")
@@ -42,7 +45,8 @@ def read_expmap_file(path: str | Path, skeleton: Skeleton) -> np.ndarray:
     if bad_rows.size:
         raise DataFormatError(
             f"{path}, line {lines[bad_rows[0]][0]}, column {bad_cols[0] + 1}: "
-            f"value {frames[bad_rows[0], bad_cols[0]]} is not finite")
+            f"value {frames[bad_rows[0], bad_cols[0]]} is not finite"
+        )
     return frames
 
 
@@ -60,7 +64,8 @@ def _raise_first_bad_line(path: Path, lines: list[tuple[int, str]], skeleton: Sk
             raise DataFormatError(
                 f"{path}, line {lineno}: expected {expected} comma-separated values "
                 f"(root position + 3 x {skeleton.num_joints} joints of {skeleton.name}), "
-                f"found {len(fields)}")
+                f"found {len(fields)}"
+            )
         for column, value in enumerate(fields, start=1):
             try:
                 float(value)

@@ -8,12 +8,13 @@ Conventions shared by every mesh dataset (cloth, CMU on Anny, AMASS):
 - an optional sparse joint regressor ``(J, V)`` turns vertices into joints, so mesh and skeleton
   predictors can share an MPJPE column.
 """
+
 from __future__ import annotations
 
 import hashlib
 import json
-import zipfile
 import os
+import zipfile
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
@@ -51,29 +52,40 @@ class MeshTopology:
         if faces.size == 0 or num_vertices <= 0:
             raise MeshError(f"{name}: empty mesh ({num_vertices} vertices, {len(faces)} faces)")
         if faces.ndim != 2 or faces.shape[1] != 3 or not np.issubdtype(faces.dtype, np.integer):
-            raise MeshError(f"{name}: faces must be an integer array (F, 3), got "
-                            f"{faces.dtype} {faces.shape}")
+            raise MeshError(
+                f"{name}: faces must be an integer array (F, 3), got {faces.dtype} {faces.shape}"
+            )
         if faces.min() < 0 or faces.max() >= num_vertices:
-            raise MeshError(f"{name}: face indices must lie in [0, {num_vertices}), found "
-                            f"[{faces.min()}, {faces.max()}]")
-        degenerate = np.nonzero((faces[:, 0] == faces[:, 1]) | (faces[:, 1] == faces[:, 2]) |
-                                (faces[:, 0] == faces[:, 2]))[0]
+            raise MeshError(
+                f"{name}: face indices must lie in [0, {num_vertices}), found "
+                f"[{faces.min()}, {faces.max()}]"
+            )
+        degenerate = np.nonzero(
+            (faces[:, 0] == faces[:, 1])
+            | (faces[:, 1] == faces[:, 2])
+            | (faces[:, 0] == faces[:, 2])
+        )[0]
         if degenerate.size:
-            raise MeshError(f"{name}: face {degenerate[0]} {faces[degenerate[0]].tolist()} "
-                            f"repeats a vertex")
+            raise MeshError(
+                f"{name}: face {degenerate[0]} {faces[degenerate[0]].tolist()} repeats a vertex"
+            )
         self.faces = faces.astype(np.int64)
         self.num_vertices = int(num_vertices)
         self.name = name
         edges, counts = np.unique(self._face_edges(), axis=0, return_counts=True)
         if (counts > 2).any():
             bad = edges[np.argmax(counts)]
-            raise MeshError(f"{name}: non-manifold mesh: edge {bad.tolist()} is shared by "
-                            f"{counts.max()} faces (at most 2 allowed)")
+            raise MeshError(
+                f"{name}: non-manifold mesh: edge {bad.tolist()} is shared by "
+                f"{counts.max()} faces (at most 2 allowed)"
+            )
         self.edges = edges  # (E, 2), unique undirected, i < j
         isolated = np.setdiff1d(np.arange(num_vertices), self.faces.ravel())
         if isolated.size:
-            raise MeshError(f"{name}: vertex {isolated[0]} belongs to no face "
-                            f"({isolated.size} isolated vertices)")
+            raise MeshError(
+                f"{name}: vertex {isolated[0]} belongs to no face "
+                f"({isolated.size} isolated vertices)"
+            )
 
     def _face_edges(self) -> np.ndarray:
         f = self.faces
@@ -101,9 +113,11 @@ class MeshTopology:
     def check_vertices(self, vertices: np.ndarray, what: str) -> None:
         """Raise unless ``vertices (..., V, 3)`` fit this topology."""
         if vertices.ndim < 2 or vertices.shape[-2:] != (self.num_vertices, 3):
-            raise MeshError(f"{what}: vertices of shape {tuple(vertices.shape)} do not fit "
-                            f"topology {self.name} ({self.num_vertices} vertices, hash "
-                            f"{self.hash[:12]})")
+            raise MeshError(
+                f"{what}: vertices of shape {tuple(vertices.shape)} do not fit "
+                f"topology {self.name} ({self.num_vertices} vertices, hash "
+                f"{self.hash[:12]})"
+            )
 
 
 @dataclass
@@ -139,8 +153,10 @@ class MeshDataset:
             self.topology.check_vertices(s.vertices, f"{self.name}/{s.name}")
         if self.joint_regressor is not None:
             if self.joint_regressor.shape[1] != self.topology.num_vertices:
-                raise MeshError(f"{self.name}: joint regressor has {self.joint_regressor.shape[1]}"
-                                f" columns, the mesh {self.topology.num_vertices} vertices")
+                raise MeshError(
+                    f"{self.name}: joint regressor has {self.joint_regressor.shape[1]}"
+                    f" columns, the mesh {self.topology.num_vertices} vertices"
+                )
 
     @property
     def recipe_hash(self) -> str:
@@ -168,7 +184,7 @@ class MeshDataset:
             self._content_hash = digest.hexdigest()
         return self._content_hash
 
-    def joints_view(self) -> "JointsView":
+    def joints_view(self) -> JointsView:
         """This dataset seen through its joint regressor (see :class:`JointsView`)."""
         return JointsView(self)
 
@@ -181,33 +197,52 @@ class MeshDataset:
         per-axis origin (half the bytes of float32); the vertices must already lie on that grid
         (:func:`quantise_vertices`), so what is loaded equals what was saved."""
         folder = Path(folder)
-        arrays = {"faces": self.topology.faces, "num_vertices": np.int64(self.topology.num_vertices)}
+        arrays = {
+            "faces": self.topology.faces,
+            "num_vertices": np.int64(self.topology.num_vertices),
+        }
         for i, s in enumerate(self.sequences):
             if step_mm is None:
                 arrays[f"seq{i}"] = s.vertices.astype(np.float32)
                 continue
             codes, origin = _int16_codes(s.vertices, step_mm, f"{self.name}/{s.name}")
-            arrays.update({f"seq{i}": codes, f"seq{i}_origin": origin,
-                           f"seq{i}_step": np.float64(step_mm)})
+            arrays.update(
+                {f"seq{i}": codes, f"seq{i}_origin": origin, f"seq{i}_step": np.float64(step_mm)}
+            )
         if self.joint_regressor is not None:
             r = self.joint_regressor.tocoo()
-            arrays.update(reg_row=r.row, reg_col=r.col, reg_val=r.data,
-                          reg_shape=np.asarray(r.shape))
+            arrays.update(
+                reg_row=r.row, reg_col=r.col, reg_val=r.data, reg_shape=np.asarray(r.shape)
+            )
         with atomic_path(folder / "meshes.npz") as tmp:
             with open(tmp, "wb") as f:
                 np.savez(f, **arrays)
-        atomic_write_json(folder / "dataset.json", {
-            "name": self.name, "split": self.split, "recipe": self.recipe,
-            "recipe_hash": self.recipe_hash, "topology_hash": self.topology.hash,
-            "joint_names": self.joint_names,
-            "sequences": [{"name": s.name, "action": s.action, "fps": s.fps,
-                           "identity": s.identity, "frames": len(s), "meta": s.meta}
-                          for s in self.sequences],
-        })
+        atomic_write_json(
+            folder / "dataset.json",
+            {
+                "name": self.name,
+                "split": self.split,
+                "recipe": self.recipe,
+                "recipe_hash": self.recipe_hash,
+                "topology_hash": self.topology.hash,
+                "joint_names": self.joint_names,
+                "sequences": [
+                    {
+                        "name": s.name,
+                        "action": s.action,
+                        "fps": s.fps,
+                        "identity": s.identity,
+                        "frames": len(s),
+                        "meta": s.meta,
+                    }
+                    for s in self.sequences
+                ],
+            },
+        )
         return folder
 
     @classmethod
-    def load(cls, folder: str | Path) -> "MeshDataset":
+    def load(cls, folder: str | Path) -> MeshDataset:
         folder = Path(folder)
         meta_path, npz_path = folder / "dataset.json", folder / "meshes.npz"
         for p in (meta_path, npz_path):
@@ -216,29 +251,47 @@ class MeshDataset:
         try:
             return cls._read(folder, meta_path, npz_path)
         except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as e:
-            raise MeshError(f"{folder}: damaged or truncated dataset cache ({type(e).__name__}: "
-                            f"{e}); delete the folder and it is rebuilt on next use (zoo data "
-                            f"build <benchmark>)") from None
+            raise MeshError(
+                f"{folder}: damaged or truncated dataset cache ({type(e).__name__}: "
+                f"{e}); delete the folder and it is rebuilt on next use (zoo data "
+                f"build <benchmark>)"
+            ) from None
 
     @classmethod
-    def _read(cls, folder: Path, meta_path: Path, npz_path: Path) -> "MeshDataset":
+    def _read(cls, folder: Path, meta_path: Path, npz_path: Path) -> MeshDataset:
         meta = json.loads(meta_path.read_text())
         with np.load(npz_path) as z:
             topology = MeshTopology(z["faces"], int(z["num_vertices"]), name=meta["name"])
             if topology.hash != meta["topology_hash"]:
-                raise MeshError(f"{npz_path}: topology hash {topology.hash[:12]} differs from "
-                                f"the recorded {meta['topology_hash'][:12]}")
-            sequences = [MeshSequence(name=m["name"], action=m["action"],
-                                      vertices=_stored_vertices(z, f"seq{i}"), fps=m["fps"],
-                                      identity=m["identity"], meta=m["meta"])
-                         for i, m in enumerate(meta["sequences"])]
+                raise MeshError(
+                    f"{npz_path}: topology hash {topology.hash[:12]} differs from "
+                    f"the recorded {meta['topology_hash'][:12]}"
+                )
+            sequences = [
+                MeshSequence(
+                    name=m["name"],
+                    action=m["action"],
+                    vertices=_stored_vertices(z, f"seq{i}"),
+                    fps=m["fps"],
+                    identity=m["identity"],
+                    meta=m["meta"],
+                )
+                for i, m in enumerate(meta["sequences"])
+            ]
             regressor = None
             if "reg_row" in z:
-                regressor = sp.coo_matrix((z["reg_val"], (z["reg_row"], z["reg_col"])),
-                                          shape=tuple(z["reg_shape"])).tocsr()
-        return cls(name=meta["name"], split=meta["split"], topology=topology,
-                   sequences=sequences, recipe=meta["recipe"], joint_regressor=regressor,
-                   joint_names=meta.get("joint_names"))
+                regressor = sp.coo_matrix(
+                    (z["reg_val"], (z["reg_row"], z["reg_col"])), shape=tuple(z["reg_shape"])
+                ).tocsr()
+        return cls(
+            name=meta["name"],
+            split=meta["split"],
+            topology=topology,
+            sequences=sequences,
+            recipe=meta["recipe"],
+            joint_regressor=regressor,
+            joint_names=meta.get("joint_names"),
+        )
 
 
 def quantise_vertices(vertices: np.ndarray, step_mm: float) -> np.ndarray:
@@ -260,13 +313,17 @@ def _int16_codes(vertices: np.ndarray, step_mm: float, what: str) -> tuple[np.nd
     codes = (vertices.astype(np.float64) - origin) / step_mm
     if np.abs(codes).max() > np.iinfo(np.int16).max:
         span = np.ptp(vertices.reshape(-1, 3), axis=0).max()
-        raise MeshError(f"{what}: spans {span:.0f} mm, more than int16 steps of {step_mm:g} mm "
-                        f"can hold ({2 * np.iinfo(np.int16).max * step_mm:.0f} mm); store it as "
-                        f"float32 or with a larger step")
+        raise MeshError(
+            f"{what}: spans {span:.0f} mm, more than int16 steps of {step_mm:g} mm "
+            f"can hold ({2 * np.iinfo(np.int16).max * step_mm:.0f} mm); store it as "
+            f"float32 or with a larger step"
+        )
     rounded = np.rint(codes)
     if np.abs(codes - rounded).max() > 0.05:  # float32 rounding of mm values: < 0.01 steps
-        raise MeshError(f"{what}: vertices are not on the {step_mm:g} mm grid; quantise them "
-                        f"first (zoo.data.mesh.quantise_vertices) so the saved data is the data")
+        raise MeshError(
+            f"{what}: vertices are not on the {step_mm:g} mm grid; quantise them "
+            f"first (zoo.data.mesh.quantise_vertices) so the saved data is the data"
+        )
     return rounded.astype(np.int16), origin
 
 
@@ -284,15 +341,18 @@ def regress_joints(vertices: torch.Tensor, regressor) -> torch.Tensor:
 
     if sp.issparse(regressor):
         r = regressor.tocoo()
-        matrix = torch.sparse_coo_tensor(np.stack([r.row, r.col]), r.data, r.shape,
-                                         check_invariants=True)
+        matrix = torch.sparse_coo_tensor(
+            np.stack([r.row, r.col]), r.data, r.shape, check_invariants=True
+        )
     else:
         matrix = torch.as_tensor(regressor)
     matrix = matrix.to(device=vertices.device, dtype=vertices.dtype)
     joints, num_vertices = matrix.shape
     if vertices.ndim < 2 or vertices.shape[-2:] != (num_vertices, 3):
-        raise ValueError(f"regress_joints: regressor ({joints}, {num_vertices}) does not fit "
-                         f"vertices {tuple(vertices.shape)}")
+        raise ValueError(
+            f"regress_joints: regressor ({joints}, {num_vertices}) does not fit "
+            f"vertices {tuple(vertices.shape)}"
+        )
     lead = vertices.shape[:-2]
     flat = vertices.reshape(-1, num_vertices, 3).permute(1, 0, 2).reshape(num_vertices, -1)
     out = (matrix @ flat).reshape(joints, -1, 3).permute(1, 0, 2)
@@ -319,8 +379,10 @@ class JointsView:
 
     def __init__(self, mesh: MeshDataset) -> None:
         if mesh.joint_regressor is None:
-            raise MeshError(f"{mesh.name}/{mesh.split}: this mesh dataset has no joint regressor, "
-                            f"so skeleton models cannot run on it (they need joints)")
+            raise MeshError(
+                f"{mesh.name}/{mesh.split}: this mesh dataset has no joint regressor, "
+                f"so skeleton models cannot run on it (they need joints)"
+            )
         self.mesh = mesh
         self.name, self.split = mesh.name, mesh.split
         self.num_joints = mesh.joint_regressor.shape[0]
@@ -331,9 +393,20 @@ class JointsView:
         """The regressed joints, computed on first use (one sparse product per sequence)."""
         import torch
 
-        return [JointSequence(s.name, s.action, regress_joints(
-            torch.from_numpy(np.asarray(s.vertices, dtype=np.float64)),
-            self.mesh.joint_regressor).float().numpy(), s.fps) for s in self.mesh.sequences]
+        return [
+            JointSequence(
+                s.name,
+                s.action,
+                regress_joints(
+                    torch.from_numpy(np.asarray(s.vertices, dtype=np.float64)),
+                    self.mesh.joint_regressor,
+                )
+                .float()
+                .numpy(),
+                s.fps,
+            )
+            for s in self.mesh.sequences
+        ]
 
     @property
     def parts(self) -> dict[str, list[int]]:
@@ -343,7 +416,9 @@ class JointsView:
 
         lower = [i for i, n in enumerate(self.joint_names) if n in CMU_BVH_LOWER_BODY]
         if not lower or len(lower) == self.num_joints:
-            raise MeshError(f"{self.name}: cannot tell upper from lower body from its joint names "
-                            f"{self.joint_names[:4]}...; expected the CMU BVH rig's "
-                            f"({', '.join(CMU_BVH_LOWER_BODY[:3])}, ...)")
+            raise MeshError(
+                f"{self.name}: cannot tell upper from lower body from its joint names "
+                f"{self.joint_names[:4]}...; expected the CMU BVH rig's "
+                f"({', '.join(CMU_BVH_LOWER_BODY[:3])}, ...)"
+            )
         return {"upper": [i for i in range(self.num_joints) if i not in lower], "lower": lower}

@@ -4,6 +4,7 @@ Both adapters read with the one exp-map reader, run the one FK routine, halve th
 (every second source frame, starting with the first) and expose sequences that
 carry their action, file, hash and fps.
 """
+
 from __future__ import annotations
 
 import sys
@@ -13,15 +14,37 @@ from pathlib import Path
 import numpy as np
 
 from zoo.data.expmap import DataFormatError, expmap_to_positions, read_expmap_file
-from zoo.io import sha256_file
 from zoo.data.skeleton import CMU, H36M, Skeleton
 from zoo.errors import DataNotFoundError
+from zoo.io import sha256_file
 
-CMU_ACTIONS = ("basketball", "basketball_signal", "directing_traffic", "jumping", "running",
-               "soccer", "walking", "washwindow")
-H36M_ACTIONS = ("walking", "eating", "smoking", "discussion", "directions", "greeting", "phoning",
-                "posing", "purchases", "sitting", "sittingdown", "takingphoto", "waiting",
-                "walkingdog", "walkingtogether")
+CMU_ACTIONS = (
+    "basketball",
+    "basketball_signal",
+    "directing_traffic",
+    "jumping",
+    "running",
+    "soccer",
+    "walking",
+    "washwindow",
+)
+H36M_ACTIONS = (
+    "walking",
+    "eating",
+    "smoking",
+    "discussion",
+    "directions",
+    "greeting",
+    "phoning",
+    "posing",
+    "purchases",
+    "sitting",
+    "sittingdown",
+    "takingphoto",
+    "waiting",
+    "walkingdog",
+    "walkingtogether",
+)
 H36M_SPLITS = {"train": (1, 6, 7, 8, 9), "val": (11,), "test": (5,)}
 
 
@@ -63,17 +86,31 @@ class MotionDataset:
         return tuple(a for a in self.actions_requested if a in present)
 
     def files(self) -> list[dict]:
-        return [{"file": s.name, "sha256": s.sha256, "frames": len(s), "fps": s.fps}
-                for s in self.sequences]
+        return [
+            {"file": s.name, "sha256": s.sha256, "frames": len(s), "fps": s.fps}
+            for s in self.sequences
+        ]
 
 
-def _load_sequence(path: Path, root: Path, action: str, skeleton: Skeleton, source_fps: float,
-                   subsample: int, subaction: int = 1) -> MotionSequence:
+def _load_sequence(
+    path: Path,
+    root: Path,
+    action: str,
+    skeleton: Skeleton,
+    source_fps: float,
+    subsample: int,
+    subaction: int = 1,
+) -> MotionSequence:
     frames = read_expmap_file(path, skeleton)
     positions = expmap_to_positions(frames[::subsample], skeleton)
-    return MotionSequence(name=path.relative_to(root).as_posix(), action=action,
-                          positions=positions, fps=source_fps / subsample,
-                          sha256=sha256_file(path), subaction=subaction)
+    return MotionSequence(
+        name=path.relative_to(root).as_posix(),
+        action=action,
+        positions=positions,
+        fps=source_fps / subsample,
+        sha256=sha256_file(path),
+        subaction=subaction,
+    )
 
 
 def _check_root(root: str | Path | None, what: str, hint: str) -> Path:
@@ -81,27 +118,34 @@ def _check_root(root: str | Path | None, what: str, hint: str) -> Path:
         raise DataNotFoundError(f"no data root given for {what}: {hint}")
     root = Path(root)
     if not root.is_dir():
-        raise DataNotFoundError(f"data root {root} for {what} does not exist or is not a folder: "
-                                f"{hint}")
+        raise DataNotFoundError(
+            f"data root {root} for {what} does not exist or is not a folder: {hint}"
+        )
     return root
 
 
-def load_cmu(root: str | Path | None, split: str = "test",
-             actions: tuple[str, ...] = CMU_ACTIONS) -> MotionDataset:
+def load_cmu(
+    root: str | Path | None, split: str = "test", actions: tuple[str, ...] = CMU_ACTIONS
+) -> MotionDataset:
     """CMU Mocap in the convSeq2Seq/LTD layout ``<root>/<split>/<action>/<action>_<n>.txt``.
 
     Globs the files that exist (some of the standard set are missing); an action folder that is
     absent means the action is absent, but a folder that exists and holds no file is an error.
     """
-    root = _check_root(root, "CMU Mocap (exp-map layout)",
-                       "pass --data-root pointing at the folder holding train/ and test/ "
-                       "(this project's copy is ../shared/data/cmu_mocap)")
+    root = _check_root(
+        root,
+        "CMU Mocap (exp-map layout)",
+        "pass --data-root pointing at the folder holding train/ and test/ "
+        "(this project's copy is ../shared/data/cmu_mocap)",
+    )
     if split not in ("train", "test"):
         raise ValueError(f"CMU split must be 'train' or 'test', got {split!r}")
     split_dir = root / split
     if not split_dir.is_dir():
-        raise DataNotFoundError(f"{split_dir}: CMU split folder missing (expected "
-                                f"<data-root>/{split}/<action>/<action>_<n>.txt)")
+        raise DataNotFoundError(
+            f"{split_dir}: CMU split folder missing (expected "
+            f"<data-root>/{split}/<action>/<action>_<n>.txt)"
+        )
     sequences, notes, skipped = [], [], []
     for action in actions:
         folder = split_dir / action
@@ -113,34 +157,49 @@ def load_cmu(root: str | Path | None, split: str = "test",
             raise DataFormatError(f"{folder}: action folder holds no {action}_<n>.txt file")
         others = sorted(p.name for p in folder.iterdir() if p not in files)
         if others:
-            skipped.append(f"{folder.relative_to(root)}: skipped {', '.join(others)} (not "
-                           f"{action}_<n>.txt)")
+            skipped.append(
+                f"{folder.relative_to(root)}: skipped {', '.join(others)} (not {action}_<n>.txt)"
+            )
         # The field treats these files as 50 Hz, so 25 Hz after halving.
         sequences += [_load_sequence(f, root, action, CMU, 50.0, 2) for f in files]
     if not sequences:
         raise DataFormatError(f"{split_dir}: none of the actions {', '.join(actions)} has a file")
     unknown = sorted(p.name for p in split_dir.iterdir() if p.name not in actions)
     if unknown:
-        skipped.append(f"{split_dir.relative_to(root)}: skipped {', '.join(unknown)} (not among "
-                       f"the benchmark's actions {', '.join(actions)})")
+        skipped.append(
+            f"{split_dir.relative_to(root)}: skipped {', '.join(unknown)} (not among "
+            f"the benchmark's actions {', '.join(actions)})"
+        )
     # Files passed over are something a user should hear about (absent actions are a protocol
     # fact, recorded in actions_present).
     for note in skipped:
         print(f"note: {note}", file=sys.stderr)
-    return MotionDataset(name="cmu_mocap", split=split, root=root, skeleton=CMU,
-                         sequences=sequences, actions_requested=tuple(actions),
-                         ltd_rule="per_file", source_fps=50.0, notes=notes + skipped)
+    return MotionDataset(
+        name="cmu_mocap",
+        split=split,
+        root=root,
+        skeleton=CMU,
+        sequences=sequences,
+        actions_requested=tuple(actions),
+        ltd_rule="per_file",
+        source_fps=50.0,
+        notes=notes + skipped,
+    )
 
 
-def load_h36m(root: str | Path | None, split: str = "test",
-              actions: tuple[str, ...] = H36M_ACTIONS) -> MotionDataset:
+def load_h36m(
+    root: str | Path | None, split: str = "test", actions: tuple[str, ...] = H36M_ACTIONS
+) -> MotionDataset:
     """Human3.6M exp-map files ``<root>/S<k>/<action>_<1|2>.txt`` (50 Hz, halved to 25 Hz).
 
     Splits follow the literature: train S1 S6 S7 S8 S9, val S11, test S5.
     """
-    root = _check_root(root, "Human3.6M (exp-map layout)",
-                       "pass --data-root pointing at the folder holding S1 ... S11 "
-                       "(Human3.6M is licensed per user and not shipped)")
+    root = _check_root(
+        root,
+        "Human3.6M (exp-map layout)",
+        "pass --data-root pointing at the folder holding S1 ... S11 "
+        "(Human3.6M is licensed per user and not shipped)",
+    )
     if split not in H36M_SPLITS:
         raise ValueError(f"Human3.6M split must be one of {sorted(H36M_SPLITS)}, got {split!r}")
     sequences, notes = [], []
@@ -152,15 +211,23 @@ def load_h36m(root: str | Path | None, split: str = "test",
             for sub in (1, 2):
                 path = subject_dir / f"{action}_{sub}.txt"
                 if not path.is_file():
-                    raise DataNotFoundError(f"{path}: Human3.6M file missing (each action has "
-                                            f"sub-actions 1 and 2)")
+                    raise DataNotFoundError(
+                        f"{path}: Human3.6M file missing (each action has sub-actions 1 and 2)"
+                    )
                 sequences.append(_load_sequence(path, root, action, H36M, 50.0, 2, sub))
-    return MotionDataset(name="h36m", split=split, root=root, skeleton=H36M,
-                         sequences=sequences, actions_requested=tuple(actions),
-                         ltd_rule="per_action_pair", source_fps=50.0, notes=notes)
+    return MotionDataset(
+        name="h36m",
+        split=split,
+        root=root,
+        skeleton=H36M,
+        sequences=sequences,
+        actions_requested=tuple(actions),
+        ltd_rule="per_action_pair",
+        source_fps=50.0,
+        notes=notes,
+    )
 
 
 def _file_number(path: Path) -> tuple[int, str]:
     stem = path.stem.rsplit("_", 1)[-1]
     return (int(stem), path.name) if stem.isdigit() else (1 << 30, path.name)
-

@@ -19,6 +19,7 @@ vectors themselves that a trained model stores and compares within a tolerance w
 so weights are never applied through a basis with other signs or another rotation of an
 eigenspace, while a recompute equal to rounding is accepted.
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -61,14 +62,22 @@ class SpectralBasis:
     :meth:`reconstruct`.
     """
 
-    def __init__(self, topology_hash: str, eigenvalues: np.ndarray, vectors: np.ndarray,
-                 topology_name: str = "mesh", solver: str = "") -> None:
+    def __init__(
+        self,
+        topology_hash: str,
+        eigenvalues: np.ndarray,
+        vectors: np.ndarray,
+        topology_name: str = "mesh",
+        solver: str = "",
+    ) -> None:
         vectors = np.ascontiguousarray(vectors, dtype=np.float64)
         eigenvalues = np.ascontiguousarray(eigenvalues, dtype=np.float64)
         if vectors.ndim != 2 or eigenvalues.shape != (vectors.shape[1],):
-            raise SpectralError(f"spectral basis of {topology_name}: vectors (V, k) and "
-                                f"eigenvalues (k,) expected, got {vectors.shape} and "
-                                f"{eigenvalues.shape}")
+            raise SpectralError(
+                f"spectral basis of {topology_name}: vectors (V, k) and "
+                f"eigenvalues (k,) expected, got {vectors.shape} and "
+                f"{eigenvalues.shape}"
+            )
         self.topology_hash = str(topology_hash)
         self.topology_name = topology_name
         self.k = int(vectors.shape[1])
@@ -81,18 +90,22 @@ class SpectralBasis:
         self._torch: dict[tuple[str, torch.dtype], torch.Tensor] = {}
 
     def __repr__(self) -> str:
-        return (f"SpectralBasis(topology={self.topology_name} {self.topology_hash[:12]}, "
-                f"V={self.num_vertices}, k={self.k}, hash={self.hash[:12]})")
+        return (
+            f"SpectralBasis(topology={self.topology_name} {self.topology_hash[:12]}, "
+            f"V={self.num_vertices}, k={self.k}, hash={self.hash[:12]})"
+        )
 
     # ---- construction -------------------------------------------------------------------------
 
     @classmethod
-    def compute(cls, topology: MeshTopology, k: int) -> "SpectralBasis":
+    def compute(cls, topology: MeshTopology, k: int) -> SpectralBasis:
         """The ``k`` lowest eigenvectors of ``topology.laplacian()``, sorted by eigenvalue."""
         n = topology.num_vertices
         if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or not 1 <= k <= n:
-            raise SpectralError(f"spectral basis of {topology.name}: k must be an integer in "
-                                f"[1, {n}] (the number of vertices), got {k!r}")
+            raise SpectralError(
+                f"spectral basis of {topology.name}: k must be an integer in "
+                f"[1, {n}] (the number of vertices), got {k!r}"
+            )
         k = int(k)
         lap = topology.laplacian().astype(np.float64)
         # One BLAS thread for both solvers: the result is then the same to the last bit on a
@@ -104,16 +117,19 @@ class SpectralBasis:
                 solver = "scipy.linalg.eigh (dense)"
             else:
                 values, vectors = _lanczos(lap, k)
-                solver = (f"scipy.sparse.linalg.eigsh (shift-invert from sigma={SIGMA:g}, "
-                          f"slices of {SLICE})")
+                solver = (
+                    f"scipy.sparse.linalg.eigsh (shift-invert from sigma={SIGMA:g}, "
+                    f"slices of {SLICE})"
+                )
         order = np.argsort(values, kind="stable")
         values, vectors = values[order], vectors[:, order]
         values[np.abs(values) < 1e-12] = 0.0  # the constant vector's eigenvalue, without noise
         return cls(topology.hash, values, _fix_signs(vectors), topology.name, solver)
 
     @classmethod
-    def load_or_compute(cls, topology: MeshTopology, k: int,
-                        cache_dir: str | Path | None = None) -> "SpectralBasis":
+    def load_or_compute(
+        cls, topology: MeshTopology, k: int, cache_dir: str | Path | None = None
+    ) -> SpectralBasis:
         """The cached basis of ``topology`` with ``k`` vectors; computed and cached if absent.
 
         The file is ``<cache_dir>/spectral-<topology hash>-k<k>.npz`` (``cache_dir`` defaults to
@@ -139,23 +155,39 @@ class SpectralBasis:
         path = Path(path)
         with atomic_path(path) as tmp:
             with open(tmp, "wb") as f:
-                np.savez(f, format_version=np.int64(FORMAT_VERSION), k=np.int64(self.k),
-                         topology_hash=np.str_(self.topology_hash),
-                         topology_name=np.str_(self.topology_name), solver=np.str_(self.solver),
-                         hash=np.str_(self.hash), checksum=np.str_(self.checksum),
-                         eigenvalues=self.eigenvalues,
-                         vectors=self.vectors)
+                np.savez(
+                    f,
+                    format_version=np.int64(FORMAT_VERSION),
+                    k=np.int64(self.k),
+                    topology_hash=np.str_(self.topology_hash),
+                    topology_name=np.str_(self.topology_name),
+                    solver=np.str_(self.solver),
+                    hash=np.str_(self.hash),
+                    checksum=np.str_(self.checksum),
+                    eigenvalues=self.eigenvalues,
+                    vectors=self.vectors,
+                )
         return path
 
     @classmethod
-    def load(cls, path: str | Path) -> "SpectralBasis":
+    def load(cls, path: str | Path) -> SpectralBasis:
         """Read a basis written by :meth:`save`, checking its recorded checksum."""
         path = Path(path)
         try:
             with np.load(path, allow_pickle=False) as z:
-                fields = {name: z[name] for name in ("format_version", "k", "topology_hash",
-                                                     "topology_name", "solver", "hash",
-                                                     "eigenvalues", "vectors")}
+                fields = {
+                    name: z[name]
+                    for name in (
+                        "format_version",
+                        "k",
+                        "topology_hash",
+                        "topology_name",
+                        "solver",
+                        "hash",
+                        "eigenvalues",
+                        "vectors",
+                    )
+                }
                 version = int(fields["format_version"])
                 # version 1 stored the checksum of the vectors as its `hash`
                 fields["checksum"] = z["checksum"] if version >= 2 else fields["hash"]
@@ -164,17 +196,25 @@ class SpectralBasis:
         except KeyError as e:
             raise SpectralError(f"{path}: not a spectral basis file (field {e} missing)") from None
         except (OSError, ValueError, EOFError, zipfile.BadZipFile) as e:
-            raise SpectralError(f"{path}: unreadable spectral basis file ({e}); delete it to "
-                                f"recompute") from None
+            raise SpectralError(
+                f"{path}: unreadable spectral basis file ({e}); delete it to recompute"
+            ) from None
         if version not in (1, FORMAT_VERSION):
             raise SpectralError(f"{path}: format version {version}, expected {FORMAT_VERSION}")
-        basis = cls(str(fields["topology_hash"]), fields["eigenvalues"], fields["vectors"],
-                    str(fields["topology_name"]), str(fields["solver"]))
+        basis = cls(
+            str(fields["topology_hash"]),
+            fields["eigenvalues"],
+            fields["vectors"],
+            str(fields["topology_name"]),
+            str(fields["solver"]),
+        )
         if basis.k != int(fields["k"]) or basis.checksum != str(fields["checksum"]):
-            raise SpectralError(f"{path}: corrupted spectral basis: checksum "
-                                f"{basis.checksum[:12]} (k={basis.k}) differs from the recorded "
-                                f"{str(fields['checksum'])[:12]} (k={int(fields['k'])}); delete "
-                                f"it to recompute")
+            raise SpectralError(
+                f"{path}: corrupted spectral basis: checksum "
+                f"{basis.checksum[:12]} (k={basis.k}) differs from the recorded "
+                f"{str(fields['checksum'])[:12]} (k={int(fields['k'])}); delete "
+                f"it to recompute"
+            )
         return basis
 
     # ---- use ----------------------------------------------------------------------------------
@@ -182,18 +222,21 @@ class SpectralBasis:
     def check_topology(self, topology: MeshTopology) -> None:
         """Raise :class:`SpectralError` unless this basis was computed on ``topology``."""
         if topology.hash != self.topology_hash or topology.num_vertices != self.num_vertices:
-            raise SpectralError(f"spectral basis {self.hash[:12]} belongs to topology "
-                                f"{self.topology_name} (hash {self.topology_hash[:12]}, "
-                                f"{self.num_vertices} vertices), not to {topology.name} (hash "
-                                f"{topology.hash[:12]}, {topology.num_vertices} vertices)")
+            raise SpectralError(
+                f"spectral basis {self.hash[:12]} belongs to topology "
+                f"{self.topology_name} (hash {self.topology_hash[:12]}, "
+                f"{self.num_vertices} vertices), not to {topology.name} (hash "
+                f"{topology.hash[:12]}, {topology.num_vertices} vertices)"
+            )
 
     @property
     def vectors_torch(self) -> torch.Tensor:
         """``Phi (V, k)`` as a float32 CPU tensor (cached; see :meth:`torch_vectors`)."""
         return self.torch_vectors()
 
-    def torch_vectors(self, device: str | torch.device = "cpu",
-                      dtype: torch.dtype = torch.float32) -> torch.Tensor:
+    def torch_vectors(
+        self, device: str | torch.device = "cpu", dtype: torch.dtype = torch.float32
+    ) -> torch.Tensor:
         """``Phi (V, k)`` as a torch tensor, cached per device and dtype."""
         key = (str(torch.device(device)), dtype)
         if key not in self._torch:
@@ -213,8 +256,11 @@ class SpectralBasis:
         phi = self.torch_vectors(vertices.device, vertices.dtype)
         lead = vertices.shape[:-2]
         # (..., V, 3) -> (N*3, V) @ (V, k) -> (N, 3, k) -> (..., k, 3)
-        flat = vertices.reshape(-1, self.num_vertices, 3).transpose(1, 2).reshape(-1,
-                                                                                 self.num_vertices)
+        flat = (
+            vertices.reshape(-1, self.num_vertices, 3)
+            .transpose(1, 2)
+            .reshape(-1, self.num_vertices)
+        )
         with torch.autocast(vertices.device.type, enabled=False):
             coeffs = (flat @ phi).reshape(-1, 3, self.k).transpose(1, 2)
         return coeffs.reshape(*lead, self.k, 3)
@@ -234,13 +280,17 @@ class SpectralBasis:
 
     def _check_last(self, x: torch.Tensor, n: int, what: str, expected: str) -> None:
         if not isinstance(x, torch.Tensor):
-            raise TypeError(f"SpectralBasis.{what}: expected a torch tensor or numpy array, got "
-                            f"{type(x).__name__}")
+            raise TypeError(
+                f"SpectralBasis.{what}: expected a torch tensor or numpy array, got "
+                f"{type(x).__name__}"
+            )
         if x.ndim < 2 or x.shape[-2:] != (n, 3):
-            raise SpectralError(f"SpectralBasis.{what}: expected {expected} with {n} in the "
-                                f"second-to-last axis for topology {self.topology_name} (hash "
-                                f"{self.topology_hash[:12]}, V={self.num_vertices}, k={self.k}),"
-                                f" got shape {tuple(x.shape)}")
+            raise SpectralError(
+                f"SpectralBasis.{what}: expected {expected} with {n} in the "
+                f"second-to-last axis for topology {self.topology_name} (hash "
+                f"{self.topology_hash[:12]}, V={self.num_vertices}, k={self.k}),"
+                f" got shape {tuple(x.shape)}"
+            )
 
 
 def basis_hash(k: int, topology_hash: str) -> str:
@@ -263,8 +313,9 @@ def probe_projections(vectors: np.ndarray) -> np.ndarray:
     same ones (to the last bit of its ``cos``)."""
     vectors = np.asarray(vectors, dtype=np.float64)
     index = np.arange(vectors.shape[0], dtype=np.float64)[:, None]
-    probes = np.cos(index * (0.7071067811865476 + 0.3819660112501051 * np.arange(PROBES))
-                    + np.arange(PROBES))
+    probes = np.cos(
+        index * (0.7071067811865476 + 0.3819660112501051 * np.arange(PROBES)) + np.arange(PROBES)
+    )
     return vectors.T @ probes
 
 
@@ -293,8 +344,9 @@ def _lanczos(lap: sp.csr_matrix, k: int) -> tuple[np.ndarray, np.ndarray]:
 
     def solve(count: int, sigma: float) -> tuple[np.ndarray, np.ndarray]:
         count = min(count, n - 2)
-        values, vectors = spla.eigsh(lap, k=count, sigma=sigma, which="LM", v0=v0,
-                                     ncv=min(n, max(2 * count + 1, 20)))
+        values, vectors = spla.eigsh(
+            lap, k=count, sigma=sigma, which="LM", v0=v0, ncv=min(n, max(2 * count + 1, 20))
+        )
         order = np.argsort(values, kind="stable")
         return values[order], vectors[:, order]
 
@@ -313,8 +365,9 @@ def _lanczos(lap: sp.csr_matrix, k: int) -> tuple[np.ndarray, np.ndarray]:
                 break
             overlap *= 2  # the slice did not reach back below `top`: widen it
         else:
-            raise SpectralError(f"spectrum slicing found no overlap above eigenvalue {top:.6g} "
-                                f"(k={k}, V={n})")
+            raise SpectralError(
+                f"spectrum slicing found no overlap above eigenvalue {top:.6g} (k={k}, V={n})"
+            )
         gaps = np.diff(shared)
         cut = (shared[np.argmax(gaps)] + shared[np.argmax(gaps) + 1]) / 2
         keep_old, keep_new = values < cut, new_values > cut
@@ -347,17 +400,22 @@ def _check_count(lap: sp.csc_matrix, x: float, found: int, k: int) -> None:
     ``L - x I`` (SuperLU in symmetric mode, diagonal pivots only)."""
     n = lap.shape[0]
     try:
-        lu = spla.splu((lap - x * sp.identity(n, format="csc")).tocsc(),
-                       permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
-                       options={"SymmetricMode": True})
+        lu = spla.splu(
+            (lap - x * sp.identity(n, format="csc")).tocsc(),
+            permc_spec="MMD_AT_PLUS_A",
+            diag_pivot_thresh=0.0,
+            options={"SymmetricMode": True},
+        )
     except RuntimeError:  # exactly singular: x is an eigenvalue, the count is undefined
         return
     if not np.array_equal(lu.perm_r, lu.perm_c):
         return  # off-diagonal pivoting: not an LDL^T, no inertia to read
     below = int(np.count_nonzero(lu.U.diagonal() < 0))
     if below != found:
-        raise SpectralError(f"the Lanczos solver found {found} eigenvalues below {x:.6g}, the "
-                            f"matrix has {below} (k={k}, V={n}); try another k")
+        raise SpectralError(
+            f"the Lanczos solver found {found} eigenvalues below {x:.6g}, the "
+            f"matrix has {below} (k={k}, V={n}); try another k"
+        )
 
 
 def _fix_signs(vectors: np.ndarray) -> np.ndarray:
@@ -375,5 +433,12 @@ def default_cache_dir() -> Path:
     return cache_root() / "spectral"
 
 
-__all__ = ["SpectralBasis", "SpectralError", "basis_hash", "cache_path", "default_cache_dir",
-           "probe_projections", "vectors_checksum"]
+__all__ = [
+    "SpectralBasis",
+    "SpectralError",
+    "basis_hash",
+    "cache_path",
+    "default_cache_dir",
+    "probe_projections",
+    "vectors_checksum",
+]

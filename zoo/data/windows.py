@@ -12,10 +12,11 @@ Samplers; a window is ``T_in + T_out`` consecutive frames:
 - ``strideK``: every K-th window from frame 0 (AMASS: ``stride5``); ``strideK_strict`` keeps a
   window only if ``start + T_in + T_out < N`` (strictly), as the SpecTrHuMS code does.
 """
+
 from __future__ import annotations
 
 import re
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -39,13 +40,21 @@ class SamplerError(ZooError, ValueError):
 def check_sampler(name: str) -> str:
     if name in ("ltd8", "rand256", "all") or _STRIDE.match(name) or _ALL_AS_IF.match(name):
         return name
-    raise SamplerError(f"unknown sampler {name!r}; valid samplers: ltd8, rand256, all, allK, "
-                       f"strideK, strideK_strict (K a positive integer, e.g. stride5, all50)")
+    raise SamplerError(
+        f"unknown sampler {name!r}; valid samplers: ltd8, rand256, all, allK, "
+        f"strideK, strideK_strict (K a positive integer, e.g. stride5, all50)"
+    )
 
 
-def window_sampler(name: str, lengths: Sequence[int], input_frames: int, output_frames: int,
-                   ltd_rule: str = "per_file", groups: Sequence[str] | None = None,
-                   subactions: Sequence[int] | None = None) -> np.ndarray:
+def window_sampler(
+    name: str,
+    lengths: Sequence[int],
+    input_frames: int,
+    output_frames: int,
+    ltd_rule: str = "per_file",
+    groups: Sequence[str] | None = None,
+    subactions: Sequence[int] | None = None,
+) -> np.ndarray:
     """Window starts as an int64 array ``(W, 2)`` of ``(sequence index, first frame)``.
 
     ``groups`` (the action of each sequence) and ``subactions`` are needed by the H3.6M rule of
@@ -54,18 +63,24 @@ def window_sampler(name: str, lengths: Sequence[int], input_frames: int, output_
     check_sampler(name)
     length = input_frames + output_frames
     if input_frames < 1 or output_frames < 1:
-        raise SamplerError(f"input_frames and output_frames must be positive, got "
-                           f"{input_frames} and {output_frames}")
+        raise SamplerError(
+            f"input_frames and output_frames must be positive, got "
+            f"{input_frames} and {output_frames}"
+        )
     if name in ("ltd8", "rand256"):
         if input_frames > LTD_SOURCE or output_frames > LTD_TARGET:
-            raise SamplerError(f"sampler {name} takes T_in <= {LTD_SOURCE} and T_out <= "
-                               f"{LTD_TARGET} (its windows are cut from 75-frame draws), got "
-                               f"{input_frames} and {output_frames}")
+            raise SamplerError(
+                f"sampler {name} takes T_in <= {LTD_SOURCE} and T_out <= "
+                f"{LTD_TARGET} (its windows are cut from 75-frame draws), got "
+                f"{input_frames} and {output_frames}"
+            )
         if name == "ltd8" and ltd_rule == "per_file":
             return _ltd_per_file(lengths, input_frames)
         if ltd_rule != "per_action_pair" and name == "rand256":
-            raise SamplerError("sampler rand256 is defined for Human3.6M (two sub-actions per "
-                               "action), not for this dataset")
+            raise SamplerError(
+                "sampler rand256 is defined for Human3.6M (two sub-actions per "
+                "action), not for this dataset"
+            )
         rounds = 4 if name == "ltd8" else 128
         return _ltd_per_action_pair(lengths, groups, subactions, input_frames, rounds)
     as_if, match = _ALL_AS_IF.match(name), _STRIDE.match(name)
@@ -73,8 +88,10 @@ def window_sampler(name: str, lengths: Sequence[int], input_frames: int, output_
     if as_if:
         observed = int(as_if.group(1))
         if observed < input_frames:
-            raise SamplerError(f"sampler {name} cuts windows as if {observed} frames were "
-                               f"observed; T_in = {input_frames} is more")
+            raise SamplerError(
+                f"sampler {name} cuts windows as if {observed} frames were "
+                f"observed; T_in = {input_frames} is more"
+            )
         first = observed - input_frames
     elif match:
         stride, strict = int(match.group(1)), bool(match.group(2))
@@ -85,13 +102,15 @@ def window_sampler(name: str, lengths: Sequence[int], input_frames: int, output_
         out.append(np.stack([np.full_like(starts, i), starts], axis=1))
     return np.concatenate(out).astype(np.int64) if out else np.zeros((0, 2), np.int64)
 
+
 def _ltd_per_file(lengths: Sequence[int], input_frames: int) -> np.ndarray:
     out = []
     for i, n in enumerate(lengths):
         high = n - LTD_SOURCE - LTD_TARGET
         if high <= 0:
-            raise SamplerError(f"sequence {i} has {n} frames; ltd8 needs more than "
-                               f"{LTD_SOURCE + LTD_TARGET}")
+            raise SamplerError(
+                f"sequence {i} has {n} frames; ltd8 needs more than {LTD_SOURCE + LTD_TARGET}"
+            )
         rng = np.random.RandomState(LTD_SEED)  # fresh per file, as the reference loader does
         for _ in range(8):
             idx = rng.randint(0, high)
@@ -101,8 +120,9 @@ def _ltd_per_file(lengths: Sequence[int], input_frames: int) -> np.ndarray:
 
 def _ltd_per_action_pair(lengths, groups, subactions, input_frames, rounds) -> np.ndarray:
     if groups is None or subactions is None:
-        raise SamplerError("the H3.6M window rule needs the action and sub-action of every "
-                           "sequence")
+        raise SamplerError(
+            "the H3.6M window rule needs the action and sub-action of every sequence"
+        )
     out = []
     for action in dict.fromkeys(groups):  # actions in first-seen order
         pair = {}
@@ -110,17 +130,21 @@ def _ltd_per_action_pair(lengths, groups, subactions, input_frames, rounds) -> n
             if g == action:
                 pair[s] = i
         if sorted(pair) != [1, 2]:
-            raise SamplerError(f"action {action!r}: the H3.6M window rule needs sub-actions 1 and "
-                               f"2, found {sorted(pair)}")
+            raise SamplerError(
+                f"action {action!r}: the H3.6M window rule needs sub-actions 1 and "
+                f"2, found {sorted(pair)}"
+            )
         rng = np.random.RandomState(LTD_SEED)  # fresh per action
         first, second = [], []
         for _ in range(rounds):
             for sub, bucket in ((1, first), (2, second)):
                 high = lengths[pair[sub]] - 150
                 if high <= 16:
-                    raise SamplerError(f"action {action!r} sub-action {sub}: "
-                                       f"{lengths[pair[sub]]} frames is too short for the H3.6M "
-                                       f"window rule (needs more than 166)")
+                    raise SamplerError(
+                        f"action {action!r} sub-action {sub}: "
+                        f"{lengths[pair[sub]]} frames is too short for the H3.6M "
+                        f"window rule (needs more than 166)"
+                    )
                 idx = rng.randint(16, high)
                 bucket.append((pair[sub], idx + LTD_SOURCE - input_frames))
         out += first + second
@@ -151,11 +175,13 @@ def frame_counts(index: np.ndarray, lengths: Sequence[int], length: int) -> list
     bad = np.nonzero((starts < 0) | (starts + length > lengths[seq]))[0]
     if len(bad):
         i = bad[0]
-        raise SamplerError(f"window {i} of sequence {seq[i]}: frames [{starts[i]}, "
-                           f"{starts[i] + length}) run past its {lengths[seq[i]]} frames")
+        raise SamplerError(
+            f"window {i} of sequence {seq[i]}: frames [{starts[i]}, "
+            f"{starts[i] + length}) run past its {lengths[seq[i]]} frames"
+        )
     # +1 where a window starts, -1 one past its end; each sequence has n + 1 slots
     offsets = np.concatenate([[0], np.cumsum(lengths + 1)])
     edges = np.zeros(offsets[-1], np.int64)
     np.add.at(edges, offsets[seq] + starts, 1)
     np.add.at(edges, offsets[seq] + starts + length, -1)
-    return [np.cumsum(edges[offsets[i]:offsets[i] + n]) for i, n in enumerate(lengths)]
+    return [np.cumsum(edges[offsets[i] : offsets[i] + n]) for i, n in enumerate(lengths)]

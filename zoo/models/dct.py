@@ -5,6 +5,7 @@
 (the orthonormal DCT-III) is its transpose. Both are built in float64 and cast once, so the round
 trip is exact to float32 rounding.
 """
+
 from __future__ import annotations
 
 import math
@@ -12,16 +13,18 @@ import math
 import torch
 
 
-def dct_matrix(n: int, dtype: torch.dtype = torch.float32,
-               device: torch.device | str | None = None) -> torch.Tensor:
+def dct_matrix(
+    n: int, dtype: torch.dtype = torch.float32, device: torch.device | str | None = None
+) -> torch.Tensor:
     """The ``(n, n)`` orthonormal DCT-II matrix ``D``: coefficients ``c = D @ x``.
 
     ``D[k, t] = s_k * cos(pi * (2t + 1) * k / (2n))`` with ``s_0 = sqrt(1/n)`` and
     ``s_k = sqrt(2/n)`` otherwise.
     """
     if not isinstance(n, int) or isinstance(n, bool) or n < 1:
-        raise ValueError(f"dct_matrix: n (the number of frames) must be a positive integer, "
-                         f"got {n!r}")
+        raise ValueError(
+            f"dct_matrix: n (the number of frames) must be a positive integer, got {n!r}"
+        )
     k = torch.arange(n, dtype=torch.float64)[:, None]
     t = torch.arange(n, dtype=torch.float64)[None, :]
     matrix = torch.cos(math.pi * (2 * t + 1) * k / (2 * n)) * math.sqrt(2.0 / n)
@@ -29,7 +32,8 @@ def dct_matrix(n: int, dtype: torch.dtype = torch.float32,
     return matrix.to(dtype=dtype, device=device)
 
 
-def idct_matrix(n: int, dtype: torch.dtype = torch.float32,
-                device: torch.device | str | None = None) -> torch.Tensor:
+def idct_matrix(
+    n: int, dtype: torch.dtype = torch.float32, device: torch.device | str | None = None
+) -> torch.Tensor:
     """The inverse of :func:`dct_matrix`: its transpose (``x = D^T @ c``)."""
     return dct_matrix(n, torch.float64).T.contiguous().to(dtype=dtype, device=device)

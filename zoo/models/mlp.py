@@ -16,6 +16,7 @@ offset never makes the round trip through metres), which keeps that exact to flo
 Longer horizons roll out autoregressively, ``chunk`` frames per step (published: 10 frames
 trained, 25 predicted in 3 steps).
 """
+
 from __future__ import annotations
 
 import math
@@ -51,9 +52,16 @@ class TemporalBlock(nn.Module):
 
 
 class SiMLPe(nn.Module):
-    def __init__(self, input_frames: int, output_frames: int, num_points: int, blocks: int = 48,
-                 hidden_dim: int | None = None, chunk: int = 10,
-                 init_gain: float = 1e-10) -> None:
+    def __init__(
+        self,
+        input_frames: int,
+        output_frames: int,
+        num_points: int,
+        blocks: int = 48,
+        hidden_dim: int | None = None,
+        chunk: int = 10,
+        init_gain: float = 1e-10,
+    ) -> None:
         super().__init__()
         self.input_frames = _positive_int("input_frames", input_frames)
         self.output_frames = _positive_int("output_frames", output_frames)
@@ -62,16 +70,21 @@ class SiMLPe(nn.Module):
         _positive_int("chunk", chunk)
         features = 3 * num_points
         hidden = features if hidden_dim is None else _positive_int("hidden_dim", hidden_dim)
-        if isinstance(init_gain, bool) or not isinstance(init_gain, (int, float)) \
-                or not math.isfinite(init_gain) or init_gain < 0:
+        if (
+            isinstance(init_gain, bool)
+            or not isinstance(init_gain, (int, float))
+            or not math.isfinite(init_gain)
+            or init_gain < 0
+        ):
             raise ValueError(f"SiMLPe: init_gain must be a finite number >= 0, got {init_gain!r}")
         # Temporal layers map T_in -> T_in frames, so one step can give at most T_in frames.
         self.chunk = min(chunk, input_frames)
         self.hidden_dim = hidden
         self.register_buffer("dct", dct_matrix(input_frames), persistent=False)
         self.spatial_in = nn.Linear(features, hidden)  # default init, as published
-        self.blocks = nn.ModuleList(TemporalBlock(input_frames, hidden, init_gain)
-                                    for _ in range(blocks))
+        self.blocks = nn.ModuleList(
+            TemporalBlock(input_frames, hidden, init_gain) for _ in range(blocks)
+        )
         self.spatial_out = nn.Linear(hidden, features)
         nn.init.xavier_uniform_(self.spatial_out.weight, gain=init_gain)
         nn.init.zeros_(self.spatial_out.bias)
@@ -85,7 +98,7 @@ class SiMLPe(nn.Module):
             h = block(h)
         coefficients = self.spatial_out(h)
         # Inverse DCT of the first `chunk` frames only: rows of D^T = columns of D.
-        delta = torch.matmul(self.dct[:, :self.chunk].T, coefficients)
+        delta = torch.matmul(self.dct[:, : self.chunk].T, coefficients)
         delta = delta.reshape(batch, self.chunk, self.num_points, 3)
         return window[:, -1:] + MM_PER_M * delta
 
@@ -96,8 +109,8 @@ class SiMLPe(nn.Module):
             frames = self.step(window)
             predicted.append(frames)
             count += self.chunk
-            window = torch.cat([window, frames], dim=1)[:, -self.input_frames:]
-        return torch.cat(predicted, dim=1)[:, :self.output_frames]
+            window = torch.cat([window, frames], dim=1)[:, -self.input_frames :]
+        return torch.cat(predicted, dim=1)[:, : self.output_frames]
 
     def training_loss(self, history: torch.Tensor, future: torch.Tensor) -> torch.Tensor:
         """siMLPe's loss on one step: mean joint L2 error of positions plus that of frame-to-frame
@@ -116,5 +129,7 @@ class SiMLPe(nn.Module):
     def _check(self, motion: torch.Tensor, name: str, frames: int) -> None:
         expected = (frames, self.num_points, 3)
         if motion.ndim != 4 or tuple(motion.shape[1:]) != expected:
-            raise ValueError(f"SiMLPe: {name} must have shape (B, {frames}, {self.num_points}, 3), "
-                             f"got {tuple(motion.shape)}")
+            raise ValueError(
+                f"SiMLPe: {name} must have shape (B, {frames}, {self.num_points}, 3), "
+                f"got {tuple(motion.shape)}"
+            )

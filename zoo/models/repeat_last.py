@@ -1,4 +1,5 @@
 """Repeat-last-frame (zero-velocity) baseline: every future frame equals the last observed one."""
+
 from __future__ import annotations
 
 import torch

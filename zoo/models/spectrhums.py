@@ -36,11 +36,13 @@ unit of the published SMPL data, while the model's inputs and outputs are in mm 
 Long-term prediction (``rollout``) feeds the last ``T_in`` frames back: predicted coefficients
 are re-encoded, which equals projecting their reconstructed vertices since ``Phi^T Phi = I``.
 """
+
 from __future__ import annotations
 
 import hashlib
 import math
-from typing import Any, Callable, Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from typing import Any
 
 import numpy as np
 import torch
@@ -65,6 +67,7 @@ class SpecTrHuMSError(ZooError, ValueError):
 
 # ---- statistics ------------------------------------------------------------------------------
 
+
 class Welford:
     """Running mean and sample variance over batches of feature vectors, in float64.
 
@@ -86,8 +89,10 @@ class Welford:
             counts = torch.ones(rows.shape[0], dtype=torch.int64)
         counts = counts.detach().to(self.mean.device, torch.int64).reshape(-1)
         if counts.shape[0] != rows.shape[0] or bool((counts < 0).any()):
-            raise SpecTrHuMSError(f"statistics: {counts.shape[0]} counts for {rows.shape[0]} "
-                                  f"rows (counts must be one non-negative integer per row)")
+            raise SpecTrHuMSError(
+                f"statistics: {counts.shape[0]} counts for {rows.shape[0]} "
+                f"rows (counts must be one non-negative integer per row)"
+            )
         n_b = int(counts.sum())
         if n_b == 0:
             return
@@ -103,8 +108,7 @@ class Welford:
     def finalize(self, what: str) -> tuple[Tensor, Tensor]:
         """``(mean, std)`` with the sample standard deviation (``ddof=1``)."""
         if self.count < 2:
-            raise SpecTrHuMSError(f"{what}: statistics need at least 2 frames, got "
-                                  f"{self.count}")
+            raise SpecTrHuMSError(f"{what}: statistics need at least 2 frames, got {self.count}")
         return self.mean, (self.m2 / (self.count - 1)).sqrt()
 
 
@@ -113,6 +117,7 @@ def _floored(std: Tensor) -> Tensor:
 
 
 # ---- building blocks -------------------------------------------------------------------------
+
 
 class FrequencyPooling(nn.Module):
     """A learned matrix along the frequency axis: ``(N, C, n_in) -> (N, C, n_out)``."""
@@ -147,26 +152,31 @@ class SpectralAutoencoder(nn.Module):
     convolutions over all ``k`` frequencies (3 input channels in the encoder).
     """
 
-    def __init__(self, k: int, channels: Sequence[int], pooling: Sequence[int], kernel_size: int,
-                 latent: int) -> None:
+    def __init__(
+        self, k: int, channels: Sequence[int], pooling: Sequence[int], kernel_size: int, latent: int
+    ) -> None:
         super().__init__()
         sizes = [k, *pooling]
         enc_ch = [3, *channels]
-        self.encoder_convs = nn.ModuleList(nn.Conv1d(enc_ch[i], enc_ch[i + 1], kernel_size,
-                                                     padding=kernel_size // 2)
-                                           for i in range(len(channels)))
-        self.encoder_pools = nn.ModuleList(FrequencyPooling(sizes[i], sizes[i + 1])
-                                           for i in range(len(channels)))
+        self.encoder_convs = nn.ModuleList(
+            nn.Conv1d(enc_ch[i], enc_ch[i + 1], kernel_size, padding=kernel_size // 2)
+            for i in range(len(channels))
+        )
+        self.encoder_pools = nn.ModuleList(
+            FrequencyPooling(sizes[i], sizes[i + 1]) for i in range(len(channels))
+        )
         self.bottleneck = (channels[-1], pooling[-1])
         self.to_latent = nn.Linear(channels[-1] * pooling[-1], latent)
         self.from_latent = nn.Linear(latent, channels[-1] * pooling[-1])
         dec_ch = [*channels[::-1], channels[0]]  # (32, 64) -> 64 -> 32 -> 32, then 32 -> 3
         rev = sizes[::-1]
-        self.decoder_pools = nn.ModuleList(FrequencyPooling(rev[i], rev[i + 1])
-                                           for i in range(len(channels)))
-        self.decoder_convs = nn.ModuleList(nn.Conv1d(dec_ch[i], dec_ch[i + 1], kernel_size,
-                                                     padding=kernel_size // 2)
-                                           for i in range(len(channels)))
+        self.decoder_pools = nn.ModuleList(
+            FrequencyPooling(rev[i], rev[i + 1]) for i in range(len(channels))
+        )
+        self.decoder_convs = nn.ModuleList(
+            nn.Conv1d(dec_ch[i], dec_ch[i + 1], kernel_size, padding=kernel_size // 2)
+            for i in range(len(channels))
+        )
         self.to_coordinates = nn.Conv1d(dec_ch[-1], 3, kernel_size, padding=kernel_size // 2)
 
     def encode(self, x: Tensor) -> Tensor:
@@ -184,8 +194,11 @@ class SpectralAutoencoder(nn.Module):
         # The last layer's outputs are scaled by the coefficients' std (up to metres once
         # de-standardised): float32 even under a bfloat16 autocast.
         with torch.autocast(h.device.type, enabled=False):
-            out = _conv(h.to(self.to_coordinates.weight.dtype), self.to_coordinates.weight,
-                        self.to_coordinates.bias)
+            out = _conv(
+                h.to(self.to_coordinates.weight.dtype),
+                self.to_coordinates.weight,
+                self.to_coordinates.bias,
+            )
         return out.transpose(0, 1)  # (N, k, 3)
 
 
@@ -199,7 +212,7 @@ def _conv_then_pool(x: Tensor, weight: Tensor, bias: Tensor, pool: Tensor) -> Te
     o, _, kernel = weight.shape
     pad, m = kernel // 2, pool.shape[1]
     padded = F.pad(pool, (0, 0, pad, pad))  # padded[i] = P[i - pad]
-    shifted = torch.stack([padded[2 * pad - d: 2 * pad - d + length] for d in range(kernel)])
+    shifted = torch.stack([padded[2 * pad - d : 2 * pad - d + length] for d in range(kernel)])
     y = shifted.transpose(1, 2).reshape(kernel * m, length) @ x.reshape(length, n * c)
     y = y.view(kernel, m, n, c).permute(1, 2, 3, 0).reshape(m * n, c * kernel)
     out = (y @ weight.reshape(o, c * kernel).T).view(m, n, o)
@@ -217,10 +230,10 @@ def _unpool_then_conv(x: Tensor, pool: Tensor, weight: Tensor, bias: Tensor) -> 
     j, n, c = x.shape
     o, _, kernel = weight.shape
     pad, length = kernel // 2, pool.shape[1]
-    mixed = (x.reshape(j * n, c) @ weight.permute(1, 2, 0).reshape(c, kernel * o))
+    mixed = x.reshape(j * n, c) @ weight.permute(1, 2, 0).reshape(c, kernel * o)
     mixed = mixed.view(j, n, kernel, o).permute(2, 0, 1, 3).reshape(kernel * j, n * o)
     padded = F.pad(pool, (pad, pad))  # padded[:, i] = U[:, i - pad]
-    shifted = torch.cat([padded[:, d: d + length] for d in range(kernel)])  # (K * J, L)
+    shifted = torch.cat([padded[:, d : d + length] for d in range(kernel)])  # (K * J, L)
     return (shifted.T @ mixed).view(length, n, o) + bias
 
 
@@ -230,7 +243,7 @@ def _conv(x: Tensor, weight: Tensor, bias: Tensor) -> Tensor:
     length, n, c = x.shape
     o, _, kernel = weight.shape
     pad = kernel // 2
-    taps = (x.reshape(length * n, c) @ weight.permute(1, 2, 0).reshape(c, kernel * o))
+    taps = x.reshape(length * n, c) @ weight.permute(1, 2, 0).reshape(c, kernel * o)
     taps = taps.view(length, n, kernel, o)
     out = taps[:, :, pad] + bias
     for d in range(kernel):
@@ -275,19 +288,30 @@ class LatentTransformer(nn.Module):
     """Linear, sinusoidal positions, dropout (``position_dropout``, 0.1 in the public code),
     post-norm transformer encoder layers, Linear."""
 
-    def __init__(self, latent: int, d_model: int, layers: int, heads: int, ff: int,
-                 dropout: float, window: int, position_dropout: float = 0.0) -> None:
+    def __init__(
+        self,
+        latent: int,
+        d_model: int,
+        layers: int,
+        heads: int,
+        ff: int,
+        dropout: float,
+        window: int,
+        position_dropout: float = 0.0,
+    ) -> None:
         super().__init__()
         self.position_dropout = position_dropout
         self.inp = nn.Linear(latent, d_model)
-        self.layers = nn.ModuleList(EncoderLayer(d_model, heads, ff, dropout)
-                                    for _ in range(layers))
+        self.layers = nn.ModuleList(
+            EncoderLayer(d_model, heads, ff, dropout) for _ in range(layers)
+        )
         self.out = nn.Linear(d_model, latent)
         self.register_buffer("positions", sinusoidal_positions(window, d_model), persistent=False)
 
     def forward(self, x: Tensor) -> Tensor:
-        h = F.dropout(self.inp(x) + self.positions[: x.shape[1]], self.position_dropout,
-                      self.training)
+        h = F.dropout(
+            self.inp(x) + self.positions[: x.shape[1]], self.position_dropout, self.training
+        )
         for layer in self.layers:
             h = layer(h)
         return self.out(h)
@@ -305,6 +329,7 @@ def sinusoidal_positions(length: int, dim: int) -> Tensor:
 
 # ---- the model -------------------------------------------------------------------------------
 
+
 class SpecTrHuMS(nn.Module):
     """SpecTrHuMS for prediction (``task='prediction'``) or completion (``'completion'``).
 
@@ -314,23 +339,55 @@ class SpecTrHuMS(nn.Module):
     ``input_frames + output_frames``.
     """
 
-    def __init__(self, input_frames: int, output_frames: int, num_points: int, basis: Any,
-                 task: str = "prediction", latent: int = 256,
-                 channels: Sequence[int] = (32, 64), pooling: Sequence[int] = (64, 32),
-                 kernel_size: int = 3, d_model: int = 256, layers: int = 6, heads: int = 4,
-                 ff: int = 1024, dropout: float = 0.0, position_dropout: float = 0.1,
-                 autoencoder_epochs: int = 2, static_frames: int = 1,
-                 loss_unit_mm: float = 1000.0) -> None:
+    def __init__(
+        self,
+        input_frames: int,
+        output_frames: int,
+        num_points: int,
+        basis: Any,
+        task: str = "prediction",
+        latent: int = 256,
+        channels: Sequence[int] = (32, 64),
+        pooling: Sequence[int] = (64, 32),
+        kernel_size: int = 3,
+        d_model: int = 256,
+        layers: int = 6,
+        heads: int = 4,
+        ff: int = 1024,
+        dropout: float = 0.0,
+        position_dropout: float = 0.1,
+        autoencoder_epochs: int = 2,
+        static_frames: int = 1,
+        loss_unit_mm: float = 1000.0,
+    ) -> None:
         super().__init__()
-        _check_settings(input_frames, output_frames, num_points, task, latent, channels, pooling,
-                        kernel_size, d_model, layers, heads, ff, dropout, position_dropout,
-                        autoencoder_epochs, static_frames, loss_unit_mm)
+        _check_settings(
+            input_frames,
+            output_frames,
+            num_points,
+            task,
+            latent,
+            channels,
+            pooling,
+            kernel_size,
+            d_model,
+            layers,
+            heads,
+            ff,
+            dropout,
+            position_dropout,
+            autoencoder_epochs,
+            static_frames,
+            loss_unit_mm,
+        )
         phi = _basis_vectors(basis, num_points)
         self.input_frames, self.output_frames = int(input_frames), int(output_frames)
         self.window = self.input_frames + self.output_frames
         if static_frames > self.window:
-            raise SpecTrHuMSError(f"static_frames={static_frames}: at most the window "
-                                  f"(input_frames + output_frames = {self.window})")
+            raise SpecTrHuMSError(
+                f"static_frames={static_frames}: at most the window "
+                f"(input_frames + output_frames = {self.window})"
+            )
         self.num_points, self.k = int(num_points), phi.shape[1]
         self.task = task
         self.autoencoder_epochs = int(autoencoder_epochs)
@@ -341,16 +398,21 @@ class SpecTrHuMS(nn.Module):
         self.phase = "autoencoder" if self.autoencoder_epochs > 0 else "joint"
 
         self.autoencoder = SpectralAutoencoder(self.k, channels, pooling, kernel_size, latent)
-        self.transformer = LatentTransformer(latent, d_model, layers, heads, ff, dropout,
-                                             self.window, position_dropout)
+        self.transformer = LatentTransformer(
+            latent, d_model, layers, heads, ff, dropout, self.window, position_dropout
+        )
         for m in self.modules():  # the published initialisation: xavier, zero bias
             if isinstance(m, (nn.Linear, nn.Conv1d)):
                 nn.init.xavier_uniform_(m.weight)
                 nn.init.zeros_(m.bias)
 
         self.basis = basis  # data, not parameters: it travels with the dataset, by hash
-        self.register_buffer("basis_id", torch.tensor(
-            list(hashlib.sha256(self.basis_hash.encode()).digest()), dtype=torch.uint8))
+        self.register_buffer(
+            "basis_id",
+            torch.tensor(
+                list(hashlib.sha256(self.basis_hash.encode()).digest()), dtype=torch.uint8
+            ),
+        )
         # The basis's own numbers, so weights are checked against the vectors they will meet,
         # not only against the name of the basis (see zoo.data.spectral: names agree across
         # machines, bytes do not).
@@ -417,15 +479,21 @@ class SpecTrHuMS(nn.Module):
         """The transformer's input ``(B, W, L)`` from standardised latents of the observed
         frames ``(B, T_in, L)`` and, for completion, of the final frame ``(B, L)``."""
         if observed.shape[1] != self.input_frames:
-            raise SpecTrHuMSError(f"observed latents: {observed.shape[1]} frames, the model "
-                                  f"observes input_frames={self.input_frames}")
+            raise SpecTrHuMSError(
+                f"observed latents: {observed.shape[1]} frames, the model "
+                f"observes input_frames={self.input_frames}"
+            )
         self._check_final(final is not None)
         last = observed[:, -1:]
         if self.task == "prediction":
             unknown = last.expand(-1, self.output_frames, -1)
         else:
-            alpha = torch.arange(1, self.output_frames + 1, device=observed.device,
-                                 dtype=observed.dtype) / self.output_frames
+            alpha = (
+                torch.arange(
+                    1, self.output_frames + 1, device=observed.device, dtype=observed.dtype
+                )
+                / self.output_frames
+            )
             # lerp is exact at both ends: the window's last latent is the final frame's
             unknown = torch.lerp(last, final[:, None], alpha[:, None])
         return torch.cat([observed, unknown], dim=1)
@@ -434,9 +502,11 @@ class SpecTrHuMS(nn.Module):
         """The transformer's input for a full window of standardised latents ``(B, W, L)``:
         only the frames in ``known_frames`` are used, the others are filled in (training)."""
         if latents.shape[1] != self.window:
-            raise SpecTrHuMSError(f"latent window: {latents.shape[1]} frames, the model's window "
-                                  f"is {self.window} (input_frames {self.input_frames} + "
-                                  f"output_frames {self.output_frames})")
+            raise SpecTrHuMSError(
+                f"latent window: {latents.shape[1]} frames, the model's window "
+                f"is {self.window} (input_frames {self.input_frames} + "
+                f"output_frames {self.output_frames})"
+            )
         final = latents[:, -1] if self.task == "completion" else None
         return self.fill_window(latents[:, : self.input_frames], final)
 
@@ -450,17 +520,21 @@ class SpecTrHuMS(nn.Module):
         """Observed coefficients ``(B, T_in, k, 3)`` (and, for completion, the final frame's
         ``(B, k, 3)``) -> predicted coefficients ``(B, T_out, k, 3)``, all in mm."""
         if coeffs.ndim != 4 or coeffs.shape[1:] != (self.input_frames, self.k, 3):
-            raise SpecTrHuMSError(f"coefficients: expected (B, {self.input_frames}, {self.k}, 3),"
-                                  f" got {tuple(coeffs.shape)}")
+            raise SpecTrHuMSError(
+                f"coefficients: expected (B, {self.input_frames}, {self.k}, 3),"
+                f" got {tuple(coeffs.shape)}"
+            )
         z = self.standardise_latents(self.encode(coeffs))
         z_final = None
         if final is not None:
             if final.shape != (coeffs.shape[0], self.k, 3):
-                raise SpecTrHuMSError(f"final coefficients: expected (B, k, 3) = "
-                                      f"({coeffs.shape[0]}, {self.k}, 3), got "
-                                      f"{tuple(final.shape)}")
+                raise SpecTrHuMSError(
+                    f"final coefficients: expected (B, k, 3) = "
+                    f"({coeffs.shape[0]}, {self.k}, 3), got "
+                    f"{tuple(final.shape)}"
+                )
             z_final = self.standardise_latents(self.encode(final))
-        out = self.transformer(self.fill_window(z, z_final))[:, self.input_frames:]
+        out = self.transformer(self.fill_window(z, z_final))[:, self.input_frames :]
         return self.decode(self.destandardise_latents(out))
 
     def forward(self, history: Tensor, final_frame: Tensor | None = None) -> Tensor:
@@ -474,17 +548,19 @@ class SpecTrHuMS(nn.Module):
         if final_frame is not None:
             if final_frame.ndim == 4 and final_frame.shape[1] == 1:
                 final_frame = final_frame[:, 0]
-            if final_frame.ndim != 3 or final_frame.shape != (history.shape[0],
-                                                              self.num_points, 3):
-                raise SpecTrHuMSError(f"final_frame: expected (B, V, 3) = ({history.shape[0]}, "
-                                      f"{self.num_points}, 3), got {tuple(final_frame.shape)}")
+            if final_frame.ndim != 3 or final_frame.shape != (history.shape[0], self.num_points, 3):
+                raise SpecTrHuMSError(
+                    f"final_frame: expected (B, V, 3) = ({history.shape[0]}, "
+                    f"{self.num_points}, 3), got {tuple(final_frame.shape)}"
+                )
             final = final_frame[:, None]
         self._check_final(final is not None)
         parts = (history,) if final is None else (history, final)
         coeffs = self._project_frames(*parts)  # one product for the observed and final frames
         final_coeffs = None if final is None else coeffs[:, -1]
-        return self.reconstruct(self.predict_coefficients(coeffs[:, : self.input_frames],
-                                                          final_coeffs))
+        return self.reconstruct(
+            self.predict_coefficients(coeffs[:, : self.input_frames], final_coeffs)
+        )
 
     @torch.no_grad()
     def autoencoder_floor(self, frames: Tensor) -> Tensor:
@@ -503,29 +579,34 @@ class SpecTrHuMS(nn.Module):
         projecting their reconstructed vertices (``Phi^T Phi = I``) without the round trip.
         """
         if self.task != "prediction":
-            raise SpecTrHuMSError("rollout is long-term prediction; this model was trained for "
-                                  "completion (task='completion')")
+            raise SpecTrHuMSError(
+                "rollout is long-term prediction; this model was trained for "
+                "completion (task='completion')"
+            )
         if isinstance(frames, bool) or not isinstance(frames, (int, np.integer)) or frames < 1:
             raise SpecTrHuMSError(f"frames: a positive integer, got {frames!r}")
         self._check_vertices(history, "history", None)
         if history.shape[1] < self.input_frames:
-            raise SpecTrHuMSError(f"history: {history.shape[1]} frames, shorter than the "
-                                  f"model's input_frames={self.input_frames}")
-        z = self.encode(self.project(history[:, -self.input_frames:]))
+            raise SpecTrHuMSError(
+                f"history: {history.shape[1]} frames, shorter than the "
+                f"model's input_frames={self.input_frames}"
+            )
+        z = self.encode(self.project(history[:, -self.input_frames :]))
         frames, outputs, produced = int(frames), [], 0
         while produced < frames:
             out = self.transformer(self.fill_window(self.standardise_latents(z)))
-            coeffs = self.decode(self.destandardise_latents(out[:, self.input_frames:]))
+            coeffs = self.decode(self.destandardise_latents(out[:, self.input_frames :]))
             outputs.append(coeffs)
             produced += self.output_frames
             if produced < frames:
-                z = torch.cat([z, self.encode(coeffs)], dim=1)[:, -self.input_frames:]
+                z = torch.cat([z, self.encode(coeffs)], dim=1)[:, -self.input_frames :]
         return self.reconstruct(torch.cat(outputs, dim=1)[:, :frames])
 
     # ---- training ------------------------------------------------------------------------------
 
-    def start_epoch(self, epoch: int,
-                    frames: Callable[[], Iterable[tuple[Tensor, Tensor]]]) -> None:
+    def start_epoch(
+        self, epoch: int, frames: Callable[[], Iterable[tuple[Tensor, Tensor]]]
+    ) -> None:
         """Training-engine hook: the phase of ``epoch`` and the statistics it needs.
 
         Coefficient statistics: in the first epoch (or whenever they were never computed);
@@ -553,8 +634,10 @@ class SpecTrHuMS(nn.Module):
     @torch.no_grad()
     def compute_latent_statistics(self, frames: Iterable[tuple[Tensor, Tensor]]) -> None:
         if int(self.coeff_frames) == 0:
-            raise SpecTrHuMSError("latent statistics need the coefficient statistics first "
-                                  "(start_epoch computes both)")
+            raise SpecTrHuMSError(
+                "latent statistics need the coefficient statistics first "
+                "(start_epoch computes both)"
+            )
         stats = Welford((self.latent_mean.shape[0],), self.latent_mean.device)
         for coeffs, counts in self._frame_coefficients(frames):
             stats.update(self.encode(coeffs), counts)
@@ -563,16 +646,19 @@ class SpecTrHuMS(nn.Module):
         self.latent_std.copy_(_floored(std))
         self.latent_frames.fill_(stats.count)
 
-    def _frame_coefficients(self, frames: Iterable[tuple[Tensor, Tensor]]
-                            ) -> Iterator[tuple[Tensor, Tensor]]:
+    def _frame_coefficients(
+        self, frames: Iterable[tuple[Tensor, Tensor]]
+    ) -> Iterator[tuple[Tensor, Tensor]]:
         """Coefficients ``(N, k, 3)`` of the training frames with their counts, a few thousand
         frames at a time."""
         seen = 0
         for batch, counts in frames:
             self._check_vertices(batch[None], "training frames", None)
             if counts.shape != batch.shape[:1]:
-                raise SpecTrHuMSError(f"training frames: {tuple(counts.shape)} counts for "
-                                      f"{batch.shape[0]} frames (one count per frame)")
+                raise SpecTrHuMSError(
+                    f"training frames: {tuple(counts.shape)} counts for "
+                    f"{batch.shape[0]} frames (one count per frame)"
+                )
             batch = batch.to(self.coeff_mean.device, self.coeff_mean.dtype)
             for start in range(0, len(batch), _FRAMES_PER_CHUNK):
                 part = slice(start, start + _FRAMES_PER_CHUNK)
@@ -591,25 +677,32 @@ class SpecTrHuMS(nn.Module):
     def coefficient_loss_terms(self, coeffs: Tensor) -> dict[str, Tensor | None]:
         """The loss terms for windows of coefficients ``(B, W, k, 3)`` in mm."""
         if coeffs.ndim != 4 or coeffs.shape[1:] != (self.window, self.k, 3):
-            raise SpecTrHuMSError(f"coefficient windows: expected (B, {self.window}, {self.k}, "
-                                  f"3), got {tuple(coeffs.shape)}")
+            raise SpecTrHuMSError(
+                f"coefficient windows: expected (B, {self.window}, {self.k}, "
+                f"3), got {tuple(coeffs.shape)}"
+            )
         if int(self.coeff_frames) == 0:
-            raise SpecTrHuMSError("training needs the coefficient statistics: call "
-                                  "start_epoch(epoch, frames) first (the training engine does)")
+            raise SpecTrHuMSError(
+                "training needs the coefficient statistics: call "
+                "start_epoch(epoch, frames) first (the training engine does)"
+            )
         b = coeffs.shape[0]
         if self.static_frames == self.window:
             picked = coeffs
         else:
             idx = torch.rand(b, self.window, device=coeffs.device).argsort(1)
-            picked = coeffs[torch.arange(b, device=coeffs.device)[:, None],
-                            idx[:, : self.static_frames]]
+            picked = coeffs[
+                torch.arange(b, device=coeffs.device)[:, None], idx[:, : self.static_frames]
+            ]
         rebuilt = self.decode(self.encode(picked))
         static = F.mse_loss(rebuilt / self.loss_unit_mm, picked / self.loss_unit_mm)
         if self.phase == "autoencoder":
             return {"static": static, "dynamic": None}
         if int(self.latent_frames) == 0:
-            raise SpecTrHuMSError("the joint phase needs the latent statistics: call "
-                                  "start_epoch(epoch, frames) first (the training engine does)")
+            raise SpecTrHuMSError(
+                "the joint phase needs the latent statistics: call "
+                "start_epoch(epoch, frames) first (the training engine does)"
+            )
         with torch.no_grad():  # the dynamic loss never updates the encoder
             target = self.standardise_latents(self.encode(coeffs))
         dynamic = F.mse_loss(self.transform_window(target), target)
@@ -625,35 +718,45 @@ class SpecTrHuMS(nn.Module):
 
     def _check_final(self, given: bool) -> None:
         if self.task == "prediction" and given:
-            raise SpecTrHuMSError("final_frame: this model was trained for prediction "
-                                  "(task='prediction'); a final frame is for completion")
+            raise SpecTrHuMSError(
+                "final_frame: this model was trained for prediction "
+                "(task='prediction'); a final frame is for completion"
+            )
         if self.task == "completion" and not given:
-            raise SpecTrHuMSError("final_frame is required: this model does completion "
-                                  "(task='completion'), the unknown frames are interpolated "
-                                  "towards the given final frame")
+            raise SpecTrHuMSError(
+                "final_frame is required: this model does completion "
+                "(task='completion'), the unknown frames are interpolated "
+                "towards the given final frame"
+            )
 
     def _check_vertices(self, x: Tensor, what: str, frames: int | None) -> None:
         if not isinstance(x, Tensor) or x.ndim != 4 or x.shape[2:] != (self.num_points, 3):
             shape = tuple(x.shape) if isinstance(x, Tensor) else type(x).__name__
-            raise SpecTrHuMSError(f"{what}: expected vertices (B, T, {self.num_points}, 3) in mm, "
-                                  f"got {shape}")
+            raise SpecTrHuMSError(
+                f"{what}: expected vertices (B, T, {self.num_points}, 3) in mm, got {shape}"
+            )
         if frames is not None and x.shape[1] != frames:
             raise SpecTrHuMSError(
                 f"{what}: {x.shape[1]} frames, expected {frames} (the model's window is "
                 f"{self.window} = input_frames {self.input_frames} + output_frames "
-                f"{self.output_frames})")
+                f"{self.output_frames})"
+            )
 
     def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs):
         saved = state_dict.get(prefix + "basis_id")
         if saved is not None and not torch.equal(saved.cpu(), self.basis_id.cpu()):
-            raise SpecTrHuMSError(f"these weights were trained with another spectral basis than "
-                                  f"this model's (hash {self.basis_hash[:12]}); a basis is never "
-                                  f"interchangeable (eigenvector signs and order are arbitrary)")
+            raise SpecTrHuMSError(
+                f"these weights were trained with another spectral basis than "
+                f"this model's (hash {self.basis_hash[:12]}); a basis is never "
+                f"interchangeable (eigenvector signs and order are arbitrary)"
+            )
         probe = state_dict.get(prefix + "basis_probe")
         if saved is not None and probe is None:
-            raise SpecTrHuMSError("these weights carry no basis_probe (the numbers of the basis "
-                                  "they were trained with), so they cannot be checked against "
-                                  "this machine's basis; export them again from their checkpoint")
+            raise SpecTrHuMSError(
+                "these weights carry no basis_probe (the numbers of the basis "
+                "they were trained with), so they cannot be checked against "
+                "this machine's basis; export them again from their checkpoint"
+            )
         if probe is not None and probe.shape == self.basis_probe.shape:
             gap = (probe.float().cpu() - self.basis_probe.cpu()).abs().max().item()
             if not gap <= PROBE_TOLERANCE:
@@ -662,64 +765,104 @@ class SpecTrHuMS(nn.Module):
                     f"{self.basis_hash[:12]} than this machine computed: its probe projections "
                     f"differ by up to {gap:.3g} (rounding gives < {PROBE_TOLERANCE:g}), so some "
                     f"eigenvector has another sign or an eigenspace another rotation; the "
-                    f"weights do not apply to this basis")
+                    f"weights do not apply to this basis"
+                )
         super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
 
 
 def _basis_vectors(basis: Any, num_points: int) -> np.ndarray:
     if basis is None or not hasattr(basis, "vectors") or not hasattr(basis, "hash"):
-        raise SpecTrHuMSError(f"basis: expected a spectral basis with 'vectors' (V, k) and "
-                              f"'hash' (the benchmark supplies it: registry context [basis]), "
-                              f"got {type(basis).__name__}")
+        raise SpecTrHuMSError(
+            f"basis: expected a spectral basis with 'vectors' (V, k) and "
+            f"'hash' (the benchmark supplies it: registry context [basis]), "
+            f"got {type(basis).__name__}"
+        )
     phi = np.asarray(basis.vectors, dtype=np.float64)
     if phi.ndim != 2 or phi.shape[1] < 1:
         raise SpecTrHuMSError(f"basis: vectors must be a matrix (V, k), got shape {phi.shape}")
     if phi.shape[0] != num_points:
-        raise SpecTrHuMSError(f"basis: {phi.shape[0]} vertices (basis {str(basis.hash)[:12]}), "
-                              f"but num_points={num_points}: the basis must belong to the "
-                              f"benchmark's mesh")
+        raise SpecTrHuMSError(
+            f"basis: {phi.shape[0]} vertices (basis {str(basis.hash)[:12]}), "
+            f"but num_points={num_points}: the basis must belong to the "
+            f"benchmark's mesh"
+        )
     if phi.shape[1] > phi.shape[0]:
         raise SpecTrHuMSError(f"basis: k={phi.shape[1]} vectors exceed V={phi.shape[0]}")
     gram_error = np.abs(phi.T @ phi - np.eye(phi.shape[1])).max()
     if not gram_error < 1e-4:
-        raise SpecTrHuMSError(f"basis: vectors are not orthonormal (max |Phi^T Phi - I| = "
-                              f"{gram_error:.2g}); reconstruction V = Phi C needs them to be")
+        raise SpecTrHuMSError(
+            f"basis: vectors are not orthonormal (max |Phi^T Phi - I| = "
+            f"{gram_error:.2g}); reconstruction V = Phi C needs them to be"
+        )
     return phi
 
 
-def _check_settings(input_frames, output_frames, num_points, task, latent, channels, pooling,
-                    kernel_size, d_model, layers, heads, ff, dropout, position_dropout,
-                    autoencoder_epochs, static_frames, loss_unit_mm) -> None:
+def _check_settings(
+    input_frames,
+    output_frames,
+    num_points,
+    task,
+    latent,
+    channels,
+    pooling,
+    kernel_size,
+    d_model,
+    layers,
+    heads,
+    ff,
+    dropout,
+    position_dropout,
+    autoencoder_epochs,
+    static_frames,
+    loss_unit_mm,
+) -> None:
     def positive(name, value):
         if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
             raise SpecTrHuMSError(f"{name}: a positive integer, got {value!r}")
 
-    for name, value in (("input_frames", input_frames), ("output_frames", output_frames),
-                        ("num_points", num_points), ("latent", latent),
-                        ("kernel_size", kernel_size), ("d_model", d_model), ("layers", layers),
-                        ("heads", heads), ("ff", ff), ("static_frames", static_frames)):
+    for name, value in (
+        ("input_frames", input_frames),
+        ("output_frames", output_frames),
+        ("num_points", num_points),
+        ("latent", latent),
+        ("kernel_size", kernel_size),
+        ("d_model", d_model),
+        ("layers", layers),
+        ("heads", heads),
+        ("ff", ff),
+        ("static_frames", static_frames),
+    ):
         positive(name, value)
     if task not in TASKS:
         raise SpecTrHuMSError(f"task: {task!r} unknown; valid: {', '.join(TASKS)}")
     channels, pooling = list(channels), list(pooling)
     if not channels or len(channels) != len(pooling):
-        raise SpecTrHuMSError(f"channels {channels} and pooling {pooling}: one channel count and "
-                              f"one pooled size per encoder level (published: [32, 64], [64, 32])")
+        raise SpecTrHuMSError(
+            f"channels {channels} and pooling {pooling}: one channel count and "
+            f"one pooled size per encoder level (published: [32, 64], [64, 32])"
+        )
     for i, (c, p) in enumerate(zip(channels, pooling)):
         positive(f"channels[{i}]", c)
         positive(f"pooling[{i}]", p)
     if kernel_size % 2 == 0:
-        raise SpecTrHuMSError(f"kernel_size: odd (the convolutions keep the frequency axis' "
-                              f"length), got {kernel_size}")
+        raise SpecTrHuMSError(
+            f"kernel_size: odd (the convolutions keep the frequency axis' "
+            f"length), got {kernel_size}"
+        )
     if d_model % 2 or d_model % heads:
-        raise SpecTrHuMSError(f"d_model={d_model}: must be even (sinusoidal positions) and "
-                              f"divisible by heads={heads}")
+        raise SpecTrHuMSError(
+            f"d_model={d_model}: must be even (sinusoidal positions) and divisible by heads={heads}"
+        )
     for name, value in (("dropout", dropout), ("position_dropout", position_dropout)):
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 <= value < 1:
             raise SpecTrHuMSError(f"{name}: a probability in [0, 1), got {value!r}")
-    if isinstance(autoencoder_epochs, bool) or not isinstance(autoencoder_epochs, int) \
-            or autoencoder_epochs < 0:
-        raise SpecTrHuMSError(f"autoencoder_epochs: a non-negative integer, got "
-                              f"{autoencoder_epochs!r}")
+    if (
+        isinstance(autoencoder_epochs, bool)
+        or not isinstance(autoencoder_epochs, int)
+        or autoencoder_epochs < 0
+    ):
+        raise SpecTrHuMSError(
+            f"autoencoder_epochs: a non-negative integer, got {autoencoder_epochs!r}"
+        )
     if not loss_unit_mm > 0:
         raise SpecTrHuMSError(f"loss_unit_mm: positive, got {loss_unit_mm!r}")

@@ -38,10 +38,11 @@ over blocks. The first scattering layer multiplies by its weights before filteri
 products ``X W_k`` are computed once for the whole body and shared by the parts (the parts'
 inputs are rows of the whole-body input and the weights are shared).
 """
+
 from __future__ import annotations
 
 import math
-from typing import Mapping, Sequence
+from collections.abc import Mapping, Sequence
 
 import torch
 from torch import nn
@@ -82,11 +83,14 @@ def _integer(name: str, value, low: int) -> int:
 def _part_nodes(parts: Mapping[str, Sequence[int]] | None, num_points: int) -> dict[str, list[int]]:
     """Check the ``parts`` context and expand joints to their 3 coordinate nodes."""
     if not isinstance(parts, Mapping):
-        raise ValueError(f"SPGSN: parts must be a mapping {{'upper': [...], 'lower': [...]}} of "
-                         f"joint indices (the benchmark's 'parts' context), got {parts!r}")
+        raise ValueError(
+            f"SPGSN: parts must be a mapping {{'upper': [...], 'lower': [...]}} of "
+            f"joint indices (the benchmark's 'parts' context), got {parts!r}"
+        )
     if set(parts) != set(PART_NAMES):
-        raise ValueError(f"SPGSN: parts must have exactly the keys 'upper' and 'lower', got "
-                         f"{sorted(parts)}")
+        raise ValueError(
+            f"SPGSN: parts must have exactly the keys 'upper' and 'lower', got {sorted(parts)}"
+        )
     seen: dict[int, str] = {}
     nodes = {}
     for name in PART_NAMES:
@@ -95,11 +99,15 @@ def _part_nodes(parts: Mapping[str, Sequence[int]] | None, num_points: int) -> d
             raise ValueError(f"SPGSN: parts[{name!r}] is empty; every part needs a joint")
         for j in joints:
             if isinstance(j, bool) or not isinstance(j, int) or not 0 <= j < num_points:
-                raise ValueError(f"SPGSN: parts[{name!r}] holds {j!r}; expected joint indices in "
-                                 f"0..{num_points - 1} (num_points = {num_points})")
+                raise ValueError(
+                    f"SPGSN: parts[{name!r}] holds {j!r}; expected joint indices in "
+                    f"0..{num_points - 1} (num_points = {num_points})"
+                )
             if j in seen:
-                raise ValueError(f"SPGSN: joint {j} is listed in parts[{seen[j]!r}] and again in "
-                                 f"parts[{name!r}]; body parts must be disjoint")
+                raise ValueError(
+                    f"SPGSN: joint {j} is listed in parts[{seen[j]!r}] and again in "
+                    f"parts[{name!r}]; body parts must be disjoint"
+                )
             seen[j] = name
         nodes[name] = [3 * j + c for j in joints for c in range(3)]
     return nodes
@@ -113,7 +121,7 @@ def filter_coefficient_mask(order: int) -> torch.Tensor:
     if order >= 1:
         mask[1, 1:3] = 1  # h_1 = a10 I + a11 A~
     for k in range(2, order + 1):
-        mask[k, 2:k + 2] = 1  # h_k = sum_{j=1..k} a_kj A~^(2^(j-1))
+        mask[k, 2 : k + 2] = 1  # h_k = sum_{j=1..k} a_kj A~^(2^(j-1))
     return mask
 
 
@@ -130,8 +138,16 @@ def initial_filter_coefficients(order: int) -> torch.Tensor:
 class ScatteringBlock(nn.Module):
     """One multi-part graph scattering block; its graphs' filter banks come from :class:`SPGSN`."""
 
-    def __init__(self, hidden: int, layers: int, order: int, aggregation_dim: int,
-                 fusion_dim: int, dropout: float, fuse_parts: bool) -> None:
+    def __init__(
+        self,
+        hidden: int,
+        layers: int,
+        order: int,
+        aggregation_dim: int,
+        fusion_dim: int,
+        dropout: float,
+        fuse_parts: bool,
+    ) -> None:
         super().__init__()
         filters = order + 1
         self.hidden, self.layers, self.filters = hidden, layers, filters
@@ -149,21 +165,29 @@ class ScatteringBlock(nn.Module):
         self.attention_out = nn.Linear(aggregation_dim, 1)  # f2
         self.fuse_parts = fuse_parts
         if fuse_parts:  # f_up, f_low: the authors' code's two bias-free layers
-            self.embed_upper = nn.Sequential(nn.Linear(hidden, fusion_dim, bias=False), nn.ReLU(),
-                                             nn.Linear(fusion_dim, fusion_dim, bias=False))
-            self.embed_lower = nn.Sequential(nn.Linear(hidden, fusion_dim, bias=False), nn.ReLU(),
-                                             nn.Linear(fusion_dim, fusion_dim, bias=False))
+            self.embed_upper = nn.Sequential(
+                nn.Linear(hidden, fusion_dim, bias=False),
+                nn.ReLU(),
+                nn.Linear(fusion_dim, fusion_dim, bias=False),
+            )
+            self.embed_lower = nn.Sequential(
+                nn.Linear(hidden, fusion_dim, bias=False),
+                nn.ReLU(),
+                nn.Linear(fusion_dim, fusion_dim, bias=False),
+            )
         self.mlp = nn.Sequential(nn.Linear(hidden, hidden), nn.ReLU())
         self.dropout = nn.Dropout(dropout)
 
-    def forward(self, x: torch.Tensor, banks: dict[str, torch.Tensor],
-                part_index: dict[str, torch.Tensor]) -> torch.Tensor:
+    def forward(
+        self, x: torch.Tensor, banks: dict[str, torch.Tensor], part_index: dict[str, torch.Tensor]
+    ) -> torch.Tensor:
         """``x``: ``(N, B, C)``; ``banks[part]``: ``(K+1, N_p, N_p)``; returns ``(N, B, C)``."""
         nodes, batch, hidden = x.shape
         filters = self.filters
         # First layer, weights first: every X W_k once for all parts, as (K+1, N, B*C).
-        projected = torch.matmul(x.reshape(nodes * batch, hidden),
-                                 self.first_weight.reshape(hidden, filters * hidden))
+        projected = torch.matmul(
+            x.reshape(nodes * batch, hidden), self.first_weight.reshape(hidden, filters * hidden)
+        )
         projected = projected.reshape(nodes, batch, filters, hidden).permute(2, 0, 1, 3)
         projected = projected.contiguous().reshape(filters, nodes, batch * hidden)
         aggregated = {}
@@ -210,8 +234,9 @@ class ScatteringBlock(nn.Module):
         count = leaves.shape[0] * leaves.shape[2]
         # sum(0).sum(1), not sum((0, 2)): ATen reduces two split dims 20x slower than one by one.
         spectrum = torch.relu(self.spectrum(leaves.sum(0).sum(1) / count))
-        scores = self.attention_out(tanh(self.attention_leaf(leaves)
-                                         + self.attention_sp(spectrum)[:, None]))
+        scores = self.attention_out(
+            tanh(self.attention_leaf(leaves) + self.attention_sp(spectrum)[:, None])
+        )
         scores = scores - scores.amax(dim=channel_dims, keepdim=True)
         weights = scores.exp()
         weights = weights / weights.sum(dim=channel_dims, keepdim=True)
@@ -228,12 +253,24 @@ class ScatteringBlock(nn.Module):
 
 
 class SPGSN(nn.Module):
-    def __init__(self, input_frames: int, output_frames: int, num_points: int,
-                 parts: Mapping[str, Sequence[int]] | None = None, body_parts: bool = True,
-                 blocks: int = 10, hidden: int = 256, scattering_layers: int = 2,
-                 filter_order: int = 2, dct_n: int = 30, aggregation_dim: int = 64,
-                 fusion_dim: int = 64, dropout: float = 0.5, metre_inputs: bool = True,
-                 zero_readout: bool = False) -> None:
+    def __init__(
+        self,
+        input_frames: int,
+        output_frames: int,
+        num_points: int,
+        parts: Mapping[str, Sequence[int]] | None = None,
+        body_parts: bool = True,
+        blocks: int = 10,
+        hidden: int = 256,
+        scattering_layers: int = 2,
+        filter_order: int = 2,
+        dct_n: int = 30,
+        aggregation_dim: int = 64,
+        fusion_dim: int = 64,
+        dropout: float = 0.5,
+        metre_inputs: bool = True,
+        zero_readout: bool = False,
+    ) -> None:
         super().__init__()
         self.input_frames = _integer("input_frames", input_frames, 1)
         self.output_frames = _integer("output_frames", output_frames, 1)
@@ -246,13 +283,21 @@ class SPGSN(nn.Module):
         _integer("fusion_dim", fusion_dim, 1)
         frames = input_frames + output_frames
         if _integer("dct_n", dct_n, 1) > frames:
-            raise ValueError(f"SPGSN: dct_n = {dct_n} exceeds the {frames} frames "
-                             f"(input_frames + output_frames) it keeps coefficients of")
-        if isinstance(dropout, bool) or not isinstance(dropout, (int, float)) \
-                or not 0 <= dropout < 1:
+            raise ValueError(
+                f"SPGSN: dct_n = {dct_n} exceeds the {frames} frames "
+                f"(input_frames + output_frames) it keeps coefficients of"
+            )
+        if (
+            isinstance(dropout, bool)
+            or not isinstance(dropout, (int, float))
+            or not 0 <= dropout < 1
+        ):
             raise ValueError(f"SPGSN: dropout must be a probability in [0, 1), got {dropout!r}")
-        for name, flag in (("body_parts", body_parts), ("metre_inputs", metre_inputs),
-                           ("zero_readout", zero_readout)):
+        for name, flag in (
+            ("body_parts", body_parts),
+            ("metre_inputs", metre_inputs),
+            ("zero_readout", zero_readout),
+        ):
             if not isinstance(flag, bool):
                 raise ValueError(f"SPGSN: {name} must be true or false, got {flag!r}")
         # The network's coefficient unit: metres (inputs of order one) or the data's mm.
@@ -265,13 +310,15 @@ class SPGSN(nn.Module):
             part_nodes.update(_part_nodes(parts, num_points))
         self.part_names = tuple(part_nodes)
         for name, index in part_nodes.items():
-            self.register_buffer(f"{name}_nodes", torch.tensor(index, dtype=torch.long),
-                                 persistent=False)
+            self.register_buffer(
+                f"{name}_nodes", torch.tensor(index, dtype=torch.long), persistent=False
+            )
         if body_parts:
             # Row of node n in cat([upper, lower, zero row]): where fusion reads node n from.
             placement = torch.full((nodes,), len(part_nodes["upper"]) + len(part_nodes["lower"]))
             placement[part_nodes["upper"] + part_nodes["lower"]] = torch.arange(
-                len(part_nodes["upper"]) + len(part_nodes["lower"]))
+                len(part_nodes["upper"]) + len(part_nodes["lower"])
+            )
             self.register_buffer("placement_nodes", placement, persistent=False)
         dct = dct_matrix(frames)
         self.register_buffer("dct", dct[:dct_n].contiguous(), persistent=False)  # (dct_n, T)
@@ -280,20 +327,36 @@ class SPGSN(nn.Module):
         # One learned graph per block and part, stored per part so the filter banks of all
         # blocks come out of one batched computation.
         bound = 1.0 / math.sqrt(hidden)
-        self.graphs = nn.ParameterDict({
-            name: nn.Parameter(torch.empty(blocks, len(index), len(index)).uniform_(-bound, bound))
-            for name, index in part_nodes.items()})
-        self.register_buffer("coefficient_mask", filter_coefficient_mask(filter_order),
-                             persistent=False)
+        self.graphs = nn.ParameterDict(
+            {
+                name: nn.Parameter(
+                    torch.empty(blocks, len(index), len(index)).uniform_(-bound, bound)
+                )
+                for name, index in part_nodes.items()
+            }
+        )
+        self.register_buffer(
+            "coefficient_mask", filter_coefficient_mask(filter_order), persistent=False
+        )
         self.filter_coefficients = nn.Parameter(
-            initial_filter_coefficients(filter_order).repeat(blocks, 1, 1))
+            initial_filter_coefficients(filter_order).repeat(blocks, 1, 1)
+        )
         self.filter_order = filter_order
 
         self.embed = nn.Linear(dct_n, hidden)
         self.embed_dropout = nn.Dropout(dropout)
         self.blocks = nn.ModuleList(
-            ScatteringBlock(hidden, scattering_layers, filter_order, aggregation_dim, fusion_dim,
-                            dropout, fuse_parts=body_parts) for _ in range(blocks))
+            ScatteringBlock(
+                hidden,
+                scattering_layers,
+                filter_order,
+                aggregation_dim,
+                fusion_dim,
+                dropout,
+                fuse_parts=body_parts,
+            )
+            for _ in range(blocks)
+        )
         self.readout = nn.Linear(hidden, dct_n)
         if zero_readout:
             # The untrained model returns the padded input's truncated DCT, i.e. nearly
@@ -315,21 +378,25 @@ class SPGSN(nn.Module):
             for _ in range(2, self.filter_order + 1):
                 power = power @ power  # A~^(2^(j-1)) by repeated squaring
                 basis.append(power)
-            basis = torch.stack(basis[:self.filter_order + 2], dim=1)  # (blocks, K+2, N, N)
+            basis = torch.stack(basis[: self.filter_order + 2], dim=1)  # (blocks, K+2, N, N)
             banks[name] = torch.einsum("ekj,ejnm->eknm", coefficients, basis)
         return banks
 
     def reconstruct(self, history: torch.Tensor) -> torch.Tensor:
         """All ``T_in + T_out`` frames ``(B, T, P, 3)`` in mm: the observed ones reconstructed,
         then the predicted ones."""
-        if history.ndim != 4 or tuple(history.shape[1:]) != (self.input_frames,
-                                                              self.num_points, 3):
-            raise ValueError(f"SPGSN: history must have shape (B, {self.input_frames}, "
-                             f"{self.num_points}, 3), got {tuple(history.shape)}")
+        if history.ndim != 4 or tuple(history.shape[1:]) != (self.input_frames, self.num_points, 3):
+            raise ValueError(
+                f"SPGSN: history must have shape (B, {self.input_frames}, "
+                f"{self.num_points}, 3), got {tuple(history.shape)}"
+            )
         batch = history.shape[0]
         frames = self.input_frames + self.output_frames
-        padded = torch.cat([history, history[:, -1:].expand(-1, self.output_frames, -1, -1)],
-                           dim=1).reshape(batch, frames, -1).to(self.dct.dtype)
+        padded = (
+            torch.cat([history, history[:, -1:].expand(-1, self.output_frames, -1, -1)], dim=1)
+            .reshape(batch, frames, -1)
+            .to(self.dct.dtype)
+        )
         # The DCT of positions in mm and the residual sum stay float32 even under a bf16
         # autocast (which would cost millimetres); the network in between may use it.
         with torch.autocast(history.device.type, enabled=False):
@@ -348,14 +415,16 @@ class SPGSN(nn.Module):
         return sequence.reshape(batch, frames, self.num_points, 3)
 
     def forward(self, history: torch.Tensor) -> torch.Tensor:
-        return self.reconstruct(history)[:, self.input_frames:]
+        return self.reconstruct(history)[:, self.input_frames :]
 
     def training_loss(self, history: torch.Tensor, future: torch.Tensor) -> torch.Tensor:
         """Mean per-joint L2 error (mm) over all ``T_in + T_out`` frames: the authors' code's
         loss. The paper prints another (equation 9: a squared error over the future frames)."""
         expected = (self.output_frames, self.num_points, 3)
         if future.ndim != 4 or tuple(future.shape[1:]) != expected:
-            raise ValueError(f"SPGSN: future must have shape (B, {self.output_frames}, "
-                             f"{self.num_points}, 3), got {tuple(future.shape)}")
+            raise ValueError(
+                f"SPGSN: future must have shape (B, {self.output_frames}, "
+                f"{self.num_points}, 3), got {tuple(future.shape)}"
+            )
         target = torch.cat([history, future], dim=1)
         return torch.linalg.vector_norm(self.reconstruct(history) - target, dim=-1).mean()
