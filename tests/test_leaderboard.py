@@ -172,9 +172,9 @@ def test_check_recomputes_every_row_and_names_what_differs(tmp_path, capsys):
     assert main(["leaderboard", "--check", *common]) == 0  # every committed benchmark: cmu
     summary = capsys.readouterr().out.strip().splitlines()[-1]
     assert summary.startswith(
-        "checked 800 rows of 2 models in 2 tables against tolerance "
-        "|difference| <= 1.5e-05 x |value| + 0.00024 mm (float32 rounding "
-        "across CPUs): largest difference 0 "
+        "checked 800 rows of 2 models in 2 tables against tolerance |difference| <= 1.5e-05 x "
+        "|value| + 0.002 mm (3.8e-06 in RMSE; a std: of its mean; float32 rounding across CPUs): "
+        "largest difference 0 "
     )
     assert {p: p.stat().st_mtime_ns for p in out.rglob("*") if p.is_file()} == before
 

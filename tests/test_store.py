@@ -332,3 +332,73 @@ def test_code_fingerprints_ignore_comments_and_docstrings(tmp_path):
     b.write_text("def f(x):  # a comment\n\n    return (x\n            + 1)\n")
     c.write_text("def f(x):\n    return x + 2\n")
     assert code_fingerprint(a) == code_fingerprint(b) != code_fingerprint(c)
+
+
+def test_a_rebuild_keeps_whatever_else_is_in_a_table_folder(project, capsys):
+    # zoo eval first: the table folder holds only its row, and the rebuild builds on it
+    assert cli(capsys, *eval_args(project, "--data-root", project / "cmu"))[0] == 0
+    table = project / "results" / "cmu" / "ltd8"
+    (table / "NOTES.md").write_text("my notes")
+    (table / "my-comparison").mkdir()
+    (table / "my-comparison" / "comparison.md").write_text("cv against rl")
+    assert cli(capsys, "leaderboard", *board_args(project, "mine"))[0] == 0
+    assert (table / "NOTES.md").read_text() == "my notes"
+    assert (table / "my-comparison" / "comparison.md").is_file()
+    assert set(pd.read_csv(table / "results.csv").model) == {"constant_velocity", "repeat_last"}
+
+
+def test_a_users_row_under_a_planned_label_stops_the_rebuild(project, capsys):
+    registry = Registry.from_files(
+        HERE.parent / "registry.yaml", project / "tiny" / "registry.yaml"
+    )
+    mine = train(
+        "tiny",
+        "cmu",
+        registry=registry,
+        data_root=project / "cmu",
+        epochs=1,
+        seed=3,
+        progress=False,
+        out_dir=project / "mine" / "run",
+    )
+    assert (
+        cli(
+            capsys,
+            "eval",
+            "--registry",
+            project / "tiny" / "registry.yaml",
+            "--checkpoint",
+            mine,
+            "--data-root",
+            project / "cmu",
+            "--sampler",
+            "ltd8",
+            "--results",
+            project / "results",
+        )[0]
+        == 0
+    )
+    stored = project / "results" / "cmu" / "ltd8" / "tiny" / "results.csv"
+    before = stored.read_bytes()
+    shipped_tiny(project)  # the leaderboard's own tiny: other weights
+    code, _, err = cli(capsys, "leaderboard", *board_args(project, "tiny"))
+    assert code == 2 and stored.read_bytes() == before
+    assert "row 'tiny' was made by zoo eval" in err and "--drop tiny" in err
+    assert not (project / "results" / "cmu" / "all").exists()  # stopped before writing
+
+
+def test_a_model_objects_identity_holds_its_settings(project):
+    import zoo
+    import zoo.store
+
+    spec = {}
+    exec(CONSTANT_VELOCITY, spec)  # a class with no source file, as typed into a REPL
+    run = dict(sampler="ltd8", data_root=project / "cmu", label="cv")
+    a = zoo.evaluate(spec["ConstantVelocity"](10, 25, 25, damping=1.0), "cmu", **run)
+    b = zoo.evaluate(spec["ConstantVelocity"](10, 25, 25, damping=0.8), "cmu", **run)
+    assert a.identity["model"]["hparams"]["attributes"]["damping"] == 1.0
+    assert a.identity != b.identity and a.identity["code"]["model"] is None
+    out = project / "cv"
+    zoo.evaluate(spec["ConstantVelocity"](10, 25, 25), "cmu", out=out, **run)
+    with pytest.raises(zoo.store.StoreError, match="source cannot be read"):
+        zoo.evaluate(spec["ConstantVelocity"](10, 25, 25), "cmu", out=out, **run)

@@ -132,9 +132,9 @@ def evaluate(
         melv_frames=options.get("melv_frames"),
     )
     identity = (
-        loaded.identity(bench.name, protocol["protocol_id"])
+        loaded.identity(bench, protocol["protocol_id"])
         if loaded is not None
-        else object_identity(model, label, bench.name, protocol["protocol_id"])
+        else object_identity(model, label, bench, protocol["protocol_id"])
     )
     target = Path(out) if out is not None else None
     if store and target is None:
@@ -168,7 +168,7 @@ def evaluate(
         view=view,
         **options,
     )
-    stamp(result, identity)
+    stamp(result, identity, made_by="zoo.evaluate")
     if target is not None:
         result.write(target)
     return result

@@ -147,7 +147,7 @@ def cmd_eval(args) -> int:
             ground_truth=args.ground_truth,
             melv_frames=args.melv_frames,
         )
-        identity = loaded.identity(bench.name, protocol["protocol_id"])
+        identity = loaded.identity(bench, protocol["protocol_id"])
         check_replace(out, identity, replace=args.replace, protocol=protocol)
         plans.append((sampler, out, identity))
     # Under torchrun every process scores its share of the windows and all get the whole
@@ -169,7 +169,7 @@ def cmd_eval(args) -> int:
             ground_truth=args.ground_truth,
             melv_frames=args.melv_frames,
         )
-        stamp(result, identity)
+        stamp(result, identity, made_by="zoo eval")
         if not writer:
             continue
         result.write(out)

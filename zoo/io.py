@@ -101,16 +101,18 @@ class OutputError(ZooError, ValueError):
 
 
 @contextmanager
-def replace_folder(path: str | Path, lock: bool = True) -> Iterator[Path]:
+def replace_folder(path: str | Path, lock: bool = True, checked: bool = False) -> Iterator[Path]:
     """Yield an empty sibling folder to fill; on success it replaces ``path`` as a whole (the
     old folder is renamed away first, then removed), so readers see the old folder or the new
     one, never a mix; on failure or interruption it is removed and ``path`` is untouched.
-    ``lock=False``: the caller already holds :func:`folder_lock` of ``path``."""
+    ``lock=False``: the caller already holds :func:`folder_lock` of ``path``; ``checked``: the
+    caller carries everything of ``path`` it keeps into the new folder itself (a table)."""
     import shutil
     from contextlib import nullcontext
 
     path = Path(path)
-    check_output_folder(path)
+    if not checked:
+        check_output_folder(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     with folder_lock(path) if lock else nullcontext():
         tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))

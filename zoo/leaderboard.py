@@ -22,6 +22,7 @@ from zoo.model_source import ModelSource
 from zoo.store import (
     RESULTS_DIR,
     StoreError,
+    evaluation_code,
     identity_differences,
     identity_id,
     stored_identity,
@@ -283,6 +284,8 @@ class Leaderboard:
             ["prediction", *(self.registry.get(n).task for n in self.registry.list_models())]
         )
         written, changed = [], False
+        if self.plan.check is None:
+            self._preflight(truths, tasks)
         for sampler in bench.samplers:
             for task in tasks:
                 for truth in truths:
@@ -321,6 +324,66 @@ class Leaderboard:
             file=sys.stderr,
         )
         return written
+
+    def _preflight(self, truths, tasks) -> None:
+        """Before anything is evaluated or written: a stored row that this run would replace
+        must be the leaderboard's own (same registry, made by a rebuild); a user's row stops
+        the run, naming it and how to keep or drop it."""
+        from zoo.evaluate import protocol_for
+
+        found_drops = set()
+        for sampler in self.bench.samplers:
+            for task in tasks:
+                for truth in truths:
+                    folder = self.root / self.bench.name / table_folder(sampler, task, truth)
+                    if not folder.is_dir():
+                        continue
+                    found_drops |= {p.name for p in folder.iterdir()} & set(self.plan.drop)
+                    rows = [
+                        r
+                        for r in self._rows(task)
+                        if r.label not in self.plan.drop
+                        and (folder / r.label / "protocol.json").is_file()
+                        and (not self.plan.models or r.name in self.plan.models)
+                    ]
+                    protocol = None
+                    for row in rows:
+                        loaded = self._load(row)
+                        _refuse_foreign_registry(folder / row.label, loaded, row.label)
+                        made_by = _provenance(folder / row.label).get("made_by", MADE_BY)
+                        if made_by == MADE_BY:
+                            continue
+                        protocol = protocol or protocol_for(
+                            self.bench,
+                            self.dataset,
+                            sampler=sampler,
+                            task=task,
+                            ground_truth=truth,
+                        )
+                        differences = identity_differences(
+                            stored_identity(folder / row.label),
+                            loaded.identity(self.bench, protocol["protocol_id"]),
+                        )
+                        if differences:
+                            raise StoreError(
+                                f"{folder / row.label}: row {row.label!r} was made by "
+                                f"{made_by}, and the leaderboard's own {row.label!r} differs "
+                                f"({'; '.join(differences[:3])}); nothing was changed: keep "
+                                f"yours under another label (zoo eval --label NAME), or remove "
+                                f"it deliberately with --drop {row.label}"
+                            )
+        missing = sorted(set(self.plan.drop) - found_drops)
+        if missing:
+            print(
+                f"{self.bench.name}: --drop {', '.join(missing)}: no such row in its tables",
+                file=sys.stderr,
+            )
+
+    def _load(self, row: Row):
+        """A row's model, built once and used by every table."""
+        if row.label not in self.loaded:
+            self.loaded[row.label] = row.source.load(self.registry, self.bench, self.dataset)
+        return self.loaded[row.label]
 
     # ---- rows -----------------------------------------------------------------------------
 
@@ -403,18 +466,16 @@ class Leaderboard:
         protocol = protocol_for(bench, self.dataset, sampler=sampler, task=task, ground_truth=truth)
         fresh, reused, efficiency, reasons = [], [], {}, []
         for row in rows:
-            if row.label not in self.loaded:  # built once, used by every table
-                self.loaded[row.label] = row.source.load(self.registry, bench, self.dataset)
-            loaded = self.loaded[row.label]
-            identity = loaded.identity(bench.name, protocol["protocol_id"])
+            loaded = self._load(row)
+            identity = loaded.identity(bench, protocol["protocol_id"])
             old = stored.get(row.label)
-            if old is not None and check is None:
-                _refuse_foreign_registry(old, loaded, row.label)
             if check is not None or plan.recompute:
                 why = "asked (--recompute)" if check is None else None
             elif plan.models and row.name not in plan.models:
                 if old is not None:
                     reused.append(old)
+                    self.counts["reused"] += 1
+                    efficiency[row.label] = self._cost(row.name, loaded, task)
                     if identity_differences(stored_identity(old), identity):
                         print(
                             f"{where}: {row.label}: kept as stored although stale (only "
@@ -448,7 +509,7 @@ class Leaderboard:
                 view=loaded.view,
                 task=task,
             )
-            stamp(result, identity)
+            stamp(result, identity, made_by=MADE_BY)
             fresh.append(result)
             if check is None:
                 self.counts["recomputed"] += 1
@@ -462,10 +523,10 @@ class Leaderboard:
             for p in foreign:
                 check.problems.append(f"{p}: cannot be recomputed ({_why_not_planned(p, self)})")
             if fresh:
-                _check_table(fresh, path, check)
+                _check_table(fresh, path, check, unplanned={p.name for p in foreign})
             return True if fresh or foreign else None
-        kept = [EvalResult.read(p) for p in reused]
-        for p in foreign:
+        kept = []
+        for p in [*reused, *foreign]:
             result = EvalResult.read(p)
             differences = protocol_differences(protocol, result.protocol)
             if differences:
@@ -476,9 +537,11 @@ class Leaderboard:
                     file=sys.stderr,
                 )
                 continue
-            print(
-                f"{where}: {p.name}: kept as stored ({_why_not_planned(p, self)})", file=sys.stderr
-            )
+            if p in foreign:
+                print(
+                    f"{where}: {p.name}: kept as stored ({_why_not_planned(p, self)})",
+                    file=sys.stderr,
+                )
             kept.append(result)
         self.counts["kept"] += len(foreign)
         self.counts["dropped"] += len(dropped)
@@ -487,20 +550,29 @@ class Leaderboard:
             return None
         for reason in reasons:
             print(f"{where}: recomputing {reason}", file=sys.stderr)
-        if (
-            not fresh
-            and not dropped
-            and (path / "leaderboard.md").is_file()
-            and _same_runs(path, results)
-            and not self.costs.measured_now
-        ):
+        try:
+            return self._write(path, fresh, reused, dropped, results, efficiency)
+        except _Unchanged:
             return False
-        with replace_folder(path) as tmp:
-            for p in [*reused, *foreign]:
-                shutil.copytree(p, tmp / p.name, copy_function=os.link)
+
+    def _write(self, path, fresh, reused, dropped, results, efficiency) -> bool:
+        bench = self.bench
+        produced = {str(r.frame["model"].iloc[0]) for r in fresh} | {p.name for p in dropped}
+        with replace_folder(path, checked=True) as tmp:
+            # everything in the folder that this run does not produce again is carried over:
+            # result folders reused or kept, and whatever else a user put there
+            for entry in sorted(path.iterdir()) if path.is_dir() else ():
+                if entry.name in produced or entry.name in TABLE_FILES:
+                    continue
+                if entry.is_dir() and not entry.is_symlink():
+                    shutil.copytree(entry, tmp / entry.name, copy_function=os.link, symlinks=True)
+                else:
+                    os.link(entry, tmp / entry.name, follow_symlinks=False)
             for result in fresh:
                 result.write(tmp / str(result.frame["model"].iloc[0]), replace=False)
             write_leaderboard(results, tmp, bench.horizons_ms, efficiency)
+            if not fresh and not dropped and _same_files(path, tmp):
+                raise _Unchanged
         gone = f", dropped {', '.join(p.name for p in dropped)}" if dropped else ""
         print(
             f"wrote {path}/leaderboard.md ({len(results)} rows: {len(fresh)} evaluated now, "
@@ -523,6 +595,7 @@ class Leaderboard:
             "points": points,
             "input_frames": self.bench.input_frames,
             "output_frames": self.bench.output_frames,
+            "code": evaluation_code(type(loaded.model))["model"],
         }
         return self.costs.get(
             key,
@@ -573,29 +646,41 @@ class CostCache:
             atomic_write_json(self.path, {"entries": dict(sorted(self.entries.items()))})
 
 
-def stamp(result, identity: dict) -> None:
-    """Record ``identity`` in a result's provenance (written to its ``protocol.json``)."""
+MADE_BY = "zoo leaderboard"
+# The files of a table itself (the rows' folders are beside them).
+TABLE_FILES = ("results.csv", "leaderboard.md", "protocol.json", "efficiency.csv", "mpjpe.png")
+
+
+class _Unchanged(Exception):
+    """A table rebuilt to the same bytes: the old folder stays."""
+
+
+def stamp(result, identity: dict, made_by: str) -> None:
+    """Record ``identity`` in a result's provenance (written to its ``protocol.json``), and
+    what made it (``zoo leaderboard``, ``zoo eval``, ``zoo.evaluate``): a rebuild replaces only
+    rows it made."""
     result.protocol["provenance"]["identity"] = identity
     result.protocol["provenance"]["identity_id"] = identity_id(identity)
+    result.protocol["provenance"]["made_by"] = made_by
 
 
-def _same_runs(path: Path, results: list) -> bool:
-    """Whether the table in ``path`` was made of exactly these results (same identities)."""
-    import json
-
-    try:
-        runs = json.loads((path / "protocol.json").read_text())["provenance"]["runs"]
-    except (OSError, ValueError, KeyError):
-        return False
-    return sorted(r.get("identity_id", "") for r in runs) == sorted(
-        r.protocol["provenance"].get("identity_id", "") for r in results
+def _same_files(old: Path, new: Path) -> bool:
+    """Whether a rebuilt table's own files equal the stored ones, byte for byte."""
+    return all(
+        (old / name).is_file() == (new / name).is_file()
+        and (not (new / name).is_file() or (old / name).read_bytes() == (new / name).read_bytes())
+        for name in TABLE_FILES
     )
 
 
-def _recorded_registry(folder: Path) -> str | None:
+def _provenance(folder: Path) -> dict:
     import json
 
-    provenance = json.loads((folder / "protocol.json").read_text()).get("provenance", {})
+    return json.loads((folder / "protocol.json").read_text()).get("provenance", {})
+
+
+def _recorded_registry(folder: Path) -> str | None:
+    provenance = _provenance(folder)
     identity = provenance.get("identity") or {}
     return (identity.get("model") or {}).get("registry") or provenance.get("registry")
 
@@ -617,14 +702,20 @@ def _refuse_foreign_registry(folder: Path, loaded, label: str) -> None:
 
 
 def _why_not_planned(folder: Path, board: Leaderboard) -> str:
-    recorded = _recorded_registry(folder)
     from zoo.io import repo_relative
 
+    recorded = _recorded_registry(folder)
     loaded = {repo_relative(e.source) for e in board.registry.entries.values()}
     if recorded is not None and recorded not in loaded:
         return (
             f"registry {recorded} not loaded: --registry {recorded} recomputes it, --drop "
             f"{folder.name} removes it"
+        )
+    provenance = _provenance(folder)
+    if provenance.get("made_by", MADE_BY) != MADE_BY:
+        return (
+            f"made by {provenance['made_by']}, not a row the leaderboard plans: zoo eval "
+            f"--label {folder.name} --replace refreshes it, --drop {folder.name} removes it"
         )
     return (
         f"no shipped weights {board.bench.name}/{folder.name}.safetensors and no checkpoint "
@@ -642,31 +733,49 @@ def _no_further_than_best(checkpoint: Path) -> bool:
 KEY_COLUMNS = ["model", "action", "metric", "averaging", "joints", "horizon_ms"]
 # How far a recomputed value may sit from the committed one, from the arithmetic: every error
 # is computed in float32, whose rounding follows the CPU's kernels (summation order, fused
-# multiply-adds, vector width), so another machine reproduces a value to some units in the last
-# place, not bit for bit. RELATIVE_TOLERANCE is 2**-16, 128 float32 units in the last place
-# (float32 carries 24 bits); ABSOLUTE_TOLERANCE_MM is 2**-12 mm, four float32 units in the last
-# place of a coordinate at one metre, for errors that are small differences of large
-# coordinates (MELV: |edge length now - edge length before|, where generated meshes' own bytes
-# differ between CPUs by a unit in the last place). A real change is far above both: a value
-# moved by 0.01 mm is named.
+# multiply-adds, vector width), and generated meshes' own bytes differ between CPUs in their last
+# bits, so another machine reproduces a value to some units in the last place, not bit for bit.
+# RELATIVE_TOLERANCE is 2**-16, 128 float32 units in the last place of the value (float32
+# carries 24 bits). The absolute floor is set by the inputs, not by the error: an error is a
+# small difference of coordinates around a metre (MELV: of edge lengths), so its rounding is
+# some units in the last place of a coordinate at one metre (6.1e-5 mm each):
+# ABSOLUTE_TOLERANCE['mm'] = 2**-9 mm is 32 of them, and 2**-18 is the same for RMSE, normalised by
+# a bounding-box diagonal near 2 m. Measured between an Intel Xeon (AMX) and an AMD EPYC (AVX2),
+# CMU-on-Anny's meshes built on each: at most 8.5e-4 mm per window (SpecTrHuMS's autoencoder
+# through the regressed joints) and 1.8e-6 in RMSE. A standard deviation over windows moves as
+# much as the windows' errors do, so it is held to the tolerance of its mean. A real change is
+# far above all of these: a value moved by 0.01 mm is named (below 500 mm).
 RELATIVE_TOLERANCE = 2.0**-16
-ABSOLUTE_TOLERANCE_MM = 2.0**-12
+ABSOLUTE_TOLERANCE = {"mm": 2.0**-9, "rmse": 2.0**-18}
 
 
 def tolerance_text() -> str:
     return (
-        f"|difference| <= {RELATIVE_TOLERANCE:.2g} x |value| + {ABSOLUTE_TOLERANCE_MM:.2g} "
-        f"mm (float32 rounding across CPUs)"
+        f"|difference| <= {RELATIVE_TOLERANCE:.2g} x |value| + {ABSOLUTE_TOLERANCE['mm']:.2g} "
+        f"mm ({ABSOLUTE_TOLERANCE['rmse']:.2g} in RMSE; a std: of its mean; float32 rounding "
+        f"across CPUs)"
     )
 
 
-def _allowed(metric, values: np.ndarray) -> np.ndarray:
-    """The largest difference tolerated for each value of ``metric`` (a name or an array)."""
-    units = np.vectorize(lambda m: metric_unit(m)[0] == "mm")(np.asarray(metric))
-    return RELATIVE_TOLERANCE * np.abs(values) + np.where(units, ABSOLUTE_TOLERANCE_MM, 0.0)
+def _allowed(metric, scale: np.ndarray) -> np.ndarray:
+    """The largest difference tolerated for values of ``metric`` (a name or an array of names)
+    of magnitude ``scale`` (the value itself, or a std's mean)."""
+
+    def floor(m: str) -> float:
+        return (
+            ABSOLUTE_TOLERANCE["mm"]
+            if metric_unit(m)[0] == "mm"
+            else ABSOLUTE_TOLERANCE.get(m, 0.0)
+        )
+
+    return RELATIVE_TOLERANCE * np.abs(scale) + np.vectorize(floor, otypes=[float])(
+        np.asarray(metric)
+    )
 
 
-def _check_table(results: list, folder: Path, check: CheckReport) -> None:
+def _check_table(
+    results: list, folder: Path, check: CheckReport, unplanned: set = frozenset()
+) -> None:
     """Compare freshly computed results with the committed table in ``folder`` (and each
     model's per-window errors with its ``windows.npz``)."""
     from zoo.evaluate import WINDOWS_FILE, WindowErrors
@@ -679,6 +788,7 @@ def _check_table(results: list, folder: Path, check: CheckReport) -> None:
         check.problems.append(f"{folder}/results.csv: missing; the leaderboard makes this table")
         return
     committed = pd.read_csv(folder / "results.csv")
+    committed = committed[~committed["model"].isin(unplanned)]  # named once, as folders
     both = fresh.merge(
         committed, on=KEY_COLUMNS, how="outer", suffixes=("", "_committed"), indicator="side"
     )
@@ -697,20 +807,18 @@ def _check_table(results: list, folder: Path, check: CheckReport) -> None:
             )
             continue
         new, old = matched[column].to_numpy(float), matched[f"{column}_committed"].to_numpy(float)
+        scale = matched["value_committed"].to_numpy(float)  # a std is held to its mean's
         difference = np.abs(new - old)
         relative = difference / np.maximum(np.abs(old), 1e-12)
         nan = np.isnan(new) | np.isnan(old)  # a NaN (one window's spread) matches only a NaN
-        differs = np.where(
-            nan,
-            np.isnan(new) != np.isnan(old),
-            difference > _allowed(matched["metric"].to_numpy(), old),
-        )
+        allowed = _allowed(matched["metric"].to_numpy(), scale)
+        differs = np.where(nan, np.isnan(new) != np.isnan(old), difference > allowed)
         keep = ~nan
         rows = matched[keep]
         check.note(
             difference[keep],
             old[keep],
-            _allowed(rows["metric"].to_numpy(), old[keep]),
+            allowed[keep],
             lambda i, rows=rows, column=column: (
                 f"{folder.parent.name}/{folder.name}/results.csv "
                 + ", ".join(f"{k}={rows.iloc[i][k]}" for k in KEY_COLUMNS)

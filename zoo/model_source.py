@@ -196,16 +196,16 @@ class LoadedModel:
             "hparams": self.hparams,
         }
 
-    def identity(self, benchmark: str, protocol_id: str) -> dict[str, Any]:
+    def identity(self, bench, protocol_id: str) -> dict[str, Any]:
         from zoo.store import evaluation_code, result_identity
 
         return result_identity(
-            benchmark=benchmark,
+            benchmark=bench.name,
             protocol_id=protocol_id,
             label=self.label,
             model=self.model_identity(),
             trained=self.trained,
-            code=evaluation_code(type(self.model)),
+            code=evaluation_code(type(self.model), bench.dataset),
         )
 
     def warn_if_untrained(self) -> None:
@@ -217,25 +217,32 @@ class LoadedModel:
             )
 
 
-def object_identity(
-    model: nn.Module, label: str, benchmark: str, protocol_id: str
-) -> dict[str, Any]:
+def object_identity(model: nn.Module, label: str, bench, protocol_id: str) -> dict[str, Any]:
     """The identity of results of a model object handed over directly (no registry): its
-    class and a hash of its weights stand for its hyper-parameters and training."""
+    class, its printed structure and plain attributes (what a constructor's hyper-parameters
+    usually become) and a hash of its weights."""
     from zoo.checkpoints import weights_digest
     from zoo.store import evaluation_code, result_identity
 
     cls = type(model)
+    settings = {
+        f"{name}.{key}" if name else key: value
+        for name, module in model.named_modules()
+        for key, value in vars(module).items()
+        if not key.startswith("_")
+        and key != "training"
+        and isinstance(value, (bool, int, float, str, type(None)))
+    }
     return result_identity(
-        benchmark=benchmark,
+        benchmark=bench.name,
         protocol_id=protocol_id,
         label=label,
         model={
             "name": None,
             "class": f"{cls.__module__}.{cls.__qualname__}",
             "registry": None,
-            "hparams": None,
+            "hparams": {"repr": repr(model), "attributes": settings},
         },
         trained={"kind": "object", "sha256": weights_digest(model)},
-        code=evaluation_code(cls),
+        code=evaluation_code(cls, bench.dataset),
     )

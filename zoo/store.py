@@ -25,7 +25,6 @@ import hashlib
 import inspect
 import json
 import re
-import sys
 from functools import cache
 from pathlib import Path
 from typing import Any
@@ -36,12 +35,23 @@ from zoo.paths import REPO_ROOT
 
 RESULTS_DIR = REPO_ROOT / "results"
 IDENTITY_VERSION = 1
-# Modules whose code computes every result (besides the model's own source).
-EVALUATION_CODE = {
-    "evaluator": "zoo/evaluate.py",
-    "metrics": "zoo/metrics.py",
-    "windows": "zoo/data/windows.py",
-}
+# The evaluator's code is zoo/evaluate.py and every zoo module it imports, directly or through
+# others (metrics, windows, benchmarks, data loaders and forward kinematics, spectral bases);
+# a model's code is its file and the zoo modules it imports. Left out: modules that only
+# present, store or move results and cannot change a number (tables, intervals, files and
+# locks, paths, errors, the process group).
+EVALUATOR = "zoo/evaluate.py"
+NOT_COMPUTING = frozenset(
+    {
+        "zoo/tables.py",
+        "zoo/intervals.py",
+        "zoo/published.py",
+        "zoo/io.py",
+        "zoo/paths.py",
+        "zoo/errors.py",
+        "zoo/distributed.py",
+    }
+)
 LABEL_PATTERN = r"[A-Za-z0-9_][A-Za-z0-9_.@+=,-]*"
 
 
@@ -147,32 +157,96 @@ def code_fingerprint(*files: str | Path) -> str:
     )
 
 
-def model_source_files(cls: type) -> list[Path]:
-    """The file defining a model class, plus the ``zoo.models`` modules it imports (helpers
-    such as the DCT): the model's source, as far as the zoo can tell."""
-    module = sys.modules.get(cls.__module__)
-    file = inspect.getsourcefile(cls) or (getattr(module, "__file__", None))
-    if file is None:
-        return []
-    files = [Path(file).resolve()]
+def _zoo_module_file(module: str) -> Path | None:
+    parts = module.split(".")
+    if parts[0] != "zoo":
+        return None
+    for candidate in (
+        REPO_ROOT.joinpath(*parts).with_suffix(".py"),
+        REPO_ROOT.joinpath(*parts, "__init__.py"),
+    ):
+        if candidate.is_file():
+            return candidate
+    return None
+
+
+def _imported_files(path: Path) -> set[Path]:
+    """The zoo modules a file imports, at module level or inside functions, absolute or
+    relative (``from zoo.models import dct`` names the module ``zoo.models.dct``)."""
     try:
-        tree = ast.parse(files[0].read_text())
+        tree = ast.parse(path.read_text())
     except (OSError, SyntaxError):
-        return files
+        return set()
+    package = None
+    if path.is_relative_to(REPO_ROOT):
+        package = ".".join(path.relative_to(REPO_ROOT).with_suffix("").parts[:-1])
+    names = []
     for node in ast.walk(tree):
-        if isinstance(node, ast.ImportFrom) and (node.module or "").startswith("zoo.models"):
-            helper = REPO_ROOT / (node.module.replace(".", "/") + ".py")
-            if helper.is_file() and helper.resolve() not in files:
-                files.append(helper.resolve())
-    return files
+        if isinstance(node, ast.Import):
+            names += [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level and package is not None:
+                parent = package.split(".")[: len(package.split(".")) - node.level + 1]
+                base = ".".join([*parent, *([base] if base else [])])
+            names += [base, *(f"{base}.{a.name}" for a in node.names)]
+    found = {_zoo_module_file(n) for n in names}
+    return {f.resolve() for f in found if f is not None}
 
 
-def evaluation_code(model_class: type | None) -> dict[str, str]:
-    """The ``code`` part of an identity."""
-    code = {name: code_fingerprint(path) for name, path in EVALUATION_CODE.items()}
-    files = model_source_files(model_class) if model_class is not None else []
-    if files:
-        code["model"] = code_fingerprint(*files)
+def code_closure(*files: str | Path) -> list[Path]:
+    """``files`` and every zoo module they import, transitively, but for :data:`NOT_COMPUTING`
+    (sorted, so the fingerprint of a closure does not depend on the order it was found in)."""
+    skip = {(REPO_ROOT / f).resolve() for f in NOT_COMPUTING} | {
+        (REPO_ROOT / "zoo/__init__.py").resolve()
+    }
+    todo = [Path(f) if Path(f).is_absolute() else (REPO_ROOT / f) for f in files]
+    seen: set[Path] = set()
+    while todo:
+        path = todo.pop().resolve()
+        if path in seen or path in skip:
+            continue
+        seen.add(path)
+        todo += sorted(_imported_files(path) - seen)
+    return sorted(
+        seen, key=lambda p: str(p.relative_to(REPO_ROOT)) if p.is_relative_to(REPO_ROOT) else str(p)
+    )
+
+
+def model_source_files(cls: type) -> list[Path]:
+    """The file defining a model class and the zoo modules it imports: the model's source.
+    Empty where Python keeps no file for it (a class typed into an interpreter)."""
+    try:
+        file = inspect.getsourcefile(cls)
+    except (OSError, TypeError):
+        file = None
+    if file is None or not Path(file).is_file():
+        return []
+    return code_closure(Path(file).resolve())
+
+
+def dataset_code(dataset: str | None) -> list[Path]:
+    """The code that generates a mesh dataset (cloth simulation, CMU motion on the Anny body),
+    which the evaluator loads by name, not by import; skeleton loaders are the evaluator's."""
+    from zoo.benchmark import MESH_DATASETS
+
+    loader = MESH_DATASETS.get(dataset or "")
+    loader = loader[0] if isinstance(loader, tuple) else loader
+    if not isinstance(loader, str):
+        return []
+    file = _zoo_module_file(loader.split(":")[0])
+    return code_closure(file) if file is not None else []
+
+
+def evaluation_code(model_class: type | None, dataset: str | None = None) -> dict[str, str | None]:
+    """The ``code`` part of an identity: the evaluator's fingerprint (with the code that
+    generates ``dataset``, a mesh dataset) and the model's (None where its source cannot be
+    read, a class typed into an interpreter: such a result is never taken for another)."""
+    files = sorted(set(code_closure(EVALUATOR)) | set(dataset_code(dataset)))
+    code: dict[str, str | None] = {"evaluator": code_fingerprint(*files)}
+    if model_class is not None:
+        sources = model_source_files(model_class)
+        code["model"] = code_fingerprint(*sources) if sources else None
     return code
 
 
@@ -209,6 +283,8 @@ def identity_differences(stored: dict[str, Any] | None, new: dict[str, Any]) -> 
     if not stored:
         return ["identity: none recorded (written by an older zoo)"]
     out: list[str] = []
+    if (new.get("code") or {}).get("model", "") is None:
+        out.append("code.model: the model's source cannot be read, so no result is its twin")
 
     def walk(a, b, path):
         if isinstance(a, dict) and isinstance(b, dict):
@@ -253,11 +329,11 @@ def check_replace(
     folder = Path(folder)
     if not (folder / "protocol.json").is_file():
         return "new"
+    if replace:
+        return "replace"
     differences = identity_differences(stored_identity(folder), identity)
     if not differences:
         return "same"
-    if replace:
-        return "replace"
     if protocol is not None:
         from zoo.tables import protocol_differences
 
