@@ -180,6 +180,19 @@ def test_eval_never_replaces_a_result_of_another_identity(project, capsys, tmp_p
     # other hyper-parameters: stored beside it under their own label, never in its place
     assert cli(capsys, *eval_args(project, *data, "--set", "damping=0.8"))[0] == 0
     assert (place.parent / "constant_velocity+damping=0.8" / "results.csv").is_file()
+    code, out, _ = cli(
+        capsys,
+        "compare",
+        "constant_velocity",
+        "constant_velocity+damping=0.8",
+        "--benchmark",
+        "cmu",
+        "--sampler",
+        "ltd8",
+        "--results",
+        project / "results",
+    )  # two configurations of one model, labelled
+    assert code == 0 and "constant_velocity against constant_velocity+damping=0.8" in out
     code, _, err = cli(
         capsys, *eval_args(project, *data, "--set", "damping=0.8", "--label", "constant_velocity")
     )

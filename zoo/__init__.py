@@ -2,6 +2,7 @@
 
 __version__ = "0.1.0"
 
+import inspect as _inspect
 import sys as _sys
 import types as _types
 
@@ -20,8 +21,12 @@ class _CallableModule(_types.ModuleType):
         return getattr(_sys.modules["zoo.api"], self.__name__.rsplit(".", 1)[1])(*args, **kwargs)
 
 
-zoo.evaluate.__class__ = _CallableModule
-zoo.compare.__class__ = _CallableModule
+for _module in (zoo.evaluate, zoo.compare):
+    _module.__class__ = _CallableModule
+    # inspect.signature (and editors) show the API function's parameters
+    _module.__signature__ = _inspect.signature(
+        getattr(_sys.modules["zoo.api"], _module.__name__[4:])
+    )
 
 __all__ = [
     "__version__",

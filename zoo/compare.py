@@ -1,6 +1,9 @@
 """Is model A better than model B, and by how much? Paired comparisons with block-bootstrap
 intervals (:mod:`zoo.intervals`) on the per-window errors the evaluator keeps.
 
+(Called, ``zoo.compare(a, b, benchmark=None, **options)`` runs :func:`zoo.api.compare`: results,
+result folders or stored labels in, a :class:`Comparison` out.)
+
 Both results must come from one protocol record (the same windows): the difference A - B is
 taken window by window, so the variance the two models share (hard windows are hard for both)
 cancels, and the interval is that of the difference itself.

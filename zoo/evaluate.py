@@ -1,5 +1,9 @@
 """The one evaluator: any registered model on any benchmark, every row with its protocol.
 
+(Called, ``zoo.evaluate(model, benchmark, label=..., sampler=..., store=False, out=None)`` runs
+:func:`zoo.api.evaluate`: a model object, registered name or trained file in, an
+:class:`EvalResult` carrying its identity out. Below, the evaluator itself.)
+
 ``evaluate`` returns an :class:`EvalResult`: a long-format DataFrame (one row per model, action,
 metric, averaging, joint protocol and horizon) and the protocol record that produced it. The
 record's comparable part (everything but provenance) is hashed into ``protocol_id``, which every
