@@ -43,3 +43,23 @@ def test_dataset_round_trip_and_wrong_vertex_count(tmp_path):
         MeshDataset(
             "toy", "test", t, [MeshSequence("bad", "x", np.zeros((2, 5, 3)), 25.0)], recipe={}
         )
+
+
+def test_triangulate_quads_takes_the_shorter_diagonal_and_breaks_ties_the_same_way():
+    from zoo.data.mesh import QUAD_TIE, triangulate_quads
+
+    quad = np.array([[0, 1, 2, 3]])
+    # a-c shorter: (a, b, c), (c, d, a); b-d shorter: (a, b, d), (d, b, c).
+    kite = np.array([[0, 0, 0], [2, -1, 0], [1, 0, 0], [2, 1, 0]], float)
+    assert triangulate_quads(kite, quad).tolist() == [[0, 1, 2], [2, 3, 0]]
+    wide = np.array([[-2, 0, 0], [0, -1, 0], [2, 0, 0], [0, 1, 0]], float)
+    assert triangulate_quads(wide, quad).tolist() == [[0, 1, 3], [3, 1, 2]]
+    # A square, exact or nudged either way by less than the tie tolerance (as another CPU's
+    # rounding would), takes the fixed diagonal a-c.
+    square = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], float)
+    for nudge in (0.0, QUAD_TIE / 10, -QUAD_TIE / 10):
+        v = square.copy()
+        v[2] *= 1 + nudge
+        assert triangulate_quads(v, quad).tolist() == [[0, 1, 2], [2, 3, 0]]
+    with pytest.raises(MeshError, match=r"quads must be an integer array \(F, 4\)"):
+        triangulate_quads(square, np.array([[0, 1, 2]]))

@@ -62,7 +62,14 @@ from scipy.spatial.transform import Rotation, Slerp
 
 from zoo.data.bvh import BVH, CMU_BVH_JOINTS, bone_directions, forward_kinematics, read_bvh
 from zoo.data.expmap import DataFormatError
-from zoo.data.mesh import MeshDataset, MeshSequence, MeshTopology, cache_root
+from zoo.data.mesh import (
+    QUAD_TIE,
+    MeshDataset,
+    MeshSequence,
+    MeshTopology,
+    cache_root,
+    triangulate_quads,
+)
 from zoo.errors import DataNotFoundError
 from zoo.io import atomic_path, sha256_file
 
@@ -89,6 +96,15 @@ NO_DIRECTION_BONES = frozenset(
 AXES_M = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
 
 TOPOLOGIES = {"full": "anny", "low": "notoes_collapse10pc"}
+# The full body is loaded as anny's quads and triangulated by the zoo (mesh.triangulate_quads):
+# anny's own split picks the shorter diagonal in float32, and on the body's 56 symmetric quads
+# (equal diagonals) that choice differs between CPUs, and with it the faces, the Graph Laplacian
+# and every protocol id. The low body is anny's triangles (no quads).
+QUAD_TOPOLOGIES = {"full": "anny-quads"}
+TRIANGULATION = {
+    "full": "anny-quads split along the shorter diagonal (float64 on the template), ties "
+    f"within {QUAD_TIE:g} relative along a-c"
+}
 ROOT_MODES = ("identity", "no_heading")
 IDENTITY_MODES = ("one", "many")
 SPLITS = ("train", "test")
@@ -162,7 +178,7 @@ def load_anny_model(
 
     if anny_cache_dir is not None:
         anny.paths.set_anny_cache_path(Path(anny_cache_dir))
-    model = anny.Anny(rig="cmu_mb", topology=TOPOLOGIES[topology])
+    model = anny.Anny(rig="cmu_mb", topology=QUAD_TOPOLOGIES.get(topology, TOPOLOGIES[topology]))
     model = model.to(dtype)
     missing = [
         BVH_TO_ANNY.get(n, n)
@@ -178,7 +194,10 @@ def load_anny_model(
 
 
 def model_faces(model) -> np.ndarray:
+    """The triangles of a model from ``load_anny_model`` (its quads split, if it has quads)."""
     faces = np.asarray(model.faces.detach().cpu().numpy(), dtype=np.int64)
+    if faces.ndim == 2 and faces.shape[1] == 4:
+        return triangulate_quads(model.template_vertices.detach().cpu().numpy(), faces)
     if faces.ndim != 2 or faces.shape[1] != 3:
         raise RuntimeError(f"anny model faces are not triangles: {faces.shape}")
     return faces
@@ -785,6 +804,8 @@ def build_cmu_anny(
         "identities": identities,
         "topology": topology,
         "anny_topology": TOPOLOGIES[topology],
+        # Only where the zoo triangulates: the low recipe (and its cache key) stays as it was.
+        **({"triangulation": TRIANGULATION[topology]} if topology in TRIANGULATION else {}),
         "rig": "cmu_mb",
         "split": split,
         "split_rule": SPLIT_RULE,

@@ -120,6 +120,33 @@ class MeshTopology:
             )
 
 
+# Two diagonals of a quad this close (relative, float64) are a tie: which one float32 arithmetic
+# finds shorter differs between CPUs (Anny's full body has 56 mirror-symmetric quads whose
+# diagonals are equal), so a tie takes the fixed diagonal a-c and the mesh is the same everywhere.
+QUAD_TIE = 1e-5
+
+
+def triangulate_quads(vertices: np.ndarray, quads: np.ndarray) -> np.ndarray:
+    """Split each quad ``(a, b, c, d)`` along its shorter diagonal: ``(F, 4)`` -> ``(2F, 3)``.
+
+    The shorter diagonal is measured in float64 on ``vertices (V, 3)``; a tie (diagonals within
+    ``QUAD_TIE`` of each other, relative) splits along ``a-c``, so the result does not depend on
+    the CPU's rounding. Triangles ``(a, b, c), (c, d, a)`` or ``(a, b, d), (d, b, c)`` keep the
+    quad's orientation.
+    """
+    quads = np.asarray(quads, dtype=np.int64)
+    if quads.ndim != 2 or quads.shape[1] != 4:
+        raise MeshError(f"quads must be an integer array (F, 4), got {quads.shape}")
+    v = np.asarray(vertices, dtype=np.float64)
+    ac = np.linalg.norm(v[quads[:, 0]] - v[quads[:, 2]], axis=1)
+    bd = np.linalg.norm(v[quads[:, 1]] - v[quads[:, 3]], axis=1)
+    use_ac = (ac < bd) | (np.abs(ac - bd) <= QUAD_TIE * np.maximum(ac, bd))
+    a, b, c, d = quads.T
+    first = np.where(use_ac[:, None], np.stack([a, b, c], 1), np.stack([a, b, d], 1))
+    second = np.where(use_ac[:, None], np.stack([c, d, a], 1), np.stack([d, b, c], 1))
+    return np.stack([first, second], axis=1).reshape(-1, 3)
+
+
 @dataclass
 class MeshSequence:
     """One motion of the mesh: ``vertices (T, V, 3)`` float32 in mm at ``fps``."""
