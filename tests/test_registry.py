@@ -48,7 +48,7 @@ BASELINE = '''
 import torch
 
 
-class ConstantVelocity(torch.nn.Module):
+class DampedVelocity(torch.nn.Module):
     """Extrapolates the last observed velocity: a user's own baseline."""
 
     def __init__(self, input_frames, output_frames, num_points, damping=1.0):
@@ -70,17 +70,17 @@ def test_user_baseline_from_outside_zoo(tmp_path, swinging_cmu, capsys):
     registry.write_text(
         textwrap.dedent("""\
         models:
-          constant_velocity:
-            class: my_baselines.py:ConstantVelocity
+          damped_velocity:
+            class: my_baselines.py:DampedVelocity
             representation: joints
             hparams: {damping: 1.0}
             reference: a user's baseline
         """)
     )
     assert main(["list", "--registry", str(registry)]) == 0
-    assert "constant_velocity" in capsys.readouterr().out
+    assert "damped_velocity" in capsys.readouterr().out
     outs = {}
-    for model in ("constant_velocity", "repeat_last"):
+    for model in ("damped_velocity", "repeat_last"):
         outs[model] = tmp_path / model
         assert (
             main(
@@ -102,9 +102,9 @@ def test_user_baseline_from_outside_zoo(tmp_path, swinging_cmu, capsys):
             )
             == 0
         )
-    cv = pd.read_csv(outs["constant_velocity"] / "results.csv")
+    cv = pd.read_csv(outs["damped_velocity"] / "results.csv")
     rl = pd.read_csv(outs["repeat_last"] / "results.csv")
-    assert set(cv.model) == {"constant_velocity"}
+    assert set(cv.model) == {"damped_velocity"}
     pick = lambda df: (
         df[(df.action == "average") & (df.joints == "all38") & (df.averaging == "frame")]
         .sort_values("frame")["value"]
@@ -121,7 +121,7 @@ def test_user_baseline_from_outside_zoo(tmp_path, swinging_cmu, capsys):
                 "--registry",
                 str(registry),
                 "--model",
-                "constant_velocity",
+                "damped_velocity",
                 "--set",
                 "damping=0.5",
                 "--sampler",
@@ -141,7 +141,7 @@ def test_user_baseline_from_outside_zoo(tmp_path, swinging_cmu, capsys):
                 "--registry",
                 str(registry),
                 "--model",
-                "constant_velocity",
+                "damped_velocity",
                 "--set",
                 "dampng=0.5",
                 "--data-root",
@@ -208,7 +208,7 @@ def test_a_known_name_needs_an_explicit_override_that_results_record(
     entry = """\
         models:
           repeat_last:
-            class: my_baselines.py:ConstantVelocity
+            class: my_baselines.py:DampedVelocity
             representation: joints
             hparams: {damping: 1.0}
             reference: not the zoo's repeat_last
@@ -234,7 +234,7 @@ def test_a_known_name_needs_an_explicit_override_that_results_record(
     registry.write_text(textwrap.dedent(entry) + "    override: true\n")
     assert main(args) == 0
     provenance = json.loads((tmp_path / "out" / "protocol.json").read_text())["provenance"]
-    assert provenance["class"] == "my_baselines.py:ConstantVelocity"
+    assert provenance["class"] == "my_baselines.py:DampedVelocity"
     assert provenance["registry"] == str(registry) and provenance["replaces"].endswith(
         "registry.yaml"
     )

@@ -25,7 +25,7 @@ import torch
 from torch import nn
 
 
-class ConstantVelocity(nn.Module):
+class DampedVelocity(nn.Module):
     """The last observed velocity, carried on (multiplied by damping each frame)."""
 
     def __init__(self, input_frames, output_frames, num_points, damping=1.0):
@@ -59,8 +59,8 @@ def project(tmp_path):
     (tmp_path / "mine" / "registry.yaml").write_text(
         textwrap.dedent("""\
         models:
-          constant_velocity:
-            class: baselines.py:ConstantVelocity
+          damped_velocity:
+            class: baselines.py:DampedVelocity
             representation: joints
             hparams: {damping: 1.0}
             reference: my own baseline
@@ -118,21 +118,25 @@ def test_a_users_row_survives_a_rebuild_without_its_registry(project, capsys):
     code, _, _ = cli(capsys, "leaderboard", *board_args(project, "mine"))
     assert code == 0
     table = project / "results" / "cmu" / "ltd8"
-    assert set(pd.read_csv(table / "results.csv").model) == {"constant_velocity", "repeat_last"}
-    before = (table / "constant_velocity" / "results.csv").read_bytes()
+    assert set(pd.read_csv(table / "results.csv").model) == {
+        "damped_velocity",
+        "constant_velocity",
+        "repeat_last",
+    }
+    before = (table / "damped_velocity" / "results.csv").read_bytes()
 
     # The same rebuild without the user's registry: their row stays, on disk and in the table.
     code, _, err = cli(capsys, "leaderboard", "--recompute", *board_args(project))
     assert code == 0
-    assert (table / "constant_velocity" / "results.csv").read_bytes() == before
-    assert "constant_velocity" in set(pd.read_csv(table / "results.csv").model)
-    assert "constant_velocity: kept as stored (registry" in err and "not loaded" in err
-    assert "--drop constant_velocity removes it" in err
+    assert (table / "damped_velocity" / "results.csv").read_bytes() == before
+    assert "damped_velocity" in set(pd.read_csv(table / "results.csv").model)
+    assert "damped_velocity: kept as stored (registry" in err and "not loaded" in err
+    assert "--drop damped_velocity removes it" in err
 
     # Only a deliberate --drop removes it.
-    code, _, _ = cli(capsys, "leaderboard", "--drop", "constant_velocity", *board_args(project))
-    assert code == 0 and not (table / "constant_velocity").exists()
-    assert set(pd.read_csv(table / "results.csv").model) == {"repeat_last"}
+    code, _, _ = cli(capsys, "leaderboard", "--drop", "damped_velocity", *board_args(project))
+    assert code == 0 and not (table / "damped_velocity").exists()
+    assert set(pd.read_csv(table / "results.csv").model) == {"repeat_last", "constant_velocity"}
 
 
 def test_a_stored_row_of_another_registry_is_never_replaced(project, capsys):
@@ -140,7 +144,7 @@ def test_a_stored_row_of_another_registry_is_never_replaced(project, capsys):
         textwrap.dedent("""\
         models:
           repeat_last:
-            class: baselines.py:ConstantVelocity
+            class: baselines.py:DampedVelocity
             representation: joints
             override: true
             reference: a user's own row under a zoo name
@@ -160,7 +164,7 @@ def eval_args(project, *extra):
         "--registry",
         project / "mine" / "registry.yaml",
         "--model",
-        "constant_velocity",
+        "damped_velocity",
         "--sampler",
         "ltd8",
         "--results",
@@ -172,19 +176,19 @@ def eval_args(project, *extra):
 def test_eval_never_replaces_a_result_of_another_identity(project, capsys, tmp_path):
     data = ["--data-root", project / "cmu"]
     assert cli(capsys, *eval_args(project, *data))[0] == 0
-    place = project / "results" / "cmu" / "ltd8" / "constant_velocity"
+    place = project / "results" / "cmu" / "ltd8" / "damped_velocity"
     before = (place / "results.csv").read_bytes()
     # the same measurement again: same identity, allowed
     assert cli(capsys, *eval_args(project, *data))[0] == 0
 
     # other hyper-parameters: stored beside it under their own label, never in its place
     assert cli(capsys, *eval_args(project, *data, "--set", "damping=0.8"))[0] == 0
-    assert (place.parent / "constant_velocity+damping=0.8" / "results.csv").is_file()
+    assert (place.parent / "damped_velocity+damping=0.8" / "results.csv").is_file()
     code, out, _ = cli(
         capsys,
         "compare",
-        "constant_velocity",
-        "constant_velocity+damping=0.8",
+        "damped_velocity",
+        "damped_velocity+damping=0.8",
         "--benchmark",
         "cmu",
         "--sampler",
@@ -192,9 +196,9 @@ def test_eval_never_replaces_a_result_of_another_identity(project, capsys, tmp_p
         "--results",
         project / "results",
     )  # two configurations of one model, labelled
-    assert code == 0 and "constant_velocity against constant_velocity+damping=0.8" in out
+    assert code == 0 and "damped_velocity against damped_velocity+damping=0.8" in out
     code, _, err = cli(
-        capsys, *eval_args(project, *data, "--set", "damping=0.8", "--label", "constant_velocity")
+        capsys, *eval_args(project, *data, "--set", "damping=0.8", "--label", "damped_velocity")
     )
     assert code == 2 and "model.hparams.damping: stored 1.0, now 0.8" in err
 
@@ -226,13 +230,13 @@ def test_a_stale_row_is_recomputed_and_a_current_one_reused(project, capsys):
     written = {p: p.stat().st_mtime_ns for p in table.rglob("*") if p.is_file()}
 
     code, _, err = cli(capsys, "leaderboard", *board_args(project, "tiny"))
-    assert code == 0 and "cmu: 4 row(s) reused, 0 recomputed" in err
+    assert code == 0 and "cmu: 6 row(s) reused, 0 recomputed" in err
     assert {p: p.stat().st_mtime_ns for p in table.rglob("*") if p.is_file()} == written
 
     shipped_tiny(project, seed=1)  # retrained: other weights under the same label
     code, _, err = cli(capsys, "leaderboard", *board_args(project, "tiny"))
     assert code == 0 and "recomputing tiny: trained.sha256: stored" in err
-    assert "cmu: 2 row(s) reused, 2 recomputed" in err  # repeat_last reused on both tables
+    assert "cmu: 4 row(s) reused, 2 recomputed" in err  # the baselines reused on both tables
     assert (table / "repeat_last" / "results.csv").stat().st_mtime_ns == written[
         table / "repeat_last" / "results.csv"
     ]
@@ -289,7 +293,7 @@ def test_a_user_checkpoint_names_its_registry(project, capsys):
     )
 
 
-def test_readme_add_a_constant_velocity_baseline_to_the_cmu_ltd8_leaderboard(project, capsys):
+def test_readme_add_a_damped_velocity_baseline_to_the_cmu_ltd8_leaderboard(project, capsys):
     """The README's words: register a constant-velocity baseline from your own file and add it
     to the CMU leaderboard; no trained model is evaluated again."""
     shipped_tiny(project)
@@ -298,15 +302,15 @@ def test_readme_add_a_constant_velocity_baseline_to_the_cmu_ltd8_leaderboard(pro
     tiny = (table / "tiny" / "protocol.json").read_bytes()
 
     code, out, err = cli(
-        capsys, "leaderboard", "--model", "constant_velocity", *board_args(project, "tiny", "mine")
+        capsys, "leaderboard", "--model", "damped_velocity", *board_args(project, "tiny", "mine")
     )
     assert code == 0
-    assert "recomputing constant_velocity: asked (--model)" in err
+    assert "recomputing damped_velocity: asked (--model)" in err
     assert "recomputing tiny" not in err and "recomputing repeat_last" not in err
     assert (table / "tiny" / "protocol.json").read_bytes() == tiny  # not re-evaluated
     board = (table / "leaderboard.md").read_text()
-    assert "| constant_velocity " in board and "| tiny " in board
-    record = json.loads((table / "constant_velocity" / "protocol.json").read_text())
+    assert "| damped_velocity " in board and "| tiny " in board
+    record = json.loads((table / "damped_velocity" / "protocol.json").read_text())
     assert record["provenance"]["identity"]["model"]["registry"] == str(
         project / "mine" / "registry.yaml"
     )
@@ -321,9 +325,9 @@ def test_python_results_carry_the_command_lines_identity(project, capsys):
         HERE.parent / "registry.yaml", project / "mine" / "registry.yaml"
     )
     result = zoo.evaluate(
-        "constant_velocity", "cmu", sampler="ltd8", registry=registry, data_root=project / "cmu"
+        "damped_velocity", "cmu", sampler="ltd8", registry=registry, data_root=project / "cmu"
     )
-    assert result.identity == stored["constant_velocity"].identity
+    assert result.identity == stored["damped_velocity"].identity
     assert result.summary().shape[1] == 25
 
     class Zero(torch.nn.Module):  # your own model object: no registry, nothing written
@@ -333,8 +337,8 @@ def test_python_results_carry_the_command_lines_identity(project, capsys):
     mine = zoo.evaluate(Zero(), "cmu", sampler="ltd8", data_root=project / "cmu", label="zero")
     assert mine.identity["model"]["class"].endswith("Zero")
     assert not (HERE.parent / "results" / "cmu" / "ltd8" / "zero").exists()
-    comparison = zoo.compare(stored["constant_velocity"], mine)
-    assert "constant_velocity against zero" in comparison.markdown()
+    comparison = zoo.compare(stored["damped_velocity"], mine)
+    assert "damped_velocity against zero" in comparison.markdown()
 
 
 def test_code_fingerprints_ignore_comments_and_docstrings(tmp_path):
@@ -357,7 +361,11 @@ def test_a_rebuild_keeps_whatever_else_is_in_a_table_folder(project, capsys):
     assert cli(capsys, "leaderboard", *board_args(project, "mine"))[0] == 0
     assert (table / "NOTES.md").read_text() == "my notes"
     assert (table / "my-comparison" / "comparison.md").is_file()
-    assert set(pd.read_csv(table / "results.csv").model) == {"constant_velocity", "repeat_last"}
+    assert set(pd.read_csv(table / "results.csv").model) == {
+        "damped_velocity",
+        "constant_velocity",
+        "repeat_last",
+    }
 
 
 def test_a_users_row_under_a_planned_label_stops_the_rebuild(project, capsys):
@@ -407,11 +415,11 @@ def test_a_model_objects_identity_holds_its_settings(project):
     spec = {}
     exec(CONSTANT_VELOCITY, spec)  # a class with no source file, as typed into a REPL
     run = dict(sampler="ltd8", data_root=project / "cmu", label="cv")
-    a = zoo.evaluate(spec["ConstantVelocity"](10, 25, 25, damping=1.0), "cmu", **run)
-    b = zoo.evaluate(spec["ConstantVelocity"](10, 25, 25, damping=0.8), "cmu", **run)
+    a = zoo.evaluate(spec["DampedVelocity"](10, 25, 25, damping=1.0), "cmu", **run)
+    b = zoo.evaluate(spec["DampedVelocity"](10, 25, 25, damping=0.8), "cmu", **run)
     assert a.identity["model"]["hparams"]["attributes"]["damping"] == 1.0
     assert a.identity != b.identity and a.identity["code"]["model"] is None
     out = project / "cv"
-    zoo.evaluate(spec["ConstantVelocity"](10, 25, 25), "cmu", out=out, **run)
+    zoo.evaluate(spec["DampedVelocity"](10, 25, 25), "cmu", out=out, **run)
     with pytest.raises(zoo.store.StoreError, match="source cannot be read"):
-        zoo.evaluate(spec["ConstantVelocity"](10, 25, 25), "cmu", out=out, **run)
+        zoo.evaluate(spec["DampedVelocity"](10, 25, 25), "cmu", out=out, **run)

@@ -651,7 +651,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser(
         "compare",
-        help="is A better than B? paired differences per horizon with block-bootstrap intervals",
+        help="is A better than B? paired differences per horizon, intervals, sign test",
     )
     p.add_argument("a", help="model label (with --benchmark) or result folder")
     p.add_argument("b", help="model label (with --benchmark) or result folder")
@@ -669,7 +669,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--block-frames",
         type=_positive_int,
-        help="bootstrap block length in frames (default: two window lengths)",
+        help="bootstrap block length in frames (default: eight window lengths)",
     )
     p.add_argument("--confidence", type=float, default=0.95)
     p.add_argument("--replicates", type=_positive_int, default=2000)

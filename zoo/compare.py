@@ -1,5 +1,5 @@
-"""Is model A better than model B, and by how much? Paired comparisons with block-bootstrap
-intervals (:mod:`zoo.intervals`) on the per-window errors the evaluator keeps.
+"""Is model A better than model B, and by how much? Paired comparisons with the intervals of
+:mod:`zoo.intervals` on the per-window errors the evaluator keeps, and a sign test over actions.
 
 (Called, ``zoo.compare(a, b, benchmark=None, **options)`` runs :func:`zoo.api.compare`: results,
 result folders or stored labels in, a :class:`Comparison` out.)
@@ -30,9 +30,10 @@ from zoo.evaluate import EvalResult
 from zoo.intervals import (
     CONFIDENCE,
     REPLICATES,
-    block_bootstrap,
-    percentile_interval,
+    design,
+    interval,
     protocol_mean,
+    sign_test,
 )
 from zoo.metrics import AVERAGING, cumulative_mean
 from zoo.tables import (
@@ -84,7 +85,9 @@ def _load(source) -> EvalResult:
 @dataclass
 class Comparison:
     """A - B per horizon: ``table`` has ``horizon_ms``, ``a``, ``b``, ``difference``, ``lo``,
-    ``hi`` (the interval of A - B) and ``verdict`` (``a``, ``b`` or ``none``)."""
+    ``hi`` (the interval of A - B), per-unit counts ``a_lower``, ``ties``, ``units``, the sign
+    test's ``sign_p``, and ``verdict``: ``a`` or ``b`` (better), ``these recordings`` (lower here,
+    without evidence beyond), ``none``."""
 
     a: str
     b: str
@@ -97,31 +100,51 @@ class Comparison:
     seed: int
     protocol: dict[str, Any]
     table: pd.DataFrame = field(repr=False)
+    kind: str = "window-sampling"  # or "confidence": see zoo.intervals.Interval
+    units: str = "actions"  # what the sign test counts: actions, or recordings
+    design: str = ""  # recordings per action, in words
 
     def sentences(self) -> list[str]:
+        """One sentence per horizon. "A is better than B" only where the evidence reaches past
+        these recordings: a confidence interval over recordings that excludes zero, or (one
+        recording per action) a window-sampling interval that excludes zero together with a
+        sign test over the actions at p <= 1 - confidence; otherwise what is true of these
+        recordings."""
         unit = metric_unit(self.metric)[0]
         unit = f" {unit}" if unit == "mm" else ""  # rmse's unit is a definition, not a unit
         fmt = metric_unit(self.metric)[1]
         pct = f"{100 * self.confidence:g}%"
+        what = "confidence interval" if self.kind == "confidence" else "window-sampling interval"
         out = []
         for row in self.table.itertuples():
+            count = (
+                f"{self.a} lower on {row.a_lower} of {row.units} {self.units}, "
+                f"sign test p = {row.sign_p:.2g}"
+            )
             if row.verdict == "none":
                 out.append(
                     f"no difference detectable at {row.horizon_ms} ms ({self.a} - "
-                    f"{self.b} = {row.difference:{fmt}}{unit}, {pct} interval "
-                    f"{row.lo:{fmt}} to {row.hi:{fmt}})"
+                    f"{self.b} = {row.difference:{fmt}}{unit}, {pct} {what} "
+                    f"{row.lo:{fmt}} to {row.hi:{fmt}}; {count})"
                 )
                 continue
+            a_lower = row.difference < 0
             better, worse, lo, hi = (
-                (self.a, self.b, -row.hi, -row.lo)
-                if row.verdict == "a"
-                else (self.b, self.a, row.lo, row.hi)
+                (self.a, self.b, -row.hi, -row.lo) if a_lower else (self.b, self.a, row.lo, row.hi)
             )
-            out.append(
-                f"{better} is better than {worse} at {row.horizon_ms} ms by "
-                f"{abs(row.difference):{fmt}}{unit}, {pct} interval {lo:{fmt}} to "
-                f"{hi:{fmt}}"
+            wins = row.a_lower if a_lower else row.units - row.a_lower - row.ties
+            by = (
+                f"by {abs(row.difference):{fmt}}{unit} ({pct} {what} {lo:{fmt}} to "
+                f"{hi:{fmt}}; lower on {wins} of {row.units} {self.units}, sign test p = "
+                f"{row.sign_p:.2g})"
             )
+            if row.verdict in ("a", "b"):
+                out.append(f"{better} is better than {worse} at {row.horizon_ms} ms {by}")
+            else:
+                out.append(
+                    f"{better} is lower than {worse} at {row.horizon_ms} ms on these recordings "
+                    f"{by}: too few {self.units} agree to say it is better on others"
+                )
         return out
 
     def heading(self) -> str:
@@ -130,10 +153,17 @@ class Comparison:
             f"{self.a} against {self.b} on {p['benchmark']} ({p['dataset']} {p['split']}, "
             f"sampler {p['sampler']}, protocol {p['protocol_id']}): {self.metric} "
             f"({metric_unit(self.metric)[0]}), averaging `{self.averaging}`, joints "
-            f"`{self.joints}`, action average; paired differences, "
-            f"{100 * self.confidence:g}% block-bootstrap intervals (circular blocks of "
-            f"{self.block_frames} frames within each recording, {self.replicates} "
-            f"replicates, seed {self.seed})"
+            f"`{self.joints}`, action average ({self.design}); paired differences, "
+            + (
+                f"{100 * self.confidence:g}% confidence intervals over recordings (t)"
+                if self.kind == "confidence"
+                else f"{100 * self.confidence:g}% window-sampling intervals, conditional on "
+                f"these recordings (studentised circular block bootstrap within each "
+                f"recording, blocks of {self.block_frames} frames, {self.replicates} "
+                f"replicates, seed {self.seed}), not confidence intervals for the actions"
+            )
+            + f"; per horizon, on how many {self.units} {self.a} is lower, with the exact "
+            f"two-sided sign test"
         )
 
     def markdown(self) -> str:
@@ -145,13 +175,24 @@ class Comparison:
                 r.b,
                 r.difference,
                 f"{r.lo:{fmt}} to {r.hi:{fmt}}",
-                {"a": self.a, "b": self.b, "none": "-"}[r.verdict],
+                f"{r.a_lower} of {r.units}",
+                f"{r.sign_p:.2g}",
+                {"a": self.a, "b": self.b}.get(r.verdict, "-"),
             ]
             for r in self.table.itertuples()
         ]
         table = tabulate(
             rows,
-            headers=["horizon (ms)", self.a, self.b, f"{self.a} - {self.b}", "interval", "better"],
+            headers=[
+                "horizon (ms)",
+                self.a,
+                self.b,
+                f"{self.a} - {self.b}",
+                "interval",
+                f"{self.a} lower ({self.units})",
+                "sign test p",
+                "better",
+            ],
             tablefmt="github",
             floatfmt=fmt,
         )
@@ -245,10 +286,13 @@ def compare(
             f"protocol records agree; re-evaluate both"
         )
     block_frames = block_frames or block_frames_default(wa)
-    replicates_ = block_bootstrap(
-        ea - eb, wa.sequence, wa.start, wa.action, block_frames, replicates, seed
-    )
-    lo, hi = percentile_interval(replicates_, confidence)
+    shape = design(wa.sequence, wa.action)
+    span = interval(ea - eb, wa, confidence, replicates, seed, block_frames)
+    lo, hi = span.lo, span.hi
+    # The sign test's units: recordings where they are independent replicates, else actions.
+    unit_of = wa.sequence if shape.recording_level else wa.action
+    units = np.unique(unit_of)
+    unit_difference = np.stack([(ea - eb)[unit_of == u].mean(axis=0) for u in units])
     mean_a, mean_b = protocol_mean(ea, wa.action), protocol_mean(eb, wb.action)
     frame_ms = 1000.0 / ra.protocol["fps"]
     horizon = np.rint(np.arange(1, ea.shape[1] + 1) * frame_ms).astype(int)
@@ -262,7 +306,18 @@ def compare(
     rows = []
     for h in wanted:
         t = int(np.flatnonzero(horizon == h)[0])
-        verdict = "a" if hi[t] < 0 else "b" if lo[t] > 0 else "none"
+        a_lower = int((unit_difference[:, t] < 0).sum())
+        a_higher = int((unit_difference[:, t] > 0).sum())
+        p = sign_test(a_lower, a_higher)
+        excludes = hi[t] < 0 or lo[t] > 0
+        supported = shape.recording_level or p <= 1 - confidence
+        verdict = (
+            "none"
+            if not excludes
+            else ("a" if hi[t] < 0 else "b")
+            if supported
+            else "these recordings"
+        )
         rows.append(
             {
                 "horizon_ms": int(h),
@@ -271,6 +326,10 @@ def compare(
                 "difference": mean_a[t] - mean_b[t],
                 "lo": lo[t],
                 "hi": hi[t],
+                "a_lower": a_lower,
+                "ties": len(units) - a_lower - a_higher,
+                "units": len(units),
+                "sign_p": p,
                 "verdict": verdict,
             }
         )
@@ -286,4 +345,7 @@ def compare(
         seed=seed,
         protocol=ra.protocol,
         table=pd.DataFrame(rows),
+        kind=span.kind,
+        units="recordings" if shape.recording_level else "actions",
+        design=shape.counts(),
     )

@@ -1,25 +1,38 @@
-"""How sure a number is: block-bootstrap intervals over overlapping windows.
+"""How sure a number is, and what it is sure about: intervals over recordings and over windows.
 
-Windows of one recording overlap (CMU's ``all`` sampler: neighbouring windows share 34 of their 35
-frames), so their errors are strongly correlated and a standard error over windows is far too
+What an interval can mean depends on the design (:func:`design`):
+
+- Where every action has ``MIN_RECORDINGS`` or more independent recordings (cloth: 100 test
+  sequences), a t interval over recordings (:func:`recording_interval`) is a **confidence
+  interval of the benchmark mean**: where the number would lie on other recordings of the same
+  kind.
+- Where an action has fewer (CMU and CMU-on-Anny: one recording per action), nothing in the data
+  shows how the number would move on another recording of the action. What can be said is how
+  it would move had other windows of **these** recordings been drawn: a **window-sampling
+  interval** (:func:`window_sampling_interval`), conditional on the recordings.
+
+Windows of one recording overlap (CMU's ``all`` sampler: neighbouring windows share 34 of their
+35 frames), so their errors are strongly correlated and a standard error over windows is far too
 small. The circular block bootstrap keeps that dependence: it resamples runs of consecutive
-windows of one recording (a block: the windows starting within ``block_frames`` of the block's
-first; :func:`zoo.tables.block_frames_default` takes two window lengths), never pieces of two
-recordings, a run past a recording's end continuing at its start. Each action's windows are rebuilt
-from blocks drawn among all its recordings' blocks (with one recording per action, as on CMU,
-that is the plain moving-block bootstrap of it; with one window per recording, as on cloth, it is
-the ordinary bootstrap of independent recordings), to as many windows as the action has. Then
-the protocol averages as always: mean over an action's windows, unweighted mean over the
-actions, which are never resampled away (the protocol fixes them).
+windows of one recording (a block: the windows starting within ``block_frames``, two window
+lengths, of the block's first, but never shorter than one window: :func:`block_length`), never
+pieces of two recordings, a run past a recording's end continuing at its start. Each action's
+windows are rebuilt from blocks drawn among all its recordings' blocks, to as many windows as
+the action has; the protocol averages as always (mean over an action's windows, unweighted mean
+over the actions, which are never resampled away). The interval is studentised: the replicates'
+standard deviation times a t quantile whose degrees of freedom count the blocks, since a
+recording holding two or three blocks gives a percentile interval far too narrow.
 
 A paired comparison of two models scored on the same windows bootstraps the per-window
-differences with the same blocks, which removes the variance the two models share.
+differences with the same blocks, which removes the variance the two models share;
+:func:`best_set` compares every model of a table at once, and :func:`sign_test` counts actions.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -43,14 +56,78 @@ def block_windows(starts: np.ndarray, block_frames: int) -> int:
     return max(1, math.ceil(block_frames / max(stride, 1.0)))
 
 
-def short_recordings(sequence: np.ndarray, start: np.ndarray, block_frames: int) -> list[int]:
-    """Recordings with several windows but fewer than two blocks of them: the bootstrap sees
-    too little of their variance (their intervals come out too narrow)."""
+MIN_RECORDINGS = 3  # independent recordings per action for a recording-level interval
+# Blocks of two window lengths, widened by a t quantile on the blocks (Replicates.widened).
+# Longer blocks see more of real errors' memory (autocorrelation 0.45-0.96 at 35-70 frames on
+# CMU) but leave CMU's shorter recordings two blocks and one degree of freedom: blocks of four or
+# eight window lengths made CMU's 1000 ms interval of repeat_last +-174-177 mm on 211 mm, two
+# +-61 mm, and two already covered the held-out recordings' mean in every pseudo test set
+# (zoo/coverage.yaml). One recording alone, 300 repetitions (benchmarks/coverage/coverage.py
+# --lengths): memoryless frame noise 0.91-0.99 at every length; frame noise remembering about 50
+# frames (AR(1) at 0.98, Student-t(3) shocks) 0.78-0.83 from 255 windows on, 0.89-0.94 at
+# 70-146 windows; averaged with CMU's other actions (zoo/coverage.yaml) it covered 0.93.
+BLOCK_WINDOWS = 2
+# A recording whose windows' starts span fewer than this many window lengths holds too little of
+# its own variance for any block to show: one of 48 windows (CMU's running) covered 0.68 with
+# long memory, 70 windows 0.89, 100 windows 0.92. Tables name them.
+MIN_SPAN_WINDOWS = 3
+
+
+@dataclass
+class Design:
+    """Where a table's windows come from, and so what an interval over them can mean:
+    ``recordings`` per action (independent recordings, each with its windows)."""
+
+    recordings: dict[str, int]
+
+    @property
+    def recording_level(self) -> bool:
+        """Every action has ``MIN_RECORDINGS`` or more recordings: an interval over recordings
+        is a confidence interval of the benchmark's mean."""
+        return min(self.recordings.values()) >= MIN_RECORDINGS
+
+    def counts(self) -> str:
+        counts = sorted(set(self.recordings.values()))
+        if len(counts) == 1:
+            n = counts[0]
+            return (
+                f"{n} recording{'s' if n > 1 else ''} per action, {len(self.recordings)} action(s)"
+            )
+        return ", ".join(f"{a} {n}" for a, n in self.recordings.items())
+
+
+def coverage_record() -> dict:
+    """The coverage measured for these intervals (``zoo/coverage.yaml``, written by
+    ``benchmarks/coverage/coverage.py``); empty if not measured."""
+    import yaml
+
+    path = Path(__file__).with_name("coverage.yaml")
+    return yaml.safe_load(path.read_text()) if path.is_file() else {}
+
+
+def design(sequence: np.ndarray, actions: np.ndarray) -> Design:
+    sequence, actions = np.asarray(sequence), np.asarray(actions)
+    return Design({str(a): int(len(np.unique(sequence[actions == a]))) for a in np.unique(actions)})
+
+
+def block_length(starts: np.ndarray, block_frames: int, window_frames: int) -> int:
+    """A recording's block, in windows: ``block_frames`` long, at most half the recording so
+    that it holds two blocks, but never shorter than one window (windows closer than that share
+    frames, so a shorter block cuts through their dependence)."""
+    n = len(starts)
+    wanted = block_windows(starts, block_frames)
+    overlap = block_windows(starts, window_frames)
+    return max(1, min(wanted, max(math.ceil(n / 2), overlap), n))
+
+
+def short_recordings(sequence: np.ndarray, start: np.ndarray, window_frames: int) -> list[int]:
+    """Recordings of several windows whose starts span fewer than ``MIN_SPAN_WINDOWS`` window
+    lengths: their intervals are known to be too narrow."""
     sequence, start = np.asarray(sequence), np.asarray(start)
     out = []
     for rec in np.unique(sequence):
         own = start[sequence == rec]
-        if 1 < len(own) < 2 * block_windows(own, block_frames):
+        if len(own) > 1 and own.max() - own.min() + 1 < MIN_SPAN_WINDOWS * window_frames:
             out.append(int(rec))
     return out
 
@@ -63,29 +140,78 @@ class _ActionBlocks:
     #                       recording followed by its first windows again (circular blocks)
     offsets: np.ndarray  # first position (into rows) of every candidate block
     lengths: np.ndarray  # its length in windows
+    blocks: float  # how many blocks the action's windows make (for degrees of freedom)
 
 
 def _action_blocks(
-    sequence: np.ndarray, start: np.ndarray, rows: np.ndarray, block_frames: int
+    sequence: np.ndarray,
+    start: np.ndarray,
+    rows: np.ndarray,
+    block_frames: int,
+    window_frames: int,
 ) -> _ActionBlocks:
     """Circular blocks: every window of a recording starts one, and a block running past the
     recording's last window continues at its first, so every window is drawn equally often
     (the plain moving blocks under-draw both ends and bias the variance down)."""
     order = rows[np.lexsort((start[rows], sequence[rows]))]
-    extended, offsets, lengths, position = [], [], [], 0
+    extended, offsets, lengths, position, blocks = [], [], [], 0, 0.0
     for rec in np.unique(sequence[order]):
         own = order[sequence[order] == rec]
-        # At least two blocks per recording: one block the whole recording long would make
-        # every replicate a rotation of it, and its variance zero.
-        length = min(block_windows(start[own], block_frames), max(1, math.ceil(len(own) / 2)))
+        length = block_length(start[own], block_frames, window_frames)
         offsets.append(position + np.arange(len(own)))
         lengths.append(np.full(len(own), length))
         extended.append(np.concatenate([own, own[: length - 1]]))
         position += len(extended[-1])
-    return _ActionBlocks(np.concatenate(extended), np.concatenate(offsets), np.concatenate(lengths))
+        blocks += len(own) / length
+    return _ActionBlocks(
+        np.concatenate(extended), np.concatenate(offsets), np.concatenate(lengths), blocks
+    )
 
 
-def block_bootstrap(
+@dataclass
+class Replicates:
+    """Bootstrap replicates of each action's mean, ``per_action (A, R, T)``, and the degrees
+    of freedom each action's variance has (``df (A,)``). Replicates of two models drawn with
+    one seed over one set of windows use the same blocks: their differences are the paired
+    bootstrap."""
+
+    per_action: np.ndarray
+    df: np.ndarray
+
+    @property
+    def mean(self) -> np.ndarray:
+        """Replicates ``(R, T)`` of the protocol mean (unweighted over actions)."""
+        return self.per_action.mean(axis=0)
+
+    def __sub__(self, other: Replicates) -> Replicates:
+        return Replicates(self.per_action - other.per_action, np.minimum(self.df, other.df))
+
+    def widened(self, confidence: float = CONFIDENCE) -> np.ndarray:
+        """Replicates ``(R, T)`` of the protocol mean whose spread pays for few blocks: each
+        action's deviations from its centre scaled by ``t(df) / z`` at ``confidence`` before
+        the actions are averaged, so that an action of two or three blocks (whose bootstrap
+        variance is far too small) weighs as a t quantile would make it; a normal quantile of
+        their spread is then the interval's half width."""
+        from scipy.stats import norm, t
+
+        q = 0.5 + confidence / 2
+        scale = t.ppf(q, self.df) / norm.ppf(q)
+        centre = self.per_action.mean(axis=1, keepdims=True)
+        return (centre + (self.per_action - centre) * scale[:, None, None]).mean(axis=0)
+
+
+def _check_windows(errors, sequence, start, actions, what: str):
+    errors = np.asarray(errors, dtype=np.float64)
+    sequence, start, actions = (np.asarray(a) for a in (sequence, start, actions))
+    if errors.ndim != 2 or not len(sequence) == len(start) == len(actions) == len(errors):
+        raise ValueError(
+            f"{what}: expected errors (W, T) and W sequences, starts and actions, got "
+            f"{errors.shape}, {len(sequence)}, {len(start)}, {len(actions)}"
+        )
+    return errors, sequence, start, actions
+
+
+def block_replicates(
     errors: np.ndarray,
     sequence: np.ndarray,
     start: np.ndarray,
@@ -93,26 +219,22 @@ def block_bootstrap(
     block_frames: int,
     replicates: int = REPLICATES,
     seed: int = 0,
-) -> np.ndarray:
-    """Bootstrap replicates ``(replicates, T)`` of :func:`protocol_mean` of ``errors (W, T)``;
-    ``sequence``, ``start`` and ``actions`` ``(W,)`` say where each window comes from."""
-    errors = np.asarray(errors, dtype=np.float64)
-    sequence, start, actions = (np.asarray(a) for a in (sequence, start, actions))
-    if errors.ndim != 2 or not len(sequence) == len(start) == len(actions) == len(errors):
-        raise ValueError(
-            f"block_bootstrap: expected errors (W, T) and W sequences, starts and "
-            f"actions, got {errors.shape}, {len(sequence)}, {len(start)}, "
-            f"{len(actions)}"
-        )
-    if not isinstance(block_frames, int) or block_frames < 1:
-        raise ValueError(
-            f"block_bootstrap: block_frames must be a positive integer, got {block_frames!r}"
-        )
+    window_frames: int = 1,
+) -> Replicates:
+    """Circular block bootstrap of each action's mean of ``errors (W, T)`` (blocks within a
+    recording, :func:`block_length`); an action's variance has as many degrees of freedom as
+    its windows make non-overlapping blocks, less one (as batch means), at least one."""
+    errors, sequence, start, actions = _check_windows(
+        errors, sequence, start, actions, "block_replicates"
+    )
+    for name, value in (("block_frames", block_frames), ("window_frames", window_frames)):
+        if not isinstance(value, (int, np.integer)) or value < 1:
+            raise ValueError(f"block_replicates: {name} must be a positive integer, got {value!r}")
     rng = np.random.default_rng(seed)
-    per_action = []
+    per_action, df = [], []
     for action in np.unique(actions):
         rows = np.flatnonzero(actions == action)
-        blocks = _action_blocks(sequence, start, rows, block_frames)
+        blocks = _action_blocks(sequence, start, rows, int(block_frames), int(window_frames))
         n = len(rows)
         # Running sums over the action's windows: a block's sum is a difference of two rows.
         cumsum = np.concatenate(
@@ -125,18 +247,234 @@ def block_bootstrap(
         take = np.clip(n - before, 0, length)  # the last block is cut to reach n windows
         sums = (cumsum[first + take] - cumsum[first]).sum(axis=1)
         per_action.append(sums / n)
-    return np.mean(per_action, axis=0)
+        # As many degrees of freedom as non-overlapping blocks, less one (batch means). The 1.5
+        # times as many that overlapping blocks would have (Meketon and Schmeiser) measured
+        # too few: long-memory coverage 0.83, the bold rule's family-wise error 0.07.
+        df.append(max(1.0, blocks.blocks - 1))
+    return Replicates(np.stack(per_action), np.asarray(df))
 
 
-def percentile_interval(
-    replicates: np.ndarray, confidence: float = CONFIDENCE
-) -> tuple[np.ndarray, np.ndarray]:
-    """The ``confidence`` percentile interval ``(lo, hi)`` of bootstrap replicates, per column."""
-    if not 0 < confidence < 1:
-        raise ValueError(f"confidence must lie in (0, 1), got {confidence!r}")
-    tail = 100 * (1 - confidence) / 2
-    lo, hi = np.percentile(replicates, [tail, 100 - tail], axis=0)
-    return lo, hi
+def recording_replicates(
+    errors: np.ndarray,
+    sequence: np.ndarray,
+    actions: np.ndarray,
+    replicates: int = REPLICATES,
+    seed: int = 0,
+) -> Replicates:
+    """Bootstrap of whole recordings within each action (each action's mean over the drawn
+    recordings' windows): the replicates of a design with independent recordings."""
+    errors = np.asarray(errors, dtype=np.float64)
+    sequence, actions = np.asarray(sequence), np.asarray(actions)
+    rng = np.random.default_rng(seed)
+    per_action, df = [], []
+    for action in np.unique(actions):
+        rows = np.flatnonzero(actions == action)
+        recs, index = np.unique(sequence[rows], return_inverse=True)
+        sums = np.zeros((len(recs), errors.shape[1]))
+        np.add.at(sums, index, errors[rows])
+        counts = np.bincount(index, minlength=len(recs)).astype(np.float64)
+        chosen = rng.integers(0, len(recs), size=(replicates, len(recs)))
+        per_action.append(sums[chosen].sum(axis=1) / counts[chosen].sum(axis=1)[:, None])
+        df.append(max(1.0, len(recs) - 1.0))
+    return Replicates(np.stack(per_action), np.asarray(df))
+
+
+@dataclass
+class Interval:
+    """A ``confidence`` interval ``(lo, hi)`` per column of the protocol mean ``centre``, of
+    ``kind`` ``confidence`` (over independent recordings: where the benchmark mean could lie)
+    or ``window-sampling`` (over windows of these recordings: where the number could lie had
+    other windows of the same recordings been drawn; not a confidence interval of the actions)."""
+
+    centre: np.ndarray
+    lo: np.ndarray
+    hi: np.ndarray
+    kind: str
+    df: np.ndarray
+
+    @property
+    def half(self) -> np.ndarray:
+        return (self.hi - self.lo) / 2
+
+
+def _z(confidence: float) -> float:
+    from scipy.stats import norm
+
+    return float(norm.ppf(0.5 + confidence / 2))
+
+
+def _t(confidence: float, df) -> np.ndarray:
+    from scipy.stats import t
+
+    return t.ppf(0.5 + confidence / 2, np.asarray(df, dtype=np.float64))
+
+
+def window_sampling_interval(
+    errors: np.ndarray,
+    sequence: np.ndarray,
+    start: np.ndarray,
+    actions: np.ndarray,
+    block_frames: int,
+    window_frames: int,
+    confidence: float = CONFIDENCE,
+    replicates: int = REPLICATES,
+    seed: int = 0,
+) -> Interval:
+    """Studentised block bootstrap: the protocol mean +- a t quantile (Satterthwaite degrees of
+    freedom over the actions' blocks) times the replicates' standard deviation. A percentile
+    interval of a recording that holds two or three blocks is far too narrow (a handful of
+    blocks cannot show the tails); the t quantile pays for the few blocks."""
+    reps = block_replicates(
+        errors, sequence, start, actions, block_frames, replicates, seed, window_frames
+    )
+    centre = protocol_mean(np.asarray(errors, dtype=np.float64), actions)
+    width = _z(confidence) * reps.widened(confidence).std(axis=0)
+    return Interval(centre, centre - width, centre + width, "window-sampling", reps.df.min())
+
+
+def recording_interval(
+    errors: np.ndarray,
+    sequence: np.ndarray,
+    actions: np.ndarray,
+    confidence: float = CONFIDENCE,
+) -> Interval:
+    """A t interval over independent recordings: each action's mean is a window-weighted mean
+    of its recordings' means, whose variance is estimated over recordings (cluster-robust, k /
+    (k - 1) corrected, k - 1 degrees of freedom); the protocol mean's variance is the actions'
+    sum over the squared number of actions, on Satterthwaite degrees of freedom."""
+    errors = np.asarray(errors, dtype=np.float64)
+    sequence, actions = np.asarray(sequence), np.asarray(actions)
+    variances, dfs = [], []
+    for action in np.unique(actions):
+        rows = np.flatnonzero(actions == action)
+        recs, index = np.unique(sequence[rows], return_inverse=True)
+        k = len(recs)
+        if k < 2:
+            raise ValueError(
+                f"recording_interval: action {action!r} has one recording; an interval over "
+                f"recordings needs at least two"
+            )
+        sums = np.zeros((k, errors.shape[1]))
+        np.add.at(sums, index, errors[rows])
+        weights = np.bincount(index, minlength=k).astype(np.float64) / len(rows)
+        mean = sums.sum(axis=0) / len(rows)
+        residual = sums / len(rows) - weights[:, None] * mean  # n_r (x_r - m) / N
+        variances.append(k / (k - 1) * (residual**2).sum(axis=0))
+        dfs.append(k - 1.0)
+    v, df_a = np.stack(variances), np.asarray(dfs)
+    a = len(v)
+    spread = (v**2 / df_a[:, None]).sum(axis=0)
+    df = np.where(spread > 0, v.sum(axis=0) ** 2 / np.where(spread > 0, spread, 1), np.inf)
+    centre = protocol_mean(errors, actions)
+    width = _t(confidence, df) * np.sqrt(v.sum(axis=0)) / a
+    return Interval(centre, centre - width, centre + width, "confidence", df)
+
+
+def interval(
+    errors: np.ndarray,
+    windows,
+    confidence: float = CONFIDENCE,
+    replicates: int = REPLICATES,
+    seed: int = 0,
+    block_frames: int | None = None,
+) -> Interval:
+    """The interval a design allows for the protocol mean of ``errors (W, T)`` over
+    ``windows`` (a :class:`zoo.evaluate.WindowErrors`): a confidence interval over recordings
+    where every action has ``MIN_RECORDINGS`` or more, else a window-sampling interval."""
+    if design(windows.sequence, windows.action).recording_level:
+        return recording_interval(errors, windows.sequence, windows.action, confidence)
+    return window_sampling_interval(
+        errors,
+        windows.sequence,
+        windows.start,
+        windows.action,
+        block_frames or BLOCK_WINDOWS * windows.window_frames,
+        windows.window_frames,
+        confidence,
+        replicates,
+        seed,
+    )
+
+
+def joint_replicates(
+    errors: dict[str, np.ndarray],
+    windows,
+    replicates: int = REPLICATES,
+    seed: int = 0,
+    block_frames: int | None = None,
+) -> dict[str, Replicates]:
+    """Replicates of several models' errors on one set of windows, drawn with the same blocks
+    (or recordings): differences between them are paired."""
+    if design(windows.sequence, windows.action).recording_level:
+        return {
+            m: recording_replicates(e, windows.sequence, windows.action, replicates, seed)
+            for m, e in errors.items()
+        }
+    return {
+        m: block_replicates(
+            e,
+            windows.sequence,
+            windows.start,
+            windows.action,
+            block_frames or BLOCK_WINDOWS * windows.window_frames,
+            replicates,
+            seed,
+            windows.window_frames,
+        )
+        for m, e in errors.items()
+    }
+
+
+def best_set(
+    errors: dict[str, np.ndarray],
+    windows,
+    confidence: float = CONFIDENCE,
+    replicates: int = REPLICATES,
+    seed: int = 0,
+    block_frames: int | None = None,
+) -> dict[str, np.ndarray]:
+    """Which models are not distinguishable from the best, per column: ``{model: bool (T,)}``.
+
+    A simultaneous procedure (multiple comparisons with the best, max-t): model m stays in the
+    set while no other model beats it by more than ``c`` paired standard errors, ``c`` the
+    ``confidence`` quantile of the largest centred paired statistic over every ordered pair of
+    models in the joint replicates, each replicate divided by an independent chi draw on the
+    pairs' fewest degrees of freedom (so that few blocks or recordings widen it as a t
+    quantile would). Among equally good models, all stay in with probability ``confidence``
+    (simulated: benchmarks/coverage/coverage.py --bold).
+    """
+    names = list(errors)
+    if len(names) < 2:
+        return {m: np.ones(np.asarray(e).shape[1], bool) for m, e in errors.items()}
+    reps = joint_replicates(errors, windows, replicates, seed, block_frames)
+    centre = {
+        m: protocol_mean(np.asarray(e, np.float64), windows.action) for m, e in errors.items()
+    }
+    widened = {m: r.widened(confidence) for m, r in reps.items()}
+    stats, observed = [], {}
+    for i, m in enumerate(names):
+        for j in names[i + 1 :]:
+            d = widened[m] - widened[j]
+            se = d.std(axis=0)
+            se = np.where(se > 0, se, np.inf)
+            z = (d - d.mean(axis=0)) / se  # (R, T), centred
+            stats.append(np.abs(z))  # both orders of the pair
+            observed[m, j] = (centre[m] - centre[j]) / se
+            observed[j, m] = -observed[m, j]
+    critical = np.quantile(np.max(np.stack(stats), axis=0), confidence, axis=0)
+    return {
+        m: np.all(np.stack([observed[m, j] <= critical for j in names if j != m]), axis=0)
+        for m in names
+    }
+
+
+def sign_test(wins: int, losses: int) -> float:
+    """Exact two-sided sign test: the probability, were each unit equally likely to go
+    either way, of a split at least as uneven as ``wins`` against ``losses`` (ties dropped)."""
+    from scipy.stats import binomtest
+
+    n = int(wins) + int(losses)
+    return 1.0 if n == 0 else float(binomtest(int(wins), n, 0.5).pvalue)
 
 
 def naive_interval(

@@ -310,6 +310,11 @@ class Leaderboard:
                     )
             return written
         self.costs.save()
+        from zoo.sensitivity import protocol_sensitivity
+
+        sensitivity = protocol_sensitivity(self.root / bench.name)
+        if sensitivity is not None and sensitivity.write(self.root / bench.name):
+            print(f"wrote {self.root / bench.name / 'sensitivity.md'}", file=sys.stderr)
         curves = training_curves(self.weights, bench.name) if self.weights else {}
         png = self.root / bench.name / "training.png"
         if curves and (changed or not png.is_file()):
@@ -895,10 +900,14 @@ How each number is made:
   `protocol.json` (data files and hashes, window sampler, frame rate, joints, averaging); its
   `protocol_id` is in every row of `results.csv`, and rows of different protocols never share a
   table. Trained rows name the shipped weights (and their sha256) they were computed from.
-- Headline tables: the benchmark's first metric, frame averaging, mean over actions; `±` is half
-  the 95% block-bootstrap interval over windows (README, "How sure a number is"), bold marks the
-  best model and those not distinguishable from it; `zoo compare A B --benchmark NAME` says by
-  how much one model beats another.
+- Headline tables: the benchmark's first metric, frame averaging, mean over actions. `±` is half
+  a 95% interval whose meaning each table states: with one recording per action (CMU,
+  CMU-on-Anny), a window-sampling interval, conditional on these recordings and not a confidence
+  interval for the actions; with three or more independent recordings per action (cloth), a
+  confidence interval of the benchmark mean; each with its measured coverage (README, "How sure
+  a number is"). Bold marks the best model and those not distinguishable from it by one
+  simultaneous comparison of all the table's models; `zoo compare A B --benchmark NAME` says by
+  how much one model beats another, and on how many actions.
 - Cost columns (parameters, forward GFLOPs per window, latency of one window, training windows
   per second) are measured once per architecture and machine (kept in
   `<benchmark>/costs.json`) and named under the table with that machine; they are not in
@@ -922,6 +931,12 @@ def write_index(out_root: str | Path) -> Path:
         if not tables:
             continue
         lines += [f"## {bench_dir.name}", ""]
+        if (bench_dir / "sensitivity.md").is_file():
+            lines += [
+                f"How much the protocol moves the ranking: "
+                f"[{bench_dir.name}/sensitivity.md]({bench_dir.name}/sensitivity.md)",
+                "",
+            ]
         if (bench_dir / "training.png").is_file():
             lines += [
                 f"Training curves of the shipped models: "

@@ -1,6 +1,6 @@
 """Tables of evaluator rows, refusing to mix protocols: the Markdown of ``tables.md`` and
 ``leaderboard.md`` (each table one protocol, horizons as columns) and the headline table with
-its block-bootstrap intervals. Below the evaluator and the leaderboard, which both use it.
+its intervals. Below the evaluator and the leaderboard, which both use it.
 
 Rows whose protocol records differ raise :class:`ProtocolMismatchError`, which names the fields
 that differ.
@@ -186,9 +186,112 @@ def is_floor(model: str) -> bool:
 
 
 def block_frames_default(windows) -> int:
-    """Blocks of two window lengths: on synthetic errors that overlap as CMU's do, 95% intervals
-    covered the truth 90% of the time with them (README, tests/test_intervals.py)."""
-    return 2 * windows.window_frames
+    """Blocks of ``zoo.intervals.BLOCK_WINDOWS`` window lengths (:func:`zoo.intervals.block_length`
+    keeps them at least one window long and at most half a recording)."""
+    from zoo.intervals import BLOCK_WINDOWS
+
+    return BLOCK_WINDOWS * windows.window_frames
+
+
+def _pct(x: float) -> str:
+    return f"{100 * x:.0f}%"
+
+
+def interval_words(windows, models: int = 0) -> str:
+    """What a table's ± and bold mean, for its design, with the coverage measured for them
+    (``zoo/coverage.yaml``, written by ``benchmarks/coverage/coverage.py``)."""
+    from zoo.intervals import (
+        MIN_SPAN_WINDOWS,
+        REPLICATES,
+        block_length,
+        coverage_record,
+        design,
+        short_recordings,
+    )
+
+    shape = design(windows.sequence, windows.action)
+    record = coverage_record()
+    if shape.recording_level:
+        k = min(shape.recordings.values())
+        text = (
+            f"± is half the 95% confidence interval of the benchmark mean: a t interval over "
+            f"the independent recordings ({shape.counts()}; each recording's windows together)"
+        )
+        measured = record.get("confidence", {})
+        if "cloth_full" in measured:
+            c = measured["cloth_full"]
+            text += (
+                f". Measured coverage: {_pct(c['single'])} for a model's mean, "
+                f"{_pct(c['paired'])} for a paired difference ({c['sets']} pseudo test sets of "
+                f"{c['recordings']} recordings drawn from cloth_full's 4,000 test recordings)"
+            )
+        if k < 100 and "synthetic" in measured:
+            c = measured["synthetic"]
+            text += (
+                f"; on synthetic recordings with heavy-tailed recording effects it covered "
+                f"{_pct(c['3_per_action'])} with 3 recordings per action and "
+                f"{_pct(c['5_per_action'])} with 5"
+            )
+    else:
+        block = block_frames_default(windows)
+        blocks = sorted(
+            {
+                block_length(windows.start[windows.sequence == r], block, windows.window_frames)
+                for r in np.unique(windows.sequence)
+            }
+        )
+        text = (
+            f"± is half the 95% window-sampling interval: where the number would lie had other "
+            f"windows of these same recordings been drawn (studentised circular block bootstrap "
+            f"within each recording, blocks of {', '.join(map(str, blocks))} window(s), t "
+            f"quantile on the blocks' degrees of freedom, {REPLICATES} replicates, seed 0). It is "
+            f"conditional on the recordings ({shape.counts()}) and is not a confidence interval "
+            f"for the actions"
+        )
+        measured = record.get("window_sampling", {})
+        if "synthetic" in measured:
+            c = measured["synthetic"]
+            text += (
+                f": on synthetic recordings of CMU's window counts it covered the true mean "
+                f"{_pct(c['short_memory']['single'])} of the time with short memory and "
+                f"{_pct(c['long_memory']['single'])} with long memory and heavy tails"
+            )
+        if "cmu_training" in measured:
+            c = measured["cmu_training"]
+            cover = ", ".join(
+                f"{_pct(v)} at {h} ms" for h, v in zip(c["horizons_ms"], c["repeat_last"])
+            )
+            paired = ", ".join(
+                f"{_pct(v)} at {h} ms" for h, v in zip(c["horizons_ms"], c["paired"])
+            )
+            text += (
+                f"; as an interval for other recordings of the same actions (CMU's training "
+                f"recordings, one per action scored, the others' mean held out) it covered "
+                f"{cover} (repeat_last), and a paired difference {paired}"
+            )
+        short = short_recordings(windows.sequence, windows.start, windows.window_frames)
+        if short:
+            listed = [windows.sequences[i] for i in short]
+            text += (
+                f". {len(listed)} recording(s) span fewer than {MIN_SPAN_WINDOWS} window lengths "
+                f"({', '.join(listed[:8])}{', ...' if len(listed) > 8 else ''}): too short for "
+                f"blocks to show their variance, their intervals are known to be too narrow"
+            )
+    if models > 1:
+        text += (
+            f". **Bold**: the lowest error at that horizon and every model not distinguishable "
+            f"from it by one simultaneous comparison of the table's {models} models (max-t over "
+            f"all paired differences)"
+        )
+        fwe = record.get("bold", {}).get("fwe")
+        if fwe is not None:
+            text += (
+                f"; among equally good models, at least one was wrongly left unbolded in "
+                f"{_pct(fwe)} of simulated tables of {record['bold']['models']} (each model's "
+                f"paired interval against the data's best, uncorrected: "
+                f"{_pct(record['bold']['fwe_unadjusted'])})"
+            )
+    return text
 
 
 def headline_table(
@@ -198,13 +301,14 @@ def headline_table(
     published: list | None = None,
 ) -> str:
     """Models as rows, horizons as columns: the benchmark's headline metric (frame averaging,
-    action average) with half its 95% block-bootstrap interval, in bold where a model is the
-    best at that horizon or not distinguishable from it (their paired interval holds zero).
+    action average) with half its 95% interval (:func:`interval_words` says which kind), in bold
+    where a model is the best at that horizon or not distinguishable from it (one simultaneous
+    comparison of all the table's models, :func:`zoo.intervals.best_set`).
 
     ``efficiency``: per model, the columns of :func:`zoo.efficiency.measure`. ``published``:
     :func:`zoo.published.place` of this table (default: from ``zoo/published.yaml``); matching
     figures become ``reported`` rows, the others are listed below with their differences."""
-    from zoo.intervals import REPLICATES, block_bootstrap, percentile_interval, short_recordings
+    from zoo.intervals import best_set, interval
     from zoo.published import place
 
     record = results[0].protocol
@@ -231,32 +335,19 @@ def headline_table(
         if metric_ == metric and joints_ == joints and m in values.index
     }
     windows = next((r.windows for r in results if r.windows is not None), None)
-    block = block_frames_default(windows) if windows is not None else None
-
-    def interval(values_: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        return percentile_interval(
-            block_bootstrap(
-                values_, windows.sequence, windows.start, windows.action, block, REPLICATES
-            )
-        )
-
-    half = {}
-    for m, e in errors.items():
-        lo, hi = interval(e)
-        half[m] = (hi - lo) / 2
+    half: dict[str, np.ndarray] = {}
     fmt = metric_unit(metric)[1]
     # An autoencoder floor sees the future: a bound beside its model, never the best.
     predictors = [m for m in values.index if not is_floor(m)]
     best = values.loc[predictors].idxmin() if predictors else values.idxmin()
     tied: dict[tuple[str, int], bool] = {}
-    paired: dict[tuple[str, str], tuple[np.ndarray, np.ndarray]] = {}
-    for i, h in enumerate(horizons):
-        for m in errors:
-            if m != best[h] and best[h] in errors and not is_floor(m):
-                if (m, best[h]) not in paired:
-                    paired[m, best[h]] = interval(errors[m] - errors[best[h]])
-                lo, hi = paired[m, best[h]]
-                tied[m, h] = bool(lo[i] <= 0 <= hi[i])
+    if windows is not None:
+        for m, e in errors.items():
+            half[m] = interval(e, windows).half
+        contenders = {m: e for m, e in errors.items() if not is_floor(m)}
+        if best.isin(list(contenders)).all():
+            bold = best_set(contenders, windows)
+            tied = {(m, h): bool(bold[m][i]) for m in contenders for i, h in enumerate(horizons)}
     efficiency = efficiency or {}
     cost_headers = ["parameters", "GFLOP / window", "latency (ms)", "training windows / s"]
     table = []
@@ -280,21 +371,7 @@ def headline_table(
     if windows is None:
         how = "no per-window errors stored, so no intervals"
     else:
-        short = short_recordings(windows.sequence, windows.start, block)
-        how = (
-            f"± is half the 95% block-bootstrap interval (circular blocks of {block} frames "
-            f"within each recording, {REPLICATES} replicates, seed 0); **bold**: the lowest "
-            f"error at that horizon and every model whose paired 95% interval against it "
-            f"holds zero (not distinguishable from the best)"
-        )
-        if short:
-            names = [windows.sequences[i] for i in short]
-            how += (
-                f". {len(names)} recording(s) hold fewer than two blocks of overlapping "
-                f"windows ({', '.join(names[:6])}{', ...' if len(names) > 6 else ''}): the "
-                f"bootstrap cannot see their full variance, so these intervals are too "
-                f"narrow"
-            )
+        how = interval_words(windows, models=len([m for m in errors if not is_floor(m)]))
     devices = sorted({e["device"] for e in efficiency.values() if e})
     if devices:
         how += (

@@ -1,0 +1,66 @@
+"""The protocol-sensitivity table: every model under every protocol, ranks and rank changes."""
+
+import numpy as np
+import pandas as pd
+
+from zoo.evaluate import EvalResult
+from zoo.sensitivity import protocol_sensitivity
+
+
+def table(folder, sampler, values):
+    """A prediction table of ``values {model: value at every horizon}``, frame and cumulative
+    averaging (cumulative: half), under ``sampler``."""
+    rows = []
+    for model, v in values.items():
+        for averaging, scale in (("frame", 1.0), ("cumulative", 0.5)):
+            for h in (80, 400, 1000):
+                rows.append(
+                    {
+                        "model": model,
+                        "benchmark": "toy",
+                        "action": "average",
+                        "metric": "mpjpe",
+                        "averaging": averaging,
+                        "joints": "all",
+                        "horizon_ms": h,
+                        "frame": h // 40,
+                        "value": v * scale * h / 1000,
+                        "std": np.nan,
+                        "protocol_id": sampler,
+                    }
+                )
+    protocol = {
+        "benchmark": "toy",
+        "dataset": "toy",
+        "split": "test",
+        "input_frames": 10,
+        "output_frames": 25,
+        "fps": 25.0,
+        "actions_present": ["walk"],
+        "action_averaging": "unweighted",
+        "sampler": sampler,
+        "task": "prediction",
+        "joint_protocols": {"all": "every joint"},
+        "protocol_id": sampler,
+    }
+    EvalResult(frame=pd.DataFrame(rows), protocol=protocol).write(folder / sampler)
+
+
+def test_ranks_under_every_protocol_and_the_changes_are_marked(tmp_path):
+    table(tmp_path, "all", {"a": 10.0, "b": 12.0, "c": 30.0})
+    table(tmp_path, "ltd8", {"a": 13.0, "b": 11.0, "c": 30.0})
+    s = protocol_sensitivity(tmp_path)
+    assert s.protocols == ["all frame", "all cumulative", "ltd8 frame", "ltd8 cumulative"]
+    assert (
+        s.ranks.loc["a", ("all frame", 1000)] == 1 and s.ranks.loc["a", ("ltd8 frame", 1000)] == 2
+    )
+    assert s.changes() == 2 * 2 * 3  # a and b swap under both ltd8 columns at three horizons
+    text = s.markdown()
+    assert "10.00 (1)" in text
+    assert "13.00 (2) ↓" in text and "11.00 (1) ↑" in text and "30.00 (3) ↓" not in text
+    assert s.write(tmp_path) and (tmp_path / "sensitivity.png").stat().st_size > 0
+    assert not s.write(tmp_path)  # unchanged: not rewritten
+
+
+def test_one_protocol_has_no_sensitivity_table(tmp_path):
+    assert protocol_sensitivity(tmp_path) is None
