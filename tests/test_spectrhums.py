@@ -633,3 +633,49 @@ def test_autoencoder_floor_is_the_round_trip_of_the_given_frames():
     assert floor.shape == frames.shape
     with pytest.raises(SpecTrHuMSError, match=r"frames: expected vertices \(B, T, "):
         model.autoencoder_floor(frames[0])
+
+
+def test_training_on_coefficients_is_training_on_vertices():
+    """The engine's training view: statistics from coefficient frames and the loss of
+    coefficient windows equal those computed from the vertices (static loss over every frame,
+    so no random frame choice)."""
+    by_vertices, by_view = make(static_frames=W), make(static_frames=W)
+
+    def view_frames():
+        for flat, counts in frames():
+            yield by_view.training_view(flat).float(), counts
+
+    for epoch in (0, 2):
+        by_vertices.start_epoch(epoch, frames)
+        by_view.start_epoch(epoch, view_frames, view=True)
+    for name in ("coeff_mean", "coeff_std", "latent_mean", "latent_std"):
+        torch.testing.assert_close(getattr(by_view, name), getattr(by_vertices, name))
+    x = motion(3, seed=9)
+    c = by_view.training_view(x.flatten(0, 1)).float().view(3, W, -1, 3)
+    torch.manual_seed(5)  # the same dropout masks for both
+    from_view = by_view.training_loss_view(c[:, :T_IN], c[:, T_IN:])
+    torch.manual_seed(5)
+    from_vertices = by_vertices.training_loss(x[:, :T_IN], x[:, T_IN:])
+    torch.testing.assert_close(from_view, from_vertices, rtol=1e-4, atol=1e-6)
+    identity = by_view.training_view_identity()
+    assert identity["basis_hash"] == BASIS.hash and identity["k"] == BASIS.k
+    with pytest.raises(SpecTrHuMSError, match=r"expected coefficients \(B, T, 12, 3\)"):
+        by_view.start_epoch(0, frames, view=True)  # vertices where coefficients belong
+
+
+def test_cost_columns_time_the_step_the_engine_runs():
+    """The training throughput of a model with a training view is measured on windows of it
+    (zoo.efficiency), as zoo.train steps it."""
+    from zoo.efficiency import measure
+
+    model = make()
+    for epoch in (0, 2):
+        model.start_epoch(epoch, frames)
+    row = measure(
+        model,
+        input_frames=T_IN,
+        output_frames=T_OUT,
+        points=V,
+        recipe={"batch_size": 4, "precision": "float32", "grad_clip": None},
+    )
+    assert row["train_samples_per_s"] > 0 and row["gflop_per_sample"] > 0

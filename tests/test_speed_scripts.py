@@ -19,6 +19,7 @@ SCRIPTS = [
     "speed_spectral",
     "speed_spectrhums",
     "speed_spgsn",
+    "speed_training_view",
 ]
 
 
@@ -78,6 +79,13 @@ def test_speed_spectrhums(capsys):
     out = capsys.readouterr().out
     assert "tiny configuration: k=16 coefficients on V=64" in out
     assert "layer-by-layer baseline, train step b32" in out
+
+
+def test_speed_training_view(capsys):
+    ratios = load("speed_training_view").main(["--repeats", "1", "--tiny", "--frames", "120"])
+    out = capsys.readouterr().out
+    assert "full, cached coefficients" in out and "full / low resolution" in out
+    assert set(ratios) == {"full_over_low", "vertices_over_cached"}
 
 
 def test_speed_spgsn(capsys):

@@ -191,3 +191,61 @@ def test_start_epoch_gets_every_training_frame_once_with_its_window_count(
     torch.testing.assert_close(
         (weights * frames.square()).sum(0) / counts.sum(), windows.square().mean(0)
     )
+
+
+def test_a_training_view_is_computed_once_and_never_read_for_another_basis(toy_mesh, tmp_path):
+    """Models with a training view (SpecTrHuMS: coefficients) train on it; it is stored under
+    <cache>/views, read back while dataset and view identity hold, recomputed otherwise."""
+    from zoo.train import training_view_arrays
+
+    class Coefficients(torch.nn.Module):
+        def __init__(self, basis, checksum):
+            super().__init__()
+            self.basis, self.checksum, self.calls = basis, checksum, 0
+
+        def training_view(self, frames):
+            self.calls += 1
+            return self.basis.project(frames.double())
+
+        def training_view_identity(self):
+            return {"basis": self.basis.hash, "checksum": self.checksum}
+
+    from zoo.data.spectral import SpectralBasis
+
+    dataset = waving(grid(4), "train")
+    basis = SpectralBasis.compute(dataset.topology, 6)
+    first = Coefficients(basis, "a")
+    arrays = training_view_arrays(first, dataset, slice(None), cache_dir=tmp_path / "c")
+    assert first.calls > 0 and arrays[0].shape == (12, 6, 3) and arrays[0].dtype == np.float32
+    np.testing.assert_allclose(arrays[1], basis.project(dataset.sequences[1].vertices), rtol=1e-5)
+    again = Coefficients(basis, "a")
+    assert all(
+        np.array_equal(x, y)
+        for x, y in zip(
+            arrays, training_view_arrays(again, dataset, slice(None), cache_dir=tmp_path / "c")
+        )
+    )
+    assert again.calls == 0  # read back
+    other = Coefficients(basis, "b")  # another basis's bytes: never the stored file
+    training_view_arrays(other, dataset, slice(None), cache_dir=tmp_path / "c")
+    assert other.calls > 0 and len(list((tmp_path / "c" / "views").iterdir())) == 2
+
+
+def test_spectrhums_trains_on_cached_coefficients(toy_mesh, tmp_path):
+    bench, registry, _ = toy_mesh
+    small = dict(latent=8, channels=[4, 8], pooling=[4, 2], d_model=16, layers=1, heads=2, ff=32)
+    best = train(
+        "spectrhums",
+        bench,
+        registry=registry,
+        out_dir=tmp_path / "run",
+        progress=False,
+        epochs=2,
+        overrides={**small, "autoencoder_epochs": 1, "static_frames": 8},
+        train_overrides={"batch_size": 4, "train_sampler": "all"},
+    )
+    views = list((tmp_path / "cache" / "views").iterdir())
+    assert len(views) == 1 and views[0].name.startswith("toy-train-")
+    history = read_checkpoint(tmp_path / "run" / "last.pt")["history"]
+    assert len(history) == 2 and all(np.isfinite(h["train_loss"]) for h in history)
+    assert best.is_file()

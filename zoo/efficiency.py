@@ -63,12 +63,18 @@ def training_samples_per_s(
     steps: int = TRAINING_STEPS,
 ) -> float:
     """Training windows per second of full optimizer steps on a copy of ``model`` (the model
-    itself is left untouched), after one warm-up step."""
+    itself is left untouched), after one warm-up step; a model with a training view steps on
+    windows of it, as the engine trains it."""
     trainee = copy.deepcopy(model).to(device).train()
-    objective = TrainingObjective(trainee, task)
+    view = hasattr(trainee, "training_view")  # trained on its view, computed once (zoo.train)
+    objective = TrainingObjective(trainee, task, view=view)
     optimizer = torch.optim.Adam(trainee.parameters(), lr=1e-6)
     batch = recipe["batch_size"]
     windows = _windows(batch, input_frames + output_frames, points, device)
+    if view:
+        with torch.no_grad():
+            flat = trainee.training_view(windows.flatten(0, 1)).to(windows.dtype)
+        windows = flat.view(batch, input_frames + output_frames, *flat.shape[1:])
     history, future = windows[:, :input_frames], windows[:, input_frames:]
 
     def step():

@@ -16,6 +16,16 @@ MPJPE over predicted frames); ``start_epoch(epoch, frames)`` runs before every e
 windows once, in a fixed order, with the number of training windows that hold it (a statistic
 over every frame of every window weights each frame by its count).
 
+A model that learns in another representation of the frames than the one it is scored in
+(SpecTrHuMS: spectral coefficients of the vertices) may define ``training_view(frames (N, P, 3))
+-> (N, ...)`` with ``training_view_identity()`` (a dict naming everything the view depends on).
+The engine then computes the view of every training sequence once, stores it beside the dataset
+cache (``<cache>/views/``, keyed by the dataset's content hash and that identity, so a changed
+basis or dataset is never read by mistake), and trains on windows of it: ``start_epoch``'s
+frames are in the view (``start_epoch(epoch, frames, view=True)``), and the loss is
+``training_loss_view(history, future)``. Validation
+still scores predictions in the benchmark's own space.
+
 Distributed data-parallel: launched by ``torchrun``, each process takes its share of every
 global batch (gloo on CPU, nccl on GPU), gradients are averaged, and rank 0 writes.
 """
@@ -217,14 +227,18 @@ def sequence_frames(sequence) -> np.ndarray:
     return sequence.positions if hasattr(sequence, "positions") else sequence.vertices
 
 
-def split_train_val(dataset, val_fraction: float, window: int) -> tuple[list, list]:
+def split_train_val(
+    dataset, val_fraction: float, window: int, arrays: list | None = None
+) -> tuple[list, list]:
     """Training and validation arrays ``(T, P, 3)``, never overlapping.
 
     Where every sequence is long enough, the last ``val_fraction`` of each (in time) is held out
     (CMU: long recordings); otherwise whole sequences are, the last ``val_fraction`` of them
-    (cloth: one window per sequence).
+    (cloth: one window per sequence). ``arrays``: other per-frame arrays of the dataset's
+    sequences (a training view), split exactly as the frames are.
     """
-    arrays = [sequence_frames(s) for s in dataset.sequences]
+    if arrays is None:
+        arrays = [sequence_frames(s) for s in dataset.sequences]
     if all(len(a) * val_fraction >= window for a in arrays):
         cuts = [int(round(len(a) * (1 - val_fraction))) for a in arrays]
         return [a[:c] for a, c in zip(arrays, cuts)], [a[c:] for a, c in zip(arrays, cuts)]
@@ -235,6 +249,70 @@ def split_train_val(dataset, val_fraction: float, window: int) -> tuple[list, li
             f"to hold {val_fraction:.0%} out for validation"
         )
     return arrays[:-held], arrays[-held:]
+
+
+VIEW_FORMAT = 1
+
+
+def training_view_arrays(
+    model, dataset, used, *, cache_dir: str | Path | None = None, progress: bool = False
+) -> list[np.ndarray]:
+    """The model's ``training_view`` of every sequence of ``dataset`` (frames ``[:, used]``),
+    float32, computed once and kept in ``<cache>/views/`` under a key of the dataset's content
+    and the view's identity; a stored file is read only if its recorded identity is exactly
+    this one."""
+    import hashlib
+    import json
+
+    from zoo.data.mesh import cache_root
+    from zoo.io import atomic_path, canonical_json
+
+    content = dataset.content_hash() if hasattr(dataset, "content_hash") else _arrays_hash(dataset)
+    identity = {
+        "format": VIEW_FORMAT,
+        "dataset": dataset.name,
+        "split": dataset.split,
+        "content_hash": content,
+        "points": repr(used),
+        "view": model.training_view_identity(),
+    }
+    key = hashlib.sha256(canonical_json(identity).encode()).hexdigest()[:16]
+    path = cache_root(cache_dir) / "views" / f"{dataset.name}-{dataset.split}-{key}.npz"
+    if path.is_file():
+        with np.load(path, allow_pickle=False) as z:
+            if json.loads(str(z["identity"])) == identity:
+                return [z[f"s{i}"] for i in range(len(dataset.sequences))]
+    arrays = []
+    bar = _progress(progress, len(dataset.sequences), f"{dataset.name}: training view")
+    with torch.no_grad():
+        for sequence in dataset.sequences:
+            frames = np.asarray(sequence_frames(sequence))[:, used]
+            parts = [
+                model.training_view(torch.from_numpy(np.ascontiguousarray(frames[i : i + 256])))
+                for i in range(0, len(frames), 256)
+            ]
+            arrays.append(torch.cat(parts).to(torch.float32).numpy())
+            if bar is not None:
+                bar.update(1)
+    if bar is not None:
+        bar.close()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_path(path) as tmp, open(tmp, "wb") as f:
+        np.savez(
+            f,
+            identity=np.asarray(canonical_json(identity)),
+            **{f"s{i}": a for i, a in enumerate(arrays)},
+        )
+    return arrays
+
+
+def _arrays_hash(dataset) -> str:
+    import hashlib
+
+    digest = hashlib.sha256()
+    for s in dataset.sequences:
+        digest.update(np.ascontiguousarray(sequence_frames(s), dtype="<f4").tobytes())
+    return digest.hexdigest()
 
 
 def _windows(arrays, length: int, sampler: str, t_in: int, t_out: int):
@@ -403,6 +481,19 @@ def train(
             f"frames in the held-out sequences"
         )
     used = _point_index(bench)
+    # A model with a training view trains on windows of that view of every frame, computed once
+    # (cached): train_src and src_points say where training windows come from.
+    train_src, src_points = train_pos, used
+    if hasattr(model, "training_view"):
+        views = training_view_arrays(model, dataset, used, progress=progress)
+        view_train, _ = split_train_val(dataset, recipe["val_fraction"], length, arrays=views)
+        train_src, view_index = _windows(view_train, length, recipe["train_sampler"], t_in, t_out)
+        src_points = slice(None)
+        if not np.array_equal(view_index, train_index):
+            raise TrainingError(
+                f"{model_name}: its training view changes the sequences' lengths "
+                f"(training_view must map every frame to one)"
+            )
 
     first_epoch, best, history = 0, {"val_mpjpe": math.inf, "epoch": -1}, []
     recipe_changes: list[dict[str, Any]] = []
@@ -422,7 +513,7 @@ def train(
         torch.set_rng_state(state["rng"])
         first_epoch, best, history = state["epoch"] + 1, state["best"], state["history"]
 
-    objective = TrainingObjective(model, entry.task)
+    objective = TrainingObjective(model, entry.task, view=train_src is not train_pos)
     # Some phases leave parameters without gradients (SpecTrHuMS's transformer while the
     # autoencoder trains alone), which DDP must be told to expect.
     net = (
@@ -463,9 +554,11 @@ def train(
             1,
         )[held]
         weights = torch.from_numpy(flat[held])
-        batch = max(1, 2**24 // (train_pos[0][:, used].shape[1] * 3))
+        batch = max(1, 2**24 // int(np.prod(train_src[0][:1, src_points].shape)))
         for start in range(0, len(frame_index), batch):
-            frames = gather_windows(train_pos, frame_index[start : start + batch], 1)[:, 0, used]
+            frames = gather_windows(train_src, frame_index[start : start + batch], 1)[
+                :, 0, src_points
+            ]
             yield (
                 torch.from_numpy(np.ascontiguousarray(frames)).to(device),
                 weights[start : start + batch].to(device),
@@ -473,7 +566,10 @@ def train(
 
     for epoch in range(first_epoch, recipe["epochs"]):
         if hasattr(model, "start_epoch"):  # e.g. warm-up phases, statistics over the data
-            model.start_epoch(epoch, training_frames)
+            if train_src is train_pos:
+                model.start_epoch(epoch, training_frames)
+            else:  # frames in the model's training view
+                model.start_epoch(epoch, training_frames, view=True)
         order = torch.randperm(
             len(train_index), generator=torch.Generator().manual_seed(seed * 100003 + epoch)
         )
@@ -497,7 +593,7 @@ def train(
                 group["lr"] = lr
             rows = order[step * batch_size : (step + 1) * batch_size].numpy()
             rows = rows[dist_info.rank :: dist_info.world]  # this process's share of the batch
-            windows = gather_windows(train_pos, train_index[rows], length)[:, :, used]
+            windows = gather_windows(train_src, train_index[rows], length)[:, :, src_points]
             if "time_reversal" in (recipe["augment"] or ()):
                 flip = augment_rng.random(len(windows)) < 0.5
                 windows[flip] = windows[flip, ::-1]
@@ -628,14 +724,17 @@ def resume_changes(
 
 class TrainingObjective(nn.Module):
     """The training loss as a module, so DDP synchronises gradients of any model's own loss:
-    the model's ``training_loss`` if it defines one, else mean MPJPE over predicted frames (a
-    completion model is given the window's last frame)."""
+    with ``view``, the model's ``training_loss_view`` of windows of its training view; else its
+    ``training_loss`` if it defines one, else mean MPJPE over predicted frames (a completion
+    model is given the window's last frame)."""
 
-    def __init__(self, model: nn.Module, task: str = "prediction") -> None:
+    def __init__(self, model: nn.Module, task: str = "prediction", view: bool = False) -> None:
         super().__init__()
-        self.model, self.task = model, task
+        self.model, self.task, self.view = model, task, view
 
     def forward(self, history: torch.Tensor, future: torch.Tensor) -> torch.Tensor:
+        if self.view:  # windows of the model's own training view
+            return self.model.training_loss_view(history, future)
         own = getattr(self.model, "training_loss", None)
         if own is not None:
             return own(history, future)

@@ -15,6 +15,8 @@ The common contract (all a model needs to be evaluated, trained and registered):
   dataset's ``zoo.data.spectral.SpectralBasis``, SpecTrHuMS);
 - completion models (registry ``task: completion``) take ``forward(history, final_frame)``,
   ``final_frame (B, P, 3)`` being the last of the ``T_out`` frames to fill in;
-- optional training hooks ``training_loss(history, future)`` and ``start_epoch(epoch, frames)``
-  (see ``zoo.train``).
+- optional training hooks ``training_loss(history, future)`` and ``start_epoch(epoch, frames)``,
+  and a training view (``training_view``, ``training_view_identity``, ``training_loss_view``:
+  a representation of the frames computed once and cached, SpecTrHuMS's coefficients); see
+  ``zoo.train``.
 """
