@@ -462,3 +462,19 @@ def test_the_coverage_script_runs_at_its_smallest(capsys, tmp_path):
         assert script.main(["--only", part, "--repetitions", "3", "--root", str(tmp_path)]) == 0
     assert "synthetic: " in capsys.readouterr().out
     assert not (tmp_path / "zoo" / "coverage.yaml").exists()  # written only with --write
+
+
+CMU_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "cmu_mocap"
+
+
+@pytest.mark.skipif(not CMU_DATA.is_dir(), reason=f"CMU data not found at {CMU_DATA}")
+def test_the_real_data_coverage_tables_print_is_measured_again():
+    """repeat_last and constant_velocity on CMU's training recordings, pseudo test sets of one
+    recording per action: the coverage of the held-out mean that the CMU tables print."""
+    script = _coverage_script()
+    recorded = coverage_record()["window_sampling"]["cmu_training"]
+    measured = script.cmu_coverage(100, CMU_DATA, seed=11)
+    assert measured["recordings_per_action"] == recorded["recordings_per_action"]
+    for kind in ("repeat_last", "constant_velocity", "paired"):
+        for m, r in zip(measured[kind], recorded[kind]):
+            assert _agrees(m, 100, r, recorded["sets"]), (kind, measured[kind], recorded[kind])
