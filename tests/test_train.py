@@ -444,3 +444,19 @@ def test_init_from_refusals_name_the_file(setup, tmp_path):
         run(setup, tmp_path / "b", init_from=first, resume=True)
     with pytest.raises(TrainingError, match=r"do not fit tiny with these hyper-parameters"):
         run(setup, tmp_path / "b", init_from=first, overrides={"hidden": 8})
+
+
+def test_a_validation_sampler_thins_validation_and_old_checkpoints_resume(setup, tmp_path):
+    out = tmp_path / "run"
+    run(setup, out, epochs=1, max_batches=2, train_overrides={"val_sampler": "stride5_strict"})
+    ckpt = read_checkpoint(out / "last.pt")
+    assert ckpt["recipe"]["val_sampler"] == "stride5_strict"
+    with pytest.raises(CheckpointError, match="val_sampler: 'stride5_strict' in the checkpoint"):
+        run(setup, out, epochs=2, max_batches=2, resume=True)  # the default is 'all'
+    # a checkpoint written before the key existed held the default then, and resumes
+    plain_run = tmp_path / "plain"
+    run(setup, plain_run, epochs=1, max_batches=2)
+    state = read_checkpoint(plain_run / "last.pt")
+    del state["recipe"]["val_sampler"]
+    torch.save(state, plain_run / "last.pt")
+    run(setup, plain_run, epochs=2, max_batches=2, resume=True)

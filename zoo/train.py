@@ -20,11 +20,11 @@ A model that learns in another representation of the frames than the one it is s
 (SpecTrHuMS: spectral coefficients of the vertices) may define ``training_view(frames (N, P, 3))
 -> (N, ...)`` with ``training_view_identity()`` (a dict naming everything the view depends on).
 The engine then computes the view of every training sequence once, stores it beside the dataset
-cache (``<cache>/views/``, keyed by the dataset's content hash and that identity, so a changed
-basis or dataset is never read by mistake), and trains on windows of it: ``start_epoch``'s
-frames are in the view (``start_epoch(epoch, frames, view=True)``), and the loss is
-``training_loss_view(history, future)``. Validation
-still scores predictions in the benchmark's own space.
+cache (``<cache>/views/<dataset>-<key>.npz``, keyed by the dataset's content hash and that
+identity, so a changed basis or dataset is never read by mistake), and trains on windows of it:
+``start_epoch``'s frames are in the view (``start_epoch(epoch, frames, view=True)``), and the
+loss is ``training_loss_view(history, future)``. Validation still scores predictions in the
+benchmark's own space (``val_sampler`` thins its windows where that is costly).
 
 Distributed data-parallel: launched by ``torchrun``, each process takes its share of every
 global batch (gloo on CPU, nccl on GPU), gradients are averaged, and rank 0 writes.
@@ -77,6 +77,9 @@ DEFAULT_RECIPE: dict[str, Any] = {
     "augment": [],
     "val_fraction": 0.1,
     "train_sampler": "all",
+    # Validation windows of the held-out frames: every window by default; a sparser sampler
+    # (e.g. stride5_strict) cuts the cost of validating large meshes every epoch.
+    "val_sampler": "all",
     # "bfloat16": the training loss (forward) under torch.autocast; weights, optimiser,
     # validation and evaluation stay float32. Models keep their precision-critical sums (mm
     # positions, spectral products) in float32 themselves.
@@ -277,7 +280,7 @@ def training_view_arrays(
         "view": model.training_view_identity(),
     }
     key = hashlib.sha256(canonical_json(identity).encode()).hexdigest()[:16]
-    path = cache_root(cache_dir) / "views" / f"{dataset.name}-{dataset.split}-{key}.npz"
+    path = cache_root(cache_dir) / "views" / f"{dataset.name}-{key}.npz"
     if path.is_file():
         with np.load(path, allow_pickle=False) as z:
             if json.loads(str(z["identity"])) == identity:
@@ -466,7 +469,7 @@ def train(
     length = t_in + t_out
     train_seqs, val_seqs = split_train_val(dataset, recipe["val_fraction"], length)
     train_pos, train_index = _windows(train_seqs, length, recipe["train_sampler"], t_in, t_out)
-    val_pos, val_index = _windows(val_seqs, length, "all", t_in, t_out)
+    val_pos, val_index = _windows(val_seqs, length, recipe["val_sampler"], t_in, t_out)
     if len(train_index) == 0:
         raise TrainingError(
             f"{dataset.name}/{dataset.split}: training sampler "
@@ -477,8 +480,9 @@ def train(
         )
     if len(val_index) == 0:
         raise TrainingError(
-            f"{dataset.name}/{dataset.split}: no validation window of {length} "
-            f"frames in the held-out sequences"
+            f"{dataset.name}/{dataset.split}: validation sampler "
+            f"{recipe['val_sampler']!r} finds no window of {length} frames in the held-out "
+            f"sequences; choose another with --train-set val_sampler=NAME (e.g. all)"
         )
     used = _point_index(bench)
     # A model with a training view trains on windows of that view of every frame, computed once
@@ -685,9 +689,11 @@ def resume_changes(
     stored = state.get("recipe") or {}
     given = plain(recipe)
     differ = [
-        f"{key}: {stored.get(key)!r} in the checkpoint, {given.get(key)!r} now"
+        f"{key}: {stored.get(key, DEFAULT_RECIPE.get(key))!r} in the checkpoint, "
+        f"{given.get(key)!r} now"
         for key in sorted(set(stored) | set(given))
-        if key not in BUDGET_FIELDS and stored.get(key) != given.get(key)
+        # a key the checkpoint predates held its default then
+        if key not in BUDGET_FIELDS and stored.get(key, DEFAULT_RECIPE.get(key)) != given.get(key)
     ]
     if state.get("seed") != seed:
         differ.append(f"seed: {state.get('seed')!r} in the checkpoint, {seed!r} now")
