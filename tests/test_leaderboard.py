@@ -51,7 +51,7 @@ def test_regenerate_with_checkpoint_and_stale_result(tmp_path, capsys):
     assert "| tiny " in board and "| repeat_last " in board
     assert (out / "cmu" / "all" / "mpjpe.png").stat().st_size > 0
     combined = pd.read_csv(out / "cmu" / "all" / "results.csv")
-    assert set(combined.model) == {"tiny", "repeat_last", "constant_velocity"}
+    assert set(combined.model) == {"tiny", "repeat_last"}
     assert combined.protocol_id.nunique() == 1
 
     # Without its checkpoint the trained model's stored result is kept while it still matches
@@ -93,7 +93,7 @@ def test_fully_trained_checkpoint_joins_as_model_at_last(tmp_path):
     out = tmp_path / "results"
     regenerate("cmu", registry=registry, data_root=root, out_root=out, checkpoints=checkpoints)
     combined = pd.read_csv(out / "cmu" / "all" / "results.csv")
-    assert set(combined.model) == {"tiny", "tiny@last", "repeat_last", "constant_velocity"}
+    assert set(combined.model) == {"tiny", "tiny@last", "repeat_last"}
     record = json.loads((out / "cmu" / "all" / "tiny@last" / "protocol.json").read_text())
     assert record["provenance"]["checkpoint"].endswith("last.pt")
     assert record["provenance"]["training"]["epochs_run"] == 2
@@ -120,7 +120,7 @@ def test_completion_models_get_their_own_tables(tmp_path, capsys):
     assert set(completion.model) == {"tiny_completion", "interpolate"}
     assert set(completion.task) == {"completion"}
     prediction = pd.read_csv(out / "cmu" / "all" / "results.csv")
-    assert set(prediction.model) == {"repeat_last", "constant_velocity"}  # no trained predictor
+    assert set(prediction.model) == {"repeat_last"}  # no trained predictor here
     assert set(prediction.task) == {"prediction"}
     # The interpolation ends exactly on the given final frame.
     last = completion[
@@ -172,7 +172,7 @@ def test_check_recomputes_every_row_and_names_what_differs(tmp_path, capsys):
     assert main(["leaderboard", "--check", *common]) == 0  # every committed benchmark: cmu
     summary = capsys.readouterr().out.strip().splitlines()[-1]
     assert summary.startswith(
-        "checked 1200 rows of 3 models in 2 tables against tolerance |difference| <= 1.5e-05 x "
+        "checked 800 rows of 2 models in 2 tables against tolerance |difference| <= 1.5e-05 x "
         "|value| + 0.002 mm (3.8e-06 in RMSE; a std: of its mean; float32 rounding across CPUs): "
         "largest difference 0 "
     )

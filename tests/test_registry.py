@@ -258,3 +258,18 @@ def test_a_known_name_needs_an_explicit_override_that_results_record(
     provenance = json.loads((tmp_path / "zoo" / "protocol.json").read_text())["provenance"]
     assert provenance["class"] == "zoo.models.repeat_last.RepeatLast"
     assert provenance["registry"] == "registry.yaml" and "replaces" not in provenance
+
+
+def test_a_model_kept_out_of_the_leaderboards_is_still_a_zoo_model():
+    import torch
+
+    from zoo.registry import load_registry
+
+    registry = load_registry()
+    entry = registry.get("constant_velocity")
+    assert entry.leaderboard is False and registry.get("repeat_last").leaderboard is True
+    model = registry.create_model(
+        "constant_velocity", input_frames=3, output_frames=2, num_points=1
+    )
+    history = torch.tensor([[[[0.0, 0, 0]], [[1.0, 0, 0]], [[2.0, 0, 0]]]])
+    assert model(history)[0, :, 0, 0].tolist() == [3.0, 4.0]

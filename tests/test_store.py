@@ -118,11 +118,7 @@ def test_a_users_row_survives_a_rebuild_without_its_registry(project, capsys):
     code, _, _ = cli(capsys, "leaderboard", *board_args(project, "mine"))
     assert code == 0
     table = project / "results" / "cmu" / "ltd8"
-    assert set(pd.read_csv(table / "results.csv").model) == {
-        "damped_velocity",
-        "constant_velocity",
-        "repeat_last",
-    }
+    assert set(pd.read_csv(table / "results.csv").model) == {"damped_velocity", "repeat_last"}
     before = (table / "damped_velocity" / "results.csv").read_bytes()
 
     # The same rebuild without the user's registry: their row stays, on disk and in the table.
@@ -136,7 +132,7 @@ def test_a_users_row_survives_a_rebuild_without_its_registry(project, capsys):
     # Only a deliberate --drop removes it.
     code, _, _ = cli(capsys, "leaderboard", "--drop", "damped_velocity", *board_args(project))
     assert code == 0 and not (table / "damped_velocity").exists()
-    assert set(pd.read_csv(table / "results.csv").model) == {"repeat_last", "constant_velocity"}
+    assert set(pd.read_csv(table / "results.csv").model) == {"repeat_last"}
 
 
 def test_a_stored_row_of_another_registry_is_never_replaced(project, capsys):
@@ -230,13 +226,13 @@ def test_a_stale_row_is_recomputed_and_a_current_one_reused(project, capsys):
     written = {p: p.stat().st_mtime_ns for p in table.rglob("*") if p.is_file()}
 
     code, _, err = cli(capsys, "leaderboard", *board_args(project, "tiny"))
-    assert code == 0 and "cmu: 6 row(s) reused, 0 recomputed" in err
+    assert code == 0 and "cmu: 4 row(s) reused, 0 recomputed" in err
     assert {p: p.stat().st_mtime_ns for p in table.rglob("*") if p.is_file()} == written
 
     shipped_tiny(project, seed=1)  # retrained: other weights under the same label
     code, _, err = cli(capsys, "leaderboard", *board_args(project, "tiny"))
     assert code == 0 and "recomputing tiny: trained.sha256: stored" in err
-    assert "cmu: 4 row(s) reused, 2 recomputed" in err  # the baselines reused on both tables
+    assert "cmu: 2 row(s) reused, 2 recomputed" in err  # repeat_last reused on both tables
     assert (table / "repeat_last" / "results.csv").stat().st_mtime_ns == written[
         table / "repeat_last" / "results.csv"
     ]
@@ -361,11 +357,7 @@ def test_a_rebuild_keeps_whatever_else_is_in_a_table_folder(project, capsys):
     assert cli(capsys, "leaderboard", *board_args(project, "mine"))[0] == 0
     assert (table / "NOTES.md").read_text() == "my notes"
     assert (table / "my-comparison" / "comparison.md").is_file()
-    assert set(pd.read_csv(table / "results.csv").model) == {
-        "damped_velocity",
-        "constant_velocity",
-        "repeat_last",
-    }
+    assert set(pd.read_csv(table / "results.csv").model) == {"damped_velocity", "repeat_last"}
 
 
 def test_a_users_row_under_a_planned_label_stops_the_rebuild(project, capsys):

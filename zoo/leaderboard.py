@@ -399,7 +399,8 @@ class Leaderboard:
         if bench.representation == "mesh" and self.dataset.joint_regressor is not None:
             names += [n for n in registry.list_models("joints") if n not in names]
         rows = []
-        for name in (n for n in names if registry.get(n).task == task):
+        planned = (n for n in names if registry.get(n).task == task)
+        for name in (n for n in planned if registry.get(n).leaderboard):
             if not registry.get(name).trainable:
                 rows.append(Row(name, name, ModelSource.of(name)))
                 continue

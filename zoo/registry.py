@@ -40,10 +40,18 @@ _ENTRY_KEYS = {
     "train",
     "task",
     "override",
+    "leaderboard",
 }
 # What a model's forward does: prediction ``forward(history)``, or completion
 # ``forward(history, final_frame)`` (the window's last frame given). Tables keep them apart.
 ENTRY_TASKS = ("prediction", "completion")
+
+
+def _flag(raw: dict, key: str, where: str) -> bool:
+    value = raw.get(key, True)
+    if not isinstance(value, bool):
+        raise RegistryError(f"{where}: field {key!r} must be true or false, got {value!r}")
+    return value
 
 
 class RegistryError(ZooError, KeyError):
@@ -64,6 +72,9 @@ class ModelEntry:
     description: str = ""
     train: dict[str, Any] = field(default_factory=dict)  # the training recipe (zoo.train)
     task: str = "prediction"
+    # False: scored on demand (zoo eval, zoo.evaluate, the coverage benchmark), never a row of
+    # the committed leaderboards, whose untrained rows are the protocol's own baselines.
+    leaderboard: bool = True
     replaces: str = ""  # the registry file whose entry of this name it overrides, if any
 
     def provenance(self) -> dict[str, str]:
@@ -261,6 +272,7 @@ def _parse_entry(path: Path, name: str, raw: Any) -> ModelEntry:
         context=tuple(raw.get("context") or ()),
         description=str(raw.get("description", "")).strip(),
         train=dict(raw.get("train") or {}),
+        leaderboard=_flag(raw, "leaderboard", where),
     )
 
 

@@ -270,7 +270,12 @@ def training_view_arrays(
     from zoo.data.mesh import cache_root
     from zoo.io import atomic_path, canonical_json
 
-    content = dataset.content_hash() if hasattr(dataset, "content_hash") else _arrays_hash(dataset)
+    if not hasattr(dataset, "content_hash"):
+        raise TrainingError(
+            f"{dataset.name}: a training view is cached under the dataset's content hash, "
+            f"which only mesh datasets have"
+        )
+    content = dataset.content_hash()
     identity = {
         "format": VIEW_FORMAT,
         "dataset": dataset.name,
@@ -307,15 +312,6 @@ def training_view_arrays(
             **{f"s{i}": a for i, a in enumerate(arrays)},
         )
     return arrays
-
-
-def _arrays_hash(dataset) -> str:
-    import hashlib
-
-    digest = hashlib.sha256()
-    for s in dataset.sequences:
-        digest.update(np.ascontiguousarray(sequence_frames(s), dtype="<f4").tobytes())
-    return digest.hexdigest()
 
 
 def _windows(arrays, length: int, sampler: str, t_in: int, t_out: int):
