@@ -7,7 +7,18 @@ import pytest
 import torch
 
 from zoo.data.mesh import MeshTopology
-from zoo.data.spectral import SpectralBasis, SpectralError, cache_path, probe_projections
+from zoo.data.spectral import (
+    BASIS_TOLERANCE,
+    METHOD_V1,
+    SpectralBasis,
+    SpectralError,
+    basis_hash,
+    cache_path,
+    canonical_clusters,
+    clusters,
+    compare_bases,
+    probe_projections,
+)
 
 
 def grid(nx: int, ny: int, seed: int = 0, name: str = "grid") -> MeshTopology:
@@ -193,7 +204,8 @@ def test_corrupted_or_foreign_cache_is_an_error(tmp_path):
 
 def test_version_1_cache_files_still_load(tmp_path):
     """Caches written before identity and checksum were told apart (their `hash` was the
-    checksum) load with the identity of today and their checksum checked."""
+    checksum) load with the identity of the method that computed them (before clusters were
+    made canonical) and their checksum checked."""
     topo = grid(7, 6)
     basis = SpectralBasis.load_or_compute(topo, 10, tmp_path)
     path = cache_path(topo, 10, tmp_path)
@@ -203,7 +215,8 @@ def test_version_1_cache_files_still_load(tmp_path):
     with open(path, "wb") as f:
         np.savez(f, **fields)
     again = SpectralBasis.load(path)
-    assert again.hash == basis.hash and again.checksum == basis.checksum
+    assert again.hash == basis_hash(10, topo.hash, METHOD_V1) != basis.hash
+    assert again.checksum == basis.checksum
     fields["vectors"] = fields["vectors"] * 1.001
     with open(path, "wb") as f:
         np.savez(f, **fields)
@@ -243,3 +256,87 @@ def test_basis_bytes_do_not_depend_on_blas_threads():
     with threadpool_limits(limits=1, user_api="blas"):
         one = SpectralBasis.compute(topology, 256)
     assert two.checksum == one.checksum
+
+
+def torus(nx: int, ny: int) -> MeshTopology:
+    """An nx-by-ny grid closed into a torus, every quad split along the same diagonal: a mesh
+    with translation symmetry, whose Laplacian eigenvalues repeat 2, 4 (and more) times."""
+    idx = np.arange(nx * ny).reshape(ny, nx)
+    right, down = np.roll(idx, -1, axis=1), np.roll(idx, -1, axis=0)
+    diagonal = np.roll(right, -1, axis=0)
+    faces = np.concatenate(
+        [
+            np.stack([idx, right, diagonal], -1).reshape(-1, 3),
+            np.stack([idx, diagonal, down], -1).reshape(-1, 3),
+        ]
+    )
+    return MeshTopology(faces, nx * ny, name="torus")
+
+
+def test_repeated_eigenvalues_give_one_basis_whatever_the_solver():
+    """On a torus (eigenvalues repeated exactly), the dense solver and the Lanczos solver from
+    two different start vectors, with one and two BLAS threads, return one basis within
+    BASIS_TOLERANCE, vector by vector: each cluster of repeated eigenvalues is in its
+    canonical frame."""
+    from zoo.data.spectral import _fix_signs
+
+    topo = torus(16, 12)
+    values = np.linalg.eigvalsh(topo.laplacian().toarray())
+    found = clusters(values[:60])
+    assert max(c.stop - c.start for c in found) >= 4  # the test has repeated eigenvalues
+    k = found[-2].stop  # a k that ends a cluster
+    rng = np.random.default_rng(0)
+    bases = [
+        SpectralBasis.compute(topo, k, solver="dense", threads=1),
+        SpectralBasis.compute(topo, k, solver="dense", threads=2),
+        SpectralBasis.compute(topo, k, solver="lanczos", start=rng.random(topo.num_vertices)),
+        SpectralBasis.compute(topo, k, solver="lanczos", start=rng.random(topo.num_vertices)),
+    ]
+    assert "eigsh" in bases[2].solver and "dense" in bases[0].solver
+    for other in bases[1:]:
+        assert np.abs(other.vectors - bases[0].vectors).max() <= BASIS_TOLERANCE
+        assert np.abs(other.eigenvalues - bases[0].eigenvalues).max() <= BASIS_TOLERANCE
+        assert compare_bases(bases[0], other)["same"]
+    # The frame is the cluster's, not the solver's: any rotation inside a cluster maps back.
+    cluster = max(clusters(bases[0].eigenvalues), key=lambda c: c.stop - c.start)
+    size = cluster.stop - cluster.start
+    rotation, _ = np.linalg.qr(rng.standard_normal((size, size)))
+    turned = bases[0].vectors.copy()
+    turned[:, cluster] = turned[:, cluster] @ rotation
+    back = _fix_signs(canonical_clusters(bases[0].eigenvalues, turned))
+    np.testing.assert_allclose(back[:, cluster], bases[0].vectors[:, cluster], atol=1e-12)
+    with pytest.warns(RuntimeWarning, match=f"cuts a cluster.*use k={cluster.start}"):
+        SpectralBasis.compute(topo, cluster.start + 1)
+
+
+def test_compare_bases_tells_rotations_inside_clusters_from_other_numbers():
+    topo = torus(16, 12)
+    basis = SpectralBasis.compute(topo, 21)
+    cluster = next(c for c in clusters(basis.eigenvalues) if c.stop - c.start > 1)
+    turned = basis.vectors.copy()
+    turned[:, cluster] = turned[:, cluster][:, ::-1]  # another frame of the same subspace
+    same = SpectralBasis(topo.hash, basis.eigenvalues, turned, topo.name)
+    assert compare_bases(basis, same)["same"]
+    mixed = basis.vectors.copy()
+    mixed[:, [cluster.start, cluster.stop]] = mixed[:, [cluster.stop, cluster.start]]
+    other = SpectralBasis(topo.hash, basis.eigenvalues, mixed, topo.name)
+    report = compare_bases(basis, other)
+    assert not report["same"] and report["subspaces"] > 0.1
+
+
+def test_a_shipped_basis_is_loaded_not_computed(tmp_path, monkeypatch):
+    from zoo.data import spectral
+
+    topo = grid(7, 6)
+    computed = SpectralBasis.compute(topo, 10)
+    monkeypatch.setattr(spectral, "SHIPPED_DIR", tmp_path / "shipped")
+    computed.save(spectral.shipped_path(topo, 10), float32=True)
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("a shipped basis was recomputed")
+
+    monkeypatch.setattr(SpectralBasis, "compute", refuse)
+    loaded = SpectralBasis.load_or_compute(topo, 10, tmp_path / "cache")
+    assert loaded.hash == computed.hash
+    assert np.array_equal(loaded.vectors, computed.vectors.astype(np.float32).astype(np.float64))
+    assert not (tmp_path / "cache").exists()  # nothing cached beside it

@@ -18,11 +18,36 @@ on an AVX-512 EPYC than on the machine that trained the shipped models, equal to
 vectors themselves that a trained model stores and compares within a tolerance when it is loaded,
 so weights are never applied through a basis with other signs or another rotation of an
 eigenspace, while a recompute equal to rounding is accepted.
+
+Two rules make a basis the same on every machine:
+
+- **A benchmark's basis is shipped data**, never recomputed: ``benchmarks/bases/`` holds the
+  basis of every benchmark mesh (float32 vectors, the numbers the evaluation multiplies by,
+  with their float64 eigenvalues, hash and checksum), and :meth:`SpectralBasis.load_or_compute`
+  loads it whenever it exists for the topology and ``k``. Shipping, not recomputing, because
+  the shipped SpecTrHuMS weights were trained on these exact vectors (a canonical recompute
+  would rotate the full Anny body's near-degenerate eigenspaces away from them and withdraw
+  every full-resolution row), and because the evaluation itself multiplies by the vectors in
+  float32: shipped, their bytes are the same everywhere. The computing path is checked against
+  them by :func:`compare_bases` (``zoo data basis NAME --verify``): eigenvalues, and the
+  subspace of every eigenvalue cluster, equal within ``BASIS_TOLERANCE``.
+- **A computed basis is canonical** inside clusters of (nearly) repeated eigenvalues:
+  consecutive eigenvalues closer than ``CLUSTER_GAP`` (relative to ``max(1, lambda_k)``) form
+  one cluster, whose vectors the solver returns in an arbitrary rotation; they are rotated to
+  the frame in which their projections onto fixed probe vectors are upper triangular with a
+  positive diagonal (:func:`canonical_clusters`), a frame that depends on the cluster's
+  subspace only, not on what the solver returned. Then every vector's largest-magnitude entry
+  is made positive. Dense and Lanczos solvers, start vectors and thread counts then give one
+  basis to within ``BASIS_TOLERANCE`` (tested on a torus, whose eigenvalues repeat 2, 4 and 8
+  times). Error model: the solver's residual is about machine epsilon times ``||L||``, so a
+  vector outside a cluster is off by about that over its gap to the next eigenvalue (at least
+  the cluster gap: ``1e-16 * 16 / 1e-7 ~ 2e-8``), far below float32 storage's 6e-8.
 """
 
 from __future__ import annotations
 
 import hashlib
+import warnings
 import zipfile
 from pathlib import Path
 
@@ -34,6 +59,7 @@ import torch
 
 from zoo.data.mesh import MeshError, MeshTopology, cache_root
 from zoo.io import atomic_path
+from zoo.paths import REPO_ROOT
 
 # Shift of the shift-invert solver: slightly below the smallest eigenvalue (0) of a Laplacian,
 # so that L - sigma I is positive definite and its sparse LU factorisation never meets a zero pivot.
@@ -43,11 +69,26 @@ SIGMA = -1e-3
 DENSE_FRACTION = 0.25
 DENSE_MAX_VERTICES = 600  # small meshes: the dense solver is fast and exact
 SLICE = 128  # eigenvalues per shift-invert solve (see _lanczos)
-FORMAT_VERSION = 2  # 1: `hash` was the checksum of the vectors' bytes
+FORMAT_VERSION = 3  # 1: `hash` was the checksum of the vectors' bytes; 2: no `method` field
 # What a basis's identity (``basis_hash``) names besides topology and k; change it with any change
-# to what ``SpectralBasis.compute`` returns (solver choice, ordering, sign convention).
-BASIS_METHOD = "combinatorial-laplacian/lowest-k/sorted/largest-entry-positive/v1"
+# to what ``SpectralBasis.compute`` returns (solver choice, ordering, sign convention). A file
+# records the method it was computed with (files before format 3: METHOD_V1).
+BASIS_METHOD = (
+    "combinatorial-laplacian/lowest-k/sorted/canonical-clusters/largest-entry-positive/v2"
+)
+METHOD_V1 = "combinatorial-laplacian/lowest-k/sorted/largest-entry-positive/v1"
 PROBES = 4  # probe vectors of ``probe_projections``
+# Consecutive eigenvalues closer than CLUSTER_GAP * max(1, lambda_k) share one cluster, whose
+# frame is made canonical. Solvers place an eigenvalue to ~1e-13 here, so a gap this wide is never
+# mistaken for a cluster nor a cluster split, and the vectors outside clusters are accurate to
+# ~2e-8 (module docstring).
+CLUSTER_GAP = 1e-7
+# Largest |difference| between two bases of one topology (unit vectors, per entry; per cluster
+# for subspaces: 1 - the smallest cosine of their principal angles) that counts as the same basis.
+BASIS_TOLERANCE = 1e-6
+# Where the benchmarks' bases are shipped (module docstring).
+SHIPPED_DIR = REPO_ROOT / "benchmarks" / "bases"
+SOLVERS = ("auto", "dense", "lanczos")
 
 
 class SpectralError(MeshError):
@@ -69,6 +110,7 @@ class SpectralBasis:
         vectors: np.ndarray,
         topology_name: str = "mesh",
         solver: str = "",
+        method: str = BASIS_METHOD,
     ) -> None:
         vectors = np.ascontiguousarray(vectors, dtype=np.float64)
         eigenvalues = np.ascontiguousarray(eigenvalues, dtype=np.float64)
@@ -85,7 +127,8 @@ class SpectralBasis:
         self.eigenvalues = eigenvalues
         self.vectors = vectors
         self.solver = solver
-        self.hash = basis_hash(self.k, self.topology_hash)
+        self.method = method
+        self.hash = basis_hash(self.k, self.topology_hash, method)
         self.checksum = vectors_checksum(self.vectors)
         self._torch: dict[tuple[str, torch.dtype], torch.Tensor] = {}
 
@@ -98,8 +141,24 @@ class SpectralBasis:
     # ---- construction -------------------------------------------------------------------------
 
     @classmethod
-    def compute(cls, topology: MeshTopology, k: int) -> SpectralBasis:
-        """The ``k`` lowest eigenvectors of ``topology.laplacian()``, sorted by eigenvalue."""
+    def compute(
+        cls,
+        topology: MeshTopology,
+        k: int,
+        *,
+        solver: str = "auto",
+        start: np.ndarray | None = None,
+        threads: int = 1,
+    ) -> SpectralBasis:
+        """The ``k`` lowest eigenvectors of ``topology.laplacian()``, sorted by eigenvalue, in
+        the canonical frame inside clusters of repeated eigenvalues (module docstring).
+
+        ``solver``: ``auto`` (dense for small meshes or large ``k``, else Lanczos), ``dense`` or
+        ``lanczos``; ``start``: the Lanczos start vector (default: a fixed smooth one);
+        ``threads``: BLAS threads (one by default: then the bytes are the same to the last bit
+        on a given machine whatever its settings)."""
+        if solver not in SOLVERS:
+            raise SpectralError(f"spectral basis: solver must be one of {SOLVERS}, got {solver!r}")
         n = topology.num_vertices
         if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or not 1 <= k <= n:
             raise SpectralError(
@@ -111,20 +170,43 @@ class SpectralBasis:
         # One BLAS thread for both solvers: the result is then the same to the last bit on a
         # given machine whatever its thread settings (the dense solver's last bits, and so the
         # checksum, change with the thread count), and ARPACK runs faster on shared cores.
-        with _one_blas_thread():
-            if n <= DENSE_MAX_VERTICES or k >= DENSE_FRACTION * n or k >= n - 1:
-                values, vectors = scipy.linalg.eigh(lap.toarray(), subset_by_index=[0, k - 1])
-                solver = "scipy.linalg.eigh (dense)"
+        # One eigenpair more than asked, to see whether k would cut a cluster in two.
+        count = min(k + 1, n)
+        dense = (
+            n <= DENSE_MAX_VERTICES or count >= DENSE_FRACTION * n or count >= n - 1
+            if solver == "auto"
+            else solver == "dense" or count >= n - 1  # ARPACK cannot return V - 1 vectors
+        )
+        with _blas_threads(threads):
+            if dense:
+                values, vectors = scipy.linalg.eigh(lap.toarray(), subset_by_index=[0, count - 1])
+                used = "scipy.linalg.eigh (dense)"
             else:
-                values, vectors = _lanczos(lap, k)
-                solver = (
+                values, vectors = _lanczos(lap, count, start)
+                used = (
                     f"scipy.sparse.linalg.eigsh (shift-invert from sigma={SIGMA:g}, "
                     f"slices of {SLICE})"
                 )
         order = np.argsort(values, kind="stable")
         values, vectors = values[order], vectors[:, order]
         values[np.abs(values) < 1e-12] = 0.0  # the constant vector's eigenvalue, without noise
-        return cls(topology.hash, values, _fix_signs(vectors), topology.name, solver)
+        if count > k:
+            cut = next(c for c in clusters(values) if c.stop > k - 1)
+            if cut.stop > k:
+                # The kept vectors span an arbitrary part of the cluster's eigenspace: a basis
+                # this machine's solver chose, which another machine will not reproduce.
+                warnings.warn(
+                    f"spectral basis of {topology.name}: k={k} cuts a cluster of "
+                    f"{cut.stop - cut.start} (nearly) repeated eigenvalues "
+                    f"(vectors {cut.start}..{cut.stop - 1}, eigenvalue {values[k - 1]:.6g}), "
+                    f"whose kept part has no canonical basis (other machines compute another); "
+                    f"use k={cut.start} or k={cut.stop}",
+                    RuntimeWarning,
+                    stacklevel=2,
+                )
+            values, vectors = values[:k], vectors[:, :k]
+        vectors = _fix_signs(canonical_clusters(values, vectors))
+        return cls(topology.hash, values, vectors, topology.name, used)
 
     @classmethod
     def load_or_compute(
@@ -137,6 +219,11 @@ class SpectralBasis:
         belongs to another topology, or whose content no longer matches its checksum, raises
         :class:`SpectralError`: delete it deliberately to recompute.
         """
+        shipped = shipped_path(topology, k)
+        if shipped.is_file():  # a benchmark's basis: shipped data, never recomputed
+            basis = cls.load(shipped)
+            basis.check_topology(topology)
+            return basis
         path = cache_path(topology, k, cache_dir)
         if path.is_file():
             basis = cls.load(path)
@@ -150,22 +237,27 @@ class SpectralBasis:
 
     # ---- files --------------------------------------------------------------------------------
 
-    def save(self, path: str | Path) -> Path:
-        """Write the basis as an ``.npz`` atomically."""
+    def save(self, path: str | Path, float32: bool = False) -> Path:
+        """Write the basis as an ``.npz`` atomically; ``float32``: the vectors as the float32
+        numbers the evaluation multiplies by (a shipped basis, compressed; loaded back, its
+        float64 vectors are those numbers)."""
         path = Path(path)
+        vectors = self.vectors.astype(np.float32) if float32 else self.vectors
+        write = np.savez_compressed if float32 else np.savez
         with atomic_path(path) as tmp:
             with open(tmp, "wb") as f:
-                np.savez(
+                write(
                     f,
                     format_version=np.int64(FORMAT_VERSION),
                     k=np.int64(self.k),
                     topology_hash=np.str_(self.topology_hash),
                     topology_name=np.str_(self.topology_name),
                     solver=np.str_(self.solver),
+                    method=np.str_(self.method),
                     hash=np.str_(self.hash),
-                    checksum=np.str_(self.checksum),
+                    checksum=np.str_(vectors_checksum(vectors)),
                     eigenvalues=self.eigenvalues,
-                    vectors=self.vectors,
+                    vectors=vectors,
                 )
         return path
 
@@ -191,6 +283,7 @@ class SpectralBasis:
                 version = int(fields["format_version"])
                 # version 1 stored the checksum of the vectors as its `hash`
                 fields["checksum"] = z["checksum"] if version >= 2 else fields["hash"]
+                fields["method"] = str(z["method"]) if version >= 3 else METHOD_V1
         except FileNotFoundError:
             raise SpectralError(f"{path}: spectral basis file does not exist") from None
         except KeyError as e:
@@ -199,7 +292,7 @@ class SpectralBasis:
             raise SpectralError(
                 f"{path}: unreadable spectral basis file ({e}); delete it to recompute"
             ) from None
-        if version not in (1, FORMAT_VERSION):
+        if version not in (1, 2, FORMAT_VERSION):
             raise SpectralError(f"{path}: format version {version}, expected {FORMAT_VERSION}")
         basis = cls(
             str(fields["topology_hash"]),
@@ -207,6 +300,7 @@ class SpectralBasis:
             fields["vectors"],
             str(fields["topology_name"]),
             str(fields["solver"]),
+            fields["method"],
         )
         if basis.k != int(fields["k"]) or basis.checksum != str(fields["checksum"]):
             raise SpectralError(
@@ -293,10 +387,11 @@ class SpectralBasis:
             )
 
 
-def basis_hash(k: int, topology_hash: str) -> str:
-    """A basis's identity: sha256 over ``BASIS_METHOD``, ``k`` and the topology hash. The same
-    on every machine; the numbers are checked by :func:`probe_projections`."""
-    return hashlib.sha256(f"{BASIS_METHOD}|k={int(k)}|{topology_hash}".encode()).hexdigest()
+def basis_hash(k: int, topology_hash: str, method: str = BASIS_METHOD) -> str:
+    """A basis's identity: sha256 over its method (``BASIS_METHOD`` for a basis computed now),
+    ``k`` and the topology hash. The same on every machine; the numbers are checked by
+    :func:`probe_projections`."""
+    return hashlib.sha256(f"{method}|k={int(k)}|{topology_hash}".encode()).hexdigest()
 
 
 def vectors_checksum(vectors: np.ndarray) -> str:
@@ -319,12 +414,88 @@ def probe_projections(vectors: np.ndarray) -> np.ndarray:
     return vectors.T @ probes
 
 
+def clusters(values: np.ndarray) -> list[slice]:
+    """The clusters of sorted ``values``: runs of consecutive eigenvalues closer than
+    ``CLUSTER_GAP * max(1, |largest|)``, as slices (a simple eigenvalue is a cluster of one)."""
+    values = np.asarray(values, dtype=np.float64)
+    if not len(values):
+        return []
+    gap = CLUSTER_GAP * max(1.0, float(np.abs(values).max()))
+    cuts = np.flatnonzero(np.diff(values) > gap) + 1
+    bounds = [0, *cuts.tolist(), len(values)]
+    return [slice(a, b) for a, b in zip(bounds[:-1], bounds[1:])]
+
+
+def cluster_probes(num_vertices: int, count: int) -> np.ndarray:
+    """``(V, count)`` smooth probe vectors of the vertex index, without a random generator (the
+    same on every machine to the last bit of its ``cos``), generic enough that no cluster's
+    subspace is orthogonal to them."""
+    index = np.arange(num_vertices, dtype=np.float64)[:, None]
+    j = np.arange(count, dtype=np.float64)
+    return np.cos(index * (0.5772156649015329 + 0.6180339887498949 * j) + 1.2 * j)
+
+
+def canonical_clusters(values: np.ndarray, vectors: np.ndarray) -> np.ndarray:
+    """``vectors`` with every cluster of repeated eigenvalues (:func:`clusters`) rotated to its
+    canonical frame: the one in which the cluster's projections onto :func:`cluster_probes` are
+    upper triangular with a positive diagonal (a QR factorisation of ``Phi_c^T R``). Any other
+    orthonormal basis ``Phi_c U`` of the same subspace gives the same frame: ``U^T Phi_c^T R =
+    (U^T Q) R_1``."""
+    vectors = np.array(vectors, dtype=np.float64, copy=True)
+    for cluster in clusters(values):
+        size = cluster.stop - cluster.start
+        if size < 2:
+            continue
+        block = vectors[:, cluster]
+        q, r = np.linalg.qr(block.T @ cluster_probes(len(block), size))
+        q = q * np.where(np.diag(r) < 0, -1.0, 1.0)  # a positive diagonal: QR made unique
+        vectors[:, cluster] = block @ q
+    return vectors
+
+
+def compare_bases(reference: SpectralBasis, other: SpectralBasis) -> dict:
+    """How far ``other`` is from ``reference`` (one topology and k): the largest eigenvalue
+    difference relative to ``max(1, lambda_k)``, and per eigenvalue cluster of ``reference`` the
+    largest departure of their subspaces (1 - the smallest cosine of the principal angles
+    between them). Rotations inside a cluster do not count (any frame of a cluster is a valid
+    basis of it); anything else does. ``same`` is whether both stay within
+    ``BASIS_TOLERANCE``."""
+    if reference.topology_hash != other.topology_hash or reference.k != other.k:
+        raise SpectralError(
+            f"compare_bases: {reference} and {other} are not bases of one topology and k"
+        )
+    scale = max(1.0, float(np.abs(reference.eigenvalues).max()))
+    eigen = float(np.abs(reference.eigenvalues - other.eigenvalues).max()) / scale
+    worst, where = 0.0, None
+    for cluster in clusters(reference.eigenvalues):
+        cosines = np.linalg.svd(
+            reference.vectors[:, cluster].T @ other.vectors[:, cluster], compute_uv=False
+        )
+        departure = float(1.0 - cosines.min())
+        if departure > worst or where is None:
+            worst, where = departure, cluster
+    return {
+        "eigenvalues": eigen,
+        "subspaces": worst,
+        "worst_cluster": [where.start, where.stop] if where is not None else None,
+        "clusters": sum(c.stop - c.start > 1 for c in clusters(reference.eigenvalues)),
+        "same": eigen <= BASIS_TOLERANCE and worst <= BASIS_TOLERANCE,
+    }
+
+
+def shipped_path(topology: MeshTopology, k: int) -> Path:
+    """Where a benchmark mesh's basis is shipped (module docstring)."""
+    return SHIPPED_DIR / f"spectral-{topology.hash}-k{int(k)}.npz"
+
+
 def cache_path(topology: MeshTopology, k: int, cache_dir: str | Path | None = None) -> Path:
     folder = Path(cache_dir) if cache_dir is not None else cache_root() / "spectral"
     return folder / f"spectral-{topology.hash}-k{int(k)}.npz"
 
 
-def _lanczos(lap: sp.csr_matrix, k: int) -> tuple[np.ndarray, np.ndarray]:
+def _lanczos(
+    lap: sp.csr_matrix, k: int, start: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """The ``k`` smallest eigenpairs by shift-invert Lanczos (ARPACK), in spectrum slices.
 
     ARPACK's cost grows with the square of the number of vectors it keeps, so beyond
@@ -340,7 +511,7 @@ def _lanczos(lap: sp.csr_matrix, k: int) -> tuple[np.ndarray, np.ndarray]:
     n = lap.shape[0]
     lap = lap.tocsc()
     # A fixed start vector: ARPACK otherwise starts from a random one and recomputes differ.
-    v0 = np.cos(np.arange(n) * 0.7071) + 1.5
+    v0 = np.cos(np.arange(n) * 0.7071) + 1.5 if start is None else np.asarray(start, float)
 
     def solve(count: int, sigma: float) -> tuple[np.ndarray, np.ndarray]:
         count = min(count, n - 2)
@@ -385,13 +556,14 @@ def _lanczos(lap: sp.csr_matrix, k: int) -> tuple[np.ndarray, np.ndarray]:
     return values, vectors
 
 
-def _one_blas_thread():
-    """Run ARPACK with one BLAS thread: its level-2 products gain nothing from more, and
-    OpenBLAS's spinning threads cost several times the work when the cores are shared (measured:
-    41 s of CPU for k=512 on 13,718 vertices with 2 threads against 8 s with one)."""
+def _blas_threads(threads: int = 1):
+    """Run the solvers with ``threads`` BLAS threads, one by default: ARPACK's level-2 products
+    gain nothing from more, and OpenBLAS's spinning threads cost several times the work when the
+    cores are shared (measured: 41 s of CPU for k=512 on 13,718 vertices with 2 threads against
+    8 s with one)."""
     from threadpoolctl import threadpool_limits
 
-    return threadpool_limits(limits=1, user_api="blas")
+    return threadpool_limits(limits=threads, user_api="blas")
 
 
 def _check_count(lap: sp.csc_matrix, x: float, found: int, k: int) -> None:
@@ -438,6 +610,10 @@ __all__ = [
     "SpectralError",
     "basis_hash",
     "cache_path",
+    "canonical_clusters",
+    "clusters",
+    "compare_bases",
+    "shipped_path",
     "default_cache_dir",
     "probe_projections",
     "vectors_checksum",
