@@ -155,10 +155,14 @@ def training_recipe(
         isinstance(schedule.get("every_epochs"), int)
         and schedule["every_epochs"] >= 1
         and _positive_number(schedule.get("gamma"))
+        and isinstance(schedule.get("offset_epochs", 0), int)
+        and not isinstance(schedule.get("offset_epochs", 0), bool)
+        and schedule.get("offset_epochs", 0) >= 0
     ):
         raise TrainingError(
             f"training recipe: a step schedule needs every_epochs (an integer "
-            f">= 1) and gamma (a number > 0), got {schedule!r}"
+            f">= 1) and gamma (a number > 0), and offset_epochs, if given, an "
+            f"integer >= 0; got {schedule!r}"
         )
     if schedule["type"] == "multistep":
         lrs, milestones = schedule.get("lrs"), schedule.get("milestones_steps")
@@ -212,7 +216,10 @@ def learning_rate(
     if kind == "constant":
         return base_lr
     if kind == "step":  # SPGSN: x gamma every `every_epochs`
-        return base_lr * schedule["gamma"] ** (epoch // schedule["every_epochs"])
+        # offset_epochs: decays counted as if that many epochs had run before the first (LTD's
+        # and PGBIG's code decay at the start of an epoch, the first one included for PGBIG)
+        offset = schedule.get("offset_epochs", 0)
+        return base_lr * schedule["gamma"] ** ((epoch + offset) // schedule["every_epochs"])
     if kind == "cosine":  # SpecTrHuMS: cosine from lr to min_lr over the run, per epoch
         lo = schedule.get("min_lr", 0.0)
         return lo + (base_lr - lo) * 0.5 * (1 + math.cos(math.pi * epoch / max(1, epochs)))
