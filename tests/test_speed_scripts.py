@@ -15,6 +15,7 @@ CMU_BVH = REPO.parent / "shared" / "data" / "cmu_bvh"
 SCRIPTS = [
     "public_spgsn",
     "speed_anny",
+    "speed_baselines",
     "speed_eval",
     "speed_spectral",
     "speed_spectrhums",
@@ -57,6 +58,12 @@ def test_public_spgsn(capsys):
         ["--steps", "1", "--batch-size", "2", "--num-stage", "1", "--hidden", "16"]
     )
     assert "training step, batch 2" in capsys.readouterr().out
+
+
+def test_speed_baselines(capsys):
+    load("speed_baselines").main(["--repeats", "1", "--tiny"])
+    out = capsys.readouterr().out
+    assert "ltd training step" in out and "pgbig training step" in out and "ratio" in out
 
 
 def test_speed_eval(swinging_cmu, capsys):
