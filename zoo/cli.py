@@ -292,6 +292,35 @@ def cmd_leaderboard(args) -> int:
     return 1 if check.problems else 0
 
 
+def cmd_costs(args) -> int:
+    import time
+
+    from zoo.costs import measure_costs
+    from zoo.leaderboard import write_index
+
+    if not args.seconds > 0:
+        raise UsageError(f"--seconds {args.seconds:g}: expected a positive time budget")
+    registry = _registry(args)
+    benchmarks = args.benchmark or committed_benchmarks(Path(args.out))
+    if not benchmarks:
+        raise UsageError(f"{args.out}: no committed table; give --benchmark NAME")
+    started = time.perf_counter()
+    for bench in benchmarks:
+        measure_costs(
+            bench,
+            registry=registry,
+            data_root=args.data_root,
+            out_root=Path(args.out),
+            weights=Path(args.weights),
+            checkpoints=Path(args.checkpoints),
+            device=args.device,
+            models=args.model or (),
+            seconds=args.seconds,
+        )
+    print(f"wrote {write_index(Path(args.out))} ({time.perf_counter() - started:.0f} s)")
+    return 0
+
+
 def committed_benchmarks(results: Path) -> list[str]:
     """Every benchmark with a table under ``results`` (what ``--check`` checks by default)."""
     from zoo.benchmark import list_benchmarks
@@ -648,6 +677,46 @@ def build_parser() -> argparse.ArgumentParser:
         "to delete a row the leaderboard did not make",
     )
     p.set_defaults(func=cmd_leaderboard)
+
+    from zoo.costs import DEFAULT_SECONDS
+
+    p = sub.add_parser(
+        "costs",
+        help="measure the tables' cost columns (float32, time-boxed) into "
+        "results/<benchmark>/costs.json and re-render those columns",
+    )
+    common(p)
+    p.add_argument(
+        "--benchmark",
+        action="append",
+        help="benchmark(s); default every benchmark with tables under --out",
+    )
+    p.add_argument(
+        "--model",
+        action="append",
+        metavar="NAME",
+        help="measure only this registry model's rows (repeatable); the other stored costs "
+        "are kept",
+    )
+    p.add_argument(
+        "--seconds",
+        type=float,
+        default=DEFAULT_SECONDS,
+        help=f"time budget per model (default {DEFAULT_SECONDS:g}); a slow model gets fewer "
+        f"latency calls and training steps, and says so",
+    )
+    p.add_argument("--out", default=str(RESULTS_DIR), help="results root (default results/)")
+    p.add_argument(
+        "--weights",
+        default=str(REPO_ROOT / "weights"),
+        help="folder of shipped weights (default weights/), as zoo leaderboard",
+    )
+    p.add_argument(
+        "--checkpoints",
+        default=str(REPO_ROOT / "checkpoints"),
+        help="folder of trained checkpoints (default checkpoints/), as zoo leaderboard",
+    )
+    p.set_defaults(func=cmd_costs)
 
     p = sub.add_parser(
         "compare",

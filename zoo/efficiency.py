@@ -1,30 +1,68 @@
-"""What a model costs, measured on the machine that writes a leaderboard: parameters, forward
-GFLOPs per sample (torch's FLOP counter), latency of one window (batch 1) and training
-throughput (forward, backward, gradient clip and Adam, at the recipe's batch size and precision).
+"""What a model costs, and where those costs are kept.
 
-Timings depend on the machine and its load; they go into ``leaderboard.md`` beside the device
-that measured them, never into ``results.csv`` (which ``zoo leaderboard --check`` compares).
+Measured by :func:`measure`, and only by ``zoo costs`` (:mod:`zoo.costs`): parameters, forward
+GFLOPs per window (torch's FLOP counter), latency of one window (batch 1) and training
+throughput (forward, backward, gradient clip and Adam at the recipe's batch size). Every model
+is timed in float32, whatever precision its recipe trains in, so that the columns compare
+across models; within a time budget per model (``seconds``): a slow model gets fewer latency
+repeats or training steps (at least one of each after a warm-up), and the counts are recorded
+beside the numbers.
+
+``zoo leaderboard`` and ``zoo eval`` measure nothing: a table shows the costs stored in
+``results/<benchmark>/costs.json`` (:class:`Costs`) for its rows, naming the machine that
+measured them under it. Timings depend on that machine and its load; they are never in
+``results.csv`` (which ``zoo leaderboard --check`` compares). ``costs.json``::
+
+    {"version": 2,
+     "rows": {"<row label>": {"architecture": "<16 hex digits>",
+                              "parameters": 23880, "gflop_per_sample": 0.0029,
+                              "latency_ms": 3.37, "train_samples_per_s": 3603.3,
+                              "precision": "float32",
+                              "latency_repeats": 20, "training_steps": 3,
+                              "device": "CPU <model> (x86_64, AVX512), 2 cores, 2 threads",
+                              "threads": 2, "date": "2025-01-31"}}}
+
+``architecture`` digests what the numbers depend on besides the machine (:func:`cost_key`:
+model class, hyper-parameters and code, view, task, points, frames, batch size, gradient
+clip); a table shows a row's stored costs only while it matches the row's model (else empty
+cells, until ``zoo costs`` measures it again). A value is null where it does not apply
+(no FLOPs or latency for a task whose model takes more than the history; no training
+throughput for a model that does not train).
+
+An older ``costs.json`` (no ``version``: ``{"entries": {digest: {"key": {..., "machine"},
+"costs"}}}``) holds timings in each recipe's own precision (bfloat16 for some), which do not
+compare: it is not read (its tables' rows show empty cost cells) and ``zoo costs`` replaces it
+whole.
 """
 
 from __future__ import annotations
 
 import copy
+import hashlib
+import json
 import statistics
 import time
+from collections.abc import Callable
+from datetime import datetime, timezone
+from pathlib import Path
 from typing import Any
 
 import torch
 
-from zoo.train import TrainingObjective, device_name, forward_precision
+from zoo.train import TrainingObjective, device_name
 
 LATENCY_REPEATS = 20
 TRAINING_STEPS = 3
+PRECISION = "float32"  # every model is timed in it (see the module docstring)
+COSTS_FILE = "costs.json"
+COSTS_VERSION = 2
 
 
 def _windows(batch: int, frames: int, points: int, device) -> torch.Tensor:
     # Positions of the order of a body's (mm); the values do not change the work done.
     generator = torch.Generator().manual_seed(0)
-    return (100 * torch.randn(batch, frames, points, 3, generator=generator)).to(device)
+    windows = 100 * torch.randn(batch, frames, points, 3, generator=generator, dtype=torch.float32)
+    return windows.to(device)
 
 
 def forward_gflop(model: torch.nn.Module, history: torch.Tensor) -> float:
@@ -38,18 +76,32 @@ def forward_gflop(model: torch.nn.Module, history: torch.Tensor) -> float:
     return counter.get_total_flops() / 1e9
 
 
+def _timed(call: Callable[[], Any], most: int, seconds: float | None) -> list[float]:
+    """Wall times (s) of up to ``most`` calls after one warm-up call; with ``seconds``, fewer
+    once another call would end past that budget (counted from the warm-up), at least one."""
+    started = time.perf_counter()
+    call()
+    times: list[float] = []
+    while len(times) < most:
+        before = time.perf_counter()
+        call()
+        times.append(time.perf_counter() - before)
+        if seconds is not None and time.perf_counter() + times[-1] > started + seconds:
+            break
+    return times
+
+
 def latency_ms(
-    model: torch.nn.Module, history: torch.Tensor, repeats: int = LATENCY_REPEATS
-) -> float:
-    """Median wall time (ms) of one forward at batch 1, after one warm-up call."""
-    times = []
+    model: torch.nn.Module,
+    history: torch.Tensor,
+    repeats: int = LATENCY_REPEATS,
+    seconds: float | None = None,
+) -> tuple[float, int]:
+    """Median wall time (ms) of one forward at batch 1, after one warm-up call, and how many
+    calls it is the median of (``repeats``, fewer where ``seconds`` runs out)."""
     with torch.no_grad():
-        model(history[:1])
-        for _ in range(repeats):
-            started = time.perf_counter()
-            model(history[:1])
-            times.append(time.perf_counter() - started)
-    return 1000 * statistics.median(times)
+        times = _timed(lambda: model(history[:1]), repeats, seconds)
+    return 1000 * statistics.median(times), len(times)
 
 
 def training_samples_per_s(
@@ -61,10 +113,12 @@ def training_samples_per_s(
     points: int,
     device="cpu",
     steps: int = TRAINING_STEPS,
-) -> float:
-    """Training windows per second of full optimizer steps on a copy of ``model`` (the model
-    itself is left untouched), after one warm-up step; a model with a training view steps on
-    windows of it, as the engine trains it."""
+    seconds: float | None = None,
+) -> tuple[float, int]:
+    """Training windows per second of full optimizer steps in float32 (whatever the recipe's
+    precision) on a copy of ``model`` (the model itself is left untouched), after one warm-up
+    step, and how many steps were timed (``steps``, fewer where ``seconds`` runs out); a model
+    with a training view steps on windows of it, as the engine trains it."""
     trainee = copy.deepcopy(model).to(device).train()
     view = hasattr(trainee, "training_view")  # trained on its view, computed once (zoo.train)
     objective = TrainingObjective(trainee, task, view=view)
@@ -78,19 +132,15 @@ def training_samples_per_s(
     history, future = windows[:, :input_frames], windows[:, input_frames:]
 
     def step():
-        with forward_precision(recipe.get("precision", "float32"), device):
-            loss = objective(history, future)
+        loss = objective(history, future)  # no autocast: float32 for every model
         optimizer.zero_grad(set_to_none=True)
         loss.backward()
         if recipe.get("grad_clip"):
             torch.nn.utils.clip_grad_norm_(trainee.parameters(), recipe["grad_clip"])
         optimizer.step()
 
-    step()
-    started = time.perf_counter()
-    for _ in range(steps):
-        step()
-    return steps * batch / (time.perf_counter() - started)
+    times = _timed(step, steps, seconds)
+    return len(times) * batch / sum(times), len(times)
 
 
 def _threads() -> str:
@@ -112,23 +162,106 @@ def measure(
     task: str = "prediction",
     recipe: dict[str, Any] | None = None,
     device="cpu",
+    seconds: float | None = None,
+    say: Callable[[str], None] | None = None,
 ) -> dict[str, Any]:
-    """The efficiency columns of one model; ``recipe`` (a trainable model's training recipe)
-    adds its training throughput."""
+    """The cost columns of one model, in float32, with the machine, thread count and date that
+    measured them; ``recipe`` (a trainable model's training recipe) adds its training
+    throughput. ``seconds``: the time budget (a quarter for latency where the model also
+    trains; None: always ``LATENCY_REPEATS`` and ``TRAINING_STEPS``); ``say``: progress."""
+    say = say or (lambda text: None)
+    started = time.perf_counter()
     model = model.to(device).eval()
     history = _windows(1, input_frames, points, device)
+    parameters = sum(p.numel() for p in model.parameters())
+    trains = recipe is not None and parameters > 0
     row = {
-        "parameters": sum(p.numel() for p in model.parameters()),
+        "parameters": parameters,
         "gflop_per_sample": None,
         "latency_ms": None,
         "train_samples_per_s": None,
+        "precision": PRECISION,
+        "latency_repeats": None,
+        "training_steps": None,
         "device": machine(device),
+        "threads": torch.get_num_threads(),
+        "date": datetime.now(timezone.utc).date().isoformat(),
     }
+
+    def left(share: float) -> float | None:
+        return None if seconds is None else started + share * seconds - time.perf_counter()
+
+    def fewer(done: int, most: int) -> str:
+        return f" (not {most}: time budget of {seconds:g} s)" if done < most else ""
+
     if task == "prediction":  # the other tasks take more than the history
         row["gflop_per_sample"] = forward_gflop(model, history)
-        row["latency_ms"] = latency_ms(model, history)
-    if recipe is not None and row["parameters"]:
-        row["train_samples_per_s"] = training_samples_per_s(
-            model, task, recipe, input_frames, output_frames, points, device
+        say(f"{parameters:,} parameters, {row['gflop_per_sample']:.3g} GFLOP / window")
+        row["latency_ms"], row["latency_repeats"] = latency_ms(
+            model, history, seconds=left(0.25 if trains else 1.0)
+        )
+        say(
+            f"latency {row['latency_ms']:.3g} ms, median of {row['latency_repeats']} "
+            f"call(s){fewer(row['latency_repeats'], LATENCY_REPEATS)}"
+        )
+    if trains:
+        row["train_samples_per_s"], row["training_steps"] = training_samples_per_s(
+            model, task, recipe, input_frames, output_frames, points, device, seconds=left(1.0)
+        )
+        say(
+            f"training {row['train_samples_per_s']:.3g} windows / s in {PRECISION}, "
+            f"{row['training_steps']} step(s) of {recipe['batch_size']}"
+            f"{fewer(row['training_steps'], TRAINING_STEPS)}"
         )
     return row
+
+
+def cost_key(loaded, bench, dataset, task: str) -> dict[str, Any]:
+    """What a model's costs depend on besides the machine (``loaded``: a
+    :class:`zoo.model_source.LoadedModel` of ``bench``): its ``architecture`` is the digest of
+    this (:func:`architecture`)."""
+    from zoo.store import evaluation_code
+
+    recipe = loaded.recipe or {}
+    return {
+        "class": loaded.entry.class_path,
+        "hparams": loaded.hparams,
+        "view": loaded.view,
+        "task": task,
+        "points": bench.model_inputs(dataset=dataset, view=loaded.view)["num_points"],
+        "input_frames": bench.input_frames,
+        "output_frames": bench.output_frames,
+        "batch_size": recipe.get("batch_size"),
+        "grad_clip": recipe.get("grad_clip"),
+        "code": evaluation_code(type(loaded.model))["model"],
+    }
+
+
+def architecture(key: dict[str, Any]) -> str:
+    text = json.dumps(key, sort_keys=True, default=str)
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+class Costs:
+    """The cost columns of a benchmark's rows, kept in ``<results>/<benchmark>/costs.json``
+    (format in the module docstring); ``old``: the file is of the older format, not read."""
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        data = json.loads(self.path.read_text()) if self.path.is_file() else {}
+        self.old = bool(data) and data.get("version") != COSTS_VERSION
+        self.rows: dict[str, dict[str, Any]] = {} if self.old else dict(data.get("rows", {}))
+
+    def get(self, label: str, architecture_: str) -> dict[str, Any] | None:
+        """The stored costs of row ``label``, while they are those of its ``architecture``."""
+        entry = self.rows.get(label)
+        if entry is None or entry.get("architecture") != architecture_:
+            return None
+        return {k: v for k, v in entry.items() if k != "architecture"}
+
+    def save(self) -> None:
+        from zoo.io import atomic_write_json
+
+        atomic_write_json(
+            self.path, {"version": COSTS_VERSION, "rows": dict(sorted(self.rows.items()))}
+        )

@@ -16,13 +16,13 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from zoo.efficiency import COSTS_FILE, Costs, architecture, cost_key
 from zoo.evaluate import evaluate
 from zoo.io import atomic_write_json, atomic_write_text, replace_folder, save_figure
 from zoo.model_source import ModelSource
 from zoo.store import (
     RESULTS_DIR,
     StoreError,
-    evaluation_code,
     identity_differences,
     identity_id,
     stored_identity,
@@ -45,8 +45,9 @@ def write_leaderboard(
 ) -> Path:
     """Combine :class:`zoo.evaluate.EvalResult` objects of one protocol into ``out_dir``:
     ``results.csv``, ``leaderboard.md``, ``protocol.json`` and ``mpjpe.png``; ``efficiency``
-    (per model, :func:`zoo.efficiency.measure`) fills the headline's cost columns and
-    ``efficiency.csv``."""
+    (per row label, the costs ``zoo costs`` stored: :class:`zoo.efficiency.Costs`) fills the
+    headline's cost columns and ``efficiency.csv`` (a dict without a row's label: its cost
+    cells stay empty, and the table says how to fill them)."""
     out_dir = Path(out_dir)
     # Rows and runs in model order, whichever models were evaluated now and which were stored:
     # regenerating then rewrites no unchanged table.
@@ -63,13 +64,17 @@ def write_leaderboard(
     atomic_write_text(out_dir / "leaderboard.md", tables)
     atomic_write_json(out_dir / "protocol.json", protocol)
     if efficiency:
-        labels = sorted(set(frame["model"]) & set(efficiency))
-        atomic_write_text(
-            out_dir / "efficiency.csv",
-            pd.DataFrame([{"model": m, **efficiency[m]} for m in labels]).to_csv(index=False),
-        )
+        atomic_write_text(out_dir / "efficiency.csv", efficiency_csv(frame["model"], efficiency))
     plot_average(frame, out_dir / "mpjpe.png", title=tables.splitlines()[0].lstrip("# "))
     return out_dir
+
+
+def efficiency_csv(models: Iterable[str], efficiency: dict[str, dict]) -> str:
+    """``efficiency.csv``: the stored costs of a table's ``models``, one row each."""
+    labels = sorted(set(models) & set(efficiency))
+    costs = pd.DataFrame([{"model": m, **efficiency[m]} for m in labels])
+    counts = {c: "Int64" for c in ("latency_repeats", "training_steps") if c in costs}
+    return costs.astype(counts).to_csv(index=False)
 
 
 def plot_average(frame: pd.DataFrame, path: str | Path, title: str = "") -> None:
@@ -262,7 +267,13 @@ class Leaderboard:
         self.bench, self.registry, self.root = bench, registry, root
         self.weights, self.checkpoints, self.device, self.plan = weights, checkpoints, device, plan
         self.dataset = bench.load(data_root)
-        self.costs = CostCache(root / bench.name / COSTS_FILE)
+        self.costs = Costs(root / bench.name / COSTS_FILE)
+        if self.costs.old:
+            print(
+                f"{self.costs.path}: an older format (timings in each recipe's precision), not "
+                f"read: cost cells stay empty; zoo costs --benchmark {bench.name} replaces it",
+                file=sys.stderr,
+            )
         self.counts = {"reused": 0, "recomputed": 0, "kept": 0, "dropped": 0}
         self.loaded: dict = {}
         unknown = sorted(set(plan.models) - set(registry.list_models()))
@@ -309,7 +320,6 @@ class Leaderboard:
                         f"{table}: a committed table that the leaderboard no longer produces"
                     )
             return written
-        self.costs.save()
         from zoo.sensitivity import protocol_sensitivity
 
         sensitivity = protocol_sensitivity(self.root / bench.name)
@@ -481,7 +491,7 @@ class Leaderboard:
                 if old is not None:
                     reused.append(old)
                     self.counts["reused"] += 1
-                    efficiency[row.label] = self._cost(row.name, loaded, task)
+                    self._cost(efficiency, row.label, loaded, task)
                     if identity_differences(stored_identity(old), identity):
                         print(
                             f"{where}: {row.label}: kept as stored although stale (only "
@@ -499,7 +509,7 @@ class Leaderboard:
                 if not differences:
                     reused.append(old)
                     self.counts["reused"] += 1
-                    efficiency[row.label] = self._cost(row.name, loaded, task)
+                    self._cost(efficiency, row.label, loaded, task)
                     continue
             if why is not None:
                 reasons.append(f"{row.label}: {why}")
@@ -519,7 +529,7 @@ class Leaderboard:
             fresh.append(result)
             if check is None:
                 self.counts["recomputed"] += 1
-                efficiency[row.label] = self._cost(row.name, loaded, task)
+                self._cost(efficiency, row.label, loaded, task)
         planned = {r.label for r in rows}
         foreign = [
             p for label, p in stored.items() if label not in planned and label not in plan.drop
@@ -586,70 +596,13 @@ class Leaderboard:
         )
         return True
 
-    def _cost(self, name: str, loaded, task: str) -> dict:
-        """The efficiency columns of a model, measured once per architecture and machine."""
-        from zoo.efficiency import measure
-
-        view = loaded.view
-        points = self.bench.model_inputs(dataset=self.dataset, view=view)["num_points"]
-        key = {
-            "class": loaded.entry.class_path,
-            "hparams": loaded.hparams,
-            "view": view,
-            "task": task,
-            "recipe": loaded.recipe,
-            "points": points,
-            "input_frames": self.bench.input_frames,
-            "output_frames": self.bench.output_frames,
-            "code": evaluation_code(type(loaded.model))["model"],
-        }
-        return self.costs.get(
-            key,
-            lambda: measure(
-                loaded.model,
-                input_frames=self.bench.input_frames,
-                output_frames=self.bench.output_frames,
-                points=points,
-                task=task,
-                recipe=loaded.recipe,
-                device=self.device,
-            ),
-            self.device,
-        )
-
-
-COSTS_FILE = "costs.json"
-
-
-class CostCache:
-    """Cost columns per architecture and machine, kept in ``<results>/<benchmark>/costs.json``
-    (timings hold for the machine that measured them; another machine measures its own)."""
-
-    def __init__(self, path: Path) -> None:
-        import json
-
-        self.path = path
-        self.entries = json.loads(path.read_text()).get("entries", {}) if path.is_file() else {}
-        self.measured_now = 0
-
-    def get(self, key: dict, measure_, device) -> dict:
-        import hashlib
-        import json
-
-        from zoo.efficiency import machine
-
-        key = {**key, "machine": machine(device)}
-        digest = hashlib.sha256(json.dumps(key, sort_keys=True, default=str).encode()).hexdigest()[
-            :16
-        ]
-        if digest not in self.entries:
-            self.entries[digest] = {"key": key, "costs": measure_()}
-            self.measured_now += 1
-        return self.entries[digest]["costs"]
-
-    def save(self) -> None:
-        if self.measured_now:
-            atomic_write_json(self.path, {"entries": dict(sorted(self.entries.items()))})
+    def _cost(self, efficiency: dict, label: str, loaded, task: str) -> None:
+        """A row's cost columns as ``zoo costs`` stored them (this measures nothing), while
+        they are those of its model (:func:`zoo.efficiency.cost_key`); else none."""
+        key = cost_key(loaded, self.bench, self.dataset, task)
+        stored = self.costs.get(label, architecture(key))
+        if stored is not None:
+            efficiency[label] = stored
 
 
 MADE_BY = "zoo leaderboard"
@@ -910,9 +863,9 @@ How each number is made:
   simultaneous comparison of all the table's models; `zoo compare A B --benchmark NAME` says by
   how much one model beats another, and on how many actions.
 - Cost columns (parameters, forward GFLOPs per window, latency of one window, training windows
-  per second) are measured once per architecture and machine (kept in
-  `<benchmark>/costs.json`) and named under the table with that machine; they are not in
-  `results.csv` and `--check` does not compare them.
+  per second, every model in float32) are measured by `zoo costs`, never by `zoo leaderboard`,
+  and kept in `<benchmark>/costs.json`; the machine (CPU, threads) and date that measured them
+  are named under each table; they are not in `results.csv` and `--check` does not compare them.
 - Mesh tables: RMSE is per vertex, normalised by the ground-truth frame's bounding-box
   diagonal; MELV is measured on the k-coefficient reconstructions of the reference and scored
   frames (as SpecTrHuMS measures it) and printed as mean (standard deviation over windows);

@@ -8,6 +8,7 @@ that differ.
 
 from __future__ import annotations
 
+import re
 from collections.abc import Iterable
 from typing import Any
 
@@ -305,7 +306,9 @@ def headline_table(
     where a model is the best at that horizon or not distinguishable from it (one simultaneous
     comparison of all the table's models, :func:`zoo.intervals.best_set`).
 
-    ``efficiency``: per model, the columns of :func:`zoo.efficiency.measure`. ``published``:
+    ``efficiency``: per model, the cost columns ``zoo costs`` stored (:mod:`zoo.efficiency`),
+    named with the machine that measured them under the table; a model left out of a given
+    dict gets empty cost cells and the way to fill them (None: no costs at all). ``published``:
     :func:`zoo.published.place` of this table (default: from ``zoo/published.yaml``); matching
     figures become ``reported`` rows, the others are listed below with their differences."""
     from zoo.intervals import best_set, interval
@@ -348,15 +351,14 @@ def headline_table(
         if best.isin(list(contenders)).all():
             bold = best_set(contenders, windows)
             tied = {(m, h): bool(bold[m][i]) for m in contenders for i, h in enumerate(horizons)}
-    efficiency = efficiency or {}
-    cost_headers = ["parameters", "GFLOP / window", "latency (ms)", "training windows / s"]
+    costs, efficiency = efficiency is not None, efficiency or {}
     table = []
     for m in values.index:
         cells = []
         for i, h in enumerate(horizons):
             text = f"{values.loc[m, h]:{fmt}}" + (f" ±{half[m][i]:{fmt}}" if m in half else "")
             cells.append(f"**{text}**" if tied.get((m, h), m == best[h]) else text)
-        table.append([m, *cells, *_cost_cells(efficiency.get(m))])
+        table.append([m, *cells, *_cost_cells(m, efficiency, costs)])
     placed = place(record, metric, "frame", joints) if published is None else published
     for p in placed:
         if not p.differences:
@@ -364,7 +366,7 @@ def headline_table(
                 [
                     f"{p.entry.label}: {p.entry.source}",
                     *[f"{p.values[h]:{fmt}}" if h in p.values else "–" for h in horizons],
-                    *_cost_cells(None),
+                    *_cost_cells(None, {}, False),
                 ]
             )
     unit = metric_unit(metric)[0]
@@ -372,15 +374,6 @@ def headline_table(
         how = "no per-window errors stored, so no intervals"
     else:
         how = interval_words(windows, models=len([m for m in errors if not is_floor(m)]))
-    devices = sorted({e["device"] for e in efficiency.values() if e})
-    if devices:
-        how += (
-            f". Costs measured once per architecture on {'; '.join(devices)}: "
-            f"parameters; forward GFLOPs per window (torch's FlopCounterMode, a multiply-add "
-            f"counts 2); median latency of one window (batch 1); training windows per "
-            f"second (forward, backward, clip and Adam at the recipe's batch size and "
-            f"precision)"
-        )
     floors = [m for m in values.index if is_floor(m)]
     if floors:
         how += (
@@ -401,11 +394,13 @@ def headline_table(
         "",
         tabulate(
             table,
-            headers=["model"] + [f"{h} ms" for h in horizons] + cost_headers,
+            headers=["model"] + [f"{h} ms" for h in horizons] + COST_HEADERS,
             tablefmt="github",
             disable_numparse=True,
         ),
     ]
+    if costs:
+        out += _cost_line(efficiency, record["benchmark"], values.index)
     for p in placed:
         if not p.differences and p.entry.per_action:
             actions = list(record["actions_present"])
@@ -442,9 +437,87 @@ def headline_table(
     return "\n".join(out)
 
 
-def _cost_cells(row: dict[str, Any] | None) -> list[str]:
+COST_HEADERS = ["parameters", "GFLOP / window", "latency (ms)", "training windows / s"]
+# How tables written before ``zoo costs`` named their machine, inside the paragraph above.
+_OLD_COST_WORDS = re.compile(
+    r"\. Costs measured once per architecture on .*?at the recipe's batch size and precision\)"
+)
+
+
+def _cost_line(efficiency: dict[str, dict[str, Any]], benchmark: str, models) -> list[str]:
+    """The paragraph under a headline table (as lines, after a blank one): which machine
+    measured its cost columns, and when; how; and how to fill the empty cells of ``models``
+    (the table's rows) left out of ``efficiency``."""
+    machines = sorted({f"{e['device']} ({e['date']})" for e in efficiency.values()})
+    text = ""
+    if machines:
+        text = (
+            f"Costs measured by `zoo costs` on {'; '.join(machines)}, every model in "
+            f"{' and '.join(sorted({e['precision'] for e in efficiency.values()}))}: "
+            f"parameters; forward GFLOPs per window (torch's FlopCounterMode, a multiply-add "
+            f"counts 2); median latency of one window (batch 1); training windows per second "
+            f"(forward, backward, clip and Adam at the recipe's batch size; fewer latency calls "
+            f"and training steps for a slow model, counted in efficiency.csv)."
+        )
+    blank = [m for m in models if m not in efficiency and not is_floor(m)]
+    if blank:
+        text += (
+            f"{' ' if text else ''}Empty cost cells ({', '.join(blank)}): no cost stored for "
+            f"that model; `zoo costs --benchmark {benchmark}` fills them."
+        )
+    return ["", text] if text else []
+
+
+def with_costs(
+    markdown: str, models: Iterable[str], efficiency: dict[str, dict[str, Any]], benchmark: str
+) -> str:
+    """A ``leaderboard.md`` with the cost cells of its headline's ``models`` rows and the
+    paragraph under that table as :func:`headline_table` writes them for ``efficiency``, and
+    every other byte as it was (``zoo costs`` rewrites costs, nothing else)."""
+    lines = markdown.split("\n")
+    start = next((i for i, line in enumerate(lines) if line.startswith("## Headline")), None)
+    if start is None:
+        return markdown
+    top = next(i for i in range(start, len(lines)) if lines[i].startswith("| model "))
+    end = top
+    while end < len(lines) and lines[end].startswith("|"):
+        end += 1
+    header, *rows = (
+        [cell.strip() for cell in line.strip()[1:-1].split("|")]
+        for i, line in enumerate(lines[top:end])
+        if i != 1  # the rule under the header
+    )
+    if header[-4:] != COST_HEADERS or any(len(row) != len(header) for row in rows):
+        raise ZooError(
+            f"a leaderboard.md whose headline has no cost columns where expected "
+            f"({' | '.join(header)}); zoo leaderboard --benchmark {benchmark} rewrites it"
+        )
+    models = set(models)
+    rows = [
+        row[:-4] + _cost_cells(row[0], efficiency, True) if row[0] in models else row
+        for row in rows
+    ]
+    table = tabulate(rows, headers=header, tablefmt="github", disable_numparse=True).split("\n")
+    below = end
+    if (
+        lines[end : end + 1] == [""]
+        and lines[end + 1 : end + 2]
+        and (lines[end + 1].startswith(("Costs measured by `zoo costs`", "Empty cost cells")))
+    ):
+        below = end + 2  # the paragraph this writes
+    above = [_OLD_COST_WORDS.sub("", line) for line in lines[start:top]]
+    shown = [row[0] for row in rows if row[0] in models]
+    return "\n".join(
+        lines[:start] + above + table + _cost_line(efficiency, benchmark, shown) + lines[below:]
+    )
+
+
+def _cost_cells(model: str | None, efficiency: dict[str, dict[str, Any]], costs: bool) -> list[str]:
+    """A row's cost cells: its stored costs; else empty where costs are shown and ``model`` is
+    one that ``zoo costs`` measures, "–" where none apply (a floor, a reported row)."""
+    row = efficiency.get(model) if model is not None else None
     if not row:
-        return ["–"] * 4
+        return ["" if costs and model is not None and not is_floor(model) else "–"] * 4
     gflop, latency, train = (
         row.get(k) for k in ("gflop_per_sample", "latency_ms", "train_samples_per_s")
     )
