@@ -177,6 +177,24 @@ def test_check_recomputes_every_row_and_names_what_differs(tmp_path, capsys):
         "largest difference 0 "
     )
     assert {p: p.stat().st_mtime_ns for p in out.rglob("*") if p.is_file()} == before
+    assert main(["leaderboard", "--check", *common]) == 0
+    lines = capsys.readouterr().out.strip().splitlines()
+    assert lines[-3].startswith("cmu/ltd8: 400 rows checked, largest difference 0.00 of ")
+    assert lines[-3].endswith(": passed") and lines[-2].startswith("cmu/all: 400 rows checked")
+
+    # a row that cannot be loaded (a corrupted checkpoint) is reported and the check goes on
+    best = checkpoints / "cmu" / "tiny" / "best.pt"
+    saved = best.read_bytes()
+    best.write_bytes(b"not a checkpoint")
+    assert main(["leaderboard", "--check", *common]) == 1
+    captured = capsys.readouterr()
+    assert "checking cmu/all: repeat_last" in captured.err  # progress, row by row
+    assert "cmu/all/tiny: not recomputed:" not in captured.err
+    assert "cmu/all: tiny: not recomputed:" in captured.err
+    table_lines = [line for line in captured.out.splitlines() if line.startswith("cmu/")]
+    assert len(table_lines) == 2 and all("problem(s), first: cmu/" in t for t in table_lines)
+    assert "rows checked" in table_lines[1] and not table_lines[1].startswith("cmu/all: 0 rows")
+    best.write_bytes(saved)
 
     table = out / "cmu" / "all" / "results.csv"
     frame = pd.read_csv(table)

@@ -340,3 +340,14 @@ def test_a_shipped_basis_is_loaded_not_computed(tmp_path, monkeypatch):
     assert loaded.hash == computed.hash
     assert np.array_equal(loaded.vectors, computed.vectors.astype(np.float32).astype(np.float64))
     assert not (tmp_path / "cache").exists()  # nothing cached beside it
+
+
+def test_zoo_data_basis_checks_the_shipped_basis_against_this_machine(capsys):
+    """The cloth benchmark's shipped basis and the one computed here are the same basis."""
+    from zoo.cli import main
+
+    assert main(["data", "basis", "cloth"]) == 0
+    out = capsys.readouterr().out
+    assert "cloth: shipped basis 40f7523315d7" in out and ": the same basis" in out
+    assert main(["data", "basis", "cloth", "--ship"]) == 2  # never overwritten
+    assert "is shipped already" in capsys.readouterr().err

@@ -415,3 +415,45 @@ def test_a_model_objects_identity_holds_its_settings(project):
     zoo.evaluate(spec["DampedVelocity"](10, 25, 25), "cmu", out=out, **run)
     with pytest.raises(zoo.store.StoreError, match="source cannot be read"):
         zoo.evaluate(spec["DampedVelocity"](10, 25, 25), "cmu", out=out, **run)
+
+
+def test_a_rebuild_that_agrees_changes_no_file(project, capsys):
+    """A row recomputed within the tolerance of the stored one leaves its files byte for byte
+    (a stale identity alone is brought up to date); only a difference beyond the tolerance
+    rewrites, and says why. zoo eval likewise."""
+    code, _, _ = cli(capsys, "leaderboard", *board_args(project))
+    table = project / "results" / "cmu" / "all"
+    before = {p: p.read_bytes() for p in table.rglob("*") if p.is_file()}
+
+    code, _, err = cli(capsys, "leaderboard", *board_args(project), "--recompute")
+    assert code == 0 and "repeat_last: recomputed; agrees with the stored row" in err
+    assert "kept as stored" in err
+    assert {p: p.read_bytes() for p in table.rglob("*") if p.is_file()} == before
+
+    record_path = table / "repeat_last" / "protocol.json"
+    record = json.loads(record_path.read_text())
+    current = record["provenance"]["identity"]["code"]["evaluator"]
+    record["provenance"]["identity"]["code"]["evaluator"] = "0" * 16  # as if the code changed
+    record_path.write_text(json.dumps(record))
+    code, _, err = cli(capsys, "leaderboard", *board_args(project))
+    assert code == 0 and "its files kept, its identity updated" in err
+    refreshed = json.loads(record_path.read_text())
+    assert refreshed["provenance"]["identity"]["code"]["evaluator"] == current
+    for name in ("results.csv", "windows.npz", "tables.md"):
+        assert (table / "repeat_last" / name).read_bytes() == before[table / "repeat_last" / name]
+
+    results = table / "repeat_last" / "results.csv"
+    frame = pd.read_csv(results)
+    frame.loc[0, "value"] += 0.1  # far beyond float32 rounding
+    frame.to_csv(results, index=False)
+    code, _, err = cli(capsys, "leaderboard", *board_args(project), "--recompute")
+    assert code == 0 and "rewritten: values differ by up to" in err
+    assert results.read_bytes() == before[results]
+
+    out = project / "mine_eval"
+    args = ["eval", "--model", "repeat_last", "--sampler", "all", "--data-root"]
+    code, _, _ = cli(capsys, *args, project / "cmu", "--out", out)
+    stamps = {p: p.stat().st_mtime_ns for p in out.rglob("*") if p.is_file()}
+    code, text, _ = cli(capsys, *args, project / "cmu", "--out", out)
+    assert code == 0 and "left as stored" in text
+    assert {p: p.stat().st_mtime_ns for p in out.rglob("*") if p.is_file()} == stamps

@@ -106,6 +106,7 @@ def cmd_eval(args) -> int:
     from zoo.evaluate import evaluate, protocol_for
     from zoo.leaderboard import stamp
     from zoo.store import check_replace, result_path, table_folder
+    from zoo.tolerance import agreement, tolerance_text
 
     registry = _registry(args)
     source = _source(args)
@@ -148,12 +149,12 @@ def cmd_eval(args) -> int:
             melv_frames=args.melv_frames,
         )
         identity = loaded.identity(bench, protocol["protocol_id"])
-        check_replace(out, identity, replace=args.replace, protocol=protocol)
-        plans.append((sampler, out, identity))
+        status = check_replace(out, identity, replace=args.replace, protocol=protocol)
+        plans.append((sampler, out, identity, status))
     # Under torchrun every process scores its share of the windows and all get the whole
     # result; the first writes it.
     writer = init_distributed(args.device).rank == 0
-    for sampler, out, identity in plans:
+    for sampler, out, identity, status in plans:
         result = evaluate(
             loaded.model,
             bench,
@@ -172,6 +173,17 @@ def cmd_eval(args) -> int:
         stamp(result, identity, made_by="zoo eval")
         if not writer:
             continue
+        if status == "same":
+            agreed = agreement(result, out)
+            if agreed.same:
+                _print_average(result.frame, bench.horizons_ms)
+                print(
+                    f"{out}: agrees with the stored result of this identity (largest "
+                    f"difference {agreed.share:.2f} of the tolerance, {tolerance_text()}); "
+                    f"left as stored"
+                )
+                continue
+            print(f"{out}: rewritten: the stored result of this identity {agreed.why}")
         result.write(out)
         _print_average(result.frame, bench.horizons_ms)
         print(f"wrote {out}/results.csv, protocol.json, tables.md, windows.npz")
@@ -268,7 +280,7 @@ def cmd_leaderboard(args) -> int:
             drop=frozenset(args.drop or ()),
             check=check,
         )
-        regenerate(
+        run = lambda bench=bench, plan=plan: regenerate(  # noqa: E731
             bench,
             registry=registry,
             data_root=args.data_root,
@@ -278,6 +290,15 @@ def cmd_leaderboard(args) -> int:
             device=args.device,
             plan=plan,
         )
+        if check is None:
+            run()
+            continue
+        print(f"checking {name} ...", file=sys.stderr)
+        try:  # a benchmark that cannot be loaded at all is reported; the others are checked
+            run()
+        except Exception as e:  # noqa: BLE001
+            check.start_table(f"{name} (every table)")
+            check.problem(f"{name}: not checked: {e}")
     if check is None:
         from zoo.leaderboard import write_index
 
@@ -285,6 +306,8 @@ def cmd_leaderboard(args) -> int:
         return 0
     for problem in check.problems:
         print(f"zoo leaderboard --check: {problem}", file=sys.stderr)
+    for line in check.table_lines():
+        print(line)
     print(
         f"{check.summary()} ({', '.join(names)}; {time.perf_counter() - started:.0f} "
         f"s){'' if not check.problems else f'; {len(check.problems)} problem(s) above'}"
@@ -451,6 +474,48 @@ def cmd_train(args) -> int:
     return 0
 
 
+def _data_basis(bench, args) -> int:
+    """``zoo data basis NAME``: the benchmark's shipped spectral basis, checked against the one
+    this machine computes (cluster by cluster); ``--ship`` writes a basis for a mesh that has
+    none shipped yet."""
+    import time
+
+    from zoo.data.spectral import SpectralBasis, compare_bases, shipped_path
+
+    if bench.spectral_k is None:
+        raise UsageError(f"benchmark {bench.name} has no spectral basis (no spectral_k)")
+    topology = bench.load_mesh(args.data_root).topology
+    path = shipped_path(topology, bench.spectral_k)
+    print(f"computing the basis of {topology.name} (k={bench.spectral_k}) ...", file=sys.stderr)
+    started = time.perf_counter()
+    computed = SpectralBasis.compute(topology, bench.spectral_k)
+    took = time.perf_counter() - started
+    if args.ship:
+        if path.is_file():
+            raise UsageError(
+                f"{path} is shipped already (trained weights may depend on its exact vectors); "
+                f"delete it deliberately to ship another"
+            )
+        computed.save(path, float32=True)
+        print(f"wrote {path} ({computed.solver}, {took:.1f} s)")
+        return 0
+    if not path.is_file():
+        raise UsageError(
+            f"no shipped basis for {bench.name} ({path}); zoo data basis {bench.name} --ship "
+            f"writes one"
+        )
+    shipped = SpectralBasis.load(path)
+    report = compare_bases(shipped, computed)
+    print(
+        f"{bench.name}: shipped basis {shipped.hash[:12]} ({path.name}), computed here in "
+        f"{took:.1f} s: eigenvalues within {report['eigenvalues']:.2g}, cluster subspaces "
+        f"within {report['subspaces']:.2g} ({report['clusters']} cluster(s) of repeated "
+        f"eigenvalues): {'the same basis' if report['same'] else 'ANOTHER BASIS'} (tolerance "
+        f"1e-6; rotations inside a cluster do not count)"
+    )
+    return 0 if report["same"] else 1
+
+
 def cmd_data(args) -> int:
     from tabulate import tabulate
 
@@ -500,6 +565,8 @@ def cmd_data(args) -> int:
     splits = (
         [bench.split, bench.train_split] if args.split == "all" else [args.split or bench.split]
     )
+    if args.action == "basis":
+        return _data_basis(bench, args)
     if args.action in ("build", "describe"):
         for split in splits:
             dataset = bench.load(args.data_root, split=split)
@@ -762,12 +829,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_render)
 
     p = sub.add_parser("data", help="build, list, describe and export datasets")
-    p.add_argument("action", choices=["list", "build", "describe", "export"])
+    p.add_argument("action", choices=["list", "build", "describe", "export", "basis"])
     p.add_argument("benchmark", nargs="?", help="benchmark whose dataset to use")
     p.add_argument("--split", help="split (default: the benchmark's test split; 'all': both)")
     p.add_argument("--data-root", help="dataset folder (default: the benchmark's)")
     p.add_argument("--window", type=int, default=0, help="export: window index (default 0)")
     p.add_argument("--sampler", help="export: window sampler (default: the benchmark's)")
+    p.add_argument(
+        "--ship",
+        action="store_true",
+        help="basis: compute and write benchmarks/bases/ for a mesh that has no shipped basis",
+    )
     p.add_argument(
         "--out", help="export: FILE.glb (all frames side by side) or FILE.ply (one file per frame)"
     )

@@ -5,6 +5,7 @@ ones without writing (``CheckReport``)."""
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import sys
@@ -35,6 +36,8 @@ from zoo.tables import (
     metric_unit,
     protocol_differences,
 )
+from zoo.tolerance import KEY_COLUMNS, agreement, tolerance_text
+from zoo.tolerance import allowed as tolerated
 
 
 def write_leaderboard(
@@ -163,6 +166,35 @@ class CheckReport:
     models: set = field(default_factory=set)
     largest: tuple = (0.0, 0.0, 0.0, "")  # (share of its tolerance, relative, absolute, where)
     problems: list = field(default_factory=list)
+    # per table ("<benchmark>/<table>"): rows checked, largest share of the tolerance, problems
+    per_table: dict = field(default_factory=dict)
+    current: str = ""
+
+    def start_table(self, name: str) -> None:
+        self.current = name
+        self.per_table.setdefault(name, {"rows": 0, "share": 0.0, "problems": []})
+
+    def problem(self, text: str) -> None:
+        """A problem of the table being checked (or of the run, outside any table)."""
+        self.problems.append(text)
+        if self.current:
+            self.per_table[self.current]["problems"].append(text)
+
+    def table_lines(self) -> list[str]:
+        """One line per table: rows checked and the largest difference as a share of the
+        tolerance, or its problems (the first named: a refusal and its reason)."""
+        lines = []
+        for name, t in self.per_table.items():
+            verdict = (
+                f"{len(t['problems'])} problem(s), first: {t['problems'][0]}"
+                if t["problems"]
+                else "passed"
+            )
+            lines.append(
+                f"{name}: {t['rows']} rows checked, largest difference {t['share']:.2f} of "
+                f"the tolerance: {verdict}"
+            )
+        return lines
 
     def note(self, gap: np.ndarray, old: np.ndarray, allowed: np.ndarray, where) -> None:
         """Keep the largest difference (measured as a share of its tolerance) and where
@@ -171,6 +203,9 @@ class CheckReport:
             return
         share = gap / allowed
         i = int(np.argmax(share))
+        if self.current:
+            table = self.per_table[self.current]
+            table["share"] = max(table["share"], float(share.flat[i]))
         if share.flat[i] > self.largest[0] or not self.largest[3]:
             relative = gap.flat[i] / max(abs(old.flat[i]), 1e-12)
             self.largest = (
@@ -274,7 +309,7 @@ class Leaderboard:
                 f"read: cost cells stay empty; zoo costs --benchmark {bench.name} replaces it",
                 file=sys.stderr,
             )
-        self.counts = {"reused": 0, "recomputed": 0, "kept": 0, "dropped": 0}
+        self.counts = {"reused": 0, "recomputed": 0, "agreed": 0, "kept": 0, "dropped": 0}
         self.loaded: dict = {}
         unknown = sorted(set(plan.models) - set(registry.list_models()))
         if unknown:
@@ -316,7 +351,8 @@ class Leaderboard:
             produced = {p.name for p in written}
             for table in sorted((self.root / bench.name).glob("*/results.csv")):
                 if table.parent.name not in produced:
-                    check.problems.append(
+                    check.current = ""
+                    check.problem(
                         f"{table}: a committed table that the leaderboard no longer produces"
                     )
             return written
@@ -334,6 +370,7 @@ class Leaderboard:
         c = self.counts
         print(
             f"{bench.name}: {c['reused']} row(s) reused, {c['recomputed']} recomputed, "
+            f"{c['agreed']} recomputed in agreement with the stored row (files kept), "
             f"{c['kept']} kept as stored (not planned by this registry), {c['dropped']} "
             f"dropped",
             file=sys.stderr,
@@ -393,6 +430,20 @@ class Leaderboard:
                 f"{self.bench.name}: --drop {', '.join(missing)}: no such row in its tables",
                 file=sys.stderr,
             )
+
+    def _evaluate(self, loaded, row: Row, sampler: str, truth: str | None, task: str):
+        return evaluate(
+            loaded.model,
+            self.bench,
+            model_name=row.label,
+            sampler=sampler,
+            dataset=self.dataset,
+            device=self.device,
+            provenance=loaded.provenance,
+            ground_truth=truth,
+            view=loaded.view,
+            task=task,
+        )
 
     def _load(self, row: Row):
         """A row's model, built once and used by every table."""
@@ -480,8 +531,22 @@ class Leaderboard:
         ):
             return None  # a table of baselines alone says nothing about this task
         protocol = protocol_for(bench, self.dataset, sampler=sampler, task=task, ground_truth=truth)
+        if check is not None:
+            check.start_table(where)
         fresh, reused, efficiency, reasons = [], [], {}, []
-        for row in rows:
+        refreshed: dict[str, dict] = {}  # rows that agree, whose stored identity is updated
+        for number, row in enumerate(rows, 1):
+            if check is not None:
+                print(f"checking {where}: {row.label} ({number}/{len(rows)})", file=sys.stderr)
+                try:  # a refusal (weights for another basis, a missing file) ends one row only
+                    loaded = self._load(row)
+                    result = self._evaluate(loaded, row, sampler, truth, task)
+                except Exception as e:  # noqa: BLE001 - every failure is reported, none stops
+                    check.problem(f"{where}: {row.label}: not recomputed: {e}")
+                    continue
+                stamp(result, loaded.identity(bench, protocol["protocol_id"]), made_by=MADE_BY)
+                fresh.append(result)
+                continue
             loaded = self._load(row)
             identity = loaded.identity(bench, protocol["protocol_id"])
             old = stored.get(row.label)
@@ -513,23 +578,31 @@ class Leaderboard:
                     continue
             if why is not None:
                 reasons.append(f"{row.label}: {why}")
-            result = evaluate(
-                loaded.model,
-                bench,
-                model_name=row.label,
-                sampler=sampler,
-                dataset=self.dataset,
-                device=self.device,
-                provenance=loaded.provenance,
-                ground_truth=truth,
-                view=loaded.view,
-                task=task,
-            )
+            result = self._evaluate(loaded, row, sampler, truth, task)
             stamp(result, identity, made_by=MADE_BY)
+            if old is not None:
+                # A recomputation within the tolerance of the stored row leaves its files as
+                # they are (only a stale identity is brought up to date): a rebuild on another
+                # CPU rewrites nothing that merely rounded differently.
+                agreed = agreement(result, old)
+                if agreed.same:
+                    stale = bool(identity_differences(stored_identity(old), identity))
+                    if stale:
+                        refreshed[row.label] = identity
+                    reused.append(old)
+                    self.counts["agreed"] += 1
+                    self._cost(efficiency, row.label, loaded, task)
+                    print(
+                        f"{where}: {row.label}: recomputed; agrees with the stored row "
+                        f"(largest difference {agreed.share:.2f} of the tolerance): "
+                        + ("its files kept, its identity updated" if stale else "kept as stored"),
+                        file=sys.stderr,
+                    )
+                    continue
+                reasons[-1:] = [f"{reasons[-1]}; rewritten: {agreed.why}"] if reasons else []
             fresh.append(result)
-            if check is None:
-                self.counts["recomputed"] += 1
-                self._cost(efficiency, row.label, loaded, task)
+            self.counts["recomputed"] += 1
+            self._cost(efficiency, row.label, loaded, task)
         planned = {r.label for r in rows}
         foreign = [
             p for label, p in stored.items() if label not in planned and label not in plan.drop
@@ -537,10 +610,10 @@ class Leaderboard:
         dropped = [p for label, p in stored.items() if label in plan.drop]
         if check is not None:
             for p in foreign:
-                check.problems.append(f"{p}: cannot be recomputed ({_why_not_planned(p, self)})")
+                check.problem(f"{p}: cannot be recomputed ({_why_not_planned(p, self)})")
             if fresh:
                 _check_table(fresh, path, check, unplanned={p.name for p in foreign})
-            return True if fresh or foreign else None
+            return True if fresh or foreign or rows else None
         kept = []
         for p in [*reused, *foreign]:
             result = EvalResult.read(p)
@@ -567,11 +640,11 @@ class Leaderboard:
         for reason in reasons:
             print(f"{where}: recomputing {reason}", file=sys.stderr)
         try:
-            return self._write(path, fresh, reused, dropped, results, efficiency)
+            return self._write(path, fresh, reused, dropped, results, efficiency, refreshed)
         except _Unchanged:
             return False
 
-    def _write(self, path, fresh, reused, dropped, results, efficiency) -> bool:
+    def _write(self, path, fresh, reused, dropped, results, efficiency, refreshed=None) -> bool:
         bench = self.bench
         produced = {str(r.frame["model"].iloc[0]) for r in fresh} | {p.name for p in dropped}
         with replace_folder(path, checked=True) as tmp:
@@ -586,8 +659,13 @@ class Leaderboard:
                     os.link(entry, tmp / entry.name, follow_symlinks=False)
             for result in fresh:
                 result.write(tmp / str(result.frame["model"].iloc[0]), replace=False)
+            for label, identity in (refreshed or {}).items():
+                # a new file in place of the hard link: the stored folder stays as it was
+                record = json.loads((tmp / label / "protocol.json").read_text())
+                stamp_record(record, identity)
+                atomic_write_json(tmp / label / "protocol.json", record)
             write_leaderboard(results, tmp, bench.horizons_ms, efficiency)
-            if not fresh and not dropped and _same_files(path, tmp):
+            if not fresh and not dropped and not refreshed and _same_files(path, tmp):
                 raise _Unchanged
         gone = f", dropped {', '.join(p.name for p in dropped)}" if dropped else ""
         print(
@@ -618,9 +696,14 @@ def stamp(result, identity: dict, made_by: str) -> None:
     """Record ``identity`` in a result's provenance (written to its ``protocol.json``), and
     what made it (``zoo leaderboard``, ``zoo eval``, ``zoo.evaluate``): a rebuild replaces only
     rows it made."""
-    result.protocol["provenance"]["identity"] = identity
-    result.protocol["provenance"]["identity_id"] = identity_id(identity)
+    stamp_record(result.protocol, identity)
     result.protocol["provenance"]["made_by"] = made_by
+
+
+def stamp_record(protocol: dict, identity: dict) -> None:
+    """``identity`` into a protocol record's provenance (its ``made_by`` unchanged)."""
+    protocol["provenance"]["identity"] = identity
+    protocol["provenance"]["identity_id"] = identity_id(identity)
 
 
 def _same_files(old: Path, new: Path) -> bool:
@@ -689,49 +772,6 @@ def _no_further_than_best(checkpoint: Path) -> bool:
     return training.get("best", {}).get("epoch") == training.get("epochs_run")
 
 
-KEY_COLUMNS = ["model", "action", "metric", "averaging", "joints", "horizon_ms"]
-# How far a recomputed value may sit from the committed one, from the arithmetic: every error
-# is computed in float32, whose rounding follows the CPU's kernels (summation order, fused
-# multiply-adds, vector width), and generated meshes' own bytes differ between CPUs in their last
-# bits, so another machine reproduces a value to some units in the last place, not bit for bit.
-# RELATIVE_TOLERANCE is 2**-16, 128 float32 units in the last place of the value (float32
-# carries 24 bits). The absolute floor is set by the inputs, not by the error: an error is a
-# small difference of coordinates around a metre (MELV: of edge lengths), so its rounding is
-# some units in the last place of a coordinate at one metre (6.1e-5 mm each):
-# ABSOLUTE_TOLERANCE['mm'] = 2**-9 mm is 32 of them, and 2**-18 is the same for RMSE, normalised by
-# a bounding-box diagonal near 2 m. Measured between an Intel Xeon (AMX) and an AMD EPYC (AVX2),
-# CMU-on-Anny's meshes built on each: at most 8.5e-4 mm per window (SpecTrHuMS's autoencoder
-# through the regressed joints) and 1.8e-6 in RMSE. A standard deviation over windows moves as
-# much as the windows' errors do, so it is held to the tolerance of its mean. A real change is
-# far above all of these: a value moved by 0.01 mm is named (below 500 mm).
-RELATIVE_TOLERANCE = 2.0**-16
-ABSOLUTE_TOLERANCE = {"mm": 2.0**-9, "rmse": 2.0**-18}
-
-
-def tolerance_text() -> str:
-    return (
-        f"|difference| <= {RELATIVE_TOLERANCE:.2g} x |value| + {ABSOLUTE_TOLERANCE['mm']:.2g} "
-        f"mm ({ABSOLUTE_TOLERANCE['rmse']:.2g} in RMSE; a std: of its mean; float32 rounding "
-        f"across CPUs)"
-    )
-
-
-def _allowed(metric, scale: np.ndarray) -> np.ndarray:
-    """The largest difference tolerated for values of ``metric`` (a name or an array of names)
-    of magnitude ``scale`` (the value itself, or a std's mean)."""
-
-    def floor(m: str) -> float:
-        return (
-            ABSOLUTE_TOLERANCE["mm"]
-            if metric_unit(m)[0] == "mm"
-            else ABSOLUTE_TOLERANCE.get(m, 0.0)
-        )
-
-    return RELATIVE_TOLERANCE * np.abs(scale) + np.vectorize(floor, otypes=[float])(
-        np.asarray(metric)
-    )
-
-
 def _check_table(
     results: list, folder: Path, check: CheckReport, unplanned: set = frozenset()
 ) -> None:
@@ -740,11 +780,15 @@ def _check_table(
     from zoo.evaluate import WINDOWS_FILE, WindowErrors
 
     check.tables += 1
+    if check.current:
+        check.per_table[check.current]["rows"] += len(
+            pd.concat([r.frame for r in results], ignore_index=True)
+        )
     fresh = pd.concat([r.frame for r in results], ignore_index=True)
     check.rows += len(fresh)
     check.models |= set(fresh["model"])
     if not (folder / "results.csv").is_file():
-        check.problems.append(f"{folder}/results.csv: missing; the leaderboard makes this table")
+        check.problem(f"{folder}/results.csv: missing; the leaderboard makes this table")
         return
     committed = pd.read_csv(folder / "results.csv")
     committed = committed[~committed["model"].isin(unplanned)]  # named once, as folders
@@ -753,14 +797,14 @@ def _check_table(
     )
     for row in both[both["side"] != "both"].itertuples():
         where = "committed only" if row.side == "right_only" else "recomputed only"
-        check.problems.append(
+        check.problem(
             f"{folder}/results.csv: {where}: "
             + ", ".join(f"{k}={getattr(row, k)}" for k in KEY_COLUMNS)
         )
     matched = both[both["side"] == "both"]
     for column in ("value", "std"):  # the mean and its standard deviation over windows
         if f"{column}_committed" not in matched:
-            check.problems.append(
+            check.problem(
                 f"{folder}/results.csv: no column {column!r} (written by an "
                 f"older zoo); regenerate the table"
             )
@@ -770,7 +814,7 @@ def _check_table(
         difference = np.abs(new - old)
         relative = difference / np.maximum(np.abs(old), 1e-12)
         nan = np.isnan(new) | np.isnan(old)  # a NaN (one window's spread) matches only a NaN
-        allowed = _allowed(matched["metric"].to_numpy(), scale)
+        allowed = tolerated(matched["metric"].to_numpy(), scale)
         differs = np.where(nan, np.isnan(new) != np.isnan(old), difference > allowed)
         keep = ~nan
         rows = matched[keep]
@@ -785,7 +829,7 @@ def _check_table(
             ),
         )
         for row, rel in zip(matched[differs].itertuples(), relative[differs]):
-            check.problems.append(
+            check.problem(
                 f"{folder}/results.csv: "
                 + ", ".join(f"{k}={getattr(row, k)}" for k in KEY_COLUMNS)
                 + f": {column} committed "
@@ -797,7 +841,7 @@ def _check_table(
         .drop_duplicates("model")
         .itertuples()
     ):
-        check.problems.append(
+        check.problem(
             f"{folder}/results.csv: {row.model}: protocol "
             f"{row.protocol_id_committed} committed, {row.protocol_id} now"
         )
@@ -807,7 +851,7 @@ def _check_table(
         label = str(r.frame["model"].iloc[0])
         path = folder / label / WINDOWS_FILE
         if not path.is_file():
-            check.problems.append(f"{path}: missing (per-window errors of {label})")
+            check.problem(f"{path}: missing (per-window errors of {label})")
             continue
         stored = WindowErrors.read(path)
         same_windows = np.array_equal(stored.start, r.windows.start) and np.array_equal(
@@ -816,12 +860,12 @@ def _check_table(
         for key, values in r.windows.errors.items():
             old = stored.errors.get(key)
             if old is None or not same_windows:
-                check.problems.append(f"{path}: {'/'.join(key)}: missing or for other windows")
+                check.problem(f"{path}: {'/'.join(key)}: missing or for other windows")
                 continue
             old = old.astype(np.float64)
             gap = np.abs(old - values)
             relative = gap / np.maximum(np.abs(old), 1e-12)
-            allowed = _allowed(key[1], old)
+            allowed = tolerated(key[1], old)
             check.note(
                 gap,
                 old,
@@ -829,7 +873,7 @@ def _check_table(
                 f"{folder.parent.name}/{folder.name}/{label}/{WINDOWS_FILE} {'/'.join(key)}",
             )
             if (gap > allowed).any():
-                check.problems.append(
+                check.problem(
                     f"{path}: {'/'.join(key)}: per-window errors differ "
                     f"beyond tolerance (relative up to {relative.max():.2g}, "
                     f"absolute up to {gap.max():.2g}; tolerance "
