@@ -593,11 +593,13 @@ class Leaderboard:
                     self.counts["agreed"] += 1
                     self._cost(efficiency, row.label, loaded, task)
                     print(
-                        f"{where}: {row.label}: recomputed; agrees with the stored row "
+                        f"{where}: {row.label}: recomputed ({why}); agrees with the stored row "
                         f"(largest difference {agreed.share:.2f} of the tolerance): "
                         + ("its files kept, its identity updated" if stale else "kept as stored"),
                         file=sys.stderr,
                     )
+                    if reasons and why is not None:
+                        reasons.pop()  # said above; nothing of this row is rewritten
                     continue
                 reasons[-1:] = [f"{reasons[-1]}; rewritten: {agreed.why}"] if reasons else []
             fresh.append(result)
