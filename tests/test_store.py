@@ -442,6 +442,11 @@ def test_a_rebuild_that_agrees_changes_no_file(project, capsys):
     assert refreshed["provenance"]["identity"]["code"]["evaluator"] == current
     for name in ("results.csv", "windows.npz", "tables.md"):
         assert (table / "repeat_last" / name).read_bytes() == before[table / "repeat_last" / name]
+    # the table's own record carries the updated identity: the next rebuild writes nothing
+    assert (table / "protocol.json").read_bytes() == before[table / "protocol.json"]
+    stamps = {p: p.stat().st_mtime_ns for p in table.rglob("*") if p.is_file()}
+    code, _, err = cli(capsys, "leaderboard", *board_args(project))
+    assert {p: p.stat().st_mtime_ns for p in table.rglob("*") if p.is_file()} == stamps
 
     results = table / "repeat_last" / "results.csv"
     frame = pd.read_csv(results)

@@ -619,6 +619,8 @@ class Leaderboard:
         kept = []
         for p in [*reused, *foreign]:
             result = EvalResult.read(p)
+            if p.name in refreshed:  # the table records the identity its row now has
+                stamp_record(result.protocol, refreshed[p.name])
             differences = protocol_differences(protocol, result.protocol)
             if differences:
                 print(
