@@ -230,6 +230,8 @@ def test_dropout_keeps_with_the_quantised_probability_and_rescales(p):
     assert torch.equal(layer.eval()(x), x)
     with pytest.raises(ValueError, match="p must be a probability"):
         Dropout(1.0)
+    with pytest.raises(ValueError, match="rounds to 1 at the mask's resolution"):
+        Dropout(0.999995)
 
 
 # ---- recipes ------------------------------------------------------------------------------------

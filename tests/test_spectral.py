@@ -322,6 +322,13 @@ def test_compare_bases_tells_rotations_inside_clusters_from_other_numbers():
     other = SpectralBasis(topo.hash, basis.eigenvalues, mixed, topo.name)
     report = compare_bases(basis, other)
     assert not report["same"] and report["subspaces"] > 0.1
+    tilted = basis.vectors.copy()  # 3e-3 rad between two clusters' vectors: another basis
+    a, b = cluster.start, cluster.stop
+    tilted[:, a], tilted[:, b] = (
+        np.cos(3e-3) * tilted[:, a] + np.sin(3e-3) * tilted[:, b],
+        -np.sin(3e-3) * tilted[:, a] + np.cos(3e-3) * tilted[:, b],
+    )
+    assert not compare_bases(basis, SpectralBasis(topo.hash, basis.eigenvalues, tilted))["same"]
 
 
 def test_a_shipped_basis_is_loaded_not_computed(tmp_path, monkeypatch):

@@ -463,3 +463,7 @@ def test_a_rebuild_that_agrees_changes_no_file(project, capsys):
     code, text, _ = cli(capsys, *args, project / "cmu", "--out", out)
     assert code == 0 and "left as stored" in text
     assert {p: p.stat().st_mtime_ns for p in out.rglob("*") if p.is_file()} == stamps
+    (out / "results.csv").write_text("")  # a damaged stored result is rewritten, not kept
+    code, text, _ = cli(capsys, *args, project / "cmu", "--out", out)
+    assert code == 0 and "rewritten: the stored result of this identity stored result " in text
+    assert (out / "results.csv").read_text().startswith("model,")

@@ -297,7 +297,7 @@ def cmd_leaderboard(args) -> int:
         try:  # a benchmark that cannot be loaded at all is reported; the others are checked
             run()
         except Exception as e:  # noqa: BLE001
-            check.start_table(f"{name} (every table)")
+            check.start_table(f"{name} (not loaded, or a table not finished)")
             check.problem(f"{name}: not checked: {e}")
     if check is None:
         from zoo.leaderboard import write_index
@@ -486,24 +486,24 @@ def _data_basis(bench, args) -> int:
         raise UsageError(f"benchmark {bench.name} has no spectral basis (no spectral_k)")
     topology = bench.load_mesh(args.data_root).topology
     path = shipped_path(topology, bench.spectral_k)
+    if args.ship and path.is_file():
+        raise UsageError(
+            f"{path} is shipped already (trained weights may depend on its exact vectors); "
+            f"delete it deliberately to ship another"
+        )
+    if not args.ship and not path.is_file():
+        raise UsageError(
+            f"no shipped basis for {bench.name} ({path}); zoo data basis {bench.name} --ship "
+            f"writes one"
+        )
     print(f"computing the basis of {topology.name} (k={bench.spectral_k}) ...", file=sys.stderr)
     started = time.perf_counter()
     computed = SpectralBasis.compute(topology, bench.spectral_k)
     took = time.perf_counter() - started
     if args.ship:
-        if path.is_file():
-            raise UsageError(
-                f"{path} is shipped already (trained weights may depend on its exact vectors); "
-                f"delete it deliberately to ship another"
-            )
         computed.save(path, float32=True)
         print(f"wrote {path} ({computed.solver}, {took:.1f} s)")
         return 0
-    if not path.is_file():
-        raise UsageError(
-            f"no shipped basis for {bench.name} ({path}); zoo data basis {bench.name} --ship "
-            f"writes one"
-        )
     shipped = SpectralBasis.load(path)
     report = compare_bases(shipped, computed)
     print(

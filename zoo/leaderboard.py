@@ -337,7 +337,15 @@ class Leaderboard:
                 for truth in truths:
                     folder = table_folder(sampler, task, truth)
                     started = time.perf_counter()
-                    outcome = self._table(sampler, task, truth, folder)
+                    if self.plan.check is not None:
+                        try:  # a check goes on to the next table whatever fails in this one
+                            outcome = self._table(sampler, task, truth, folder)
+                        except Exception as e:  # noqa: BLE001
+                            self.plan.check.start_table(f"{bench.name}/{folder}")
+                            self.plan.check.problem(f"{bench.name}/{folder}: not checked: {e}")
+                            outcome = True
+                    else:
+                        outcome = self._table(sampler, task, truth, folder)
                     if outcome:
                         print(
                             f"{bench.name}/{folder}: {time.perf_counter() - started:.0f} s",
@@ -535,6 +543,7 @@ class Leaderboard:
             check.start_table(where)
         fresh, reused, efficiency, reasons = [], [], {}, []
         refreshed: dict[str, dict] = {}  # rows that agree, whose stored identity is updated
+        failed = set()  # rows of a check that could not be recomputed
         for number, row in enumerate(rows, 1):
             if check is not None:
                 print(f"checking {where}: {row.label} ({number}/{len(rows)})", file=sys.stderr)
@@ -543,6 +552,7 @@ class Leaderboard:
                     result = self._evaluate(loaded, row, sampler, truth, task)
                 except Exception as e:  # noqa: BLE001 - every failure is reported, none stops
                     check.problem(f"{where}: {row.label}: not recomputed: {e}")
+                    failed.add(row.label)
                     continue
                 stamp(result, loaded.identity(bench, protocol["protocol_id"]), made_by=MADE_BY)
                 fresh.append(result)
@@ -614,7 +624,8 @@ class Leaderboard:
             for p in foreign:
                 check.problem(f"{p}: cannot be recomputed ({_why_not_planned(p, self)})")
             if fresh:
-                _check_table(fresh, path, check, unplanned={p.name for p in foreign})
+                # a row not recomputed is named once, above, not once per committed value
+                _check_table(fresh, path, check, unplanned={p.name for p in foreign} | failed)
             return True if fresh or foreign or rows else None
         kept = []
         for p in [*reused, *foreign]:
@@ -772,7 +783,10 @@ def _why_not_planned(folder: Path, board: Leaderboard) -> str:
 def _no_further_than_best(checkpoint: Path) -> bool:
     from zoo.checkpoints import read_checkpoint
 
-    training = read_checkpoint(checkpoint).get("training", {})
+    try:
+        training = read_checkpoint(checkpoint).get("training", {})
+    except Exception:  # noqa: BLE001 - unreadable: shown as its own row, which then says why
+        return False
     return training.get("best", {}).get("epoch") == training.get("epochs_run")
 
 

@@ -74,8 +74,13 @@ def agreement(result, folder: str | Path) -> Agreement:
 
     try:
         stored = EvalResult.read(folder)
-    except EvaluationError as e:
-        return Agreement(False, float("inf"), f"stored result unreadable ({e})")
+        return _compare(result, stored)
+    except (EvaluationError, KeyError, ValueError, OSError) as e:
+        # an unreadable, older or malformed stored result is rewritten, never kept
+        return Agreement(False, float("inf"), f"stored result unreadable ({type(e).__name__}: {e})")
+
+
+def _compare(result, stored) -> Agreement:
     if stored.protocol.get("protocol_id") != result.protocol.get("protocol_id"):
         return Agreement(False, float("inf"), "another protocol")
     new = result.frame.sort_values(KEY_COLUMNS).reset_index(drop=True)

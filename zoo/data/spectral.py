@@ -29,7 +29,7 @@ Two rules make a basis the same on every machine:
   would rotate the full Anny body's near-degenerate eigenspaces away from them and withdraw
   every full-resolution row), and because the evaluation itself multiplies by the vectors in
   float32: shipped, their bytes are the same everywhere. The computing path is checked against
-  them by :func:`compare_bases` (``zoo data basis NAME --verify``): eigenvalues, and the
+  them by :func:`compare_bases` (``zoo data basis NAME``): eigenvalues, and the
   subspace of every eigenvalue cluster, equal within ``BASIS_TOLERANCE``.
 - **A computed basis is canonical** inside clusters of (nearly) repeated eigenvalues:
   consecutive eigenvalues closer than ``CLUSTER_GAP`` (relative to ``max(1, lambda_k)``) form
@@ -456,10 +456,12 @@ def canonical_clusters(values: np.ndarray, vectors: np.ndarray) -> np.ndarray:
 def compare_bases(reference: SpectralBasis, other: SpectralBasis) -> dict:
     """How far ``other`` is from ``reference`` (one topology and k): the largest eigenvalue
     difference relative to ``max(1, lambda_k)``, and per eigenvalue cluster of ``reference`` the
-    largest departure of their subspaces (1 - the smallest cosine of the principal angles
-    between them). Rotations inside a cluster do not count (any frame of a cluster is a valid
-    basis of it); anything else does. ``same`` is whether both stay within
-    ``BASIS_TOLERANCE``."""
+    largest departure of their subspaces: 1 - the smallest cosine of the principal angles
+    between them. Rotations inside a cluster do not count (any frame of a cluster is a valid
+    basis of it), and neither does a single vector's sign (the check is of subspaces: a shipped
+    basis is what every machine uses; the sign a trained model needs is checked by its probe
+    projections). 1 - cos grows with the square of an angle: at ``BASIS_TOLERANCE`` angles up
+    to about 1.4e-3 rad pass. ``same`` is whether both stay within ``BASIS_TOLERANCE``."""
     if reference.topology_hash != other.topology_hash or reference.k != other.k:
         raise SpectralError(
             f"compare_bases: {reference} and {other} are not bases of one topology and k"

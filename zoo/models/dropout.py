@@ -28,6 +28,11 @@ class Dropout(nn.Module):
             raise ValueError(f"Dropout: p must be a probability in [0, 1), got {p!r}")
         self.p = float(p)
         self.threshold = round(self.p * LEVELS)  # a 16-bit draw below it drops the element
+        if self.threshold >= LEVELS:
+            raise ValueError(
+                f"Dropout: p={p!r} rounds to 1 at the mask's resolution of 1/{LEVELS}: every "
+                f"element would be dropped"
+            )
         self.scale = LEVELS / (LEVELS - self.threshold)
 
     def extra_repr(self) -> str:
