@@ -21,6 +21,8 @@ def test_unknown_model_lists_valid_names():
         RegistryError, match=r"unknown model 'nope'; registered models: .*repeat_last"
     ):
         zoo.create_model("nope", benchmark="cmu")
+    with pytest.raises(RegistryError, match=r"unknown model 'spgns'; did you mean spgsn\b"):
+        zoo.create_model("spgns", benchmark="cmu")
 
 
 def test_unknown_hparam_lists_valid_ones():

@@ -164,8 +164,12 @@ class Registry:
 
     def get(self, name: str) -> ModelEntry:
         if name not in self.entries:
+            import difflib
+
+            close = difflib.get_close_matches(str(name), self.list_models(), n=3, cutoff=0.6)
+            hint = f"did you mean {' or '.join(close)}? " if close else ""
             raise RegistryError(
-                f"unknown model {name!r}; registered models: {', '.join(self.list_models())}"
+                f"unknown model {name!r}; {hint}registered models: {', '.join(self.list_models())}"
             )
         return self.entries[name]
 
