@@ -455,7 +455,7 @@ def cmd_train(args) -> int:
 
         check_writable(args.out, what=f"--out {args.out}")
     registry = _registry(args)
-    train(
+    best = train(
         args.model,
         args.benchmark,
         registry=registry,
@@ -470,6 +470,11 @@ def cmd_train(args) -> int:
         max_batches=args.max_batches,
         progress=not args.no_progress,
         init_from=args.init_from,
+    )
+    print(
+        f"wrote {best} (best validation epoch) and {best.parent / 'last.pt'} (last epoch): "
+        f"zoo eval --checkpoint {best} scores it, zoo leaderboard picks up "
+        f"checkpoints/<benchmark>/<model>/, zoo weights export {best} ships it"
     )
     return 0
 

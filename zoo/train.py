@@ -571,6 +571,17 @@ def train(
                 weights[start : start + batch].to(device),
             )
 
+    if dist_info.rank == 0:
+        schedule = recipe["schedule"] or {"type": "constant"}
+        print(
+            f"training {model_name} on {bench.name}: {len(train_index)} training windows "
+            f"({recipe['train_sampler']}), {len(val_index)} validation windows; "
+            f"{steps_per_epoch} steps of batch {batch_size} an epoch, epochs "
+            f"{first_epoch + 1}..{recipe['epochs']}; adam lr {recipe['lr']:g}, schedule "
+            f"{schedule}, weight decay {recipe['weight_decay']:g}, gradient clip "
+            f"{recipe['grad_clip']}, {recipe['precision']}; seed {seed}; checkpoints in {out_dir}",
+            flush=True,
+        )
     for epoch in range(first_epoch, recipe["epochs"]):
         if hasattr(model, "start_epoch"):  # e.g. warm-up phases, statistics over the data
             if train_src is train_pos:
