@@ -10,13 +10,13 @@ from zoo.data.mesh import MeshTopology
 from zoo.data.spectral import (
     BASIS_TOLERANCE,
     METHOD_V1,
+    BasisReference,
     SpectralBasis,
     SpectralError,
     basis_hash,
     cache_path,
     canonical_clusters,
     clusters,
-    compare_bases,
     probe_projections,
 )
 
@@ -296,7 +296,7 @@ def test_repeated_eigenvalues_give_one_basis_whatever_the_solver():
     for other in bases[1:]:
         assert np.abs(other.vectors - bases[0].vectors).max() <= BASIS_TOLERANCE
         assert np.abs(other.eigenvalues - bases[0].eigenvalues).max() <= BASIS_TOLERANCE
-        assert compare_bases(bases[0], other)["same"]
+        assert BasisReference.of(bases[0]).misfit(other)["same"]
     # The frame is the cluster's, not the solver's: any rotation inside a cluster maps back.
     cluster = max(clusters(bases[0].eigenvalues), key=lambda c: c.stop - c.start)
     size = cluster.stop - cluster.start
@@ -309,44 +309,53 @@ def test_repeated_eigenvalues_give_one_basis_whatever_the_solver():
         SpectralBasis.compute(topo, cluster.start + 1)
 
 
-def test_compare_bases_tells_rotations_inside_clusters_from_other_numbers():
+def test_a_reference_aligns_rotations_and_refuses_other_subspaces():
+    """A basis in another frame of the same eigenspaces (rotated inside a cluster, vectors of
+    another sign) is rotated back into the reference's frame; vectors of other eigenspaces, or
+    tilted between groups, are refused."""
     topo = torus(16, 12)
     basis = SpectralBasis.compute(topo, 21)
+    reference = BasisReference.of(basis)
     cluster = next(c for c in clusters(basis.eigenvalues) if c.stop - c.start > 1)
     turned = basis.vectors.copy()
     turned[:, cluster] = turned[:, cluster][:, ::-1]  # another frame of the same subspace
-    same = SpectralBasis(topo.hash, basis.eigenvalues, turned, topo.name)
-    assert compare_bases(basis, same)["same"]
+    turned[:, 0] *= -1  # another sign
+    aligned = reference.align(SpectralBasis(topo.hash, basis.eigenvalues, turned, topo.name))
+    np.testing.assert_allclose(aligned.vectors, basis.vectors, atol=1e-12)
+    assert aligned.hash == basis.hash
     mixed = basis.vectors.copy()
     mixed[:, [cluster.start, cluster.stop]] = mixed[:, [cluster.stop, cluster.start]]
-    other = SpectralBasis(topo.hash, basis.eigenvalues, mixed, topo.name)
-    report = compare_bases(basis, other)
-    assert not report["same"] and report["subspaces"] > 0.1
-    tilted = basis.vectors.copy()  # 3e-3 rad between two clusters' vectors: another basis
+    with pytest.raises(SpectralError, match="computed here is not the shipped one"):
+        reference.align(SpectralBasis(topo.hash, basis.eigenvalues, mixed, topo.name))
+    tilted = basis.vectors.copy()  # 3e-3 rad between two groups' vectors: another basis
     a, b = cluster.start, cluster.stop
     tilted[:, a], tilted[:, b] = (
         np.cos(3e-3) * tilted[:, a] + np.sin(3e-3) * tilted[:, b],
         -np.sin(3e-3) * tilted[:, a] + np.cos(3e-3) * tilted[:, b],
     )
-    assert not compare_bases(basis, SpectralBasis(topo.hash, basis.eigenvalues, tilted))["same"]
+    assert not reference.misfit(SpectralBasis(topo.hash, basis.eigenvalues, tilted))["same"]
 
 
-def test_a_shipped_basis_is_loaded_not_computed(tmp_path, monkeypatch):
+def test_a_benchmark_basis_is_computed_in_its_shipped_frame(tmp_path, monkeypatch):
+    """With a reference shipped for the mesh, the basis computed (and cached) here is the
+    reference's, whatever frame the solver returned."""
     from zoo.data import spectral
 
-    topo = grid(7, 6)
-    computed = SpectralBasis.compute(topo, 10)
+    topo = torus(16, 12)
+    trained = SpectralBasis.compute(topo, 21)
+    rng = np.random.default_rng(2)
+    frame = trained.vectors.copy()
+    for group in clusters(trained.eigenvalues, spectral.ALIGN_GAP):
+        q, _ = np.linalg.qr(rng.standard_normal((group.stop - group.start,) * 2))
+        frame[:, group] = frame[:, group] @ q  # the frame "another machine" trained in
+    shipped = SpectralBasis(topo.hash, trained.eigenvalues, frame, topo.name, method=METHOD_V1)
     monkeypatch.setattr(spectral, "SHIPPED_DIR", tmp_path / "shipped")
-    computed.save(spectral.shipped_path(topo, 10), float32=True)
-
-    def refuse(*args, **kwargs):
-        raise AssertionError("a shipped basis was recomputed")
-
-    monkeypatch.setattr(SpectralBasis, "compute", refuse)
-    loaded = SpectralBasis.load_or_compute(topo, 10, tmp_path / "cache")
-    assert loaded.hash == computed.hash
-    assert np.array_equal(loaded.vectors, computed.vectors.astype(np.float32).astype(np.float64))
-    assert not (tmp_path / "cache").exists()  # nothing cached beside it
+    BasisReference.of(shipped).save(spectral.reference_path(topo, 21))
+    loaded = SpectralBasis.load_or_compute(topo, 21, tmp_path / "cache")
+    assert loaded.hash == shipped.hash != trained.hash
+    np.testing.assert_allclose(loaded.vectors, frame, atol=1e-10)
+    again = SpectralBasis.load_or_compute(topo, 21, tmp_path / "cache")  # from the cache
+    assert np.array_equal(again.vectors, loaded.vectors)
 
 
 def test_zoo_data_basis_checks_the_shipped_basis_against_this_machine(capsys):
@@ -355,6 +364,6 @@ def test_zoo_data_basis_checks_the_shipped_basis_against_this_machine(capsys):
 
     assert main(["data", "basis", "cloth"]) == 0
     out = capsys.readouterr().out
-    assert "cloth: shipped basis 40f7523315d7" in out and ": the same basis" in out
+    assert "cloth: basis 40f7523315d7 computed here" in out and ": the same basis" in out
     assert main(["data", "basis", "cloth", "--ship"]) == 2  # never overwritten
     assert "is shipped already" in capsys.readouterr().err

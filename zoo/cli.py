@@ -480,43 +480,42 @@ def cmd_train(args) -> int:
 
 
 def _data_basis(bench, args) -> int:
-    """``zoo data basis NAME``: the benchmark's shipped spectral basis, checked against the one
-    this machine computes (cluster by cluster); ``--ship`` writes a basis for a mesh that has
-    none shipped yet."""
+    """``zoo data basis NAME``: the basis this machine computes for the benchmark's mesh,
+    aligned to the shipped reference and checked against it; ``--ship`` writes the reference
+    for a mesh that has none yet."""
     import time
 
-    from zoo.data.spectral import SpectralBasis, compare_bases, shipped_path
+    from zoo.data.spectral import BasisReference, SpectralBasis, reference_path
 
     if bench.spectral_k is None:
         raise UsageError(f"benchmark {bench.name} has no spectral basis (no spectral_k)")
     topology = bench.load_mesh(args.data_root).topology
-    path = shipped_path(topology, bench.spectral_k)
+    path = reference_path(topology, bench.spectral_k)
     if args.ship and path.is_file():
         raise UsageError(
-            f"{path} is shipped already (trained weights may depend on its exact vectors); "
-            f"delete it deliberately to ship another"
+            f"{path} is shipped already (trained weights depend on its frame); delete it "
+            f"deliberately to ship another"
         )
     if not args.ship and not path.is_file():
         raise UsageError(
-            f"no shipped basis for {bench.name} ({path}); zoo data basis {bench.name} --ship "
-            f"writes one"
+            f"no shipped basis reference for {bench.name} ({path}); zoo data basis "
+            f"{bench.name} --ship writes one"
         )
     print(f"computing the basis of {topology.name} (k={bench.spectral_k}) ...", file=sys.stderr)
     started = time.perf_counter()
     computed = SpectralBasis.compute(topology, bench.spectral_k)
     took = time.perf_counter() - started
     if args.ship:
-        computed.save(path, float32=True)
+        BasisReference.of(computed).save(path)
         print(f"wrote {path} ({computed.solver}, {took:.1f} s)")
         return 0
-    shipped = SpectralBasis.load(path)
-    report = compare_bases(shipped, computed)
+    reference = BasisReference.load(path)
+    report = reference.misfit(computed)
     print(
-        f"{bench.name}: shipped basis {shipped.hash[:12]} ({path.name}), computed here in "
-        f"{took:.1f} s: eigenvalues within {report['eigenvalues']:.2g}, cluster subspaces "
-        f"within {report['subspaces']:.2g} ({report['clusters']} cluster(s) of repeated "
-        f"eigenvalues): {'the same basis' if report['same'] else 'ANOTHER BASIS'} (tolerance "
-        f"1e-6; rotations inside a cluster do not count)"
+        f"{bench.name}: basis {reference.hash[:12]} computed here in {took:.1f} s: eigenvalues "
+        f"within {report['eigenvalues']:.2g} of the shipped reference, probe projections "
+        f"within {report['misfit']:.2g} after alignment (worst: vectors "
+        f"{report['worst_group']}): {'the same basis' if report['same'] else 'ANOTHER BASIS'}"
     )
     return 0 if report["same"] else 1
 

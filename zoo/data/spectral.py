@@ -21,16 +21,16 @@ eigenspace, while a recompute equal to rounding is accepted.
 
 Two rules make a basis the same on every machine:
 
-- **A benchmark's basis is shipped data**, never recomputed: ``benchmarks/bases/`` holds the
-  basis of every benchmark mesh (float32 vectors, the numbers the evaluation multiplies by,
-  with their float64 eigenvalues, hash and checksum), and :meth:`SpectralBasis.load_or_compute`
-  loads it whenever it exists for the topology and ``k``. Shipping, not recomputing, because
-  the shipped SpecTrHuMS weights were trained on these exact vectors (a canonical recompute
-  would rotate the full Anny body's near-degenerate eigenspaces away from them and withdraw
-  every full-resolution row), and because the evaluation itself multiplies by the vectors in
-  float32: shipped, their bytes are the same everywhere. The computing path is checked against
-  them by :func:`compare_bases` (``zoo data basis NAME``): eigenvalues, and the
-  subspace of every eigenvalue cluster, equal within ``BASIS_TOLERANCE``.
+- **A benchmark's basis is aligned to a shipped reference**: ``benchmarks/bases/`` holds, for
+  every benchmark mesh, a :class:`BasisReference` of a few kilobytes: the basis's identity,
+  eigenvalues and the projections of its vectors onto ``FRAME_PROBES`` fixed probes.
+  :meth:`SpectralBasis.load_or_compute` computes the basis on this machine and rotates each
+  group of close eigenvalues (``ALIGN_GAP``) into the reference's frame by orthogonal
+  Procrustes on those projections, refusing a basis whose subspaces or eigenvalues differ
+  (``zoo data basis NAME`` reports the misfit). Why a frame and not a recompute alone: the
+  shipped SpecTrHuMS weights were trained on one machine's vectors, and another machine's
+  solver rotates the full Anny body's near-degenerate eigenspaces (and its four-fold zero
+  eigenvalue) differently; aligned, every machine gets those vectors to about 1e-13.
 - **A computed basis is canonical** inside clusters of (nearly) repeated eigenvalues:
   consecutive eigenvalues closer than ``CLUSTER_GAP`` (relative to ``max(1, lambda_k)``) form
   one cluster, whose vectors the solver returns in an arbitrary rotation; they are rotated to
@@ -86,8 +86,17 @@ CLUSTER_GAP = 1e-7
 # Largest |difference| between two bases of one topology (unit vectors, per entry; per cluster
 # for subspaces: 1 - the smallest cosine of their principal angles) that counts as the same basis.
 BASIS_TOLERANCE = 1e-6
-# Where the benchmarks' bases are shipped (module docstring).
+# Where the benchmarks' basis references are shipped (module docstring).
 SHIPPED_DIR = REPO_ROOT / "benchmarks" / "bases"
+# A reference's probe projections per vector: more than the largest group it aligns.
+FRAME_PROBES = 32
+# Consecutive eigenvalues closer than this (times max(1, lambda_k)) are aligned to a reference
+# together: wide enough for any pair a solver could mix up (a rotation of well-separated
+# vectors is found as the identity or a sign), narrow enough for groups of a few vectors.
+ALIGN_GAP = 1e-4
+# Largest misfit (relative, per group) of a computed basis's probe projections to its reference
+# after alignment: the solver's rounding gives ~1e-8; another subspace gives order one.
+ALIGN_TOLERANCE = 1e-5
 SOLVERS = ("auto", "dense", "lanczos")
 
 
@@ -219,34 +228,29 @@ class SpectralBasis:
         belongs to another topology, or whose content no longer matches its checksum, raises
         :class:`SpectralError`: delete it deliberately to recompute.
         """
-        shipped = shipped_path(topology, k)
-        if shipped.is_file():  # a benchmark's basis: shipped data, never recomputed
-            basis = cls.load(shipped)
-            basis.check_topology(topology)
-            return basis
+        reference = BasisReference.load(reference_path(topology, k))
         path = cache_path(topology, k, cache_dir)
         if path.is_file():
             basis = cls.load(path)
             basis.check_topology(topology)
             if basis.k != k:
                 raise SpectralError(f"{path}: cached basis has k={basis.k}, expected {k}")
-            return basis
+            if reference is None or basis.hash == reference.hash:
+                return basis
         basis = cls.compute(topology, k)
+        if reference is not None:  # a benchmark's basis: in the frame it was trained in
+            basis = reference.align(basis)
         basis.save(path)
         return basis
 
     # ---- files --------------------------------------------------------------------------------
 
-    def save(self, path: str | Path, float32: bool = False) -> Path:
-        """Write the basis as an ``.npz`` atomically; ``float32``: the vectors as the float32
-        numbers the evaluation multiplies by (a shipped basis, compressed; loaded back, its
-        float64 vectors are those numbers)."""
+    def save(self, path: str | Path) -> Path:
+        """Write the basis as an ``.npz`` atomically."""
         path = Path(path)
-        vectors = self.vectors.astype(np.float32) if float32 else self.vectors
-        write = np.savez_compressed if float32 else np.savez
         with atomic_path(path) as tmp:
             with open(tmp, "wb") as f:
-                write(
+                np.savez(
                     f,
                     format_version=np.int64(FORMAT_VERSION),
                     k=np.int64(self.k),
@@ -255,9 +259,9 @@ class SpectralBasis:
                     solver=np.str_(self.solver),
                     method=np.str_(self.method),
                     hash=np.str_(self.hash),
-                    checksum=np.str_(vectors_checksum(vectors)),
+                    checksum=np.str_(self.checksum),
                     eigenvalues=self.eigenvalues,
-                    vectors=vectors,
+                    vectors=self.vectors,
                 )
         return path
 
@@ -414,13 +418,13 @@ def probe_projections(vectors: np.ndarray) -> np.ndarray:
     return vectors.T @ probes
 
 
-def clusters(values: np.ndarray) -> list[slice]:
+def clusters(values: np.ndarray, relative_gap: float = CLUSTER_GAP) -> list[slice]:
     """The clusters of sorted ``values``: runs of consecutive eigenvalues closer than
-    ``CLUSTER_GAP * max(1, |largest|)``, as slices (a simple eigenvalue is a cluster of one)."""
+    ``relative_gap * max(1, |largest|)``, as slices (a simple eigenvalue is a cluster of one)."""
     values = np.asarray(values, dtype=np.float64)
     if not len(values):
         return []
-    gap = CLUSTER_GAP * max(1.0, float(np.abs(values).max()))
+    gap = relative_gap * max(1.0, float(np.abs(values).max()))
     cuts = np.flatnonzero(np.diff(values) > gap) + 1
     bounds = [0, *cuts.tolist(), len(values)]
     return [slice(a, b) for a, b in zip(bounds[:-1], bounds[1:])]
@@ -453,41 +457,137 @@ def canonical_clusters(values: np.ndarray, vectors: np.ndarray) -> np.ndarray:
     return vectors
 
 
-def compare_bases(reference: SpectralBasis, other: SpectralBasis) -> dict:
-    """How far ``other`` is from ``reference`` (one topology and k): the largest eigenvalue
-    difference relative to ``max(1, lambda_k)``, and per eigenvalue cluster of ``reference`` the
-    largest departure of their subspaces: 1 - the smallest cosine of the principal angles
-    between them. Rotations inside a cluster do not count (any frame of a cluster is a valid
-    basis of it), and neither does a single vector's sign (the check is of subspaces: a shipped
-    basis is what every machine uses; the sign a trained model needs is checked by its probe
-    projections). 1 - cos grows with the square of an angle: at ``BASIS_TOLERANCE`` angles up
-    to about 1.4e-3 rad pass. ``same`` is whether both stay within ``BASIS_TOLERANCE``."""
-    if reference.topology_hash != other.topology_hash or reference.k != other.k:
-        raise SpectralError(
-            f"compare_bases: {reference} and {other} are not bases of one topology and k"
-        )
-    scale = max(1.0, float(np.abs(reference.eigenvalues).max()))
-    eigen = float(np.abs(reference.eigenvalues - other.eigenvalues).max()) / scale
-    worst, where = 0.0, None
-    for cluster in clusters(reference.eigenvalues):
-        cosines = np.linalg.svd(
-            reference.vectors[:, cluster].T @ other.vectors[:, cluster], compute_uv=False
-        )
-        departure = float(1.0 - cosines.min())
-        if departure > worst or where is None:
-            worst, where = departure, cluster
-    return {
-        "eigenvalues": eigen,
-        "subspaces": worst,
-        "worst_cluster": [where.start, where.stop] if where is not None else None,
-        "clusters": sum(c.stop - c.start > 1 for c in clusters(reference.eigenvalues)),
-        "same": eigen <= BASIS_TOLERANCE and worst <= BASIS_TOLERANCE,
-    }
+def reference_path(topology: MeshTopology, k: int) -> Path:
+    """Where a benchmark mesh's basis reference is shipped (module docstring)."""
+    return SHIPPED_DIR / f"reference-{topology.hash}-k{int(k)}.npz"
 
 
-def shipped_path(topology: MeshTopology, k: int) -> Path:
-    """Where a benchmark mesh's basis is shipped (module docstring)."""
-    return SHIPPED_DIR / f"spectral-{topology.hash}-k{int(k)}.npz"
+class BasisReference:
+    """What a basis must be, in a few kilobytes: its identity (method, hash), eigenvalues and the
+    projections ``Phi^T R`` of its vectors onto ``FRAME_PROBES`` fixed probes
+    (:func:`cluster_probes`). :meth:`align` rotates a basis computed anywhere into this frame,
+    group by group of close eigenvalues (orthogonal Procrustes on the projections), and refuses
+    one whose subspaces differ."""
+
+    FIELDS = ("k", "topology_hash", "topology_name", "method", "hash", "eigenvalues", "frame")
+
+    def __init__(self, topology_hash, topology_name, method, eigenvalues, frame) -> None:
+        self.topology_hash, self.topology_name = str(topology_hash), str(topology_name)
+        self.method = str(method)
+        self.eigenvalues = np.asarray(eigenvalues, dtype=np.float64)
+        self.frame = np.asarray(frame, dtype=np.float64)
+        self.k = len(self.eigenvalues)
+        self.hash = basis_hash(self.k, self.topology_hash, self.method)
+
+    @classmethod
+    def of(cls, basis: SpectralBasis) -> BasisReference:
+        probes = cluster_probes(basis.num_vertices, FRAME_PROBES)
+        return cls(
+            basis.topology_hash,
+            basis.topology_name,
+            basis.method,
+            basis.eigenvalues,
+            basis.vectors.T @ probes,
+        )
+
+    def save(self, path: str | Path) -> Path:
+        path = Path(path)
+        with atomic_path(path) as tmp:
+            with open(tmp, "wb") as f:
+                np.savez(
+                    f,
+                    k=np.int64(self.k),
+                    topology_hash=np.str_(self.topology_hash),
+                    topology_name=np.str_(self.topology_name),
+                    method=np.str_(self.method),
+                    hash=np.str_(self.hash),
+                    eigenvalues=self.eigenvalues,
+                    frame=self.frame,
+                )
+        return path
+
+    @classmethod
+    def load(cls, path: str | Path) -> BasisReference | None:
+        """The reference in ``path``; None when there is none."""
+        path = Path(path)
+        if not path.is_file():
+            return None
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                fields = {name: z[name] for name in cls.FIELDS}
+        except KeyError as e:
+            raise SpectralError(f"{path}: not a basis reference (field {e} missing)") from None
+        except (OSError, ValueError, EOFError, zipfile.BadZipFile) as e:
+            raise SpectralError(f"{path}: unreadable basis reference ({e})") from None
+        reference = cls(
+            fields["topology_hash"],
+            fields["topology_name"],
+            fields["method"],
+            fields["eigenvalues"],
+            fields["frame"],
+        )
+        if reference.hash != str(fields["hash"]) or reference.k != int(fields["k"]):
+            raise SpectralError(f"{path}: corrupted basis reference (hash or k do not match)")
+        return reference
+
+    def align(self, basis: SpectralBasis) -> SpectralBasis:
+        """``basis`` (computed on this machine) rotated into this reference's frame, with its
+        identity; :class:`SpectralError` when it is not the same basis (eigenvalues beyond
+        ``BASIS_TOLERANCE``, a group's probe projections beyond ``ALIGN_TOLERANCE``)."""
+        if basis.topology_hash != self.topology_hash or basis.k != self.k:
+            raise SpectralError(
+                f"basis reference of {self.topology_name} (k={self.k}) does not fit {basis}"
+            )
+        report = self.misfit(basis)
+        if not report["same"]:
+            raise SpectralError(
+                f"the spectral basis of {self.topology_name} computed here is not the shipped "
+                f"one: eigenvalues differ by {report['eigenvalues']:.2g} (tolerance "
+                f"{BASIS_TOLERANCE:g}), vectors {report['worst_group']} by "
+                f"{report['misfit']:.2g} after alignment (tolerance {ALIGN_TOLERANCE:g})"
+            )
+        return SpectralBasis(
+            basis.topology_hash,
+            basis.eigenvalues,
+            report["vectors"],
+            basis.topology_name,
+            basis.solver,
+            self.method,
+        )
+
+    def misfit(self, basis: SpectralBasis) -> dict:
+        """Align ``basis`` group by group; the aligned vectors, the largest eigenvalue
+        difference (relative to ``max(1, lambda_k)``) and the largest relative misfit of a
+        group's probe projections after alignment, with ``same`` (both within tolerance)."""
+        scale = max(1.0, float(np.abs(self.eigenvalues).max()))
+        eigen = float(np.abs(self.eigenvalues - basis.eigenvalues).max()) / scale
+        probes = cluster_probes(basis.num_vertices, FRAME_PROBES)
+        vectors = basis.vectors.copy()
+        worst, where = 0.0, None
+        for group in clusters(self.eigenvalues, ALIGN_GAP):
+            if group.stop - group.start > FRAME_PROBES:
+                raise SpectralError(
+                    f"basis reference of {self.topology_name}: {group.stop - group.start} "
+                    f"close eigenvalues from vector {group.start}, more than {FRAME_PROBES} probes "
+                    f"can align"
+                )
+            block = vectors[:, group]
+            mine, target = block.T @ probes, self.frame[group]
+            u, _, vt = np.linalg.svd(mine @ target.T)
+            rotation = u @ vt  # orthogonal Procrustes: rotation^T mine ~ target
+            vectors[:, group] = block @ rotation
+            misfit = float(
+                np.linalg.norm(rotation.T @ mine - target) / max(np.linalg.norm(target), 1e-12)
+            )
+            if misfit > worst or where is None:
+                worst, where = misfit, f"{group.start}..{group.stop - 1}"
+        return {
+            "vectors": vectors,
+            "eigenvalues": eigen,
+            "misfit": worst,
+            "worst_group": where,
+            "same": eigen <= BASIS_TOLERANCE and worst <= ALIGN_TOLERANCE,
+        }
 
 
 def cache_path(topology: MeshTopology, k: int, cache_dir: str | Path | None = None) -> Path:
@@ -614,8 +714,8 @@ __all__ = [
     "cache_path",
     "canonical_clusters",
     "clusters",
-    "compare_bases",
-    "shipped_path",
+    "BasisReference",
+    "reference_path",
     "default_cache_dir",
     "probe_projections",
     "vectors_checksum",
