@@ -344,6 +344,35 @@ def cmd_costs(args) -> int:
     return 0
 
 
+def cmd_cards(args) -> int:
+    from zoo.cards import build_cards, card_diff
+
+    statuses = build_cards(
+        Path(args.out),
+        registry=_registry(args),
+        weights_root=Path(args.weights),
+        results_root=Path(args.results),
+        write=not args.check,
+    )
+    stale = [s for s in statuses if not s.fresh]
+    for s in statuses:
+        state = "up to date" if s.fresh else s.reason
+        verb = "" if s.fresh or args.check else " (rewritten)"
+        print(f"{s.path}: {state}{verb}")
+        if args.check and not s.fresh and s.path.is_file():
+            for line in card_diff(
+                s.path,
+                _registry(args),
+                weights_root=Path(args.weights),
+                results_root=Path(args.results),
+            )[:6]:
+                print(f"    {line}")
+    if args.check and stale:
+        print(f"{len(stale)} of {len(statuses)} card(s) stale: run `zoo cards` to rewrite them")
+        return 1
+    return 0
+
+
 def committed_benchmarks(results: Path) -> list[str]:
     """Every benchmark with a table under ``results`` (what ``--check`` checks by default)."""
     from zoo.benchmark import list_benchmarks
@@ -788,6 +817,20 @@ def build_parser() -> argparse.ArgumentParser:
         help="folder of trained checkpoints (default checkpoints/), as zoo leaderboard",
     )
     p.set_defaults(func=cmd_costs)
+
+    p = sub.add_parser(
+        "cards",
+        help="write the model cards (docs/models/<model>.md) from the registry, the shipped "
+        "weights' records and results/; --check names the stale ones",
+    )
+    p.add_argument(
+        "--registry", action="append", default=[], metavar="YAML", help="extra registry file"
+    )
+    p.add_argument("--check", action="store_true", help="write nothing; exit 1 if a card is stale")
+    p.add_argument("--out", default=str(REPO_ROOT / "docs" / "models"), help="cards folder")
+    p.add_argument("--weights", default=str(REPO_ROOT / "weights"), help="shipped weights folder")
+    p.add_argument("--results", default=str(RESULTS_DIR), help="results root")
+    p.set_defaults(func=cmd_cards)
 
     p = sub.add_parser(
         "compare",

@@ -112,21 +112,15 @@ def training_curves(
 ) -> dict[str, list[tuple[int, float]]]:
     """``{label: [(optimizer steps, validation MPJPE mm), ...]}`` of every shipped model of
     ``benchmark`` whose record holds its training history (exported from a ``last.pt``)."""
-    from zoo.weights import available_weights, read_weights, weights_file
+    from zoo.weights import available_weights, read_weights_record, training_points, weights_file
 
     curves = {}
     for bench, label in available_weights(weights_root):
         if bench != benchmark:
             continue
-        record = read_weights(weights_file(bench, label, weights_root))[1]
-        history, batch = record.get("history"), (record.get("recipe") or {}).get("batch_size")
-        if not history or not batch:
-            continue
-        steps, points = 0, []
-        for epoch in history:
-            steps += epoch["samples"] // batch
-            points.append((steps, epoch["val_mpjpe"]))
-        curves[label] = points
+        points = training_points(read_weights_record(weights_file(bench, label, weights_root)))
+        if points:
+            curves[label] = points
     return curves
 
 

@@ -101,6 +101,19 @@ def available_weights(root: str | Path | None = None) -> list[tuple[str, str]]:
     )
 
 
+def training_points(record: dict[str, Any]) -> list[tuple[int, float]]:
+    """``[(optimizer steps, validation error), ...]`` from a weights record's training history
+    (exported from a ``last.pt``; empty where the record holds none)."""
+    batch = (record.get("recipe") or {}).get("batch_size")
+    if not batch:
+        return []
+    steps, points = 0, []
+    for epoch in record.get("history") or []:
+        steps += epoch["samples"] // batch
+        points.append((steps, epoch["val_mpjpe"]))
+    return points
+
+
 def pretrained_path(name: str, benchmark: str, root: str | Path | None = None) -> Path:
     """The shipped weights of ``name`` (a model or ``<model>@last``) on ``benchmark``; an error
     listing what exists if there are none."""

@@ -1,0 +1,87 @@
+"""Model cards (zoo.cards): the committed cards match their sources, and a card goes stale when
+a shipped record changes; regenerating keeps what was written by hand."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+
+from zoo.cards import CARDS_DIR, END_MARKER, CardError, build_cards
+from zoo.cli import main
+from zoo.paths import REPO_ROOT
+
+WEIGHTS = REPO_ROOT / "weights"
+
+
+def test_committed_cards_are_up_to_date():
+    statuses = build_cards(write=False)
+    stale = [f"{s.name}: {s.reason}" for s in statuses if not s.fresh]
+    assert not stale, f"stale model cards (run `zoo cards`): {stale}"
+    # one card per model with shipped weights, each with its hand-written part
+    shipped = {json.loads(p.read_text())["model"] for p in WEIGHTS.glob("*/*.json")}
+    assert shipped <= {s.name for s in statuses}
+    for s in statuses:
+        hand = s.path.read_text().split(END_MARKER, 1)[1]
+        assert hand.strip(), f"{s.path}: nothing written by hand below the marker"
+
+
+def _copy_weights(tmp_path: Path, benchmark: str) -> Path:
+    """The shipped weights of one benchmark: tensors linked, records copied (to be edited)."""
+    root = tmp_path / "weights"
+    (root / benchmark).mkdir(parents=True)
+    for path in (WEIGHTS / benchmark).iterdir():
+        target = root / benchmark / path.name
+        if path.suffix == ".json":
+            shutil.copy(path, target)
+        else:
+            target.symlink_to(path.resolve())
+    return root
+
+
+def test_a_changed_record_makes_its_card_stale_and_a_rebuild_keeps_the_hand_written_part(
+    tmp_path, capsys
+):
+    weights = _copy_weights(tmp_path, "cmu")
+    cards = tmp_path / "cards"
+    shutil.copytree(CARDS_DIR, cards)
+    fresh = {s.name: s.fresh for s in build_cards(cards, weights_root=weights, write=False)}
+    assert fresh["spgsn"] and fresh["mlp"]
+
+    record_path = weights / "cmu" / "spgsn@last.json"
+    record = json.loads(record_path.read_text())
+    record["training"]["seconds"] += 3600  # a budget recorded differently
+    record_path.write_text(json.dumps(record))
+    statuses = {s.name: s for s in build_cards(cards, weights_root=weights, write=False)}
+    assert not statuses["spgsn"].fresh
+    assert statuses["spgsn"].reason == "out of date with its sources"
+    assert statuses["mlp"].fresh
+
+    rc = main(["cards", "--check", "--out", str(cards), "--weights", str(weights)])
+    out = capsys.readouterr().out
+    assert rc == 1
+    assert "spgsn.md: out of date with its sources" in out
+    assert "| 309 |" in out  # the new minutes (249 + 60) in the diff it prints
+
+    hand = (cards / "spgsn.md").read_text().split(END_MARKER, 1)[1]
+    rc = main(["cards", "--out", str(cards), "--weights", str(weights)])
+    assert rc == 0
+    text = (cards / "spgsn.md").read_text()
+    assert text.split(END_MARKER, 1)[1] == hand
+    assert "| 309 |" in text
+    assert all(s.fresh for s in build_cards(cards, weights_root=weights, write=False))
+
+
+def test_a_card_without_its_end_marker_is_refused(tmp_path):
+    cards = tmp_path / "cards"
+    shutil.copytree(CARDS_DIR, cards)
+    weights = _copy_weights(tmp_path, "cmu")
+    record_path = weights / "cmu" / "mlp@last.json"
+    record = json.loads(record_path.read_text())
+    record["seed"] = 1
+    record_path.write_text(json.dumps(record))
+    (cards / "mlp.md").write_text("# mlp\n\nedited by hand, marker lost\n")
+    with pytest.raises(CardError, match="mlp.md: no end marker"):
+        build_cards(cards, weights_root=weights)
