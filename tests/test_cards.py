@@ -24,6 +24,8 @@ def test_committed_cards_are_up_to_date():
     shipped = {json.loads(p.read_text())["model"] for p in WEIGHTS.glob("*/*.json")}
     assert shipped <= {s.name for s in statuses}
     for s in statuses:
+        if s.name == "README":  # the index, all generated
+            continue
         hand = s.path.read_text().split(END_MARKER, 1)[1]
         assert hand.strip(), f"{s.path}: nothing written by hand below the marker"
 

@@ -382,6 +382,39 @@ def generated_card(
     return "\n".join(out) + END_MARKER + "\n"
 
 
+def models_index(registry: Registry, names: list[str], shipped: dict[str, list[Shipped]]) -> str:
+    """``docs/models/README.md``: every registered model, its card where it has one."""
+    rows = []
+    for name in registry.list_models():
+        entry = registry.get(name)
+        files = shipped.get(name, [])
+        benches = sorted({b for s in files for b in s.benchmarks})
+        rows.append(
+            [
+                f"[`{name}`]({name}.md)" if name in names else f"`{name}`",
+                ", ".join(entry.representation),
+                "yes" if entry.trainable else "no",
+                ", ".join(benches) if benches else "–",
+                " ".join((entry.description or entry.reference).split()),
+            ]
+        )
+    return "\n".join(
+        [
+            "# Models",
+            "",
+            GENERATED_NOTE.replace("edit only below the end marker", "do not edit"),
+            "",
+            "Every model in `registry.yaml`; each with shipped weights or published figures has a "
+            "card (paper, architecture and parameters, recipe, budget and device, training "
+            "curve, its rows in every table, departures from the paper), written by `zoo cards`.",
+            "",
+            *_table(
+                ["model", "representation", "trained", "weights shipped for", "what it is"], rows
+            ),
+        ]
+    )
+
+
 def _hand_written(path: Path) -> str:
     if not path.is_file():
         return ""
@@ -447,8 +480,18 @@ def build_cards(
                     cards_dir / f"{name}-training.png",
                     title=f"{name}: validation error while training (shipped weights)",
                 )
+    index = cards_dir / "README.md"
+    text = models_index(registry, names, shipped)
+    if index.is_file() and index.read_text() == text:
+        statuses.append(CardStatus("README", index, True))
+    else:
+        reason = "missing" if not index.is_file() else "out of date with the registry"
+        statuses.append(CardStatus("README", index, False, reason))
+        if write:
+            cards_dir.mkdir(parents=True, exist_ok=True)
+            atomic_write_text(index, text)
     for path in sorted(cards_dir.glob("*.md")) if cards_dir.is_dir() else []:
-        if path.stem not in names and _generated_part(path) is not None:
+        if path.stem not in names and path.name != "README.md":
             if GENERATED_NOTE in path.read_text():
                 statuses.append(
                     CardStatus(path.stem, path, False, "no shipped weights or published figures")

@@ -914,10 +914,12 @@ How each number is made:
   a 95% interval whose meaning each table states: with one recording per action (CMU,
   CMU-on-Anny), a window-sampling interval, conditional on these recordings and not a confidence
   interval for the actions; with three or more independent recordings per action (cloth), a
-  confidence interval of the benchmark mean; each with its measured coverage (README, "How sure
-  a number is"). Bold marks the best model and those not distinguishable from it by one
-  simultaneous comparison of all the table's models; `zoo compare A B --benchmark NAME` says by
-  how much one model beats another, and on how many actions.
+  confidence interval of the benchmark mean; each with its measured coverage
+  ([docs/protocols.md](../docs/protocols.md)). Bold marks the best model and those not
+  distinguishable from it by one simultaneous comparison of all the table's models;
+  `zoo compare A B --benchmark NAME` says by how much one model beats another, and on how many
+  actions (a model can stay bold beside one that `zoo compare` separates from it: bold guards
+  against every pair at once).
 - Cost columns (parameters, forward GFLOPs per window, latency of one window, training windows
   per second, every model in float32) are measured by `zoo costs`, never by `zoo leaderboard`,
   and kept in `<benchmark>/costs.json`; the machine (CPU, threads) and date that measured them

@@ -10,10 +10,10 @@ Data flow (``N = 3P`` nodes, one per joint coordinate; ``T = T_in + T_out``):
 4. a per-node linear readout to ``dct_n`` coefficients, added to the input's coefficients, so the
    network learns the departure from the padded input; the inverse DCT gives all ``T`` frames.
 
-Two choices are the zoo's own, each an option so that an ablation weighs it (README): the
-network sees the coefficients in metres (``metre_inputs``, on by default; its output is scaled
-back to mm), and the readout may start at zero (``zero_readout``, off by default), so that the
-untrained model is nearly repeat-last.
+Two choices are the zoo's own, each an option so that an ablation weighs it
+(docs/models/spgsn.md): the network sees the coefficients in metres (``metre_inputs``, on by
+default; its output is scaled back to mm), and the readout may start at zero (``zero_readout``,
+off by default), so that the untrained model is nearly repeat-last.
 
 A block: for each body part (whole body, upper, lower; each its own learned graph ``A``, all other
 parameters shared by the parts) an adaptive graph scattering tree of ``L`` layers, ``K + 1``

@@ -1,0 +1,39 @@
+"""The README's headline tables quote results/: every number there equals the committed table's,
+printed as the tables print it, and every row the README names exists."""
+
+from __future__ import annotations
+
+import re
+
+import pandas as pd
+
+from zoo.paths import REPO_ROOT
+from zoo.tables import metric_unit
+
+BLOCK = re.compile(r"<!-- headline (\S+)/(\S+) (\S+) (\S+) -->\n(.*?)<!-- end headline -->", re.S)
+
+
+def test_readme_headline_numbers_are_the_committed_ones():
+    text = (REPO_ROOT / "README.md").read_text()
+    blocks = BLOCK.findall(text)
+    assert len(blocks) >= 2, "the README's headline tables lost their markers"
+    for bench, table, metric, joints, body in blocks:
+        frame = pd.read_csv(REPO_ROOT / "results" / bench / table / "results.csv")
+        frame = frame[
+            (frame["action"] == "average")
+            & (frame["metric"] == metric)
+            & (frame["joints"] == joints)
+            & (frame["averaging"] == "frame")
+        ]
+        lines = [line for line in body.strip().splitlines() if line.startswith("|")]
+        horizons = [int(h.strip().removesuffix(" ms")) for h in lines[0].strip("|").split("|")[1:]]
+        fmt = metric_unit(metric)[1]
+        for line in lines[2:]:
+            model, *cells = [c.strip() for c in line.strip("|").split("|")]
+            values = frame[frame["model"] == model].set_index("horizon_ms")["value"]
+            assert len(values), f"README: {bench}/{table} has no row {model!r}"
+            for horizon, cell in zip(horizons, cells):
+                assert cell == format(values[horizon], fmt), (
+                    f"README: {bench}/{table} {model} at {horizon} ms says {cell}, "
+                    f"results.csv {format(values[horizon], fmt)}"
+                )
