@@ -169,7 +169,7 @@ def test_two_process_evaluation_equals_one_to_the_last_digit(tmp_path):
     import sys
     from pathlib import Path
 
-    from zoo.evaluate import EvalResult
+    from zoo.results import EvalResult
 
     root = tmp_path / "cmu"
     for action, speed in (("walking", 0.01), ("running", 0.03)):
@@ -228,8 +228,8 @@ def test_processes_score_disjoint_batches_that_cover_every_window():
 def test_result_folders_are_replaced_whole_and_refuse_a_second_writer(
     swinging_cmu, tmp_path, monkeypatch
 ):
-    from zoo.evaluate import EvalResult
     from zoo.io import FolderBusyError, folder_lock
+    from zoo.results import EvalResult
 
     root, _ = swinging_cmu
     bench = get_benchmark("cmu")
@@ -259,7 +259,7 @@ def test_result_folders_are_replaced_whole_and_refuse_a_second_writer(
     def broken(*args, **kwargs):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr("zoo.evaluate.atomic_write_json", broken)
+    monkeypatch.setattr("zoo.results.atomic_write_json", broken)
     with pytest.raises(KeyboardInterrupt):
         result.write(out)
     assert (out / "results.csv").read_bytes() == before

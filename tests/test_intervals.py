@@ -13,7 +13,7 @@ from zoo import create_model
 from zoo.benchmark import get_benchmark
 from zoo.cli import main
 from zoo.compare import ComparisonError, compare
-from zoo.evaluate import EvalResult, EvaluationError, WindowErrors, evaluate
+from zoo.evaluate import EvaluationError, evaluate
 from zoo.intervals import (
     block_replicates,
     coverage_record,
@@ -25,6 +25,7 @@ from zoo.intervals import (
     sign_test,
     window_sampling_interval,
 )
+from zoo.results import EvalResult, WindowErrors
 from zoo.tables import ProtocolMismatchError, headline_table
 
 WINDOW = 35  # CMU: 10 observed + 25 predicted frames

@@ -10,9 +10,10 @@ import pytest
 from conftest import write_cmu_file
 from tiny_models import REGISTRY
 
-from zoo.evaluate import EvalResult
-from zoo.leaderboard import Plan, regenerate, write_leaderboard
+from zoo.leaderboard import Plan, regenerate
 from zoo.registry import Registry
+from zoo.report import write_leaderboard
+from zoo.results import EvalResult
 from zoo.train import train
 
 HERE = Path(__file__).resolve().parent
@@ -237,7 +238,7 @@ def test_check_recomputes_every_row_and_names_what_differs(tmp_path, capsys):
 
 
 def test_results_index_lists_every_table_with_its_headline(tmp_path):
-    from zoo.leaderboard import write_index
+    from zoo.report import write_index
 
     root, registry = cmu_and_registry(tmp_path)
     out = tmp_path / "results"
@@ -260,7 +261,7 @@ def test_an_interrupted_leaderboard_leaves_the_old_folder_whole(tmp_path, monkey
     def interrupted(*args, **kwargs):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr("zoo.leaderboard.plot_average", interrupted)
+    monkeypatch.setattr("zoo.report.plot_average", interrupted)
     with pytest.raises(KeyboardInterrupt):
         regenerate(
             "cmu", registry=registry, data_root=root, out_root=out, plan=Plan(recompute=True)

@@ -384,7 +384,7 @@ def test_every_row_carries_its_standard_deviation_over_windows(toy_bench):
 def test_autoencoder_floor_rows_beside_the_model(toy_bench, tmp_path):
     """A model with ``autoencoder_floor`` gets ``<name>:autoencoder`` rows: the ground-truth
     future through it, scored like a prediction, shown in the headline but never the best."""
-    from zoo.leaderboard import write_leaderboard
+    from zoo.report import write_leaderboard
 
     class Blurred(RepeatLast):
         def autoencoder_floor(self, frames):

@@ -132,7 +132,7 @@ def test_ctrl_c_ends_in_one_line(capsys, monkeypatch, root, tmp_path):
     def interrupted(*args, **kwargs):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr("zoo.evaluate.evaluate", interrupted)
+    monkeypatch.setattr("zoo.pipeline.evaluate", interrupted)
     code, last = run(
         capsys,
         "eval",
@@ -207,8 +207,13 @@ def test_binary_data_skipped_files_and_damaged_caches_are_named(capsys, root, tm
         ]
     )
     err = capsys.readouterr().err
-    assert "note: test/walking: skipped README.md (not walking_<n>.txt)" in err
-    assert "note: test: skipped dancing (not among the benchmark's actions" in err
+    assert "skipped" not in err  # said once, by zoo data list and describe, not by every load
+    assert main(["data", "list", "--data-root", str(root)]) == 0
+    out = capsys.readouterr().out
+    assert f"note: {root}/test/walking: skipped README.md (not walking_<n>.txt)" in out
+    assert f"note: {root}/test: skipped dancing (not among the benchmark's actions" in out
+    assert main(["data", "describe", "cmu", "--data-root", str(root)]) == 0
+    assert "test/walking: skipped README.md" in capsys.readouterr().out
     (root / "test" / "walking" / "walking_2.txt").write_bytes(bytes(range(128, 256)) * 8)
     code, last = run(capsys, "eval", "--model", "repeat_last", "--data-root", str(root))
     assert code == 2 and "walking_2.txt: not a text file" in last

@@ -3,7 +3,7 @@
 import numpy as np
 import pandas as pd
 
-from zoo.evaluate import EvalResult
+from zoo.results import EvalResult
 from zoo.sensitivity import protocol_sensitivity
 
 

@@ -82,3 +82,21 @@ def test_task_errors_are_named(swinging_cmu, capsys):
         == 2
     )
     assert "got 20" in capsys.readouterr().err
+
+
+def test_longterm_tables_and_console_show_every_horizon_and_the_real_output_length(
+    swinging_cmu, tmp_path, capsys
+):
+    root, _ = swinging_cmu
+    out = tmp_path / "lt"
+    argv = ["eval", "--model", "repeat_last", "--sampler", "all", "--data-root", str(root)]
+    assert main([*argv, "--task", "longterm", "--horizon-frames", "50", "--out", str(out)]) == 0
+    console = capsys.readouterr().out
+    assert all(f"{h} ms" in console for h in (1000, 1200, 1400, 1600, 1800, 2000))
+    tables = (out / "tables.md").read_text()
+    assert "10 in / 50 out (25 per step, autoregressive)" in tables.splitlines()[0]
+    assert "1600 ms" in tables and "2000 ms" in tables
+    plain = tmp_path / "plain"
+    assert main([*argv, "--out", str(plain)]) == 0
+    assert "10 in / 25 out at 25 fps" in (plain / "tables.md").read_text().splitlines()[0]
+    assert "1200 ms" not in capsys.readouterr().out

@@ -12,8 +12,8 @@ import zoo
 import zoo.weights
 from zoo.checkpoints import export_weights, load_weights, read_checkpoint
 from zoo.cli import main
-from zoo.evaluate import EvalResult
 from zoo.leaderboard import regenerate
+from zoo.results import EvalResult
 from zoo.weights import WeightsError, read_weights
 
 

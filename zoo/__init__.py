@@ -1,7 +1,5 @@
 """motion-zoo: a model zoo and benchmark suite for 3D human motion prediction."""
 
-__version__ = "0.1.0"
-
 import inspect as _inspect
 import sys as _sys
 import types as _types
@@ -10,10 +8,11 @@ import zoo.compare  # noqa: E402
 import zoo.evaluate  # noqa: E402
 from zoo.api import create_model, list_models, load_results  # noqa: E402
 from zoo.registry import load_registry  # noqa: E402
+from zoo.version import __version__  # noqa: E402
 
 
 class _CallableModule(_types.ModuleType):
-    """``zoo.evaluate`` and ``zoo.compare`` are modules (``from zoo.evaluate import EvalResult``)
+    """``zoo.evaluate`` and ``zoo.compare`` are modules (``from zoo.evaluate import evaluate``)
     and the API's functions (``zoo.evaluate(model, "cmu")``) at once: calling the module calls
     :mod:`zoo.api`'s function of the same name."""
 

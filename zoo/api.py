@@ -80,7 +80,7 @@ def evaluate(
     device: str = "cpu",
     **options: Any,
 ):
-    """Evaluate a model on a benchmark; an :class:`zoo.evaluate.EvalResult` (``.frame``: every
+    """Evaluate a model on a benchmark; an :class:`zoo.results.EvalResult` (``.frame``: every
     row; ``.summary()``: the action average per horizon) carrying the same identity as
     ``zoo eval`` records.
 
@@ -93,25 +93,21 @@ def evaluate(
     import torch
 
     from zoo.benchmark import get_benchmark
-    from zoo.evaluate import evaluate as run
-    from zoo.evaluate import protocol_for
-    from zoo.leaderboard import stamp
-    from zoo.model_source import ModelSource, object_identity
-    from zoo.store import check_label, check_replace, result_path, table_folder
+    from zoo.evaluate import EVAL_BATCH
+    from zoo.model_source import ModelSource
+    from zoo.pipeline import Subject, compute, place
+    from zoo.pipeline import store as store_result
+    from zoo.protocol import plan_protocol
+    from zoo.store import check_label, result_path, table_folder
 
     bench = get_benchmark(benchmark) if isinstance(benchmark, (str, Path)) else benchmark
     dataset = bench.load(data_root)
     registry = registry or load_registry()
     if isinstance(model, torch.nn.Module):
-        label = check_label(label or type(model).__name__)
-        view = (
-            "mesh"
-            if bench.representation == "mesh" and not options.get("view") == "joints"
-            else "joints"
+        default_view = "mesh" if bench.representation == "mesh" else "joints"
+        subject = Subject.of_module(
+            model, check_label(label or type(model).__name__), options.pop("view", default_view)
         )
-        view = options.pop("view", view)
-        provenance = {"class": f"{type(model).__module__}.{type(model).__qualname__}"}
-        loaded = None
     else:
         path = Path(str(model))
         source = ModelSource.of(
@@ -120,61 +116,46 @@ def evaluate(
             weights=path if path.suffix == ".safetensors" else None,
             label=label,
         )
-        loaded = source.load(registry, bench, dataset, data_root)
-        model, label, view, provenance = loaded.model, loaded.label, loaded.view, loaded.provenance
-    protocol = protocol_for(
+        subject = Subject.of_loaded(source.load(registry, bench, dataset, data_root))
+    task = options.pop("task", "prediction")
+    horizon = options.pop("horizon", None)
+    ground_truth = options.pop("ground_truth", None)
+    melv_frames = options.pop("melv_frames", None)
+    batch_size = options.pop("batch_size", EVAL_BATCH)
+    if options:
+        raise RegistryError(
+            f"zoo.evaluate: unknown option(s) {', '.join(sorted(options))}; valid: task, "
+            f"horizon, ground_truth, melv_frames, batch_size, view"
+        )
+    protocol = plan_protocol(
         bench,
         dataset,
         sampler=sampler,
-        task=options.get("task", "prediction"),
-        horizon=options.get("horizon"),
-        ground_truth=options.get("ground_truth"),
-        melv_frames=options.get("melv_frames"),
-    )
-    identity = (
-        loaded.identity(bench, protocol["protocol_id"])
-        if loaded is not None
-        else object_identity(model, label, bench, protocol["protocol_id"])
+        task=task,
+        horizon=horizon,
+        ground_truth=ground_truth,
+        melv_frames=melv_frames,
     )
     target = Path(out) if out is not None else None
     if store and target is None:
-        melv = options.get("melv_frames")
-        melv = melv if melv not in (None, getattr(bench, "melv_on", None)) else None
+        melv = melv_frames if melv_frames not in (None, getattr(bench, "melv_on", None)) else None
         target = result_path(
             None,
             bench.name,
-            table_folder(
-                protocol["sampler"],
-                protocol["task"],
-                options.get("ground_truth"),
-                options.get("horizon"),
-                melv,
-            ),
-            label,
+            table_folder(protocol.sampler, task, ground_truth, horizon, melv),
+            subject.label,
         )
-    if target is not None:
-        from zoo.io import check_output_folder
-
-        check_output_folder(target)
-        status = check_replace(target, identity, replace=replace, protocol=protocol)
-    result = run(
-        model,
-        bench,
-        model_name=label,
-        sampler=sampler,
-        dataset=dataset,
+    where = place(subject, protocol, target, replace=replace)
+    result = compute(
+        subject,
+        protocol,
+        where.identity,
+        made_by="zoo.evaluate",
         device=device,
-        provenance=provenance,
-        view=view,
-        **options,
+        batch_size=batch_size,
     )
-    stamp(result, identity, made_by="zoo.evaluate")
     if target is not None:
-        from zoo.tolerance import agreement
-
-        # a recomputation within the tolerance of the stored result leaves its files as they are
-        if status != "same" or not agreement(result, target).same:
-            result.write(target)
+        store_result(result, where)
     return result
 
 
@@ -220,7 +201,7 @@ def load_results(
     """The stored results of one table, ``{label: EvalResult}`` (``results/<benchmark>/
     <table>/<label>/``), each with its protocol record and identity."""
     from zoo.benchmark import get_benchmark
-    from zoo.evaluate import EvalResult
+    from zoo.results import EvalResult
     from zoo.store import RESULTS_DIR, table_folder
 
     bench = get_benchmark(benchmark) if isinstance(benchmark, (str, Path)) else benchmark

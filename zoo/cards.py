@@ -25,10 +25,11 @@ import pandas as pd
 
 from zoo.errors import ZooError
 from zoo.io import atomic_write_text, repo_relative
+from zoo.metrics import FLOOR_SUFFIX
 from zoo.paths import REPO_ROOT
 from zoo.published import load_published
 from zoo.registry import Registry, load_registry
-from zoo.tables import FLOOR_SUFFIX, default_horizons, headline_key, metric_unit
+from zoo.tables import default_horizons, headline_key, metric_unit
 from zoo.weights import (
     WEIGHTS_DIR,
     available_weights,
@@ -473,7 +474,7 @@ def build_cards(
             atomic_write_text(path, generated + hand)
             curves = _curves(files)
             if curves:
-                from zoo.leaderboard import plot_training_curves
+                from zoo.report import plot_training_curves
 
                 plot_training_curves(
                     curves,

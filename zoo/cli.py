@@ -103,10 +103,10 @@ def _benchmark_of(args, source, default: str):
 
 def cmd_eval(args) -> int:
     from zoo.distributed import init_distributed
-    from zoo.evaluate import evaluate, protocol_for
-    from zoo.leaderboard import stamp
-    from zoo.store import check_replace, result_path, table_folder
-    from zoo.tolerance import agreement, tolerance_text
+    from zoo.pipeline import Subject, compute, place, store
+    from zoo.protocol import plan_protocol
+    from zoo.store import result_path, table_folder
+    from zoo.tolerance import tolerance_text
 
     registry = _registry(args)
     source = _source(args)
@@ -114,14 +114,13 @@ def cmd_eval(args) -> int:
     dataset = bench.load(args.data_root)
     loaded = source.load(registry, bench, dataset, args.data_root)
     loaded.warn_if_untrained()
+    subject = Subject.of_loaded(loaded)
     samplers = args.sampler or [bench.sampler]
     if args.out and len(samplers) > 1:
         raise UsageError(
             "--out takes one --sampler; omit --out to write "
             "results/<benchmark>/<sampler>/<label>/ for each"
         )
-    from zoo.io import check_output_folder
-
     if args.melv_frames is not None and bench.representation != "mesh":
         raise UsageError(f"--melv-frames: benchmark {bench.name} is not a mesh benchmark")
     # Only a MELV other than the benchmark's default gets a folder of its own.
@@ -138,8 +137,7 @@ def cmd_eval(args) -> int:
             if args.out
             else result_path(args.results, bench.name, folder, loaded.label)
         )
-        check_output_folder(out)
-        protocol = protocol_for(
+        protocol = plan_protocol(
             bench,
             dataset,
             sampler=sampler,
@@ -148,45 +146,36 @@ def cmd_eval(args) -> int:
             ground_truth=args.ground_truth,
             melv_frames=args.melv_frames,
         )
-        identity = loaded.identity(bench, protocol["protocol_id"])
-        status = check_replace(out, identity, replace=args.replace, protocol=protocol)
-        plans.append((sampler, out, identity, status))
+        plans.append((protocol, place(subject, protocol, out, replace=args.replace)))
     # Under torchrun every process scores its share of the windows and all get the whole
     # result; the first writes it.
     writer = init_distributed(args.device).rank == 0
-    for sampler, out, identity, status in plans:
-        result = evaluate(
-            loaded.model,
-            bench,
-            model_name=loaded.label,
-            sampler=sampler,
-            dataset=dataset,
-            view=loaded.view,
-            batch_size=args.batch_size,
+    for protocol, where in plans:
+        result = compute(
+            subject,
+            protocol,
+            where.identity,
+            made_by="zoo eval",
             device=args.device,
-            provenance=_jsonable(loaded.provenance),
-            task=args.task,
-            horizon=args.horizon_frames,
-            ground_truth=args.ground_truth,
-            melv_frames=args.melv_frames,
+            batch_size=args.batch_size,
         )
-        stamp(result, identity, made_by="zoo eval")
         if not writer:
             continue
-        if status == "same":
-            agreed = agreement(result, out)
-            if agreed.same:
-                _print_average(result.frame, bench.horizons_ms)
-                print(
-                    f"{out}: agrees with the stored result of this identity (largest "
-                    f"difference {agreed.share:.2f} of the tolerance, {tolerance_text()}); "
-                    f"left as stored"
-                )
-                continue
-            print(f"{out}: rewritten: the stored result of this identity {agreed.why}")
-        result.write(out)
+        stored = store(result, where)
+        if stored.action == "kept":
+            _print_average(result.frame, bench.horizons_ms)
+            print(
+                f"{where.folder}: agrees with the stored result of this identity (largest "
+                f"difference {stored.agreed.share:.2f} of the tolerance, {tolerance_text()}); "
+                f"left as stored"
+            )
+            continue
+        if stored.action == "rewritten":
+            print(
+                f"{where.folder}: rewritten: the stored result of this identity {stored.agreed.why}"
+            )
         _print_average(result.frame, bench.horizons_ms)
-        print(f"wrote {out}/results.csv, protocol.json, tables.md, windows.npz")
+        print(f"wrote {where.folder}/results.csv, protocol.json, tables.md, windows.npz")
     return 0
 
 
@@ -245,7 +234,8 @@ def cmd_weights(args) -> int:
 def cmd_leaderboard(args) -> int:
     import time
 
-    from zoo.leaderboard import CheckReport, Plan, regenerate
+    from zoo.check import CheckReport
+    from zoo.leaderboard import Plan, regenerate
 
     registry = _registry(args)
     check = CheckReport() if args.check else None
@@ -300,7 +290,7 @@ def cmd_leaderboard(args) -> int:
             check.start_table(f"{name} (not loaded, or a table not finished)")
             check.problem(f"{name}: not checked: {e}")
     if check is None:
-        from zoo.leaderboard import write_index
+        from zoo.report import write_index
 
         print(f"wrote {write_index(Path(args.out))} ({time.perf_counter() - started:.0f} s)")
         return 0
@@ -319,7 +309,7 @@ def cmd_costs(args) -> int:
     import time
 
     from zoo.costs import measure_costs
-    from zoo.leaderboard import write_index
+    from zoo.report import write_index
 
     if not args.seconds > 0:
         raise UsageError(f"--seconds {args.seconds:g}: expected a positive time budget")
@@ -586,6 +576,8 @@ def cmd_data(args) -> int:
                 tablefmt="github",
             )
         )
+        for line in _skipped_data(args.data_root):
+            print(f"note: {line}")
         return 0
     if not args.benchmark:
         raise UsageError(f"zoo data {args.action} needs a benchmark name (see zoo data list)")
@@ -623,6 +615,10 @@ def cmd_data(args) -> int:
 def _print_average(frame, horizons) -> None:
     from tabulate import tabulate
 
+    from zoo.tables import default_horizons
+
+    # a long-term run's horizons past the benchmark's last
+    horizons = [*horizons, *(h for h in default_horizons(frame) if h > max(horizons))]
     avg = frame[(frame["action"] == "average") & frame["horizon_ms"].isin(horizons)]
     keys = ["model", "metric", "averaging", "joints"]
     table = avg.pivot_table(index=keys, columns="horizon_ms", values="value")
@@ -637,14 +633,23 @@ def _print_average(frame, horizons) -> None:
     )
 
 
-def _jsonable(value):
-    if isinstance(value, dict):
-        return {str(k): _jsonable(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_jsonable(v) for v in value]
-    if isinstance(value, (str, int, float, bool)) or value is None:
-        return value
-    return repr(value)
+def _skipped_data(data_root) -> list[str]:
+    """Files and folders in the CMU data roots that the loader passes over (each once)."""
+    from zoo.benchmark import get_benchmark, list_benchmarks
+    from zoo.data.motion import CMU_ACTIONS, cmu_skipped
+
+    lines = []
+    for name in list_benchmarks():
+        bench = get_benchmark(name)
+        root = bench.resolve_data_root(data_root) if bench.dataset == "cmu_mocap" else None
+        if root is None or not root.is_dir():
+            continue
+        for split in dict.fromkeys((bench.split, bench.train_split)):
+            for line in cmu_skipped(root, split, bench.actions or CMU_ACTIONS):
+                entry = f"{root}/{line}"
+                if entry not in lines:
+                    lines.append(entry)
+    return lines
 
 
 def _positive_int(text: str) -> int:

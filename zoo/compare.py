@@ -26,7 +26,6 @@ import pandas as pd
 from tabulate import tabulate
 
 from zoo.errors import ZooError
-from zoo.evaluate import EvalResult
 from zoo.intervals import (
     CONFIDENCE,
     REPLICATES,
@@ -36,6 +35,7 @@ from zoo.intervals import (
     sign_test,
 )
 from zoo.metrics import AVERAGING, cumulative_mean
+from zoo.results import EvalResult
 from zoo.tables import (
     ProtocolMismatchError,
     block_frames_default,

@@ -18,7 +18,8 @@ import pandas as pd
 from zoo.efficiency import architecture, cost_key, measure
 from zoo.errors import ZooError
 from zoo.io import atomic_write_text, folder_lock
-from zoo.leaderboard import Leaderboard, Plan, efficiency_csv
+from zoo.leaderboard import Leaderboard, Plan
+from zoo.report import efficiency_csv
 from zoo.store import RESULTS_DIR, table_folder
 from zoo.tables import with_costs
 

@@ -8,3 +8,8 @@ class ZooError(Exception):
 
 class DataNotFoundError(ZooError, FileNotFoundError):
     """A data root, file or folder that a benchmark needs does not exist."""
+
+
+class EvaluationError(ZooError, RuntimeError):
+    """A protocol that cannot be planned, a model that breaks the contract, a result folder that
+    cannot be read."""

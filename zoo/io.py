@@ -14,6 +14,7 @@ from typing import Any
 
 from zoo.errors import ZooError
 from zoo.paths import REPO_ROOT
+from zoo.version import __version__
 
 
 @contextmanager
@@ -169,7 +170,6 @@ def canonical_json(data: Any) -> str:
 
 def code_version() -> str:
     """The package version plus the git commit of the source tree (``+dirty`` if modified)."""
-    from zoo import __version__
 
     try:
         commit = subprocess.run(

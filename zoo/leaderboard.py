@@ -1,7 +1,7 @@
 """Leaderboards: bring every table of a benchmark up to date (``regenerate``: stored rows
-reused while their identity holds, new and stale rows recomputed), write
-``results/<benchmark>/<table>/`` (tables from :mod:`zoo.tables`, plots), or check the committed
-ones without writing (``CheckReport``)."""
+reused while their identity holds, new and stale rows recomputed through :mod:`zoo.pipeline`),
+or recompute the committed ones without writing (``Plan(check=...)``, compared by
+:mod:`zoo.check`). What a table's folder holds is written by :mod:`zoo.report`."""
 
 from __future__ import annotations
 
@@ -10,212 +10,24 @@ import os
 import shutil
 import sys
 import time
-from collections.abc import Iterable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
-import pandas as pd
-
+from zoo.check import CheckReport, check_table
 from zoo.efficiency import COSTS_FILE, Costs, architecture, cost_key
-from zoo.evaluate import evaluate
-from zoo.io import atomic_write_json, atomic_write_text, replace_folder, save_figure
+from zoo.io import atomic_write_json, replace_folder
 from zoo.model_source import ModelSource
+from zoo.report import plot_training_curves, training_curves, write_leaderboard
 from zoo.store import (
     RESULTS_DIR,
     StoreError,
     identity_differences,
-    identity_id,
+    stamp_record,
     stored_identity,
     table_folder,
 )
-from zoo.tables import (
-    check_comparable,
-    headline_table,
-    markdown_tables,
-    metric_unit,
-    protocol_differences,
-)
-from zoo.tolerance import KEY_COLUMNS, agreement, tolerance_text
-from zoo.tolerance import allowed as tolerated
-
-
-def write_leaderboard(
-    results: list,
-    out_dir: str | Path,
-    horizons_ms: Iterable[int] | None = None,
-    efficiency: dict[str, dict] | None = None,
-) -> Path:
-    """Combine :class:`zoo.evaluate.EvalResult` objects of one protocol into ``out_dir``:
-    ``results.csv``, ``leaderboard.md``, ``protocol.json`` and ``mpjpe.png``; ``efficiency``
-    (per row label, the costs ``zoo costs`` stored: :class:`zoo.efficiency.Costs`) fills the
-    headline's cost columns and ``efficiency.csv`` (a dict without a row's label: its cost
-    cells stay empty, and the table says how to fill them)."""
-    out_dir = Path(out_dir)
-    # Rows and runs in model order, whichever models were evaluated now and which were stored:
-    # regenerating then rewrites no unchanged table.
-    results = sorted(results, key=lambda r: str(r.frame["model"].iloc[0]))
-    records = {r.protocol["protocol_id"]: r.protocol for r in results}
-    check_comparable(records)
-    frame = pd.concat([r.frame for r in results], ignore_index=True)
-    tables = markdown_tables(
-        frame, records, horizons_ms, headline=headline_table(results, horizons_ms, efficiency)
-    )
-    protocol = dict(results[0].protocol)
-    protocol["provenance"] = {"runs": [r.protocol.get("provenance", {}) for r in results]}
-    atomic_write_text(out_dir / "results.csv", frame.to_csv(index=False))
-    atomic_write_text(out_dir / "leaderboard.md", tables)
-    atomic_write_json(out_dir / "protocol.json", protocol)
-    if efficiency:
-        atomic_write_text(out_dir / "efficiency.csv", efficiency_csv(frame["model"], efficiency))
-    plot_average(frame, out_dir / "mpjpe.png", title=tables.splitlines()[0].lstrip("# "))
-    return out_dir
-
-
-def efficiency_csv(models: Iterable[str], efficiency: dict[str, dict]) -> str:
-    """``efficiency.csv``: the stored costs of a table's ``models``, one row each."""
-    labels = sorted(set(models) & set(efficiency))
-    costs = pd.DataFrame([{"model": m, **efficiency[m]} for m in labels])
-    counts = {c: "Int64" for c in ("latency_repeats", "training_steps") if c in costs}
-    return costs.astype(counts).to_csv(index=False)
-
-
-def plot_average(frame: pd.DataFrame, path: str | Path, title: str = "") -> None:
-    """Error against horizon for the action average: one panel per (averaging, joints)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    avg = frame[frame["action"] == "average"]
-    panels = sorted(avg.groupby(["metric", "averaging", "joints"]).groups)
-    fig, axes = plt.subplots(1, len(panels), figsize=(4.5 * len(panels), 3.8), squeeze=False)
-    for ax, key in zip(axes[0], panels):
-        metric, averaging, joints = key
-        sub = avg[
-            (avg["metric"] == metric) & (avg["averaging"] == averaging) & (avg["joints"] == joints)
-        ]
-        for model, rows in sub.groupby("model"):
-            rows = rows.sort_values("horizon_ms")
-            ax.plot(rows["horizon_ms"], rows["value"], marker=".", label=model)
-        ax.set_title(f"{metric} ({averaging}, {joints})", fontsize=9)
-        ax.set_xlabel("horizon (ms)")
-        ax.set_ylabel(metric_unit(metric)[0])
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=8)
-    fig.suptitle(title, fontsize=9)
-    save_figure(fig, path)
-
-
-def training_curves(
-    weights_root: str | Path | None, benchmark: str
-) -> dict[str, list[tuple[int, float]]]:
-    """``{label: [(optimizer steps, validation MPJPE mm), ...]}`` of every shipped model of
-    ``benchmark`` whose record holds its training history (exported from a ``last.pt``)."""
-    from zoo.weights import available_weights, read_weights_record, training_points, weights_file
-
-    curves = {}
-    for bench, label in available_weights(weights_root):
-        if bench != benchmark:
-            continue
-        points = training_points(read_weights_record(weights_file(bench, label, weights_root)))
-        if points:
-            curves[label] = points
-    return curves
-
-
-def plot_training_curves(
-    curves: dict[str, list[tuple[int, float]]], path: str | Path, title: str = ""
-) -> None:
-    """Validation MPJPE against optimizer steps, one line per trained model."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(6.5, 4))
-    for label, points in sorted(curves.items()):
-        steps, errors = zip(*points)
-        ax.plot(steps, errors, marker=".", label=label)
-    ax.set_xlabel("optimizer steps")
-    ax.set_ylabel("validation MPJPE (mm)")
-    ax.set_yscale("log")
-    ax.grid(alpha=0.3, which="both")
-    ax.legend(fontsize=8)
-    ax.set_title(title, fontsize=9)
-    save_figure(fig, path)
-
-
-@dataclass
-class CheckReport:
-    """What ``zoo leaderboard --check`` found: rows and tables recomputed, the largest
-    difference from the committed values (and where), and every problem (a value outside its
-    tolerance, a row or table missing on either side, a row that cannot be recomputed).
-
-    Tolerances follow from the arithmetic (see :data:`TOLERANCES`): a value is named when it
-    differs from the committed one by more than ``tolerance(metric) * max(|value|, scale)``."""
-
-    rows: int = 0
-    tables: int = 0
-    models: set = field(default_factory=set)
-    largest: tuple = (0.0, 0.0, 0.0, "")  # (share of its tolerance, relative, absolute, where)
-    problems: list = field(default_factory=list)
-    # per table ("<benchmark>/<table>"): rows checked, largest share of the tolerance, problems
-    per_table: dict = field(default_factory=dict)
-    current: str = ""
-
-    def start_table(self, name: str) -> None:
-        self.current = name
-        self.per_table.setdefault(name, {"rows": 0, "share": 0.0, "problems": []})
-
-    def problem(self, text: str) -> None:
-        """A problem of the table being checked (or of the run, outside any table)."""
-        self.problems.append(text)
-        if self.current:
-            self.per_table[self.current]["problems"].append(text)
-
-    def table_lines(self) -> list[str]:
-        """One line per table: rows checked and the largest difference as a share of the
-        tolerance, or its problems (the first named: a refusal and its reason)."""
-        lines = []
-        for name, t in self.per_table.items():
-            verdict = (
-                f"{len(t['problems'])} problem(s), first: {t['problems'][0]}"
-                if t["problems"]
-                else "passed"
-            )
-            lines.append(
-                f"{name}: {t['rows']} rows checked, largest difference {t['share']:.2f} of "
-                f"the tolerance: {verdict}"
-            )
-        return lines
-
-    def note(self, gap: np.ndarray, old: np.ndarray, allowed: np.ndarray, where) -> None:
-        """Keep the largest difference (measured as a share of its tolerance) and where
-        (``where``: text, or a function of the position of that difference)."""
-        if not gap.size:
-            return
-        share = gap / allowed
-        i = int(np.argmax(share))
-        if self.current:
-            table = self.per_table[self.current]
-            table["share"] = max(table["share"], float(share.flat[i]))
-        if share.flat[i] > self.largest[0] or not self.largest[3]:
-            relative = gap.flat[i] / max(abs(old.flat[i]), 1e-12)
-            self.largest = (
-                float(share.flat[i]),
-                float(relative),
-                float(gap.flat[i]),
-                where(i) if callable(where) else where,
-            )
-
-    def summary(self) -> str:
-        share, relative, absolute, where = self.largest
-        return (
-            f"checked {self.rows} rows of {len(self.models)} models in {self.tables} tables "
-            f"against tolerance {tolerance_text()}: largest difference {absolute:.2g} "
-            f"({relative:.2g} relative, {share:.2f} of its tolerance) at {where or '-'}"
-        )
+from zoo.tables import protocol_differences
+from zoo.tolerance import agreement
 
 
 @dataclass
@@ -383,7 +195,7 @@ class Leaderboard:
         """Before anything is evaluated or written: a stored row that this run would replace
         must be the leaderboard's own (same registry, made by a rebuild); a user's row stops
         the run, naming it and how to keep or drop it."""
-        from zoo.evaluate import protocol_for
+        from zoo.protocol import plan_protocol
 
         found_drops = set()
         for sampler in self.bench.samplers:
@@ -407,7 +219,7 @@ class Leaderboard:
                         made_by = _provenance(folder / row.label).get("made_by", MADE_BY)
                         if made_by == MADE_BY:
                             continue
-                        protocol = protocol or protocol_for(
+                        protocol = protocol or plan_protocol(
                             self.bench,
                             self.dataset,
                             sampler=sampler,
@@ -416,7 +228,7 @@ class Leaderboard:
                         )
                         differences = identity_differences(
                             stored_identity(folder / row.label),
-                            loaded.identity(self.bench, protocol["protocol_id"]),
+                            loaded.identity(self.bench, protocol.id),
                         )
                         if differences:
                             raise StoreError(
@@ -433,18 +245,11 @@ class Leaderboard:
                 file=sys.stderr,
             )
 
-    def _evaluate(self, loaded, row: Row, sampler: str, truth: str | None, task: str):
-        return evaluate(
-            loaded.model,
-            self.bench,
-            model_name=row.label,
-            sampler=sampler,
-            dataset=self.dataset,
-            device=self.device,
-            provenance=loaded.provenance,
-            ground_truth=truth,
-            view=loaded.view,
-            task=task,
+    def _evaluate(self, loaded, protocol, identity):
+        from zoo.pipeline import Subject, compute
+
+        return compute(
+            Subject.of_loaded(loaded), protocol, identity, made_by=MADE_BY, device=self.device
         )
 
     def _load(self, row: Row):
@@ -511,7 +316,8 @@ class Leaderboard:
     def _table(self, sampler: str, task: str, truth: str | None, folder: str) -> bool | None:
         """Check or bring one table up to date; None when there is no table to make, else
         whether it was (re)written."""
-        from zoo.evaluate import EvalResult, protocol_for
+        from zoo.protocol import plan_protocol
+        from zoo.results import EvalResult
 
         bench, plan, check = self.bench, self.plan, self.plan.check
         path = self.root / bench.name / folder
@@ -532,7 +338,8 @@ class Leaderboard:
             and not any(label not in {r.label for r in rows} for label in stored)
         ):
             return None  # a table of baselines alone says nothing about this task
-        protocol = protocol_for(bench, self.dataset, sampler=sampler, task=task, ground_truth=truth)
+        planned = plan_protocol(bench, self.dataset, sampler=sampler, task=task, ground_truth=truth)
+        protocol = planned.record
         if check is not None:
             check.start_table(where)
         fresh, reused, efficiency, reasons = [], [], {}, []
@@ -543,12 +350,12 @@ class Leaderboard:
                 print(f"checking {where}: {row.label} ({number}/{len(rows)})", file=sys.stderr)
                 try:  # a refusal (weights for another basis, a missing file) ends one row only
                     loaded = self._load(row)
-                    result = self._evaluate(loaded, row, sampler, truth, task)
+                    identity = loaded.identity(bench, planned.id)
+                    result = self._evaluate(loaded, planned, identity)
                 except Exception as e:  # noqa: BLE001 - every failure is reported, none stops
                     check.problem(f"{where}: {row.label}: not recomputed: {e}")
                     failed.add(row.label)
                     continue
-                stamp(result, loaded.identity(bench, protocol["protocol_id"]), made_by=MADE_BY)
                 fresh.append(result)
                 continue
             loaded = self._load(row)
@@ -582,8 +389,7 @@ class Leaderboard:
                     continue
             if why is not None:
                 reasons.append(f"{row.label}: {why}")
-            result = self._evaluate(loaded, row, sampler, truth, task)
-            stamp(result, identity, made_by=MADE_BY)
+            result = self._evaluate(loaded, planned, identity)
             if old is not None:
                 # A recomputation within the tolerance of the stored row leaves its files as
                 # they are (only a stale identity is brought up to date): a rebuild on another
@@ -619,7 +425,7 @@ class Leaderboard:
                 check.problem(f"{p}: cannot be recomputed ({_why_not_planned(p, self)})")
             if fresh:
                 # a row not recomputed is named once, above, not once per committed value
-                _check_table(fresh, path, check, unplanned={p.name for p in foreign} | failed)
+                check_table(fresh, path, check, unplanned={p.name for p in foreign} | failed)
             return True if fresh or foreign or rows else None
         kept = []
         for p in [*reused, *foreign]:
@@ -701,20 +507,6 @@ class _Unchanged(Exception):
     """A table rebuilt to the same bytes: the old folder stays."""
 
 
-def stamp(result, identity: dict, made_by: str) -> None:
-    """Record ``identity`` in a result's provenance (written to its ``protocol.json``), and
-    what made it (``zoo leaderboard``, ``zoo eval``, ``zoo.evaluate``): a rebuild replaces only
-    rows it made."""
-    stamp_record(result.protocol, identity)
-    result.protocol["provenance"]["made_by"] = made_by
-
-
-def stamp_record(protocol: dict, identity: dict) -> None:
-    """``identity`` into a protocol record's provenance (its ``made_by`` unchanged)."""
-    protocol["provenance"]["identity"] = identity
-    protocol["provenance"]["identity_id"] = identity_id(identity)
-
-
 def _same_files(old: Path, new: Path) -> bool:
     """Whether a rebuilt table's own files equal the stored ones, byte for byte."""
     return all(
@@ -782,197 +574,3 @@ def _no_further_than_best(checkpoint: Path) -> bool:
     except Exception:  # noqa: BLE001 - unreadable: shown as its own row, which then says why
         return False
     return training.get("best", {}).get("epoch") == training.get("epochs_run")
-
-
-def _check_table(
-    results: list, folder: Path, check: CheckReport, unplanned: set = frozenset()
-) -> None:
-    """Compare freshly computed results with the committed table in ``folder`` (and each
-    model's per-window errors with its ``windows.npz``)."""
-    from zoo.evaluate import WINDOWS_FILE, WindowErrors
-
-    check.tables += 1
-    if check.current:
-        check.per_table[check.current]["rows"] += len(
-            pd.concat([r.frame for r in results], ignore_index=True)
-        )
-    fresh = pd.concat([r.frame for r in results], ignore_index=True)
-    check.rows += len(fresh)
-    check.models |= set(fresh["model"])
-    if not (folder / "results.csv").is_file():
-        check.problem(f"{folder}/results.csv: missing; the leaderboard makes this table")
-        return
-    committed = pd.read_csv(folder / "results.csv")
-    committed = committed[~committed["model"].isin(unplanned)]  # named once, as folders
-    both = fresh.merge(
-        committed, on=KEY_COLUMNS, how="outer", suffixes=("", "_committed"), indicator="side"
-    )
-    for row in both[both["side"] != "both"].itertuples():
-        where = "committed only" if row.side == "right_only" else "recomputed only"
-        check.problem(
-            f"{folder}/results.csv: {where}: "
-            + ", ".join(f"{k}={getattr(row, k)}" for k in KEY_COLUMNS)
-        )
-    matched = both[both["side"] == "both"]
-    for column in ("value", "std"):  # the mean and its standard deviation over windows
-        if f"{column}_committed" not in matched:
-            check.problem(
-                f"{folder}/results.csv: no column {column!r} (written by an "
-                f"older zoo); regenerate the table"
-            )
-            continue
-        new, old = matched[column].to_numpy(float), matched[f"{column}_committed"].to_numpy(float)
-        scale = matched["value_committed"].to_numpy(float)  # a std is held to its mean's
-        difference = np.abs(new - old)
-        relative = difference / np.maximum(np.abs(old), 1e-12)
-        nan = np.isnan(new) | np.isnan(old)  # a NaN (one window's spread) matches only a NaN
-        allowed = tolerated(matched["metric"].to_numpy(), scale)
-        differs = np.where(nan, np.isnan(new) != np.isnan(old), difference > allowed)
-        keep = ~nan
-        rows = matched[keep]
-        check.note(
-            difference[keep],
-            old[keep],
-            allowed[keep],
-            lambda i, rows=rows, column=column: (
-                f"{folder.parent.name}/{folder.name}/results.csv "
-                + ", ".join(f"{k}={rows.iloc[i][k]}" for k in KEY_COLUMNS)
-                + f" ({column})"
-            ),
-        )
-        for row, rel in zip(matched[differs].itertuples(), relative[differs]):
-            check.problem(
-                f"{folder}/results.csv: "
-                + ", ".join(f"{k}={getattr(row, k)}" for k in KEY_COLUMNS)
-                + f": {column} committed "
-                f"{getattr(row, column + '_committed')!r}, recomputed {getattr(row, column)!r} "
-                f"(relative {rel:.2g}; tolerance {tolerance_text()})"
-            )
-    for row in (
-        matched[matched["protocol_id"] != matched["protocol_id_committed"]]
-        .drop_duplicates("model")
-        .itertuples()
-    ):
-        check.problem(
-            f"{folder}/results.csv: {row.model}: protocol "
-            f"{row.protocol_id_committed} committed, {row.protocol_id} now"
-        )
-    for r in results:
-        if r.windows is None:
-            continue
-        label = str(r.frame["model"].iloc[0])
-        path = folder / label / WINDOWS_FILE
-        if not path.is_file():
-            check.problem(f"{path}: missing (per-window errors of {label})")
-            continue
-        stored = WindowErrors.read(path)
-        same_windows = np.array_equal(stored.start, r.windows.start) and np.array_equal(
-            stored.sequence, r.windows.sequence
-        )
-        for key, values in r.windows.errors.items():
-            old = stored.errors.get(key)
-            if old is None or not same_windows:
-                check.problem(f"{path}: {'/'.join(key)}: missing or for other windows")
-                continue
-            old = old.astype(np.float64)
-            gap = np.abs(old - values)
-            relative = gap / np.maximum(np.abs(old), 1e-12)
-            allowed = tolerated(key[1], old)
-            check.note(
-                gap,
-                old,
-                allowed,
-                f"{folder.parent.name}/{folder.name}/{label}/{WINDOWS_FILE} {'/'.join(key)}",
-            )
-            if (gap > allowed).any():
-                check.problem(
-                    f"{path}: {'/'.join(key)}: per-window errors differ "
-                    f"beyond tolerance (relative up to {relative.max():.2g}, "
-                    f"absolute up to {gap.max():.2g}; tolerance "
-                    f"{tolerance_text()})"
-                )
-
-
-INDEX_PREAMBLE = """# Results
-
-Every table here is brought up to date by `zoo leaderboard` (the README's first command does
-cloth and CMU; `--benchmark NAME` any other), which reuses a stored row while its identity
-holds (benchmark and protocol, model class and hyper-parameters, weights' sha256, registry file
-and evaluation code, in each row's `protocol.json`) and recomputes new or stale rows; and
-re-checked without writing by `zoo leaderboard --check`, which recomputes every row (baselines,
-and trained models from the weights shipped in `weights/`) and names any value that differs
-from the committed one by more than float32 rounding across CPUs (the tolerance is printed in
-its summary line).
-
-How each number is made:
-
-- Each row is one model evaluated by `zoo.evaluate` under the protocol recorded in the folder's
-  `protocol.json` (data files and hashes, window sampler, frame rate, joints, averaging); its
-  `protocol_id` is in every row of `results.csv`, and rows of different protocols never share a
-  table. Trained rows name the shipped weights (and their sha256) they were computed from.
-- Headline tables: the benchmark's first metric, frame averaging, mean over actions. `±` is half
-  a 95% interval whose meaning each table states: with one recording per action (CMU,
-  CMU-on-Anny), a window-sampling interval, conditional on these recordings and not a confidence
-  interval for the actions; with three or more independent recordings per action (cloth), a
-  confidence interval of the benchmark mean; each with its measured coverage
-  ([docs/protocols.md](../docs/protocols.md)). Bold marks the best model and those not
-  distinguishable from it by one simultaneous comparison of all the table's models;
-  `zoo compare A B --benchmark NAME` says by how much one model beats another, and on how many
-  actions (a model can stay bold beside one that `zoo compare` separates from it: bold guards
-  against every pair at once).
-- Cost columns (parameters, forward GFLOPs per window, latency of one window, training windows
-  per second, every model in float32) are measured by `zoo costs`, never by `zoo leaderboard`,
-  and kept in `<benchmark>/costs.json`; the machine (CPU, threads) and date that measured them
-  are named under each table; they are not in `results.csv` and `--check` does not compare them.
-- Mesh tables: RMSE is per vertex, normalised by the ground-truth frame's bounding-box
-  diagonal; MELV is measured on the k-coefficient reconstructions of the reference and scored
-  frames (as SpecTrHuMS measures it) and printed as mean (standard deviation over windows);
-  `<model>:autoencoder` rows are a SpecTrHuMS model's floor, the ground-truth future through its
-  autoencoder alone. `*-gt_spectral` tables score against the k-coefficient reconstruction.
-- Rows marked `reported` are figures printed in papers (`zoo/published.yaml`), shown only where
-  their protocol matches; the others are listed under each table with their differences.
-"""
-
-
-def write_index(out_root: str | Path) -> Path:
-    """``<out_root>/README.md``: every benchmark's tables with their headline and plots."""
-    out_root = Path(out_root)
-    lines = [INDEX_PREAMBLE]
-    for bench_dir in sorted(p for p in out_root.iterdir() if p.is_dir()):
-        tables = sorted(bench_dir.glob("*/leaderboard.md"))
-        if not tables:
-            continue
-        lines += [f"## {bench_dir.name}", ""]
-        if (bench_dir / "sensitivity.md").is_file():
-            lines += [
-                f"How much the protocol moves the ranking: "
-                f"[{bench_dir.name}/sensitivity.md]({bench_dir.name}/sensitivity.md)",
-                "",
-            ]
-        if (bench_dir / "training.png").is_file():
-            lines += [
-                f"Training curves of the shipped models: "
-                f"[{bench_dir.name}/training.png]({bench_dir.name}/training.png)",
-                "",
-            ]
-        for table in tables:
-            folder = table.parent.relative_to(out_root).as_posix()
-            text = table.read_text()
-            start = text.find("## Headline")
-            headline = text[start:] if start >= 0 else ""
-            for marker in ("\n### ", "\n## "):
-                cut = headline.find(marker, 1)
-                headline = headline[:cut] if cut >= 0 else headline
-            lines += [
-                f"### {folder}",
-                "",
-                f"[leaderboard]({folder}/leaderboard.md) · [results.csv]({folder}/results.csv)"
-                f" · [plot]({folder}/mpjpe.png)",
-                "",
-            ]
-            if headline:  # its heading and table; the leaderboard explains them
-                rows = headline.strip().splitlines()
-                lines += ["##" + rows[0], "", *[r for r in rows if r.startswith("|")], ""]
-    path = out_root / "README.md"
-    atomic_write_text(path, "\n".join(lines).rstrip() + "\n")
-    return path

@@ -65,6 +65,9 @@ METRICS = {
         ),
     )
 }
+# Rows of a model's autoencoder floor (the ground-truth future through its autoencoder alone: a
+# bound, not a prediction) are labelled <model>:autoencoder.
+FLOOR_SUFFIX = ":autoencoder"
 # The ``std`` column of every row, as the mesh protocol records describe it.
 STD_DESCRIPTION = (
     "standard deviation over windows (ddof 1) of the row's error; `average` rows "

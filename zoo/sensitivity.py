@@ -157,8 +157,8 @@ class Sensitivity:
 def protocol_sensitivity(benchmark_dir: str | Path, horizons_ms=HORIZONS_MS) -> Sensitivity | None:
     """The protocol-sensitivity table of one benchmark's results folder (``results/<name>``),
     prediction tables only; None when its tables measure a single protocol."""
-    from zoo.evaluate import EvalResult
     from zoo.published import place
+    from zoo.results import EvalResult
 
     benchmark_dir = Path(benchmark_dir)
     frames, records = [], {}

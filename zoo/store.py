@@ -38,12 +38,13 @@ IDENTITY_VERSION = 1
 # The evaluator's code is zoo/evaluate.py and every zoo module it imports, directly or through
 # others (metrics, windows, benchmarks, data loaders and forward kinematics, spectral bases);
 # a model's code is its file and the zoo modules it imports. Left out: modules that only
-# present, store or move results and cannot change a number (tables, intervals, files and
-# locks, paths, errors, the process group).
+# present, store or move results and cannot change a number (tables, the result files,
+# intervals, files and locks, paths, errors, the process group).
 EVALUATOR = "zoo/evaluate.py"
 NOT_COMPUTING = frozenset(
     {
         "zoo/tables.py",
+        "zoo/results.py",
         "zoo/intervals.py",
         "zoo/published.py",
         "zoo/io.py",
@@ -275,6 +276,20 @@ def result_identity(
 
 def identity_id(identity: dict[str, Any]) -> str:
     return hashlib.sha256(canonical_json(identity).encode()).hexdigest()[:16]
+
+
+def stamp(result, identity: dict, made_by: str) -> None:
+    """Record ``identity`` in a result's provenance (written to its ``protocol.json``), and
+    what made it (``zoo leaderboard``, ``zoo eval``, ``zoo.evaluate``): a rebuild replaces only
+    rows it made."""
+    stamp_record(result.protocol, identity)
+    result.protocol["provenance"]["made_by"] = made_by
+
+
+def stamp_record(protocol: dict, identity: dict) -> None:
+    """``identity`` into a protocol record's provenance (its ``made_by`` unchanged)."""
+    protocol["provenance"]["identity"] = identity
+    protocol["provenance"]["identity_id"] = identity_id(identity)
 
 
 def identity_differences(stored: dict[str, Any] | None, new: dict[str, Any]) -> list[str]:

@@ -17,7 +17,7 @@ import pandas as pd
 from tabulate import tabulate
 
 from zoo.errors import ZooError
-from zoo.metrics import METRICS
+from zoo.metrics import FLOOR_SUFFIX, METRICS
 
 
 class ProtocolMismatchError(ZooError, ValueError):
@@ -92,8 +92,7 @@ def markdown_tables(
     horizons = list(horizons_ms or default_horizons(frame))
     out = [
         f"# {record['benchmark']}: {record['dataset']} {record['split']}, "
-        f"sampler {record['sampler']}, {record['input_frames']} in / "
-        f"{record['output_frames']} out at {record['fps']:g} fps",
+        f"sampler {record['sampler']}, {_frames_text(record)} at {record['fps']:g} fps",
         "",
         f"Protocol {ids[0]}; actions present: {', '.join(record['actions_present'])}; "
         f"{record['action_averaging']}.",
@@ -156,11 +155,27 @@ def markdown_tables(
     return "\n".join(out)
 
 
+def _frames_text(record: dict[str, Any]) -> str:
+    """``10 in / 25 out``; a long-term run says how many frames it predicted and in what steps."""
+    text = f"{record['input_frames']} in / {record['output_frames']} out"
+    if record.get("task") == "longterm":
+        text = (
+            f"{record['input_frames']} in / {record['predicted_frames']} out "
+            f"({record['output_frames']} per step, autoregressive)"
+        )
+    return text
+
+
 def default_horizons(frame: pd.DataFrame) -> list[int]:
+    """The standard columns up to 1000 ms, then (long-term runs) every 200 ms and the last
+    predicted frame."""
     standard = [80, 160, 320, 400, 560, 720, 880, 1000]
     present = set(frame["horizon_ms"])
     chosen = [h for h in standard if h in present]
-    return chosen or sorted(present)
+    if not chosen:
+        return sorted(present)
+    longer = sorted(h for h in present if h > 1000)
+    return chosen + [h for h in longer if h % 200 == 0 or h == longer[-1]]
 
 
 def _action_order(record: dict[str, Any]) -> dict[str, int]:
@@ -175,10 +190,6 @@ def headline_key(protocol: dict[str, Any]) -> tuple[str, str]:
     if protocol.get("representation") == "mesh":
         return "rmse", "vertices"
     return "mpjpe", next(iter(protocol.get("joint_protocols") or {"all": ""}))
-
-
-# Rows of a model's autoencoder floor (zoo.evaluate) are labelled <model>:autoencoder.
-FLOOR_SUFFIX = ":autoencoder"
 
 
 def is_floor(model: str) -> bool:
@@ -292,6 +303,10 @@ def interval_words(windows, models: int = 0) -> str:
                 f"paired interval against the data's best, uncorrected: "
                 f"{_pct(record['bold']['fwe_unadjusted'])})"
             )
+        text += (
+            ". Bold guards against every pair at once, so it needs a larger difference than one "
+            "pair does: a model can stay bold beside one that `zoo compare A B` separates from it"
+        )
     return text
 
 

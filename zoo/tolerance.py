@@ -68,9 +68,10 @@ class Agreement:
 
 
 def agreement(result, folder: str | Path) -> Agreement:
-    """Compare ``result`` (a :class:`zoo.evaluate.EvalResult`) with the result stored in
+    """Compare ``result`` (a :class:`zoo.results.EvalResult`) with the result stored in
     ``folder``, value by value and window by window."""
-    from zoo.evaluate import EvalResult, EvaluationError
+    from zoo.errors import EvaluationError
+    from zoo.results import EvalResult
 
     try:
         stored = EvalResult.read(folder)

@@ -39,7 +39,7 @@ REPLICATES = 1000
 
 @dataclass
 class Windows:
-    """Just what the intervals read of a :class:`zoo.evaluate.WindowErrors`."""
+    """Just what the intervals read of a :class:`zoo.results.WindowErrors`."""
 
     sequence: np.ndarray
     start: np.ndarray
@@ -143,7 +143,7 @@ def recording_coverage(repetitions: int, per_action: int, seed: int = 0) -> floa
 
 
 def _load_windows(folder: Path, model: str, metric: str, joints: str):
-    from zoo.evaluate import EvalResult
+    from zoo.results import EvalResult
 
     result = EvalResult.read(folder)
     return result.windows, result.windows.get(model, metric, joints).astype(np.float64)

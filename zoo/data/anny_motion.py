@@ -48,6 +48,8 @@ from __future__ import annotations
 import hashlib
 import importlib.metadata
 import math
+import os
+import sys
 from collections.abc import Iterable, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -159,6 +161,33 @@ def anny_version() -> str:
 # ---- the Anny model --------------------------------------------------------------------------
 
 
+@contextmanager
+def _quiet_warp():
+    """anny initialises NVIDIA Warp when it builds a model, which prints a CUDA-driver warning
+    and a banner from native code; on a machine without a CUDA device that says nothing useful,
+    so stderr is silenced meanwhile there (a failure still raises)."""
+    import torch
+
+    if torch.cuda.is_available():
+        yield
+        return
+    sys.stderr.flush()
+    saved = os.dup(2)
+    try:
+        with open(os.devnull, "w") as devnull:
+            os.dup2(devnull.fileno(), 2)
+            try:
+                import warp
+
+                warp.config.log_level = warp.LOG_WARNING
+            except (ImportError, AttributeError):  # an anny that does not use warp
+                pass
+            yield
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+
+
 def load_anny_model(
     topology: Literal["full", "low"] = "low",
     *,
@@ -173,12 +202,15 @@ def load_anny_model(
     if topology not in TOPOLOGIES:
         raise ValueError(f"topology must be one of {sorted(TOPOLOGIES)}, got {topology!r}")
     anny_version()
-    import anny
-    import anny.paths
+    with _quiet_warp():
+        import anny
+        import anny.paths
 
-    if anny_cache_dir is not None:
-        anny.paths.set_anny_cache_path(Path(anny_cache_dir))
-    model = anny.Anny(rig="cmu_mb", topology=QUAD_TOPOLOGIES.get(topology, TOPOLOGIES[topology]))
+        if anny_cache_dir is not None:
+            anny.paths.set_anny_cache_path(Path(anny_cache_dir))
+        model = anny.Anny(
+            rig="cmu_mb", topology=QUAD_TOPOLOGIES.get(topology, TOPOLOGIES[topology])
+        )
     model = model.to(dtype)
     missing = [
         BVH_TO_ANNY.get(n, n)

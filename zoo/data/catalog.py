@@ -58,6 +58,8 @@ def describe(dataset: MeshDataset | MotionDataset) -> dict[str, Any]:
                 + (" ..." if len(dataset.sequences) > 3 else ""),
             }
         )
+        if dataset.notes:
+            info["notes"] = "; ".join(dataset.notes)
     return info
 
 

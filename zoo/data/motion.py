@@ -7,7 +7,6 @@ carry their action, file, hash and fps.
 
 from __future__ import annotations
 
-import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -124,6 +123,32 @@ def _check_root(root: str | Path | None, what: str, hint: str) -> Path:
     return root
 
 
+def cmu_skipped(root: Path, split: str, actions: tuple[str, ...] = CMU_ACTIONS) -> list[str]:
+    """What :func:`load_cmu` passes over in ``<root>/<split>``: files of an action folder that
+    are not ``<action>_<n>.txt``, and folders that are not among ``actions``."""
+    split_dir = Path(root) / split
+    if not split_dir.is_dir():
+        return []
+    skipped = []
+    for action in actions:
+        folder = split_dir / action
+        if not folder.is_dir():
+            continue
+        files = set(folder.glob(f"{action}_*.txt"))
+        others = sorted(p.name for p in folder.iterdir() if p not in files)
+        if others:
+            skipped.append(
+                f"{folder.relative_to(root)}: skipped {', '.join(others)} (not {action}_<n>.txt)"
+            )
+    unknown = sorted(p.name for p in split_dir.iterdir() if p.name not in actions)
+    if unknown:
+        skipped.append(
+            f"{split_dir.relative_to(root)}: skipped {', '.join(unknown)} (not among "
+            f"the benchmark's actions {', '.join(actions)})"
+        )
+    return skipped
+
+
 def load_cmu(
     root: str | Path | None, split: str = "test", actions: tuple[str, ...] = CMU_ACTIONS
 ) -> MotionDataset:
@@ -146,7 +171,7 @@ def load_cmu(
             f"{split_dir}: CMU split folder missing (expected "
             f"<data-root>/{split}/<action>/<action>_<n>.txt)"
         )
-    sequences, notes, skipped = [], [], []
+    sequences, notes = [], []
     for action in actions:
         folder = split_dir / action
         if not folder.is_dir():
@@ -155,25 +180,12 @@ def load_cmu(
         files = sorted(folder.glob(f"{action}_*.txt"), key=_file_number)
         if not files:
             raise DataFormatError(f"{folder}: action folder holds no {action}_<n>.txt file")
-        others = sorted(p.name for p in folder.iterdir() if p not in files)
-        if others:
-            skipped.append(
-                f"{folder.relative_to(root)}: skipped {', '.join(others)} (not {action}_<n>.txt)"
-            )
         # The field treats these files as 50 Hz, so 25 Hz after halving.
         sequences += [_load_sequence(f, root, action, CMU, 50.0, 2) for f in files]
     if not sequences:
         raise DataFormatError(f"{split_dir}: none of the actions {', '.join(actions)} has a file")
-    unknown = sorted(p.name for p in split_dir.iterdir() if p.name not in actions)
-    if unknown:
-        skipped.append(
-            f"{split_dir.relative_to(root)}: skipped {', '.join(unknown)} (not among "
-            f"the benchmark's actions {', '.join(actions)})"
-        )
-    # Files passed over are something a user should hear about (absent actions are a protocol
-    # fact, recorded in actions_present).
-    for note in skipped:
-        print(f"note: {note}", file=sys.stderr)
+    # Files passed over are listed by `zoo data list` and `zoo data describe` (absent actions
+    # are a protocol fact, recorded in actions_present), not printed by every load.
     return MotionDataset(
         name="cmu_mocap",
         split=split,
@@ -183,7 +195,7 @@ def load_cmu(
         actions_requested=tuple(actions),
         ltd_rule="per_file",
         source_fps=50.0,
-        notes=notes + skipped,
+        notes=notes + cmu_skipped(root, split, actions),
     )
 
 

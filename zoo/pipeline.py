@@ -1,0 +1,147 @@
+"""One path from a model to a stored result, shared by ``zoo eval``, ``zoo.evaluate`` and
+``zoo leaderboard`` (nothing else orchestrates an evaluation):
+
+1. the model source resolved (:class:`Subject`: a registered model, checkpoint or shipped
+   weights through :mod:`zoo.model_source`, or a module handed over from Python);
+2. the protocol planned once (:func:`zoo.protocol.plan_protocol`), and the subject's identity
+   under it;
+3. the place checked before anything runs (:func:`place`: a stored result of another identity
+   is refused unless replaced);
+4. the evaluation (:func:`compute`: the evaluator on the planned windows, the identity stamped);
+5. the result stored (:func:`store`: a recomputation that agrees with the stored result of its
+   identity, within :mod:`zoo.tolerance`, leaves the stored files byte for byte).
+
+The leaderboard decides per table which rows to reuse and writes whole tables; for every row it
+evaluates, it goes through :func:`compute`, as the others do.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from torch import nn
+
+from zoo.evaluate import EVAL_BATCH, evaluate
+from zoo.io import check_output_folder
+from zoo.protocol import Protocol
+from zoo.results import EvalResult
+from zoo.store import check_replace, stamp
+from zoo.tolerance import Agreement, agreement
+
+
+@dataclass
+class Subject:
+    """The model a result is about: the module, its row label, what it is fed (``view``: mesh
+    or joints), what its results record about it, and its identity under a protocol."""
+
+    model: nn.Module
+    label: str
+    view: str
+    provenance: dict[str, Any]
+    identity_under: Callable[[Protocol], dict[str, Any]]
+
+    @classmethod
+    def of_loaded(cls, loaded) -> Subject:
+        """A model from :meth:`zoo.model_source.ModelSource.load`."""
+        return cls(
+            loaded.model,
+            loaded.label,
+            loaded.view,
+            _jsonable(loaded.provenance),
+            lambda protocol: loaded.identity(protocol.benchmark, protocol.id),
+        )
+
+    @classmethod
+    def of_module(cls, model: nn.Module, label: str, view: str) -> Subject:
+        """A module handed over from Python (no registry): its class, settings and weights."""
+        from zoo.model_source import object_identity
+
+        return cls(
+            model,
+            label,
+            view,
+            {"class": f"{type(model).__module__}.{type(model).__qualname__}"},
+            lambda protocol: object_identity(model, label, protocol.benchmark, protocol.id),
+        )
+
+
+def _jsonable(value):
+    """``value`` as JSON holds it (anything else by its repr)."""
+    if isinstance(value, dict):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, (str, int, float, bool)) or value is None:
+        return value
+    return repr(value)
+
+
+@dataclass
+class Place:
+    """Where a result goes (or None: nothing written), the identity it will carry and what is
+    stored there now (:func:`zoo.store.check_replace`: new, same or replace)."""
+
+    folder: Path | None
+    identity: dict[str, Any]
+    status: str = "new"
+
+
+def place(
+    subject: Subject, protocol: Protocol, folder: str | Path | None, replace: bool = False
+) -> Place:
+    """Check, before anything is evaluated, that ``folder`` may receive this result."""
+    identity = subject.identity_under(protocol)
+    if folder is None:
+        return Place(None, identity)
+    folder = Path(folder)
+    check_output_folder(folder)
+    return Place(folder, identity, check_replace(folder, identity, replace, protocol.record))
+
+
+def compute(
+    subject: Subject,
+    protocol: Protocol,
+    identity: dict[str, Any],
+    *,
+    made_by: str,
+    device: str = "cpu",
+    batch_size: int = EVAL_BATCH,
+) -> EvalResult:
+    """The subject evaluated on the protocol's windows, its identity and maker stamped."""
+    result = evaluate(
+        subject.model,
+        protocol.benchmark,
+        model_name=subject.label,
+        protocol=protocol,
+        view=subject.view,
+        batch_size=batch_size,
+        device=device,
+        provenance=subject.provenance,
+    )
+    stamp(result, identity, made_by=made_by)
+    return result
+
+
+@dataclass
+class Stored:
+    """What :func:`store` did: ``written`` (nothing of this identity was there), ``kept`` (the
+    stored result agrees: its files untouched) or ``rewritten`` (it differed beyond tolerance,
+    or could not be read: ``agreed.why``)."""
+
+    action: str
+    agreed: Agreement | None = None
+
+
+def store(result: EvalResult, where: Place) -> Stored:
+    """Write ``result`` to ``where.folder``, unless the result stored there of the same
+    identity agrees with it within the tolerance."""
+    agreed = None
+    if where.status == "same":
+        agreed = agreement(result, where.folder)
+        if agreed.same:
+            return Stored("kept", agreed)
+    result.write(where.folder)
+    return Stored("rewritten" if agreed is not None else "written", agreed)

@@ -1,0 +1,205 @@
+"""What a leaderboard writes and draws: a table's ``results.csv``, ``leaderboard.md`` (tables
+from :mod:`zoo.tables`), ``protocol.json``, ``efficiency.csv`` and ``mpjpe.png``; the shipped
+models' training curves; ``results/README.md``, the index of every table. Nothing here
+evaluates."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from pathlib import Path
+
+import pandas as pd
+
+from zoo.io import atomic_write_json, atomic_write_text, save_figure
+from zoo.tables import check_comparable, headline_table, markdown_tables, metric_unit
+
+
+def write_leaderboard(
+    results: list,
+    out_dir: str | Path,
+    horizons_ms: Iterable[int] | None = None,
+    efficiency: dict[str, dict] | None = None,
+) -> Path:
+    """Combine :class:`zoo.results.EvalResult` objects of one protocol into ``out_dir``:
+    ``results.csv``, ``leaderboard.md``, ``protocol.json`` and ``mpjpe.png``; ``efficiency``
+    (per row label, the costs ``zoo costs`` stored: :class:`zoo.efficiency.Costs`) fills the
+    headline's cost columns and ``efficiency.csv`` (a dict without a row's label: its cost
+    cells stay empty, and the table says how to fill them)."""
+    out_dir = Path(out_dir)
+    # Rows and runs in model order, whichever models were evaluated now and which were stored:
+    # regenerating then rewrites no unchanged table.
+    results = sorted(results, key=lambda r: str(r.frame["model"].iloc[0]))
+    records = {r.protocol["protocol_id"]: r.protocol for r in results}
+    check_comparable(records)
+    frame = pd.concat([r.frame for r in results], ignore_index=True)
+    tables = markdown_tables(
+        frame, records, horizons_ms, headline=headline_table(results, horizons_ms, efficiency)
+    )
+    protocol = dict(results[0].protocol)
+    protocol["provenance"] = {"runs": [r.protocol.get("provenance", {}) for r in results]}
+    atomic_write_text(out_dir / "results.csv", frame.to_csv(index=False))
+    atomic_write_text(out_dir / "leaderboard.md", tables)
+    atomic_write_json(out_dir / "protocol.json", protocol)
+    if efficiency:
+        atomic_write_text(out_dir / "efficiency.csv", efficiency_csv(frame["model"], efficiency))
+    plot_average(frame, out_dir / "mpjpe.png", title=tables.splitlines()[0].lstrip("# "))
+    return out_dir
+
+
+def efficiency_csv(models: Iterable[str], efficiency: dict[str, dict]) -> str:
+    """``efficiency.csv``: the stored costs of a table's ``models``, one row each."""
+    labels = sorted(set(models) & set(efficiency))
+    costs = pd.DataFrame([{"model": m, **efficiency[m]} for m in labels])
+    counts = {c: "Int64" for c in ("latency_repeats", "training_steps") if c in costs}
+    return costs.astype(counts).to_csv(index=False)
+
+
+def plot_average(frame: pd.DataFrame, path: str | Path, title: str = "") -> None:
+    """Error against horizon for the action average: one panel per (averaging, joints)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    avg = frame[frame["action"] == "average"]
+    panels = sorted(avg.groupby(["metric", "averaging", "joints"]).groups)
+    fig, axes = plt.subplots(1, len(panels), figsize=(4.5 * len(panels), 3.8), squeeze=False)
+    for ax, key in zip(axes[0], panels):
+        metric, averaging, joints = key
+        sub = avg[
+            (avg["metric"] == metric) & (avg["averaging"] == averaging) & (avg["joints"] == joints)
+        ]
+        for model, rows in sub.groupby("model"):
+            rows = rows.sort_values("horizon_ms")
+            ax.plot(rows["horizon_ms"], rows["value"], marker=".", label=model)
+        ax.set_title(f"{metric} ({averaging}, {joints})", fontsize=9)
+        ax.set_xlabel("horizon (ms)")
+        ax.set_ylabel(metric_unit(metric)[0])
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    fig.suptitle(title, fontsize=9)
+    save_figure(fig, path)
+
+
+def training_curves(
+    weights_root: str | Path | None, benchmark: str
+) -> dict[str, list[tuple[int, float]]]:
+    """``{label: [(optimizer steps, validation MPJPE mm), ...]}`` of every shipped model of
+    ``benchmark`` whose record holds its training history (exported from a ``last.pt``)."""
+    from zoo.weights import available_weights, read_weights_record, training_points, weights_file
+
+    curves = {}
+    for bench, label in available_weights(weights_root):
+        if bench != benchmark:
+            continue
+        points = training_points(read_weights_record(weights_file(bench, label, weights_root)))
+        if points:
+            curves[label] = points
+    return curves
+
+
+def plot_training_curves(
+    curves: dict[str, list[tuple[int, float]]], path: str | Path, title: str = ""
+) -> None:
+    """Validation MPJPE against optimizer steps, one line per trained model."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6.5, 4))
+    for label, points in sorted(curves.items()):
+        steps, errors = zip(*points)
+        ax.plot(steps, errors, marker=".", label=label)
+    ax.set_xlabel("optimizer steps")
+    ax.set_ylabel("validation MPJPE (mm)")
+    ax.set_yscale("log")
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(fontsize=8)
+    ax.set_title(title, fontsize=9)
+    save_figure(fig, path)
+
+
+INDEX_PREAMBLE = """# Results
+
+Every table here is brought up to date by `zoo leaderboard` (the README's first command does
+cloth and CMU; `--benchmark NAME` any other), which reuses a stored row while its identity
+holds (benchmark and protocol, model class and hyper-parameters, weights' sha256, registry file
+and evaluation code, in each row's `protocol.json`) and recomputes new or stale rows; and
+re-checked without writing by `zoo leaderboard --check`, which recomputes every row (baselines,
+and trained models from the weights shipped in `weights/`) and names any value that differs
+from the committed one by more than float32 rounding across CPUs (the tolerance is printed in
+its summary line).
+
+How each number is made:
+
+- Each row is one model evaluated by `zoo.evaluate` under the protocol recorded in the folder's
+  `protocol.json` (data files and hashes, window sampler, frame rate, joints, averaging); its
+  `protocol_id` is in every row of `results.csv`, and rows of different protocols never share a
+  table. Trained rows name the shipped weights (and their sha256) they were computed from.
+- Headline tables: the benchmark's first metric, frame averaging, mean over actions. `±` is half
+  a 95% interval whose meaning each table states: with one recording per action (CMU,
+  CMU-on-Anny), a window-sampling interval, conditional on these recordings and not a confidence
+  interval for the actions; with three or more independent recordings per action (cloth), a
+  confidence interval of the benchmark mean; each with its measured coverage
+  ([docs/protocols.md](../docs/protocols.md)). Bold marks the best model and those not
+  distinguishable from it by one simultaneous comparison of all the table's models;
+  `zoo compare A B --benchmark NAME` says by how much one model beats another, and on how many
+  actions (a model can stay bold beside one that `zoo compare` separates from it: bold guards
+  against every pair at once).
+- Cost columns (parameters, forward GFLOPs per window, latency of one window, training windows
+  per second, every model in float32) are measured by `zoo costs`, never by `zoo leaderboard`,
+  and kept in `<benchmark>/costs.json`; the machine (CPU, threads) and date that measured them
+  are named under each table; they are not in `results.csv` and `--check` does not compare them.
+- Mesh tables: RMSE is per vertex, normalised by the ground-truth frame's bounding-box
+  diagonal; MELV is measured on the k-coefficient reconstructions of the reference and scored
+  frames (as SpecTrHuMS measures it) and printed as mean (standard deviation over windows);
+  `<model>:autoencoder` rows are a SpecTrHuMS model's floor, the ground-truth future through its
+  autoencoder alone. `*-gt_spectral` tables score against the k-coefficient reconstruction.
+- Rows marked `reported` are figures printed in papers (`zoo/published.yaml`), shown only where
+  their protocol matches; the others are listed under each table with their differences.
+"""
+
+
+def write_index(out_root: str | Path) -> Path:
+    """``<out_root>/README.md``: every benchmark's tables with their headline and plots."""
+    out_root = Path(out_root)
+    lines = [INDEX_PREAMBLE]
+    for bench_dir in sorted(p for p in out_root.iterdir() if p.is_dir()):
+        tables = sorted(bench_dir.glob("*/leaderboard.md"))
+        if not tables:
+            continue
+        lines += [f"## {bench_dir.name}", ""]
+        if (bench_dir / "sensitivity.md").is_file():
+            lines += [
+                f"How much the protocol moves the ranking: "
+                f"[{bench_dir.name}/sensitivity.md]({bench_dir.name}/sensitivity.md)",
+                "",
+            ]
+        if (bench_dir / "training.png").is_file():
+            lines += [
+                f"Training curves of the shipped models: "
+                f"[{bench_dir.name}/training.png]({bench_dir.name}/training.png)",
+                "",
+            ]
+        for table in tables:
+            folder = table.parent.relative_to(out_root).as_posix()
+            text = table.read_text()
+            start = text.find("## Headline")
+            headline = text[start:] if start >= 0 else ""
+            for marker in ("\n### ", "\n## "):
+                cut = headline.find(marker, 1)
+                headline = headline[:cut] if cut >= 0 else headline
+            lines += [
+                f"### {folder}",
+                "",
+                f"[leaderboard]({folder}/leaderboard.md) · [results.csv]({folder}/results.csv)"
+                f" · [plot]({folder}/mpjpe.png)",
+                "",
+            ]
+            if headline:  # its heading and table; the leaderboard explains them
+                rows = headline.strip().splitlines()
+                lines += ["##" + rows[0], "", *[r for r in rows if r.startswith("|")], ""]
+    path = out_root / "README.md"
+    atomic_write_text(path, "\n".join(lines).rstrip() + "\n")
+    return path
