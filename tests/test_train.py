@@ -460,3 +460,49 @@ def test_a_validation_sampler_thins_validation_and_old_checkpoints_resume(setup,
     del state["recipe"]["val_sampler"]
     torch.save(state, plain_run / "last.pt")
     run(setup, plain_run, epochs=2, max_batches=2, resume=True)
+
+
+def test_validation_by_recordings_holds_out_whole_recordings_and_records_them(tmp_path):
+    root = tmp_path / "cmu"
+    for i in range(1, 9):  # eight training recordings; with val_fraction 0.25, every 4th
+        write_cmu_file(root / "train" / "walking" / f"walking_{i}.txt", 0.01 * i * np.arange(300))
+    write_cmu_file(root / "test" / "walking" / "walking_1.txt", 0.01 * np.arange(300))
+    reg_file = tmp_path / "registry.yaml"
+    reg_file.write_text(REGISTRY)
+    shutil.copy(HERE / "tiny_models.py", tmp_path / "tiny_models.py")
+    registry = Registry.from_files(Path(__file__).resolve().parents[1] / "registry.yaml", reg_file)
+    assert train_module.held_out_recordings([f"r{i}" for i in range(8)], 0.25) == [2, 6]
+    best = train(
+        "tiny",
+        "cmu",
+        registry=registry,
+        data_root=root,
+        out_dir=tmp_path / "run",
+        progress=False,
+        epochs=1,
+        train_overrides={"val_split": "recordings", "val_fraction": 0.25},
+    )
+    validation = read_checkpoint(best)["validation"]
+    # every 4th recording in name order, starting half a step in: the 3rd and the 7th
+    assert [h.rsplit("/", 1)[-1].removesuffix(".txt") for h in validation["recordings"]] == [
+        "walking_3",
+        "walking_7",
+    ]
+    assert validation["split"] == "recordings" and validation["windows"] == 2 * (150 - 35 + 1)
+    auto = read_checkpoint(run_default(registry, root, tmp_path / "auto"))["validation"]
+    assert auto["split"] == "auto" and "last 10%" in auto["rule"]
+    with pytest.raises(TrainingError, match="val_split 'shuffled' unknown; valid: auto"):
+        train(
+            "tiny",
+            "cmu",
+            registry=registry,
+            data_root=root,
+            out_dir=tmp_path / "bad",
+            progress=False,
+            train_overrides={"val_split": "shuffled"},
+        )
+
+
+def run_default(registry, root, out):
+    return train("tiny", "cmu", registry=registry, data_root=root, out_dir=out, progress=False,
+                 epochs=1)  # fmt: skip

@@ -346,6 +346,8 @@ def export_weights(
         "training": ckpt.get("training", {}),
         "history": ckpt.get("history"),
         "training_data": ckpt.get("training_data"),
+        # the recordings (or share of each) held out for validation, and its windows
+        "validation": ckpt.get("validation"),
         "code_version": ckpt.get("code_version"),
         "torch": ckpt.get("torch"),
         "checkpoint": repo_relative(checkpoint),

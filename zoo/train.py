@@ -76,6 +76,11 @@ DEFAULT_RECIPE: dict[str, Any] = {
     "schedule": {"type": "constant"},
     "augment": [],
     "val_fraction": 0.1,
+    # Which frames validate (see split_train_val): "auto", the last val_fraction of every
+    # sequence where all are long enough (CMU), else the last val_fraction of the sequences
+    # (cloth); "recordings", whole recordings spread over the data (every k-th by name, k =
+    # 1 / val_fraction), so that validation sees many recordings and subjects.
+    "val_split": "auto",
     "train_sampler": "all",
     # Validation windows of the held-out frames: every window by default; a sparser sampler
     # (e.g. stride5_strict) cuts the cost of validating large meshes every epoch.
@@ -86,6 +91,7 @@ DEFAULT_RECIPE: dict[str, Any] = {
     "precision": "float32",
 }
 PRECISIONS = {"float32": None, "bfloat16": torch.bfloat16}
+VAL_SPLITS = ("auto", "recordings")
 SCHEDULES = ("constant", "step", "cosine", "multistep")
 AUGMENTATIONS = ("time_reversal",)
 
@@ -190,6 +196,11 @@ def training_recipe(
         raise TrainingError(
             f"training recipe: val_fraction must lie in (0, 0.5), got {recipe['val_fraction']}"
         )
+    if recipe["val_split"] not in VAL_SPLITS:
+        raise TrainingError(
+            f"training recipe: val_split {recipe['val_split']!r} unknown; valid: "
+            f"{', '.join(VAL_SPLITS)}"
+        )
     return recipe
 
 
@@ -237,18 +248,36 @@ def sequence_frames(sequence) -> np.ndarray:
     return sequence.positions if hasattr(sequence, "positions") else sequence.vertices
 
 
+def held_out_recordings(names: list[str], val_fraction: float) -> list[int]:
+    """The recordings ``val_split: recordings`` holds out: every k-th in name order (k = round(1
+    / val_fraction)), starting half a step in, so they spread over subjects and takes."""
+    step = max(2, round(1 / val_fraction))
+    order = sorted(range(len(names)), key=lambda i: names[i])
+    return sorted(order[step // 2 :: step])
+
+
 def split_train_val(
-    dataset, val_fraction: float, window: int, arrays: list | None = None
+    dataset, val_fraction: float, window: int, arrays: list | None = None, rule: str = "auto"
 ) -> tuple[list, list]:
     """Training and validation arrays ``(T, P, 3)``, never overlapping.
 
-    Where every sequence is long enough, the last ``val_fraction`` of each (in time) is held out
-    (CMU: long recordings); otherwise whole sequences are, the last ``val_fraction`` of them
-    (cloth: one window per sequence). ``arrays``: other per-frame arrays of the dataset's
-    sequences (a training view), split exactly as the frames are.
+    ``rule`` ``auto``: where every sequence is long enough, the last ``val_fraction`` of each
+    (in time) is held out (CMU: long recordings); otherwise whole sequences are, the last
+    ``val_fraction`` of them (cloth: one window per sequence). ``recordings``: whole recordings,
+    every k-th by name (:func:`held_out_recordings`). ``arrays``: other per-frame arrays of the
+    dataset's sequences (a training view), split exactly as the frames are.
     """
     if arrays is None:
         arrays = [sequence_frames(s) for s in dataset.sequences]
+    if rule == "recordings":
+        held = set(held_out_recordings([s.name for s in dataset.sequences], val_fraction))
+        if len(held) >= len(arrays):
+            raise TrainingError(
+                f"{dataset.name}/{dataset.split}: {len(arrays)} recordings are too few to "
+                f"hold {val_fraction:.0%} of them out for validation"
+            )
+        kept = [a for i, a in enumerate(arrays) if i not in held]
+        return kept, [arrays[i] for i in sorted(held)]
     if all(len(a) * val_fraction >= window for a in arrays):
         cuts = [int(round(len(a) * (1 - val_fraction))) for a in arrays]
         return [a[:c] for a, c in zip(arrays, cuts)], [a[c:] for a, c in zip(arrays, cuts)]
@@ -470,7 +499,9 @@ def train(
     )
     t_in, t_out = bench.input_frames, bench.output_frames
     length = t_in + t_out
-    train_seqs, val_seqs = split_train_val(dataset, recipe["val_fraction"], length)
+    train_seqs, val_seqs = split_train_val(
+        dataset, recipe["val_fraction"], length, rule=recipe["val_split"]
+    )
     train_pos, train_index = _windows(train_seqs, length, recipe["train_sampler"], t_in, t_out)
     val_pos, val_index = _windows(val_seqs, length, recipe["val_sampler"], t_in, t_out)
     if len(train_index) == 0:
@@ -493,7 +524,9 @@ def train(
     train_src, src_points = train_pos, used
     if hasattr(model, "training_view"):
         views = training_view_arrays(model, dataset, used, progress=progress)
-        view_train, _ = split_train_val(dataset, recipe["val_fraction"], length, arrays=views)
+        view_train, _ = split_train_val(
+            dataset, recipe["val_fraction"], length, arrays=views, rule=recipe["val_split"]
+        )
         train_src, view_index = _windows(view_train, length, recipe["train_sampler"], t_in, t_out)
         src_points = slice(None)
         if not np.array_equal(view_index, train_index):
@@ -542,6 +575,7 @@ def train(
         "max_batches": max_batches,
         "recipe_changes": recipe_changes,
         "init_from": init_record,
+        "validation": validation_record(dataset, recipe, len(val_index)),
     }
 
     def training_frames():
@@ -786,6 +820,26 @@ def validate(
         total += err.sum().item()
         count += err.numel()
     return total / count
+
+
+def validation_record(dataset, recipe: dict[str, Any], windows: int) -> dict[str, Any]:
+    """What a run validated on, as its checkpoint and shipped record say: the rule, the
+    held-out recordings (or the share of every recording) and the number of windows."""
+    names = [s.name for s in dataset.sequences]
+    if recipe["val_split"] == "recordings":
+        held = [names[i] for i in held_out_recordings(names, recipe["val_fraction"])]
+        what = {"recordings": held}
+    else:
+        what = {
+            "rule": f"auto: the last {recipe['val_fraction']:.0%} of every recording, or "
+            f"of the recordings where some are shorter than 1 / val_fraction windows"
+        }
+    return {
+        "split": recipe["val_split"],
+        "of": f"{dataset.name}/{dataset.split} ({len(names)} recordings)",
+        **what,
+        "windows": int(windows),
+    }
 
 
 def _training_data(dataset) -> dict[str, Any]:
