@@ -87,3 +87,27 @@ def test_a_card_without_its_end_marker_is_refused(tmp_path):
     (cards / "mlp.md").write_text("# mlp\n\nedited by hand, marker lost\n")
     with pytest.raises(CardError, match="mlp.md: no end marker"):
         build_cards(cards, weights_root=weights)
+
+
+def test_a_card_sets_its_rows_against_the_paper_per_action_under_the_same_protocol():
+    import pandas as pd
+
+    from zoo.published import load_published
+
+    paper = next(p for p in load_published() if p.label == "spgsn (reported)")
+    frame = pd.read_csv(REPO_ROOT / "results" / "cmu" / "all" / "results.csv")
+    mine = frame[
+        (frame["model"] == "spgsn")
+        & (frame["metric"] == "mpjpe")
+        & (frame["joints"] == "all38")
+        & (frame["averaging"] == "frame")
+        & (frame["horizon_ms"] == 80)
+    ].set_index("action")["value"]
+    actions = list(paper.per_action)
+    card = (CARDS_DIR / "spgsn.md").read_text()
+    block = card.split("`spgsn` over **spgsn (reported)**", 1)[1].split("\n\n", 2)[1]
+    lines = {row.split("|")[1].strip(): row.split("|")[2].strip() for row in block.splitlines()[2:]}
+    for action in actions:
+        assert lines[action] == f"{mine[action] / paper.per_action[action][80]:.2f}"
+    mean = sum(mine[a] for a in actions) / sum(paper.per_action[a][80] for a in actions)
+    assert lines[f"mean of {len(actions)}"] == f"{mean:.2f}"

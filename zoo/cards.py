@@ -279,6 +279,7 @@ def _row_tables(name: str, results_root: Path) -> list[str]:
             "",
         ]
         out += _table(["row", *(f"{h} ms" for h in horizons), "parameters", "latency (ms)"], body)
+        out += _against_paper(name, frame, record, labels)
     if not out:
         return ["No rows in `results/` yet.", ""]
     return [
@@ -288,6 +289,47 @@ def _row_tables(name: str, results_root: Path) -> list[str]:
         "",
         *out,
     ]
+
+
+def _against_paper(name: str, frame: pd.DataFrame, record: dict, labels: list[str]) -> list[str]:
+    """Each row over the paper's per-action figures measured under this table's protocol: per
+    action, and the rows' mean over the paper's mean on the actions both have."""
+    out = []
+    for paper in load_published():
+        if paper.model != name or paper.per_action is None:
+            continue
+        if paper.benchmark != record.get("benchmark") or any(
+            record.get(k) != v for k, v in paper.protocol.items()
+        ):
+            continue
+        actions = [a for a in record.get("actions_present", []) if a in paper.per_action]
+        if not actions:
+            continue
+        horizons = sorted(set.intersection(*(set(paper.per_action[a]) for a in actions)))
+        rows = frame[
+            (frame["metric"] == paper.metric)
+            & (frame["joints"] == paper.joints)
+            & (frame["averaging"] == paper.averaging)
+        ]
+        for label in labels:
+            mine = rows[rows["model"] == label].set_index(["action", "horizon_ms"])["value"]
+            if not all((a, h) in mine.index for a in actions for h in horizons):
+                continue
+            body = [
+                [a, *(f"{mine[(a, h)] / paper.per_action[a][h]:.2f}" for h in horizons)]
+                for a in actions
+            ]
+            means = [
+                sum(mine[(a, h)] for a in actions) / sum(paper.per_action[a][h] for a in actions)
+                for h in horizons
+            ]
+            body.append([f"mean of {len(actions)}", *(f"{m:.2f}" for m in means)])
+            out += [
+                f"`{label}` over **{paper.label}** ({paper.source}), same protocol:",
+                "",
+                *_table(["action", *(f"{h} ms" for h in horizons)], body),
+            ]
+    return out
 
 
 def _millions(parameters: int) -> str:
