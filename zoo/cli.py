@@ -335,7 +335,7 @@ def cmd_costs(args) -> int:
 
 
 def cmd_cards(args) -> int:
-    from zoo.cards import build_cards, card_diff
+    from zoo.cards import build_cards
 
     statuses = build_cards(
         Path(args.out),
@@ -349,13 +349,8 @@ def cmd_cards(args) -> int:
         state = "up to date" if s.fresh else s.reason
         verb = "" if s.fresh or args.check else " (rewritten)"
         print(f"{s.path}: {state}{verb}")
-        if args.check and not s.fresh and s.path.is_file() and s.path.name != "README.md":
-            for line in card_diff(
-                s.path,
-                _registry(args),
-                weights_root=Path(args.weights),
-                results_root=Path(args.results),
-            )[:6]:
+        if args.check:
+            for line in s.diff[:6]:
                 print(f"    {line}")
     if args.check and stale:
         print(f"{len(stale)} of {len(statuses)} card(s) stale: run `zoo cards` to rewrite them")

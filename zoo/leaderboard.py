@@ -17,6 +17,8 @@ from zoo.check import CheckReport, check_table
 from zoo.efficiency import COSTS_FILE, Costs, architecture, cost_key
 from zoo.io import atomic_write_json, replace_folder
 from zoo.model_source import ModelSource
+from zoo.pipeline import Subject, compute
+from zoo.protocol import plan_protocol
 from zoo.report import plot_training_curves, training_curves, write_leaderboard
 from zoo.store import (
     RESULTS_DIR,
@@ -117,6 +119,7 @@ class Leaderboard:
             )
         self.counts = {"reused": 0, "recomputed": 0, "agreed": 0, "kept": 0, "dropped": 0}
         self.loaded: dict = {}
+        self.protocols: dict = {}  # each table's protocol, planned once: {(sampler, task, truth)}
         unknown = sorted(set(plan.models) - set(registry.list_models()))
         if unknown:
             raise StoreError(
@@ -195,8 +198,6 @@ class Leaderboard:
         """Before anything is evaluated or written: a stored row that this run would replace
         must be the leaderboard's own (same registry, made by a rebuild); a user's row stops
         the run, naming it and how to keep or drop it."""
-        from zoo.protocol import plan_protocol
-
         found_drops = set()
         for sampler in self.bench.samplers:
             for task in tasks:
@@ -212,23 +213,15 @@ class Leaderboard:
                         and (folder / r.label / "protocol.json").is_file()
                         and (not self.plan.models or r.name in self.plan.models)
                     ]
-                    protocol = None
                     for row in rows:
                         loaded = self._load(row)
                         _refuse_foreign_registry(folder / row.label, loaded, row.label)
                         made_by = _provenance(folder / row.label).get("made_by", MADE_BY)
                         if made_by == MADE_BY:
                             continue
-                        protocol = protocol or plan_protocol(
-                            self.bench,
-                            self.dataset,
-                            sampler=sampler,
-                            task=task,
-                            ground_truth=truth,
-                        )
                         differences = identity_differences(
                             stored_identity(folder / row.label),
-                            loaded.identity(self.bench, protocol.id),
+                            loaded.identity(self.bench, self._protocol(sampler, task, truth).id),
                         )
                         if differences:
                             raise StoreError(
@@ -245,9 +238,16 @@ class Leaderboard:
                 file=sys.stderr,
             )
 
-    def _evaluate(self, loaded, protocol, identity):
-        from zoo.pipeline import Subject, compute
+    def _protocol(self, sampler: str, task: str, truth: str | None):
+        """A table's protocol, planned once for the preflight and the table alike."""
+        key = (sampler, task, truth)
+        if key not in self.protocols:
+            self.protocols[key] = plan_protocol(
+                self.bench, self.dataset, sampler=sampler, task=task, ground_truth=truth
+            )
+        return self.protocols[key]
 
+    def _evaluate(self, loaded, protocol, identity):
         return compute(
             Subject.of_loaded(loaded), protocol, identity, made_by=MADE_BY, device=self.device
         )
@@ -316,7 +316,6 @@ class Leaderboard:
     def _table(self, sampler: str, task: str, truth: str | None, folder: str) -> bool | None:
         """Check or bring one table up to date; None when there is no table to make, else
         whether it was (re)written."""
-        from zoo.protocol import plan_protocol
         from zoo.results import EvalResult
 
         bench, plan, check = self.bench, self.plan, self.plan.check
@@ -338,7 +337,7 @@ class Leaderboard:
             and not any(label not in {r.label for r in rows} for label in stored)
         ):
             return None  # a table of baselines alone says nothing about this task
-        planned = plan_protocol(bench, self.dataset, sampler=sampler, task=task, ground_truth=truth)
+        planned = self._protocol(sampler, task, truth)
         protocol = planned.record
         if check is not None:
             check.start_table(where)
