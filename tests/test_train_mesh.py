@@ -249,3 +249,59 @@ def test_spectrhums_trains_on_cached_coefficients(toy_mesh, tmp_path):
     history = read_checkpoint(tmp_path / "run" / "last.pt")["history"]
     assert len(history) == 2 and all(np.isfinite(h["train_loss"]) for h in history)
     assert best.is_file()
+
+
+def test_validation_logs_each_horizon_beside_repeat_last_on_the_same_windows(toy_mesh, tmp_path):
+    from zoo.data.windows import window_sampler
+    from zoo.metrics import vertex_rmse
+    from zoo.models.repeat_last import RepeatLast
+    from zoo.train import validate, validation_frames
+
+    # 25 fps: frame t at 40 t ms; 80 ms is the 2nd predicted frame, 400 ms the 10th, 1000 ms
+    # beyond a 4-frame future
+    assert validation_frames(4, 25.0) == {"40 ms (first frame)": 0, "80 ms": 1}
+    assert validation_frames(25, 25.0) == {
+        "40 ms (first frame)": 0,
+        "80 ms": 1,
+        "400 ms": 9,
+        "1000 ms": 24,
+    }
+    assert list(validation_frames(10, 30.0)) == ["33 ms (first frame)", "80 ms"]
+    positions = [s.vertices for s in waving(grid(4), "test").sequences]
+    index = window_sampler("all", [len(p) for p in positions], 4, 4)
+    # repeat-last judged against itself: both lines are one
+    model = RepeatLast(4, 4, 16)
+    same = validate(model, positions, index, 4, 4, slice(None), "cpu", fps=25.0, mesh=True)
+    h = same["val_horizons"]
+    assert h["metric"] == "rmse" and h["horizons"] == ["40 ms (first frame)", "80 ms"]
+    assert h["model"] == h["repeat_last"]
+    # the reference, computed here window by window
+    expected = [
+        np.mean(
+            [
+                float(
+                    vertex_rmse(
+                        torch.from_numpy(positions[s][b + 3 : b + 4][None]),
+                        torch.from_numpy(positions[s][b + 4 + t : b + 5 + t][None]),
+                    )
+                )
+                for s, b in index
+            ]
+        )
+        for t in (0, 1)
+    ]
+    np.testing.assert_allclose(h["repeat_last"], expected, rtol=1e-6)
+    assert expected[1] > expected[0] > 0  # the mesh moves: repeat-last falls behind
+
+
+def test_each_epoch_records_its_horizons_and_the_log_prints_them(toy_mesh, tmp_path, capsys):
+    bench, registry, _ = toy_mesh
+    best = train(
+        "tiny_spectral", bench, registry=registry, out_dir=tmp_path / "run", progress=False
+    )
+    history = read_checkpoint(best)["history"]
+    for epoch in history:
+        h = epoch["val_horizons"]
+        assert h["horizons"] == ["40 ms (first frame)", "80 ms"] and len(h["model"]) == 2
+    assert history[0]["val_horizons"]["repeat_last"] == history[-1]["val_horizons"]["repeat_last"]
+    assert "val rmse 40 ms (first frame) " in capsys.readouterr().out

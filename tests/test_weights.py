@@ -176,3 +176,43 @@ def test_eval_and_leaderboard_compute_the_row_from_the_weights(
     assert (tmp_path / "results" / "cmu" / "training.png").stat().st_size > 0  # its curve
     assert len(same) == len(row)  # the same sampler in both: the same numbers
     pd.testing.assert_series_equal(same["value"], same["value_board"], check_names=False)
+
+
+def test_training_plot_draws_each_validation_horizon_beside_repeat_last(tmp_path, monkeypatch):
+    import matplotlib.figure
+
+    from zoo.report import plot_training_curves
+    from zoo.weights import training_horizons
+
+    horizons = lambda m: {  # noqa: E731
+        "metric": "rmse",
+        "horizons": ["40 ms (first frame)", "80 ms"],
+        "model": [m, 2 * m],
+        "repeat_last": [0.01, 0.02],
+    }
+    record = {
+        "recipe": {"batch_size": 4},
+        "history": [
+            {"samples": 40, "val_mpjpe": 3.0},  # an epoch logged before horizons were
+            {"samples": 40, "val_mpjpe": 2.0, "val_horizons": horizons(0.03)},
+            {"samples": 40, "val_mpjpe": 1.0, "val_horizons": horizons(0.005)},
+        ],
+    }
+    assert training_horizons(record) == [(20, horizons(0.03)), (30, horizons(0.005))]
+    drawn = []
+    save = matplotlib.figure.Figure.savefig
+    monkeypatch.setattr(
+        matplotlib.figure.Figure,
+        "savefig",
+        lambda fig, *a, **k: (drawn.append(fig), save(fig, *a, **k))[1],
+    )
+    plot_training_curves({"m": record}, tmp_path / "training.png")
+    axes = drawn[0].axes
+    assert [a.get_title() for a in axes] == [
+        "mean over predicted frames",
+        "40 ms (first frame)",
+        "80 ms",
+    ]
+    model, reference = axes[2].get_lines()
+    assert list(model.get_ydata()) == [0.06, 0.01] and list(reference.get_ydata()) == [0.02, 0.02]
+    assert (tmp_path / "training.png").stat().st_size > 0

@@ -521,7 +521,11 @@ def build_cards(
                 from zoo.report import plot_training_curves
 
                 plot_training_curves(
-                    curves,
+                    {
+                        key: s.record
+                        for s in files
+                        if (key := f"{s.benchmarks[0]}/{s.label}") in curves
+                    },
                     cards_dir / f"{name}-training.png",
                     title=f"{name}: validation error while training (shipped weights)",
                 )

@@ -81,42 +81,72 @@ def plot_average(frame: pd.DataFrame, path: str | Path, title: str = "") -> None
     save_figure(fig, path)
 
 
-def training_curves(
-    weights_root: str | Path | None, benchmark: str
-) -> dict[str, list[tuple[int, float]]]:
-    """``{label: [(optimizer steps, validation MPJPE mm), ...]}`` of every shipped model of
-    ``benchmark`` whose record holds its training history (exported from a ``last.pt``)."""
+def training_curves(weights_root: str | Path | None, benchmark: str) -> dict[str, dict]:
+    """``{label: weights record}`` of every shipped model of ``benchmark`` whose record holds
+    its training history (exported from a ``last.pt``), for :func:`plot_training_curves`."""
     from zoo.weights import available_weights, read_weights_record, training_points, weights_file
 
-    curves = {}
+    records = {}
     for bench, label in available_weights(weights_root):
         if bench != benchmark:
             continue
-        points = training_points(read_weights_record(weights_file(bench, label, weights_root)))
-        if points:
-            curves[label] = points
-    return curves
+        record = read_weights_record(weights_file(bench, label, weights_root))
+        if training_points(record):
+            records[label] = record
+    return records
 
 
-def plot_training_curves(
-    curves: dict[str, list[tuple[int, float]]], path: str | Path, title: str = ""
-) -> None:
-    """Validation MPJPE against optimizer steps, one line per trained model."""
+def plot_training_curves(records: dict[str, dict], path: str | Path, title: str = "") -> None:
+    """Validation error against optimizer steps, one line per trained model (``{label: weights
+    record}``); where the histories log them, one panel more per validation horizon, each
+    model's line beside repeat-last's error on the same windows (dashed, same colour)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(6.5, 4))
-    for label, points in sorted(curves.items()):
-        steps, errors = zip(*points)
-        ax.plot(steps, errors, marker=".", label=label)
+    from zoo.weights import training_horizons, training_points
+
+    horizons = {label: training_horizons(r) for label, r in records.items()}
+    names = list(
+        dict.fromkeys(h for runs in horizons.values() for _, e in runs for h in e["horizons"])
+    )
+    fig, axes = plt.subplots(1, 1 + len(names), figsize=(6.5 + 4 * len(names), 4), squeeze=False)
+    ax = axes[0, 0]
+    colours = {}
+    for label, record in sorted(records.items()):
+        steps, errors = zip(*training_points(record))
+        (line,) = ax.plot(steps, errors, marker=".", label=label)
+        colours[label] = line.get_color()
     ax.set_xlabel("optimizer steps")
     ax.set_ylabel("validation MPJPE (mm)")
     ax.set_yscale("log")
     ax.grid(alpha=0.3, which="both")
     ax.legend(fontsize=8)
-    ax.set_title(title, fontsize=9)
+    ax.set_title("mean over predicted frames", fontsize=9)
+    for ax, name in zip(axes[0, 1:], names):
+        metric = ""
+        for label, runs in sorted(horizons.items()):
+            points = [(s, e) for s, e in runs if name in e["horizons"]]
+            if not points:
+                continue
+            at = points[0][1]["horizons"].index(name)
+            metric = points[0][1]["metric"]
+            steps = [s for s, _ in points]
+            ax.plot(steps, [e["model"][at] for _, e in points], marker=".", color=colours[label])
+            ax.plot(
+                steps,
+                [e["repeat_last"][at] for _, e in points],
+                linestyle="--",
+                color=colours[label],
+                label=f"repeat-last ({label}'s windows)",
+            )
+        ax.set_xlabel("optimizer steps")
+        ax.set_ylabel(f"validation {metric}")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7)
+        ax.set_title(name, fontsize=9)
+    fig.suptitle(title, fontsize=9)
     save_figure(fig, path)
 
 

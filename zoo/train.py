@@ -6,9 +6,11 @@ line. The engine is seeded and deterministic on CPU; an interrupted run resumed 
 ``resume=True`` ends with the same weights as an uninterrupted one, because the data order of
 every epoch derives from (seed, epoch) and the RNG states are saved with each epoch's state.
 
-Validation: the last ``val_fraction`` of every training sequence (by time) is held out; its
-windows never overlap the training windows. The checkpoint with the lowest validation MPJPE
-is kept as ``best.pt``; ``last.pt`` holds the full state for ``--resume``.
+Validation: the last ``val_fraction`` of every training sequence (by time), or whole recordings
+(``val_split: recordings``), held out; its windows never overlap the training windows. The
+checkpoint with the lowest mean validation MPJPE is kept as ``best.pt``; ``last.pt`` holds the
+full state for ``--resume``. Each epoch also records the error at the first predicted frame and
+at 80, 400 and 1000 ms beside repeat-last's on the same windows (:func:`validate`).
 
 Model hooks (both optional): ``training_loss(history, future)`` replaces the default loss (mean
 MPJPE over predicted frames); ``start_epoch(epoch, frames)`` runs before every epoch, with
@@ -61,7 +63,7 @@ from zoo.distributed import DistInfo, init_distributed
 from zoo.errors import ZooError
 from zoo.evaluate import EVAL_BATCH, predict
 from zoo.io import code_version, repo_relative, sha256_file
-from zoo.metrics import mpjpe
+from zoo.metrics import mpjpe, vertex_rmse
 from zoo.paths import REPO_ROOT
 from zoo.registry import Registry, load_registry
 from zoo.weights import read_weights
@@ -674,12 +676,24 @@ def train(
                 )
         if bar is not None:
             bar.close()
-        val = validate(model, val_pos, val_index, t_in, t_out, used, device, task=entry.task)
+        validation = validate(
+            model,
+            val_pos,
+            val_index,
+            t_in,
+            t_out,
+            used,
+            device,
+            task=entry.task,
+            fps=getattr(dataset, "mesh", dataset).fps,  # a JointsView: its mesh's rate
+            mesh=bench.representation == "mesh" and view == "mesh",
+        )
+        val = validation["val_mpjpe"]
         record = {
             "epoch": epoch + 1,
             "lr": lr,
             "train_loss": loss_sum / steps_per_epoch,
-            "val_mpjpe": val,
+            **validation,
             "seconds": time.perf_counter() - started,
             "samples": seen,
         }
@@ -714,7 +728,8 @@ def train(
             print(
                 f"{model_name} epoch {epoch + 1}: train loss {record['train_loss']:.4f}, "
                 f"val MPJPE {val:.2f} mm (best {best['val_mpjpe']:.2f} at epoch "
-                f"{best['epoch']}), {record['seconds']:.1f} s",
+                f"{best['epoch']}), {record['seconds']:.1f} s; "
+                + horizons_text(validation["val_horizons"]),
                 flush=True,
             )
         if stop_after_epoch is not None and epoch + 1 >= stop_after_epoch:
@@ -796,6 +811,24 @@ class TrainingObjective(nn.Module):
         return mpjpe(pred, future).mean()
 
 
+# Validation horizons logged every epoch beside the mean (the first predicted frame, then the
+# short, middle and long horizons of the papers' tables), each with repeat-last's error on the
+# same windows as the reference a prediction must beat.
+VALIDATION_HORIZONS_MS = (80, 400, 1000)
+
+
+def validation_frames(t_out: int, fps: float) -> dict[str, int]:
+    """``{label: 0-based predicted frame}``: the first predicted frame and each of
+    :data:`VALIDATION_HORIZONS_MS` that the window reaches (frame ``t`` is at ``t * 1000 / fps``
+    ms)."""
+    frames = {f"{1000 / fps:.0f} ms (first frame)": 0}
+    for ms in VALIDATION_HORIZONS_MS:
+        t = int(round(ms * fps / 1000))
+        if 1 < t <= t_out:
+            frames[f"{ms} ms"] = t - 1
+    return frames
+
+
 @torch.no_grad()
 def validate(
     model,
@@ -807,19 +840,52 @@ def validate(
     device,
     batch_size: int = EVAL_BATCH,
     task: str = "prediction",
-) -> float:
-    """Mean MPJPE (mm) over validation windows and predicted frames, on the predicted joints;
-    a completion model (``task``) is given each window's last frame as its final frame."""
+    fps: float | None = None,
+    mesh: bool = False,
+) -> dict[str, Any]:
+    """Validation errors: ``val_mpjpe``, the mean MPJPE (mm; mean vertex error on a mesh) over
+    windows and predicted frames, which picks the best epoch; and, given ``fps``,
+    ``val_horizons``: the error at each of :func:`validation_frames`, the model's and
+    repeat-last's on the same windows (normalised vertex RMSE on a mesh, MPJPE on joints). A
+    completion model (``task``) is given each window's last frame as its final frame."""
     model.eval()
     total, count = 0.0, 0
+    per_frame = {who: torch.zeros(t_out, dtype=torch.float64) for who in ("model", "repeat_last")}
+    error = vertex_rmse if mesh else mpjpe
     for start in range(0, len(index), batch_size):
         w = torch.from_numpy(
             gather_windows(positions, index[start : start + batch_size], t_in + t_out)[:, :, used]
         ).to(device)
-        err = mpjpe(predict(model, w[:, :t_in], task, t_out, w[:, -1]), w[:, t_in:])
+        pred = predict(model, w[:, :t_in], task, t_out, w[:, -1])
+        future = w[:, t_in:]
+        err = mpjpe(pred, future)
         total += err.sum().item()
         count += err.numel()
-    return total / count
+        if fps is not None:
+            same = w[:, t_in - 1 : t_in].expand_as(future)
+            per_frame["model"] += error(pred, future).double().sum(0).cpu()
+            per_frame["repeat_last"] += error(same, future).double().sum(0).cpu()
+    result: dict[str, Any] = {"val_mpjpe": total / count}
+    if fps is not None:
+        frames = validation_frames(t_out, fps)
+        result["val_horizons"] = {
+            "metric": "rmse" if mesh else "mpjpe",
+            "horizons": list(frames),
+            **{
+                who: [float(curve[t]) / len(index) for t in frames.values()]
+                for who, curve in per_frame.items()
+            },
+        }
+    return result
+
+
+def horizons_text(horizons: dict[str, Any]) -> str:
+    """One log line's worth of :func:`validate`'s ``val_horizons``."""
+    digits = 4 if horizons["metric"] == "rmse" else 1
+    return f"val {horizons['metric']} " + ", ".join(
+        f"{h} {m:.{digits}f} (repeat-last {r:.{digits}f})"
+        for h, m, r in zip(horizons["horizons"], horizons["model"], horizons["repeat_last"])
+    )
 
 
 def validation_record(dataset, recipe: dict[str, Any], windows: int) -> dict[str, Any]:

@@ -101,17 +101,31 @@ def available_weights(root: str | Path | None = None) -> list[tuple[str, str]]:
     )
 
 
+def _epochs_by_steps(record: dict[str, Any]):
+    """``(optimizer steps at its end, epoch record)`` of each epoch of a weights record's
+    training history (exported from a ``last.pt``; nothing where the record holds none)."""
+    batch = (record.get("recipe") or {}).get("batch_size")
+    steps = 0
+    for epoch in (record.get("history") or []) if batch else []:
+        steps += epoch["samples"] // batch
+        yield steps, epoch
+
+
 def training_points(record: dict[str, Any]) -> list[tuple[int, float]]:
     """``[(optimizer steps, validation error), ...]`` from a weights record's training history
-    (exported from a ``last.pt``; empty where the record holds none)."""
-    batch = (record.get("recipe") or {}).get("batch_size")
-    if not batch:
-        return []
-    steps, points = 0, []
-    for epoch in record.get("history") or []:
-        steps += epoch["samples"] // batch
-        points.append((steps, epoch["val_mpjpe"]))
-    return points
+    (empty where the record holds none)."""
+    return [(steps, epoch["val_mpjpe"]) for steps, epoch in _epochs_by_steps(record)]
+
+
+def training_horizons(record: dict[str, Any]) -> list[tuple[int, dict[str, Any]]]:
+    """``[(optimizer steps, val_horizons), ...]``: the per-horizon validation errors (the
+    model's and repeat-last's, see :func:`zoo.train.validate`) of every epoch that logged
+    them."""
+    return [
+        (steps, epoch["val_horizons"])
+        for steps, epoch in _epochs_by_steps(record)
+        if "val_horizons" in epoch
+    ]
 
 
 def pretrained_path(name: str, benchmark: str, root: str | Path | None = None) -> Path:
