@@ -1,10 +1,12 @@
 """Training a mesh model through the engine; its checkpoint carries the basis hash."""
 
+import json
 import shutil
 import textwrap
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 import torch
 from tiny_models import MESH_REGISTRY
@@ -12,6 +14,7 @@ from tiny_models import MESH_REGISTRY
 from zoo import benchmark as benchmark_module
 from zoo.checkpoints import CheckpointError, load_checkpoint, read_checkpoint
 from zoo.data.mesh import MeshDataset, MeshSequence, MeshTopology
+from zoo.io import sha256_file
 from zoo.registry import Registry
 from zoo.train import train
 
@@ -305,3 +308,37 @@ def test_each_epoch_records_its_horizons_and_the_log_prints_them(toy_mesh, tmp_p
         assert h["horizons"] == ["40 ms (first frame)", "80 ms"] and len(h["model"]) == 2
     assert history[0]["val_horizons"]["repeat_last"] == history[-1]["val_horizons"]["repeat_last"]
     assert "val rmse 40 ms (first frame) " in capsys.readouterr().out
+
+
+def test_an_entry_with_weights_of_runs_that_models_weights_beside_its_rows(toy_mesh, tmp_path):
+    from zoo.leaderboard import regenerate
+    from zoo.model_source import ModelSource
+
+    bench, registry, _ = toy_mesh
+    checkpoints = tmp_path / "checkpoints"
+    train(
+        "tiny_spectral",
+        bench,
+        registry=registry,
+        out_dir=checkpoints / "toy" / "tiny_spectral",
+        progress=False,
+    )
+    best = checkpoints / "toy" / "tiny_spectral" / "best.pt"
+    toy = benchmark_module.get_benchmark(bench)
+    loaded = ModelSource.of(model="tiny_spectral_still", checkpoint=best).load(registry, toy)
+    assert type(loaded.model).__name__ == "TinySpectralStill"
+    assert loaded.entry.name == "tiny_spectral_still"
+    torch.testing.assert_close(loaded.model.gain, read_checkpoint(best)["state_dict"]["gain"])
+    with pytest.raises(CheckpointError, match="only where its registry entry says weights_of"):
+        ModelSource.of(model="repeat_last", checkpoint=best).load(registry, toy)
+    written = regenerate(
+        bench, registry=registry, out_root=tmp_path / "out", checkpoints=checkpoints
+    )
+    rows = pd.concat(pd.read_csv(p / "results.csv") for p in written)
+    assert {"tiny_spectral", "tiny_spectral_still"} <= set(rows.model)
+    still = rows[(rows.model == "tiny_spectral_still") & (rows.metric == "rmse")]
+    plain = rows[(rows.model == "tiny_spectral") & (rows.metric == "rmse")]
+    assert len(still) == len(plain) and not np.allclose(still.value, plain.value)
+    identity = json.loads((written[0] / "tiny_spectral_still" / "protocol.json").read_text())
+    assert identity["provenance"]["identity"]["trained"]["sha256"] == sha256_file(best)
+    assert identity["provenance"]["identity"]["model"]["name"] == "tiny_spectral_still"

@@ -89,7 +89,13 @@ def card_models(registry: Registry, shipped: dict[str, list[Shipped]]) -> list[s
     """Models with a card: every registered model with shipped weights or published figures,
     in registry order."""
     published = {p.model for p in load_published()}
-    return [n for n in registry.list_models() if n in shipped or n in published]
+    return [n for n in registry.list_models() if _files(registry, n, shipped) or n in published]
+
+
+def _files(registry: Registry, name: str, shipped: dict[str, list[Shipped]]) -> list[Shipped]:
+    """The shipped weights a model runs: its own, or those of the entry it takes them from
+    (registry ``weights_of``)."""
+    return shipped.get(registry.get(name).weights_of or name, [])
 
 
 def _value(v: Any) -> str:
@@ -378,7 +384,13 @@ def generated_card(
         f"- **Paper**: {entry.reference}",
         f"- **Class**: `{entry.class_path}` ({repo_relative(entry.source)}); representation "
         f"{', '.join(entry.representation)}; task {entry.task}; "
-        f"{'trainable' if entry.trainable else 'not trained'}",
+        + (
+            "trainable"
+            if entry.trainable
+            else f"runs the trained weights of `{entry.weights_of}` (registry weights_of)"
+            if entry.weights_of
+            else "not trained"
+        ),
         "- **Parameters**: "
         + (
             "; ".join(f"{p:,} on {b}" for p, b in params)
@@ -430,13 +442,17 @@ def models_index(registry: Registry, names: list[str], shipped: dict[str, list[S
     rows = []
     for name in registry.list_models():
         entry = registry.get(name)
-        files = shipped.get(name, [])
+        files = _files(registry, name, shipped)
         benches = sorted({b for s in files for b in s.benchmarks})
         rows.append(
             [
                 f"[`{name}`]({name}.md)" if name in names else f"`{name}`",
                 ", ".join(entry.representation),
-                "yes" if entry.trainable else "no",
+                "yes"
+                if entry.trainable
+                else f"{entry.weights_of}'s weights"
+                if entry.weights_of
+                else "no",
                 ", ".join(benches) if benches else "–",
                 " ".join((entry.description or entry.reference).split()),
             ]
@@ -504,7 +520,7 @@ def build_cards(
     statuses = []
     for name in names:
         path = cards_dir / f"{name}.md"
-        files = shipped.get(name, [])
+        files = _files(registry, name, shipped)
         generated = generated_card(name, registry, files, results_root)
         current = _generated_part(path)
         if current == generated:

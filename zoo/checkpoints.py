@@ -184,14 +184,25 @@ def trained_model(
     benchmark: str | Benchmark | None = None,
     data_root: str | Path | None = None,
     dataset=None,
+    model_name: str | None = None,
 ) -> nn.Module:
     """The model that ``meta`` (a checkpoint's or shipped weights' record: model, hparams,
     protocol, context_hashes) describes, holding ``state_dict``, in eval mode; refused with an
     error naming the ``kind`` ("checkpoint", "weights") and ``path`` it came from if it was
-    trained for another protocol or data than ``benchmark``."""
+    trained for another protocol or data than ``benchmark``. ``model_name``: build it as that
+    entry instead, which must run the recorded model's weights (registry ``weights_of``)."""
     source = f"{kind} {path}"
     registry = registry or load_registry()
     entry = recorded_entry(meta, registry, source)
+    if model_name is not None and model_name != entry.name:
+        variant = registry.get(model_name)
+        if variant.weights_of != entry.name:
+            raise CheckpointError(
+                f"{source} holds model {entry.name!r}, not {model_name!r} (an entry runs "
+                f"another's weights only where its registry entry says weights_of: "
+                f"{entry.name})"
+            )
+        entry = variant
     bench = (
         get_benchmark(benchmark or meta["protocol"]["benchmark"])
         if not isinstance(benchmark, Benchmark)
@@ -255,10 +266,6 @@ def load_checkpoint(
     built with (a spectral basis) come from the benchmark again and must hash the same.
     """
     ckpt = read_checkpoint(path)
-    if model_name is not None and model_name != ckpt["model"]:
-        raise CheckpointError(
-            f"checkpoint {path} holds model {ckpt['model']!r}, not {model_name!r}"
-        )
     model = trained_model(
         ckpt,
         ckpt["state_dict"],
@@ -268,14 +275,22 @@ def load_checkpoint(
         benchmark=benchmark,
         data_root=data_root,
         dataset=dataset,
+        model_name=model_name,
     )
     return model, ckpt
 
 
 def load_weights(
-    path: str | Path, *, registry=None, benchmark=None, data_root=None, dataset=None
+    path: str | Path,
+    *,
+    registry=None,
+    benchmark=None,
+    data_root=None,
+    dataset=None,
+    model_name: str | None = None,
 ) -> tuple[torch.nn.Module, dict[str, Any]]:
-    """The model of shipped weights, checked against ``benchmark`` (default: its own)."""
+    """The model of shipped weights, checked against ``benchmark`` (default: its own); built as
+    ``model_name`` where that entry runs these weights (registry ``weights_of``)."""
     state, record = read_weights(path)
     model = trained_model(
         record,
@@ -286,6 +301,7 @@ def load_weights(
         benchmark=benchmark,
         data_root=data_root,
         dataset=dataset,
+        model_name=model_name,
     )
     return model, record
 

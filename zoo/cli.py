@@ -66,7 +66,7 @@ def cmd_list(args) -> int:
             [
                 name,
                 "/".join(e.representation),
-                "yes" if e.trainable else "no",
+                "yes" if e.trainable else f"runs {e.weights_of}'s" if e.weights_of else "no",
                 hp if len(hp) < 70 else hp[:67] + "...",
                 e.reference.split(".")[0],
             ]

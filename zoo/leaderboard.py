@@ -269,21 +269,28 @@ class Leaderboard:
         rows = []
         planned = (n for n in names if registry.get(n).task == task)
         for name in (n for n in planned if registry.get(n).leaderboard):
-            if not registry.get(name).trainable:
+            entry = registry.get(name)
+            # whose training gives this row its weights: its own, or (weights_of) another's
+            trained_as = entry.weights_of or (name if entry.trainable else None)
+            if trained_as is None:
                 rows.append(Row(name, name, ModelSource.of(name)))
                 continue
-            for label in (name, f"{name}@last"):
-                shipped = self._shipped(label)
+            variant = {"model": name} if entry.weights_of else {}
+            for suffix in ("", "@last"):
+                label = name + suffix
+                shipped = self._shipped(trained_as + suffix)
                 checkpoint = (
                     self.checkpoints
                     / bench.name
-                    / name
-                    / ("last.pt" if label != name else "best.pt")
+                    / trained_as
+                    / ("last.pt" if suffix else "best.pt")
                     if self.checkpoints
                     else None
                 )
                 if shipped is not None:
-                    rows.append(Row(label, name, ModelSource.of(weights=shipped, label=label)))
+                    rows.append(
+                        Row(label, name, ModelSource.of(weights=shipped, label=label, **variant))
+                    )
                     if checkpoint is not None and checkpoint.is_file():
                         print(
                             f"{bench.name}: {label}: the shipped weights {shipped}, not "
@@ -291,10 +298,14 @@ class Leaderboard:
                             file=sys.stderr,
                         )
                 elif checkpoint is not None and checkpoint.is_file():
-                    if label != name and _no_further_than_best(checkpoint):
+                    if suffix and _no_further_than_best(checkpoint):
                         continue  # trained no further than its best epoch: best.pt's weights
                     rows.append(
-                        Row(label, name, ModelSource.of(checkpoint=checkpoint, label=label))
+                        Row(
+                            label,
+                            name,
+                            ModelSource.of(checkpoint=checkpoint, label=label, **variant),
+                        )
                     )
         return rows
 

@@ -142,6 +142,7 @@ class ModelSource:
                 benchmark=bench,
                 data_root=data_root,
                 dataset=dataset,
+                model_name=self.name,
             )
             provenance = weights_provenance(self.weights, record)
             trained = {"kind": "weights", "sha256": record["sha256"]}
@@ -152,13 +153,12 @@ class ModelSource:
                 benchmark=bench,
                 data_root=data_root,
                 dataset=dataset,
+                model_name=self.name,
             )
             provenance = checkpoint_provenance(self.checkpoint, record)
             trained = {"kind": "checkpoint", "sha256": sha256_file(self.checkpoint)}
-        if self.name and self.name != record["model"]:
-            where = f"weights {self.weights}" if self.weights else f"checkpoint {self.checkpoint}"
-            raise SourceError(f"--model {self.name} but {where} holds model {record['model']!r}")
-        entry = registry.get(record["model"])
+        # the recorded model, or an entry that runs its weights (registry weights_of)
+        entry = registry.get(self.name or record["model"])
         hashes = record.get("context_hashes") or {}
         return LoadedModel(
             model=model,

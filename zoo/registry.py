@@ -41,6 +41,7 @@ _ENTRY_KEYS = {
     "task",
     "override",
     "leaderboard",
+    "weights_of",
 }
 # What a model's forward does: prediction ``forward(history)``, or completion
 # ``forward(history, final_frame)`` (the window's last frame given). Tables keep them apart.
@@ -76,6 +77,9 @@ class ModelEntry:
     # the committed leaderboards, whose untrained rows are the protocol's own baselines.
     leaderboard: bool = True
     replaces: str = ""  # the registry file whose entry of this name it overrides, if any
+    # An inference-only variant: runs the trained weights of that entry (shipped or in
+    # checkpoints/) through its own class, with that entry's hyper-parameters.
+    weights_of: str = ""
 
     def provenance(self) -> dict[str, str]:
         """What every result of this model records about where it came from."""
@@ -264,6 +268,17 @@ def _parse_entry(path: Path, name: str, raw: Any) -> ModelEntry:
             f"{where}: hparams task {hparams['task']!r} but the entry's task is "
             f"{task!r} (field 'task', default prediction); they must agree"
         )
+    weights_of = raw.get("weights_of", "")
+    if not isinstance(weights_of, str) or weights_of == name:
+        raise RegistryError(
+            f"{where}: field 'weights_of' names another model whose trained weights this one "
+            f"runs, got {weights_of!r}"
+        )
+    if weights_of and raw.get("trainable"):
+        raise RegistryError(
+            f"{where}: weights_of {weights_of!r} and trainable: true: an entry that runs "
+            f"another's weights is trained as that one (zoo train --model {weights_of})"
+        )
     return ModelEntry(
         name=name,
         class_path=raw["class"],
@@ -277,6 +292,7 @@ def _parse_entry(path: Path, name: str, raw: Any) -> ModelEntry:
         description=str(raw.get("description", "")).strip(),
         train=dict(raw.get("train") or {}),
         leaderboard=_flag(raw, "leaderboard", where),
+        weights_of=weights_of,
     )
 
 

@@ -1,0 +1,77 @@
+"""SpecTrHuMS with anchored inference (the zoo's change): its frames, and running the paper
+entry's weights through the registry's ``weights_of``."""
+
+import pytest
+import torch
+from test_spectrhums import BASIS, SMALL, T_IN, T_OUT, V, motion, trained_stats
+
+from zoo.models.spectrhums import SpecTrHuMS, SpecTrHuMSError
+from zoo.models.spectrhums_anchored import AnchoredSpecTrHuMS
+from zoo.registry import Registry, RegistryError, load_registry
+
+
+def anchored(seed=0, **kw):
+    torch.manual_seed(seed)
+    return trained_stats(AnchoredSpecTrHuMS(T_IN, T_OUT, V, BASIS, **{**SMALL, **kw})).eval()
+
+
+def test_each_frame_is_the_last_observed_plus_the_decoded_change_from_it():
+    model = anchored()
+    history = motion(3)[:, :T_IN]
+    with torch.no_grad():
+        # the paper's steps, by hand: encode, standardise, fill, transform, decode
+        z = model.standardise_latents(model.encode(model.project(history)))
+        out = model.transformer(torch.cat([z, z[:, -1:].expand(-1, T_OUT, -1)], 1))
+        decoded = model.reconstruct(model.decode(model.destandardise_latents(out)))
+        expected = history[:, -1:] + decoded[:, T_IN:] - decoded[:, T_IN - 1 : T_IN]
+        torch.testing.assert_close(model(history), expected, rtol=1e-5, atol=1e-3)
+        # the same weights in the paper's class decode the outputs themselves
+        plain = SpecTrHuMS(T_IN, T_OUT, V, BASIS, **SMALL)
+        plain.load_state_dict(model.state_dict())
+        torch.testing.assert_close(plain.eval()(history), decoded[:, T_IN:], rtol=1e-5, atol=1e-3)
+
+
+def test_a_transformer_that_repeats_itself_predicts_repeat_last_exactly():
+    model = anchored()
+    with torch.no_grad():  # one output whatever the position: no change predicted
+        for p in model.transformer.out.parameters():
+            p.zero_()
+    history = motion(2)[:, :T_IN]
+    with torch.no_grad():
+        torch.testing.assert_close(
+            model(history), history[:, -1:].expand(-1, T_OUT, -1, -1), rtol=0, atol=1e-3
+        )
+
+
+def test_rollout_anchors_each_chunk_on_the_frame_before_it():
+    model = anchored().double()
+    history = motion(2, frames=T_IN + 2).double()
+    with torch.no_grad():
+        first = model(history[:, -T_IN:])
+        long = model.rollout(history, T_OUT + 2)
+        torch.testing.assert_close(long[:, :T_OUT], first)
+        second = model(torch.cat([history, first], 1)[:, -T_IN:])
+        torch.testing.assert_close(long[:, T_OUT:], second[:, :2])
+
+
+def test_completion_is_refused():
+    with pytest.raises(SpecTrHuMSError, match="task 'completion' is not prediction"):
+        AnchoredSpecTrHuMS(T_IN, T_OUT, V, BASIS, task="completion", **SMALL)
+
+
+def test_the_registry_entry_runs_the_paper_entrys_weights(tmp_path):
+    entry = load_registry().get("spectrhums_anchored")
+    assert entry.weights_of == "spectrhums" and not entry.trainable
+    assert entry.hparams == load_registry().get("spectrhums").hparams
+    bad = tmp_path / "registry.yaml"
+    for field, message in (
+        ("weights_of: other\n    trainable: true", "trained as that one"),
+        ("weights_of: m", "names another model"),
+        ("weights_of: [a]", "names another model"),
+    ):
+        bad.write_text(
+            "models:\n  m:\n    class: zoo.models.repeat_last.RepeatLast\n"
+            f"    representation: joints\n    {field}\n"
+        )
+        with pytest.raises(RegistryError, match=message):
+            Registry.from_files(bad)
