@@ -75,3 +75,31 @@ def test_the_registry_entry_runs_the_paper_entrys_weights(tmp_path):
         )
         with pytest.raises(RegistryError, match=message):
             Registry.from_files(bad)
+
+
+def test_the_residual_transformer_starts_as_repeat_last_and_shares_the_papers_initialisation():
+    from zoo.models.spectrhums_residual import ResidualSpecTrHuMS
+
+    torch.manual_seed(0)
+    residual = trained_stats(ResidualSpecTrHuMS(T_IN, T_OUT, V, BASIS, **SMALL)).eval()
+    torch.manual_seed(0)
+    paper = trained_stats(SpecTrHuMS(T_IN, T_OUT, V, BASIS, **SMALL)).eval()
+    ours = {
+        k.replace("transformer.inner.", "transformer."): v for k, v in residual.state_dict().items()
+    }
+    differ = {k for k, v in paper.state_dict().items() if not torch.equal(v, ours[k])}
+    assert differ == {"transformer.out.weight"}  # the paper's biases start at zero too
+    assert not ours["transformer.out.weight"].any()
+    history = motion(2)[:, :T_IN]
+    with torch.no_grad():
+        z = residual.standardise_latents(residual.encode(residual.project(history)))
+        window = residual.fill_window(z)
+        torch.testing.assert_close(
+            residual.transformer(window), window
+        )  # observed kept, last repeated
+        expected = residual.reconstruct(residual.decode(residual.destandardise_latents(z[:, -1:])))
+        torch.testing.assert_close(
+            residual(history), expected.expand(-1, T_OUT, -1, -1), rtol=1e-5, atol=1e-3
+        )
+    entry = load_registry().get("spectrhums_residual")
+    assert entry.trainable and entry.train == load_registry().get("spectrhums").train
