@@ -103,3 +103,17 @@ def test_the_residual_transformer_starts_as_repeat_last_and_shares_the_papers_in
         )
     entry = load_registry().get("spectrhums_residual")
     assert entry.trainable and entry.train == load_registry().get("spectrhums").train
+
+
+def test_the_residual_model_anchored_is_both_changes():
+    from zoo.models.spectrhums_residual import AnchoredResidualSpecTrHuMS, ResidualTransformer
+
+    torch.manual_seed(0)
+    model = trained_stats(AnchoredResidualSpecTrHuMS(T_IN, T_OUT, V, BASIS, **SMALL)).eval()
+    assert isinstance(model.transformer, ResidualTransformer)
+    history = motion(2)[:, :T_IN]
+    with torch.no_grad():  # untrained: no change from the last observed frame
+        torch.testing.assert_close(
+            model(history), history[:, -1:].expand(-1, T_OUT, -1, -1), rtol=0, atol=1e-3
+        )
+    assert load_registry().get("spectrhums_residual_anchored").weights_of == "spectrhums_residual"

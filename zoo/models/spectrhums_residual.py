@@ -13,6 +13,7 @@ from __future__ import annotations
 from torch import Tensor, nn
 
 from zoo.models.spectrhums import LatentTransformer, SpecTrHuMS
+from zoo.models.spectrhums_anchored import AnchoredSpecTrHuMS
 
 
 class ResidualTransformer(nn.Module):
@@ -37,3 +38,8 @@ class ResidualSpecTrHuMS(SpecTrHuMS):
     def __init__(self, *args, **kwargs) -> None:
         super().__init__(*args, **kwargs)
         self.transformer = ResidualTransformer(self.transformer)
+
+
+class AnchoredResidualSpecTrHuMS(AnchoredSpecTrHuMS, ResidualSpecTrHuMS):
+    """The residual model's weights with anchored inference
+    (:class:`zoo.models.spectrhums_anchored.AnchoredSpecTrHuMS`)."""

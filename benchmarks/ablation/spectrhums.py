@@ -1,0 +1,192 @@
+"""Issue 29's ablation of SpecTrHuMS recipes at equal budget: train its arms, then score them.
+
+The arms, their budget and the validation split are data (``spectrhums_29.yaml`` beside this
+file). ``train ARM [--seed S]`` runs ``zoo train`` for one arm and seed into its own folder,
+resuming where a previous run stopped. ``score`` scores every trained arm, with the paper's
+inference and anchored, on the validation recordings its checkpoint names (normalised vertex
+RMSE at the first frame, 80, 400 and 1000 ms, mean vertex error) and on the benchmark's test
+windows (RMSE, frame averaging, mean over actions), beside repeat-last on the same windows, and
+prints a markdown table with each arm's budget (steps, samples, minutes, device).
+
+    python benchmarks/ablation/spectrhums.py train A
+    python benchmarks/ablation/spectrhums.py score > table.md
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import yaml
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parents[1]
+TEST_HORIZONS_MS = (40, 80, 160, 400, 1000)
+
+
+def load_config(path: Path) -> dict:
+    cfg = yaml.safe_load(path.read_text())
+    for key in ("benchmark", "out", "seeds", "train_set", "max_batches", "arms"):
+        if key not in cfg:
+            raise SystemExit(f"{path}: field {key!r} is required")
+    for arm, spec in cfg["arms"].items():
+        if "model" not in spec or "anchored" not in spec:
+            raise SystemExit(f"{path}: arm {arm}: fields 'model' and 'anchored' are required")
+    return cfg
+
+
+def run_folder(cfg: dict, arm: str, seed: int) -> Path:
+    return ROOT / cfg["out"] / f"{arm}-seed{seed}"
+
+
+def train(cfg: dict, arm: str, seed: int) -> None:
+    if arm not in cfg["arms"]:
+        raise SystemExit(f"arm {arm!r} unknown; arms: {', '.join(cfg['arms'])}")
+    spec, out = cfg["arms"][arm], run_folder(cfg, arm, seed)
+    recipe = {**cfg["train_set"], **(spec.get("train_set") or {})}
+    command = [
+        sys.executable,
+        "-m",
+        "zoo.cli",
+        "train",
+        "--model",
+        spec["model"],
+        "--benchmark",
+        cfg["benchmark"],
+        "--out",
+        str(out),
+        "--seed",
+        str(seed),
+        "--no-progress",
+    ]
+    if cfg["max_batches"]:
+        command += ["--max-batches", str(cfg["max_batches"])]
+    for key, value in recipe.items():
+        text = json.dumps(value) if isinstance(value, (dict, list)) else value
+        command += ["--train-set", f"{key}={text}"]
+    for key, value in (spec.get("set") or {}).items():
+        command += ["--set", f"{key}={value}"]
+    if (out / "last.pt").is_file():
+        command.append("--resume")
+    print(" ".join(command), flush=True)
+    subprocess.run(command, check=True, cwd=ROOT)
+
+
+def _test_rmse(model, bench, protocol, name: str) -> dict[int, float]:
+    from zoo.evaluate import evaluate
+
+    frame = evaluate(model, bench, model_name=name, protocol=protocol).frame
+    rows = frame[(frame.metric == "rmse") & (frame.averaging == "frame") & (frame.model == name)]
+    means = rows.groupby("horizon_ms").value.mean()
+    return {ms: float(means[ms]) for ms in TEST_HORIZONS_MS if ms in means.index}
+
+
+def score(cfg: dict) -> str:
+    import torch
+
+    from zoo.benchmark import get_benchmark
+    from zoo.checkpoints import read_checkpoint
+    from zoo.model_source import ModelSource
+    from zoo.models.repeat_last import RepeatLast
+    from zoo.protocol import plan_protocol
+    from zoo.registry import load_registry
+    from zoo.train import _windows, split_train_val, validate
+
+    torch.set_grad_enabled(False)
+    bench = get_benchmark(cfg["benchmark"])
+    registry = load_registry()
+    test = bench.load()
+    training = bench.load(None, split=bench.train_split)
+    protocol = plan_protocol(bench, test)
+    t_in, t_out = bench.input_frames, bench.output_frames
+    rows, reference = [], None
+    for arm, spec in cfg["arms"].items():
+        for seed in cfg["seeds"]:
+            best = run_folder(cfg, arm, seed) / "best.pt"
+            if not best.is_file():
+                print(f"arm {arm}, seed {seed}: not trained ({best} missing)", file=sys.stderr)
+                continue
+            ckpt = read_checkpoint(best)
+            recipe, summary = ckpt["recipe"], ckpt["training"]
+            _, held_out = split_train_val(
+                training, recipe["val_fraction"], t_in + t_out, rule=recipe["val_split"]
+            )
+            positions, index = _windows(held_out, t_in + t_out, "all", t_in, t_out)
+            steps = sum(e["samples"] for e in ckpt["history"]) // recipe["batch_size"]
+            budget = (
+                f"{steps} steps, {summary['samples_seen']} samples, "
+                f"{summary['seconds'] / 60:.0f} min, {summary.get('device_name', '?')}"
+            )
+            for inference, name in (("paper", spec["model"]), ("anchored", spec["anchored"])):
+                source = ModelSource.of(model=name, checkpoint=best, label=f"{arm}-{inference}")
+                model = source.load(registry, bench, test).model
+                val = validate(
+                    model, positions, index, t_in, t_out, slice(None), "cpu",
+                    fps=training.fps, mesh=True,
+                )  # fmt: skip
+                rows.append(
+                    (arm, seed, spec["what"], inference, ckpt["training"]["best"]["epoch"],
+                     val, _test_rmse(model, bench, protocol, source.label), budget)
+                )  # fmt: skip
+                if reference is None:
+                    still = RepeatLast(t_in, t_out, test.topology.num_vertices)
+                    reference = (
+                        val["val_horizons"]["repeat_last"],
+                        len(index),
+                        len(held_out),
+                        _test_rmse(still, bench, protocol, "repeat_last"),
+                    )
+    if not rows:
+        return "no arm trained yet"
+    horizons = rows[0][5]["val_horizons"]["horizons"]
+    tested = [f"{ms} ms" for ms in TEST_HORIZONS_MS]
+    header = (
+        ["arm", "seed", "change", "inference", "best epoch"]
+        + [f"val {h}" for h in horizons]
+        + ["val mean (mm)"]
+        + [f"test {h}" for h in tested]
+        + ["budget"]
+    )
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    for arm, seed, what, inference, epoch, val, test_rmse, budget in rows:
+        cells = [arm, str(seed), what, inference, str(epoch)]
+        cells += [f"{v:.4f}" for v in val["val_horizons"]["model"]]
+        cells += [f"{val['val_mpjpe']:.2f}"]
+        cells += [f"{test_rmse.get(ms, float('nan')):.4f}" for ms in TEST_HORIZONS_MS]
+        lines.append("| " + " | ".join(cells + [budget]) + " |")
+    val_reference, windows, recordings, test_reference = reference
+    cells = ["–", "–", "repeat-last", "–", "–"] + [f"{v:.4f}" for v in val_reference] + ["–"]
+    cells += [f"{test_reference.get(ms, float('nan')):.4f}" for ms in TEST_HORIZONS_MS]
+    lines.append("| " + " | ".join(cells + ["–"]) + " |")
+    lines += [
+        "",
+        f"Validation: {windows} windows (sampler all) of {recordings} held-out recordings of "
+        f"{cfg['benchmark']}'s training split; test: {bench.name}'s "
+        f"{protocol.sampler} windows, raw ground truth. Normalised vertex RMSE.",
+    ]
+    return "\n".join(lines)
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--config", type=Path, default=HERE / "spectrhums_29.yaml")
+    sub = parser.add_subparsers(dest="command", required=True)
+    run = sub.add_parser("train", help="train (or resume) one arm")
+    run.add_argument("arm")
+    run.add_argument("--seed", type=int, default=None, help="default: every seed of the config")
+    sub.add_parser("score", help="score every trained arm; markdown on stdout")
+    args = parser.parse_args(argv)
+    cfg = load_config(args.config)
+    if args.command == "train":
+        for seed in [args.seed] if args.seed is not None else cfg["seeds"]:
+            train(cfg, args.arm, seed)
+        return 0
+    print(score(cfg))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
