@@ -49,7 +49,7 @@ from typing import Any
 
 import torch
 
-from zoo.train import TrainingObjective, device_name
+from zoo.train import TrainingObjective, device_name, training_step
 
 LATENCY_REPEATS = 20
 TRAINING_STEPS = 3
@@ -131,13 +131,10 @@ def training_samples_per_s(
         windows = flat.view(batch, input_frames + output_frames, *flat.shape[1:])
     history, future = windows[:, :input_frames], windows[:, input_frames:]
 
+    in_float32 = {**recipe, "precision": "float32"}  # every model's column in one precision
+
     def step():
-        loss = objective(history, future)  # no autocast: float32 for every model
-        optimizer.zero_grad(set_to_none=True)
-        loss.backward()
-        if recipe.get("grad_clip"):
-            torch.nn.utils.clip_grad_norm_(trainee.parameters(), recipe["grad_clip"])
-        optimizer.step()
+        training_step(objective, trainee, optimizer, history, future, in_float32, device)
 
     times = _timed(step, steps, seconds)
     return len(times) * batch / sum(times), len(times)

@@ -652,20 +652,16 @@ def train(
                 flip = augment_rng.random(len(windows)) < 0.5
                 windows[flip] = windows[flip, ::-1]
             windows = torch.from_numpy(np.ascontiguousarray(windows)).to(device)
-            history_, future = windows[:, :t_in], windows[:, t_in:]
-            with forward_precision(recipe["precision"], device):
-                loss = net(history_, future)
-            if not torch.isfinite(loss):
-                raise TrainingError(
-                    f"{model_name}: loss is {loss.item()} at epoch {epoch + 1}, "
-                    f"batch {step + 1}: training stopped (lower the lr or check "
-                    f"the data)"
-                )
-            optimizer.zero_grad(set_to_none=True)
-            loss.backward()
-            if recipe["grad_clip"]:
-                nn.utils.clip_grad_norm_(model.parameters(), recipe["grad_clip"])
-            optimizer.step()
+            loss = training_step(
+                net,
+                model,
+                optimizer,
+                windows[:, :t_in],
+                windows[:, t_in:],
+                recipe,
+                device,
+                where=f"{model_name}: {{loss}} at epoch {epoch + 1}, batch {step + 1}",
+            )
             seen += len(rows) * dist_info.world
             loss_sum += loss.item()
             if bar is not None:
@@ -827,6 +823,35 @@ def validation_frames(t_out: int, fps: float) -> dict[str, int]:
         if 1 < t <= t_out:
             frames[f"{ms} ms"] = t - 1
     return frames
+
+
+def training_step(
+    objective: nn.Module,
+    model: nn.Module,
+    optimizer: torch.optim.Optimizer,
+    history: torch.Tensor,
+    future: torch.Tensor,
+    recipe: dict[str, Any],
+    device,
+    where: str = "{loss}",
+) -> torch.Tensor:
+    """One optimizer step, as the engine runs it and the cost columns time it: the loss
+    (``objective``, in the recipe's precision), refused where it is not finite, its gradients,
+    the recipe's gradient clip on ``model``'s parameters, and the step. Returns the loss.
+    ``where`` says where a non-finite loss happened, ``{loss}`` standing for "loss is <value>"."""
+    with forward_precision(recipe["precision"], device):
+        loss = objective(history, future)
+    if not torch.isfinite(loss):
+        raise TrainingError(
+            where.format(loss=f"loss is {loss.item()}")
+            + ": training stopped (lower the lr or check the data)"
+        )
+    optimizer.zero_grad(set_to_none=True)
+    loss.backward()
+    if recipe.get("grad_clip"):
+        nn.utils.clip_grad_norm_(model.parameters(), recipe["grad_clip"])
+    optimizer.step()
+    return loss
 
 
 @torch.no_grad()
