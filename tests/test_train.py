@@ -506,3 +506,15 @@ def test_validation_by_recordings_holds_out_whole_recordings_and_records_them(tm
 def run_default(registry, root, out):
     return train("tiny", "cmu", registry=registry, data_root=root, out_dir=out, progress=False,
                  epochs=1)  # fmt: skip
+
+
+def test_a_model_with_part_of_a_hook_group_is_refused_naming_the_rest():
+    from zoo.train import check_hooks
+
+    class HalfView(torch.nn.Module):
+        def training_view(self, frames):
+            return frames
+
+    with pytest.raises(TrainingError, match="defines training_view but not training_view_identity"):
+        check_hooks(HalfView(), "half")
+    check_hooks(torch.nn.Linear(2, 2), "plain")  # no hooks at all: the engine's defaults

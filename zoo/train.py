@@ -28,6 +28,12 @@ identity, so a changed basis or dataset is never read by mistake), and trains on
 loss is ``training_loss_view(history, future)``. Validation still scores predictions in the
 benchmark's own space (``val_sampler`` thins its windows where that is costly).
 
+The engine's own steps are named functions, shared with whatever else needs them:
+:func:`training_step` (one optimizer step; ``zoo costs`` times it too), :func:`validate` (the
+mean and per-horizon validation errors) and :func:`save_epoch` (``best.pt`` and ``last.pt``).
+:data:`MODEL_HOOKS` declares the model hooks above; a model that defines part of a group of
+them is refused before training starts.
+
 Distributed data-parallel: launched by ``torchrun``, each process takes its share of every
 global batch (gloo on CPU, nccl on GPU), gradients are averaged, and rank 0 writes.
 """
@@ -521,6 +527,7 @@ def train(
             f"sequences; choose another with --train-set val_sampler=NAME (e.g. all)"
         )
     used = _point_index(bench)
+    check_hooks(model, model_name)
     # A model with a training view trains on windows of that view of every frame, computed once
     # (cached): train_src and src_points say where training windows come from.
     train_src, src_points = train_pos, used
@@ -697,30 +704,7 @@ def train(
         if dist_info.rank == 0:
             if val < best["val_mpjpe"]:
                 best = {"val_mpjpe": val, "epoch": epoch + 1}
-                # the curve up to this epoch travels too: a run whose best is its last
-                # epoch ships one file, and its training plot with it
-                save_checkpoint(
-                    best_path,
-                    {
-                        **meta,
-                        "state_dict": model.state_dict(),
-                        "history": list(history),
-                        "training": _training_summary(recipe, history, best, device),
-                    },
-                )
-            save_checkpoint(
-                last_path,
-                {
-                    **meta,
-                    "state_dict": model.state_dict(),
-                    "optimizer": optimizer.state_dict(),
-                    "rng": torch.get_rng_state(),
-                    "epoch": epoch,
-                    "best": best,
-                    "history": history,
-                    "training": _training_summary(recipe, history, best, device),
-                },
-            )
+            save_epoch(out_dir, meta, model, optimizer, epoch, best, history, recipe, device)
             print(
                 f"{model_name} epoch {epoch + 1}: train loss {record['train_loss']:.4f}, "
                 f"val MPJPE {val:.2f} mm (best {best['val_mpjpe']:.2f} at epoch "
@@ -733,6 +717,47 @@ def train(
     if dist_info.active:
         _write_rank_digest(out_dir, model, dist_info)
     return best_path
+
+
+def save_epoch(
+    out_dir: Path,
+    meta: dict[str, Any],
+    model: nn.Module,
+    optimizer: torch.optim.Optimizer,
+    epoch: int,
+    best: dict[str, Any],
+    history: list[dict[str, Any]],
+    recipe: dict[str, Any],
+    device,
+) -> None:
+    """The checkpoints of a finished epoch (0-based ``epoch``): ``best.pt`` when it is the best
+    so far, and ``last.pt``, the full state ``--resume`` continues from (optimiser, RNG)."""
+    summary = _training_summary(recipe, history, best, device)
+    if best["epoch"] == epoch + 1:
+        # the curve up to this epoch travels too: a run whose best is its last epoch ships
+        # one file, and its training plot with it
+        save_checkpoint(
+            out_dir / "best.pt",
+            {
+                **meta,
+                "state_dict": model.state_dict(),
+                "history": list(history),
+                "training": summary,
+            },
+        )
+    save_checkpoint(
+        out_dir / "last.pt",
+        {
+            **meta,
+            "state_dict": model.state_dict(),
+            "optimizer": optimizer.state_dict(),
+            "rng": torch.get_rng_state(),
+            "epoch": epoch,
+            "best": best,
+            "history": history,
+            "training": summary,
+        },
+    )
 
 
 # The run's budget may grow when it is resumed (each change is recorded with the epoch it took
@@ -823,6 +848,27 @@ def validation_frames(t_out: int, fps: float) -> dict[str, int]:
         if 1 < t <= t_out:
             frames[f"{ms} ms"] = t - 1
     return frames
+
+
+# The optional model hooks the engine calls (see the module docstring), in groups a model
+# defines whole or not at all.
+MODEL_HOOKS = {
+    "training_loss": ("training_loss",),
+    "start_epoch": ("start_epoch",),
+    "training_view": ("training_view", "training_view_identity", "training_loss_view"),
+}
+
+
+def check_hooks(model: nn.Module, model_name: str) -> None:
+    """Refuse a model that defines part of a group of :data:`MODEL_HOOKS`, naming the rest."""
+    for group, names in MODEL_HOOKS.items():
+        present = [n for n in names if callable(getattr(model, n, None))]
+        if present and len(present) != len(names):
+            missing = [n for n in names if n not in present]
+            raise TrainingError(
+                f"{model_name} ({type(model).__name__}) defines {', '.join(present)} but not "
+                f"{', '.join(missing)}: the {group} hooks go together (zoo.train.MODEL_HOOKS)"
+            )
 
 
 def training_step(
