@@ -43,34 +43,47 @@ def run_folder(cfg: dict, arm: str, seed: int) -> Path:
 
 
 def train(cfg: dict, arm: str, seed: int) -> None:
+    """Train (or resume) one arm and seed: its ``pretrain`` stage first where it has one (a
+    run of its own, resumed the same way), then the arm's recipe from the stage's last
+    weights."""
     if arm not in cfg["arms"]:
         raise SystemExit(f"arm {arm!r} unknown; arms: {', '.join(cfg['arms'])}")
     spec, out = cfg["arms"][arm], run_folder(cfg, arm, seed)
+    init_from = None
+    if spec.get("pretrain"):
+        stage = spec["pretrain"]
+        first = out.with_name(out.name + "-pretrain")
+        _run(cfg, spec["model"], first, seed, {**cfg["train_set"], **stage["train_set"]},
+             {**(spec.get("set") or {}), **(stage.get("set") or {})}, None)  # fmt: skip
+        init_from = first / "last.pt"
     recipe = {**cfg["train_set"], **(spec.get("train_set") or {})}
-    command = [
-        sys.executable,
-        "-m",
-        "zoo.cli",
-        "train",
-        "--model",
-        spec["model"],
-        "--benchmark",
-        cfg["benchmark"],
-        "--out",
-        str(out),
-        "--seed",
-        str(seed),
-        "--no-progress",
-    ]
+    _run(cfg, spec["model"], out, seed, recipe, spec.get("set") or {}, init_from)
+
+
+def _run(cfg, model, out: Path, seed: int, recipe: dict, hparams: dict, init_from) -> None:
+    """One ``zoo train`` run into ``out``: resumed where it has a ``last.pt``, else started
+    (from ``init_from`` where given); nothing to do when it has run its epochs."""
+    if (out / "last.pt").is_file():
+        import torch
+
+        state = torch.load(out / "last.pt", map_location="cpu", weights_only=False)
+        if state["epoch"] + 1 >= int(recipe["epochs"]):
+            print(f"{out}: done ({state['epoch'] + 1} epochs)", flush=True)
+            return
+    command = [sys.executable, "-m", "zoo.cli", "train", "--model", model]
+    command += ["--benchmark", cfg["benchmark"], "--out", str(out), "--seed", str(seed)]
+    command += ["--no-progress"]
     if cfg["max_batches"]:
         command += ["--max-batches", str(cfg["max_batches"])]
     for key, value in recipe.items():
         text = json.dumps(value) if isinstance(value, (dict, list)) else value
         command += ["--train-set", f"{key}={text}"]
-    for key, value in (spec.get("set") or {}).items():
+    for key, value in hparams.items():
         command += ["--set", f"{key}={value}"]
     if (out / "last.pt").is_file():
         command.append("--resume")
+    elif init_from is not None:
+        command += ["--init-from", str(init_from)]
     print(" ".join(command), flush=True)
     subprocess.run(command, check=True, cwd=ROOT)
 
@@ -115,10 +128,14 @@ def score(cfg: dict) -> str:
                 training, recipe["val_fraction"], t_in + t_out, rule=recipe["val_split"]
             )
             positions, index = _windows(held_out, t_in + t_out, "all", t_in, t_out)
-            steps = sum(e["samples"] for e in ckpt["history"]) // recipe["batch_size"]
+            stages = [summary, *([ckpt["init_from"]["training"]] if ckpt.get("init_from") else [])]
+            samples = sum(t["samples_seen"] for t in stages)
+            first = stages[1]["samples_seen"] // recipe["batch_size"] if len(stages) > 1 else 0
             budget = (
-                f"{steps} steps, {summary['samples_seen']} samples, "
-                f"{summary['seconds'] / 60:.0f} min, {summary.get('device_name', '?')}"
+                f"{samples // recipe['batch_size']} steps, {samples} samples, "
+                f"{sum(t['seconds'] for t in stages) / 60:.0f} min, "
+                f"{summary.get('device_name', '?')}"
+                + (f" (a first stage of {first} steps)" if first else "")
             )
             for inference, name in (("paper", spec["model"]), ("anchored", spec["anchored"])):
                 source = ModelSource.of(model=name, checkpoint=best, label=f"{arm}-{inference}")
