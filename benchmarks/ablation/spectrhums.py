@@ -88,13 +88,22 @@ def _run(cfg, model, out: Path, seed: int, recipe: dict, hparams: dict, init_fro
     subprocess.run(command, check=True, cwd=ROOT)
 
 
-def _test_rmse(model, bench, protocol, name: str) -> dict[int, float]:
+def _test_rmse(model, bench, protocol, name: str) -> dict:
+    """RMSE at :data:`TEST_HORIZONS_MS` on the test windows (frame averaging, mean over
+    actions), and MELV at 1000 ms as a multiple of the ground truth's: the model's
+    (``melv``) and its autoencoder floor's (``floor``, a SpecTrHuMS model's)."""
     from zoo.evaluate import evaluate
 
     frame = evaluate(model, bench, model_name=name, protocol=protocol).frame
-    rows = frame[(frame.metric == "rmse") & (frame.averaging == "frame") & (frame.model == name)]
-    means = rows.groupby("horizon_ms").value.mean()
-    return {ms: float(means[ms]) for ms in TEST_HORIZONS_MS if ms in means.index}
+    frame = frame[(frame.averaging == "frame") & (frame.action == "average")]
+    rmse = frame[(frame.metric == "rmse") & (frame.model == name)].set_index("horizon_ms").value
+    out = {ms: float(rmse[ms]) for ms in TEST_HORIZONS_MS if ms in rmse.index}
+    melv = frame[(frame.metric == "melv") & (frame.horizon_ms == 1000)].set_index("model").value
+    if "ground_truth" in melv.index:
+        for key, who in (("melv", name), ("floor", name + ":autoencoder")):
+            if who in melv.index:
+                out[key] = float(melv[who] / melv["ground_truth"])
+    return out
 
 
 def score(cfg: dict) -> str:
@@ -165,6 +174,7 @@ def score(cfg: dict) -> str:
         + [f"val {h}" for h in horizons]
         + ["val mean (mm)"]
         + [f"test {h}" for h in tested]
+        + ["test MELV 1000 ms / truth's", "autoencoder floor's"]
         + ["budget"]
     )
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
@@ -173,10 +183,12 @@ def score(cfg: dict) -> str:
         cells += [f"{v:.4f}" for v in val["val_horizons"]["model"]]
         cells += [f"{val['val_mpjpe']:.2f}"]
         cells += [f"{test_rmse.get(ms, float('nan')):.4f}" for ms in TEST_HORIZONS_MS]
+        cells += [f"{test_rmse.get(k, float('nan')):.2f}" for k in ("melv", "floor")]
         lines.append("| " + " | ".join(cells + [budget]) + " |")
     val_reference, windows, recordings, test_reference = reference
     cells = ["–", "–", "repeat-last", "–", "–"] + [f"{v:.4f}" for v in val_reference] + ["–"]
     cells += [f"{test_reference.get(ms, float('nan')):.4f}" for ms in TEST_HORIZONS_MS]
+    cells += ["–", "–"]
     lines.append("| " + " | ".join(cells + ["–"]) + " |")
     lines += [
         "",
