@@ -117,3 +117,10 @@ def test_the_residual_model_anchored_is_both_changes():
             model(history), history[:, -1:].expand(-1, T_OUT, -1, -1), rtol=0, atol=1e-3
         )
     assert load_registry().get("spectrhums_residual_anchored").weights_of == "spectrhums_residual"
+
+
+def test_anchored_rows_carry_no_autoencoder_floor_of_the_papers_inference():
+    # the evaluator scores a floor only where the model has one: the paper's floor is not the
+    # anchored model's
+    assert AnchoredSpecTrHuMS.autoencoder_floor is None
+    assert callable(SpecTrHuMS.autoencoder_floor)

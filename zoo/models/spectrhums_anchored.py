@@ -15,6 +15,7 @@ inference only, so it runs the paper entry's shipped weights (registry ``weights
 
 from __future__ import annotations
 
+import numpy as np
 import torch
 from torch import Tensor
 
@@ -32,6 +33,11 @@ class AnchoredSpecTrHuMS(SpecTrHuMS):
                 f"anchored inference predicts from the last observed frame; task {self.task!r} "
                 f"is not prediction"
             )
+
+    # The paper's autoencoder floor (the true future through the autoencoder) is not this
+    # model's: anchored inference with a perfect transformer keeps the last frame's detail. No
+    # floor rows, then; the paper's entry of the same weights has them.
+    autoencoder_floor = None
 
     def anchored_change(self, coeffs: Tensor) -> Tensor:
         """Observed coefficients ``(B, T_in, k, 3)`` -> the predicted change of each future
@@ -55,9 +61,9 @@ class AnchoredSpecTrHuMS(SpecTrHuMS):
 
     @torch.no_grad()
     def rollout(self, history: Tensor, frames: int) -> Tensor:
-        """Long-term prediction, each chunk anchored on the last frame before it (the last
-        observed one, then the last predicted one)."""
-        if isinstance(frames, bool) or not isinstance(frames, int) or frames < 1:
+        """Long-term prediction: the last ``input_frames`` frames (predicted ones included) fed
+        back, each chunk anchored on the frame before it."""
+        if isinstance(frames, bool) or not isinstance(frames, (int, np.integer)) or frames < 1:
             raise SpecTrHuMSError(f"frames: a positive integer, got {frames!r}")
         self._check_vertices(history, "history", None)
         if history.shape[1] < self.input_frames:
