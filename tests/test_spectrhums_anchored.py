@@ -124,3 +124,47 @@ def test_anchored_rows_carry_no_autoencoder_floor_of_the_papers_inference():
     # anchored model's
     assert AnchoredSpecTrHuMS.autoencoder_floor is None
     assert callable(SpecTrHuMS.autoencoder_floor)
+
+
+def test_weights_of_must_name_a_trainable_model_that_sees_the_same_data(tmp_path):
+    base = (
+        "models:\n  trained:\n    class: zoo.models.repeat_last.RepeatLast\n"
+        "    representation: mesh\n    trainable: true\n"
+        "  plain:\n    class: zoo.models.repeat_last.RepeatLast\n    representation: mesh\n"
+    )
+    bad = tmp_path / "registry.yaml"
+    for target, extra, message in (
+        ("nowhere", "", "'nowhere' is not a registered model"),
+        ("plain", "", "'plain' is not trainable"),
+        ("trained", "    context: [basis]\n", "its context \\('basis',\\) differs"),
+        ("trained", "    task: completion\n", "its task 'completion' differs"),
+    ):
+        bad.write_text(
+            base + "  variant:\n    class: zoo.models.repeat_last.RepeatLast\n"
+            f"    representation: mesh\n    weights_of: {target}\n{extra}"
+        )
+        with pytest.raises(RegistryError, match=f"'variant': field 'weights_of': {message}"):
+            Registry.from_files(bad)
+
+
+def test_pretrained_and_the_default_label_of_a_weights_of_entry(tmp_path, capsys):
+    import zoo
+    from zoo.benchmark import get_benchmark
+    from zoo.model_source import ModelSource
+
+    registry = load_registry()
+    weights = "weights/cmu_anny_oi_low/spectrhums@last.safetensors"
+    source = ModelSource.of(model="spectrhums_anchored", weights=weights)
+    assert source.default_label("spectrhums_anchored") == "spectrhums_anchored@last"
+    assert ModelSource.of(weights=weights).default_label("spectrhums") == "spectrhums@last"
+    model = zoo.create_model(
+        "spectrhums_anchored@last", benchmark="cmu_anny_oi_low", pretrained=True
+    )
+    assert type(model) is AnchoredSpecTrHuMS and not model.training
+    untrained = ModelSource.of("spectrhums_anchored").load(
+        registry, get_benchmark("cmu_anny_oi_low")
+    )
+    untrained.warn_if_untrained()
+    assert (
+        "spectrhums_anchored is spectrhums's weights and no --checkpoint" in capsys.readouterr().err
+    )

@@ -508,13 +508,30 @@ def run_default(registry, root, out):
                  epochs=1)  # fmt: skip
 
 
-def test_a_model_with_part_of_a_hook_group_is_refused_naming_the_rest():
+def test_a_model_with_part_of_a_hook_group_is_refused_naming_the_rest(setup, tmp_path):
     from zoo.train import check_hooks
 
-    class HalfView(torch.nn.Module):
-        def training_view(self, frames):
-            return frames
-
+    (tmp_path / "half.py").write_text(
+        "import torch\n"
+        "class HalfView(torch.nn.Module):\n"
+        "    def __init__(self, input_frames, output_frames, num_points):\n"
+        "        super().__init__()\n"
+        "        self.w = torch.nn.Parameter(torch.zeros(1))\n"
+        "        self.output_frames = output_frames\n"
+        "    def forward(self, history):\n"
+        "        return history[:, -1:].expand(-1, self.output_frames, -1, -1) + self.w\n"
+        "    def training_view(self, frames):\n"
+        "        return frames\n"
+    )
+    (tmp_path / "half.yaml").write_text(
+        "models:\n  half:\n    class: half.py:HalfView\n    representation: joints\n"
+        "    trainable: true\n"
+    )
+    root, registry, _ = setup
+    registry.add_file(tmp_path / "half.yaml")
     with pytest.raises(TrainingError, match="defines training_view but not training_view_identity"):
-        check_hooks(HalfView(), "half")
+        train(
+            "half", "cmu", registry=registry, data_root=root, out_dir=tmp_path / "h", progress=False
+        )
+    assert not (tmp_path / "h" / "last.pt").exists()  # refused before any training
     check_hooks(torch.nn.Linear(2, 2), "plain")  # no hooks at all: the engine's defaults

@@ -210,8 +210,8 @@ def test_training_plot_draws_each_validation_horizon_beside_repeat_last(tmp_path
     axes = drawn[0].axes
     assert [a.get_title() for a in axes] == [
         "mean over predicted frames",
-        "40 ms (first frame)",
-        "80 ms",
+        "rmse at 40 ms (first frame)",
+        "rmse at 80 ms",
     ]
     model, reference = axes[2].get_lines()
     assert list(model.get_ydata()) == [0.06, 0.01] and list(reference.get_ydata()) == [0.02, 0.02]

@@ -403,7 +403,7 @@ def generated_card(
         *_hparam_lines(entry.hparams, files),
         "## Recipe",
         "",
-        *_recipe_lines(entry.train, files),
+        *_recipe_lines(registry.get(entry.weights_of or name).train, files),
         "## Shipped weights and their budgets",
         "",
     ]
@@ -538,9 +538,9 @@ def build_cards(
 
                 plot_training_curves(
                     {
-                        key: s.record
+                        f"{s.benchmarks[0]}/{s.label}": s.record
                         for s in files
-                        if (key := f"{s.benchmarks[0]}/{s.label}") in curves
+                        if training_points(s.record)
                     },
                     cards_dir / f"{name}-training.png",
                     title=f"{name}: validation error while training (shipped weights)",

@@ -344,7 +344,10 @@ class Leaderboard:
         rows = [r for r in self._rows(task) if r.label not in plan.drop]
         if (
             task != "prediction"
-            and not any(self.registry.get(r.name).trainable for r in rows)
+            and not any(
+                self.registry.get(r.name).trainable or self.registry.get(r.name).weights_of
+                for r in rows
+            )
             and not any(label not in {r.label for r in rows} for label in stored)
         ):
             return None  # a table of baselines alone says nothing about this task

@@ -95,6 +95,12 @@ class ModelSource:
         if self.label:
             return self.label
         if self.weights:
+            # the file's label, or for an entry that runs these weights (weights_of) its own
+            # name with the file's @suffix: never the row of the model the file holds
+            recorded = self.record()["model"]
+            if model_name != recorded:
+                _, at, suffix = self.weights.stem.partition("@")
+                return f"{model_name}{at}{suffix}"
             return self.weights.stem
         if self.checkpoint:
             from zoo.weights import checkpoint_label
@@ -209,10 +215,12 @@ class LoadedModel:
         )
 
     def warn_if_untrained(self) -> None:
-        if self.entry.trainable and self.trained is None:
+        if (self.entry.trainable or self.entry.weights_of) and self.trained is None:
             print(
-                f"warning: {self.entry.name} is trainable and no --checkpoint or --weights "
-                f"was given: evaluating its untrained initialisation",
+                f"warning: {self.entry.name} is "
+                + (f"{self.entry.weights_of}'s weights" if self.entry.weights_of else "trainable")
+                + " and no --checkpoint or --weights was given: evaluating its untrained "
+                "initialisation",
                 file=sys.stderr,
             )
 

@@ -158,6 +158,31 @@ class Registry:
                     )
                 entry = dataclasses.replace(entry, replaces=str(previous.source))
             self.entries[name] = entry
+        for entry in self.entries.values():
+            if entry.weights_of and entry.source == path:
+                self._check_weights_of(entry)
+
+    def _check_weights_of(self, entry: ModelEntry) -> None:
+        """An entry that runs another's weights names a trainable model defined before it (in
+        its file or an earlier one) that sees the same data: task, representation, context."""
+        where = f"{entry.source}: model {entry.name!r}: field 'weights_of'"
+        target = self.entries.get(entry.weights_of)
+        if target is None:
+            raise RegistryError(
+                f"{where}: {entry.weights_of!r} is not a registered model (it must be defined "
+                f"in this registry file or an earlier one)"
+            )
+        if not target.trainable:
+            raise RegistryError(
+                f"{where}: {entry.weights_of!r} is not trainable, so it has no weights to run"
+            )
+        for field_name in ("task", "representation", "context"):
+            if getattr(entry, field_name) != getattr(target, field_name):
+                raise RegistryError(
+                    f"{where}: its {field_name} {getattr(entry, field_name)!r} differs from "
+                    f"{entry.weights_of!r}'s {getattr(target, field_name)!r}; an entry runs only "
+                    f"weights trained for what it sees"
+                )
 
     def list_models(self, representation: str | None = None) -> list[str]:
         return sorted(

@@ -108,10 +108,13 @@ def plot_training_curves(records: dict[str, dict], path: str | Path, title: str 
     from zoo.weights import training_horizons, training_points
 
     horizons = {label: training_horizons(r) for label, r in records.items()}
-    names = list(
-        dict.fromkeys(h for runs in horizons.values() for _, e in runs for h in e["horizons"])
+    # one panel per (metric, horizon): a joints-view model's MPJPE never shares a mesh model's RMSE
+    panels = list(
+        dict.fromkeys(
+            (e["metric"], h) for runs in horizons.values() for _, e in runs for h in e["horizons"]
+        )
     )
-    fig, axes = plt.subplots(1, 1 + len(names), figsize=(6.5 + 4 * len(names), 4), squeeze=False)
+    fig, axes = plt.subplots(1, 1 + len(panels), figsize=(6.5 + 4 * len(panels), 4), squeeze=False)
     ax = axes[0, 0]
     colours = {}
     for label, record in sorted(records.items()):
@@ -124,14 +127,12 @@ def plot_training_curves(records: dict[str, dict], path: str | Path, title: str 
     ax.grid(alpha=0.3, which="both")
     ax.legend(fontsize=8)
     ax.set_title("mean over predicted frames", fontsize=9)
-    for ax, name in zip(axes[0, 1:], names):
-        metric = ""
+    for ax, (metric, name) in zip(axes[0, 1:], panels):
         for label, runs in sorted(horizons.items()):
-            points = [(s, e) for s, e in runs if name in e["horizons"]]
+            points = [(s, e) for s, e in runs if e["metric"] == metric and name in e["horizons"]]
             if not points:
                 continue
             at = points[0][1]["horizons"].index(name)
-            metric = points[0][1]["metric"]
             steps = [s for s, _ in points]
             ax.plot(steps, [e["model"][at] for _, e in points], marker=".", color=colours[label])
             ax.plot(
@@ -145,7 +146,7 @@ def plot_training_curves(records: dict[str, dict], path: str | Path, title: str 
         ax.set_ylabel(f"validation {metric}")
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7)
-        ax.set_title(name, fontsize=9)
+        ax.set_title(f"{metric} at {name}", fontsize=9)
     fig.suptitle(title, fontsize=9)
     save_figure(fig, path)
 

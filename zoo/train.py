@@ -435,7 +435,10 @@ def train(
     entry = registry.get(model_name)
     if not entry.trainable:
         raise TrainingError(
-            f"model {model_name!r} has nothing to train (registry: trainable: false)"
+            f"model {model_name!r} runs the weights of {entry.weights_of!r} (registry: "
+            f"weights_of): train that one (zoo train --model {entry.weights_of})"
+            if entry.weights_of
+            else f"model {model_name!r} has nothing to train (registry: trainable: false)"
         )
     if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed < 2**32:
         raise TrainingError(f"seed must be an integer in 0..2**32-1, got {seed!r}")

@@ -4,7 +4,8 @@ predicts each latent of the window as a change from its input there.
 The paper's transformer outputs the latents themselves. Its input window is the observed latents
 followed by the last observed one repeated, so with ``out = input + f(input)`` and ``f``'s last
 layer initialised to zero the untrained model reproduces the observed latents exactly and
-predicts repeat-last; training moves it away from there only as far as the data ask. The
+repeats the last one (in latent space: its frames are the autoencoder's rendering of the last
+observed frame); training moves it away from there only as far as the data ask. The
 autoencoder, losses and inference are SpecTrHuMS's own.
 """
 
