@@ -168,3 +168,32 @@ def test_pretrained_and_the_default_label_of_a_weights_of_entry(tmp_path, capsys
     assert (
         "spectrhums_anchored is spectrhums's weights and no --checkpoint" in capsys.readouterr().err
     )
+
+
+def test_every_weights_of_row_ships_its_link_to_the_weights_it_runs():
+    import os
+
+    from zoo.benchmark import get_benchmark
+    from zoo.model_source import ModelSource
+    from zoo.paths import REPO_ROOT
+
+    registry = load_registry()
+    runs = {n: e.weights_of for n, e in registry.entries.items() if e.weights_of}
+    rows = [
+        p
+        for p in (REPO_ROOT / "results").glob("*/*/*")
+        if p.is_dir() and p.name.partition("@")[0] in runs
+    ]
+    assert rows, "no committed row of a weights_of entry"
+    for row in rows:
+        bench, label = row.parent.parent.name, row.name
+        name, at, suffix = label.partition("@")
+        link = REPO_ROOT / "weights" / bench / f"{label}.safetensors"
+        target = REPO_ROOT / "weights" / bench / f"{runs[name]}{at}{suffix}.safetensors"
+        assert link.is_file(), f"{row}: no {link}"
+        assert os.path.realpath(link) == os.path.realpath(target), f"{link} is not {target}"
+    # the link scores as the entry it names, never as the model its file holds
+    link = REPO_ROOT / "weights" / "cmu_anny_oi_low" / "spectrhums_anchored@last.safetensors"
+    loaded = ModelSource.of(weights=link).load(registry, get_benchmark("cmu_anny_oi_low"))
+    assert type(loaded.model) is AnchoredSpecTrHuMS
+    assert loaded.label == "spectrhums_anchored@last"

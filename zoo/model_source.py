@@ -110,6 +110,16 @@ class ModelSource:
 
         return variant_label(model_name, self.overrides)
 
+    def _entry_named_by_file(self, registry: Registry) -> str | None:
+        """The entry a weights file's name names where it is not the model it holds: a link
+        ``<entry>[@last].safetensors`` to the weights of the model that entry runs (registry
+        ``weights_of``), so the file scores as that entry, never as the model it holds."""
+        named = self.weights.stem.partition("@")[0]
+        entry = registry.entries.get(named)
+        if entry is not None and entry.weights_of == self.record()["model"]:
+            return named
+        return None
+
     def load(self, registry: Registry, bench, dataset=None, data_root=None) -> LoadedModel:
         """The model, built or loaded for ``bench`` (checked against what it was trained for),
         in eval mode, with what its results record."""
@@ -141,6 +151,9 @@ class ModelSource:
                 hparams={**plain, **({"context_hashes": hashes} if hashes else {})},
                 trained=None,
             )
+        name = self.name
+        if self.kind == "weights" and name is None:
+            name = self._entry_named_by_file(registry)
         if self.kind == "weights":
             model, record = load_weights(
                 self.weights,
@@ -148,7 +161,7 @@ class ModelSource:
                 benchmark=bench,
                 data_root=data_root,
                 dataset=dataset,
-                model_name=self.name,
+                model_name=name,
             )
             provenance = weights_provenance(self.weights, record)
             trained = {"kind": "weights", "sha256": record["sha256"]}
@@ -159,12 +172,12 @@ class ModelSource:
                 benchmark=bench,
                 data_root=data_root,
                 dataset=dataset,
-                model_name=self.name,
+                model_name=name,
             )
             provenance = checkpoint_provenance(self.checkpoint, record)
             trained = {"kind": "checkpoint", "sha256": sha256_file(self.checkpoint)}
         # the recorded model, or an entry that runs its weights (registry weights_of)
-        entry = registry.get(self.name or record["model"])
+        entry = registry.get(name or record["model"])
         hashes = record.get("context_hashes") or {}
         return LoadedModel(
             model=model,

@@ -91,8 +91,8 @@ def training_curves(weights_root: str | Path | None, benchmark: str) -> dict[str
         if bench != benchmark:
             continue
         record = read_weights_record(weights_file(bench, label, weights_root))
-        if training_points(record):
-            records[label] = record
+        if training_points(record):  # by the record's label: a file linked twice counts once
+            records[record["label"]] = record
     return records
 
 
