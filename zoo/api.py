@@ -34,8 +34,8 @@ def create_model(
 
     ``pretrained=True`` returns the model trained on ``benchmark`` from the weights shipped in
     ``weights/<benchmark>/<name>.safetensors`` (``name`` may be ``<model>@last``; an entry with
-    ``weights_of`` runs that model's), in eval mode; the error lists the shipped ones when there
-    are none."""
+    ``weights_of`` ships a link to that model's), in eval mode; the error lists the shipped ones
+    when there are none."""
     registry = registry or load_registry()
     if pretrained:
         from zoo.checkpoints import load_weights
@@ -52,14 +52,12 @@ def create_model(
                 f"{', '.join(sorted(overrides))}"
             )
         bench_name = benchmark if isinstance(benchmark, str) else benchmark.name
-        model, _, suffix = name.partition("@")
-        weights_of = registry.get(model).weights_of  # an entry that runs another's weights
-        shipped = f"{weights_of}{_}{suffix}" if weights_of else name
+        model = name.partition("@")[0]
         return load_weights(
-            pretrained_path(shipped, bench_name),
+            pretrained_path(name, bench_name),  # for a weights_of entry, its link to them
             registry=registry,
             benchmark=benchmark,
-            model_name=model if weights_of else None,
+            model_name=model if registry.get(model).weights_of else None,
         )[0]
     if benchmark is not None:
         from zoo.benchmark import get_benchmark

@@ -842,14 +842,14 @@ VALIDATION_HORIZONS_MS = (80, 400, 1000)
 
 
 def validation_frames(t_out: int, fps: float) -> dict[str, int]:
-    """``{label: 0-based predicted frame}``: the first predicted frame and each of
-    :data:`VALIDATION_HORIZONS_MS` that the window reaches (frame ``t`` is at ``t * 1000 / fps``
-    ms)."""
+    """``{label: 0-based predicted frame}``: the first predicted frame and the frame nearest
+    each of :data:`VALIDATION_HORIZONS_MS` that the window reaches, each labelled with its own
+    time (frame ``t`` is at ``t * 1000 / fps`` ms: at 30 fps the frame nearest 80 ms is at 67)."""
     frames = {f"{1000 / fps:.0f} ms (first frame)": 0}
     for ms in VALIDATION_HORIZONS_MS:
         t = int(round(ms * fps / 1000))
         if 1 < t <= t_out:
-            frames[f"{ms} ms"] = t - 1
+            frames[f"{t * 1000 / fps:.0f} ms"] = t - 1
     return frames
 
 
@@ -937,7 +937,7 @@ def validate(
         count += err.numel()
         if fps is not None:
             same = w[:, t_in - 1 : t_in].expand_as(future)
-            per_frame["model"] += error(pred, future).double().sum(0).cpu()
+            per_frame["model"] += (error(pred, future) if mesh else err).double().sum(0).cpu()
             per_frame["repeat_last"] += error(same, future).double().sum(0).cpu()
     result: dict[str, Any] = {"val_mpjpe": total / count}
     if fps is not None:
