@@ -535,3 +535,58 @@ def test_a_model_with_part_of_a_hook_group_is_refused_naming_the_rest(setup, tmp
         )
     assert not (tmp_path / "h" / "last.pt").exists()  # refused before any training
     check_hooks(torch.nn.Linear(2, 2), "plain")  # no hooks at all: the engine's defaults
+
+
+def test_a_run_written_with_a_capturable_optimizer_resumes_on_the_cpu(setup, tmp_path):
+    """A GPU run replaying CUDA graphs saves Adam capturable, its learning rate a tensor; the
+    same run resumed on a CPU continues as if it had been written there."""
+    run(setup, tmp_path / "full", epochs=3)
+    run(setup, tmp_path / "cut", epochs=3, stop_after_epoch=1)
+    last = tmp_path / "cut" / "last.pt"
+    state = torch.load(last, weights_only=True)
+    for group in state["optimizer"]["param_groups"]:
+        group["lr"], group["capturable"] = torch.tensor(group["lr"]), True
+    torch.save(state, last)
+    run(setup, tmp_path / "cut", epochs=3, resume=True)
+    assert weights_digest_of(
+        read_checkpoint(tmp_path / "full" / "last.pt")["state_dict"]
+    ) == weights_digest_of(read_checkpoint(last)["state_dict"])
+
+
+def test_learning_rate_is_set_in_place_where_it_is_a_tensor():
+    model = torch.nn.Linear(2, 2)
+    recipe = {"lr": 0.01, "weight_decay": 0.0}
+    graphed = train_module.make_optimizer(model, recipe, "cpu", graphed=True)
+    lr = graphed.param_groups[0]["lr"]
+    train_module.set_learning_rate(graphed, 0.5)
+    assert graphed.param_groups[0]["lr"] is lr and float(lr) == 0.5
+    plain_adam = train_module.make_optimizer(model, recipe, "cpu")
+    train_module.set_learning_rate(plain_adam, 0.5)
+    assert plain_adam.param_groups[0]["lr"] == 0.5
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
+def test_a_cuda_graph_trains_as_the_eager_step_and_resumes_on_the_cpu(setup, tmp_path):
+    # capturable Adam computes its bias corrections on the device: on an H200 the weights after
+    # 3 epochs differed from the eager step's by up to 1.2e-6 (5.7e-5 relative), losses equal
+    # to the printed digits
+    eager = run(setup, tmp_path / "eager", device="cuda", cuda_graph=False, epochs=3)
+    graph = run(setup, tmp_path / "graph", device="cuda", epochs=3)
+    for key, value in read_checkpoint(eager)["state_dict"].items():
+        torch.testing.assert_close(
+            read_checkpoint(graph)["state_dict"][key], value, rtol=1e-4, atol=1e-5
+        )
+    assert read_checkpoint(graph)["training"]["epochs_run"] == 3
+    # a graph run resumes on the GPU as it would have gone on, and on the CPU
+    run(setup, tmp_path / "cut", device="cuda", epochs=3, stop_after_epoch=1)
+    shutil.copytree(tmp_path / "cut", tmp_path / "cut_cpu")
+    run(setup, tmp_path / "cut", device="cuda", epochs=3, resume=True)
+    for key, value in read_checkpoint(tmp_path / "graph" / "last.pt")["state_dict"].items():
+        torch.testing.assert_close(
+            read_checkpoint(tmp_path / "cut" / "last.pt")["state_dict"][key],
+            value,
+            rtol=1e-4,
+            atol=1e-5,
+        )
+    run(setup, tmp_path / "cut_cpu", epochs=3, resume=True)
+    assert read_checkpoint(tmp_path / "cut_cpu" / "last.pt")["epoch"] == 2

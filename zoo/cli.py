@@ -484,6 +484,7 @@ def cmd_train(args) -> int:
         max_batches=args.max_batches,
         progress=not args.no_progress,
         init_from=args.init_from,
+        cuda_graph=not args.no_cuda_graph,
     )
     print(
         f"wrote {best} (best validation epoch) and {best.parent / 'last.pt'} (last epoch): "
@@ -933,6 +934,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--max-batches", type=int, help="cap batches per epoch (quick runs)")
     p.add_argument("--no-progress", action="store_true")
+    p.add_argument(
+        "--no-cuda-graph",
+        action="store_true",
+        help="on a CUDA device, run each step eagerly instead of replaying it as a CUDA graph",
+    )
     p.set_defaults(func=cmd_train)
     return parser
 

@@ -421,8 +421,12 @@ def train(
     progress: bool = True,
     stop_after_epoch: int | None = None,
     init_from: str | Path | None = None,
+    cuda_graph: bool = True,
 ) -> Path:
     """Train ``model_name`` on ``benchmark``'s training split; returns the best checkpoint path.
+
+    On a CUDA device (one process) the optimizer step is captured once as a CUDA graph and
+    replayed (:class:`CudaGraphStep`), unless ``cuda_graph`` is false.
 
     ``init_from`` (a checkpoint of the same model and protocol) starts from
     those weights with a fresh optimiser and schedule: a further stage of training (e.g. a longer
@@ -505,9 +509,8 @@ def train(
                 f"--init-from {init_from}: its weights do not fit {model_name} "
                 f"with these hyper-parameters: {e}"
             ) from None
-    optimizer = torch.optim.Adam(
-        model.parameters(), lr=recipe["lr"], weight_decay=recipe["weight_decay"]
-    )
+    graphed = cuda_graph and torch.device(device).type == "cuda" and not dist_info.active
+    optimizer = make_optimizer(model, recipe, device, graphed)
     t_in, t_out = bench.input_frames, bench.output_frames
     length = t_in + t_out
     train_seqs, val_seqs = split_train_val(
@@ -562,7 +565,11 @@ def train(
         recipe_changes = resume_changes(last_path, state, recipe, seed, max_batches)
         model.load_state_dict(state["state_dict"])
         optimizer.load_state_dict(state["optimizer"])
+        # a run may resume on another device than the one that wrote it (GPU <-> CPU)
+        optimizer_for_device(optimizer, device, graphed)
         torch.set_rng_state(state["rng"])
+        if "cuda_rng" in state and torch.device(device).type == "cuda":
+            torch.cuda.set_rng_state(state["cuda_rng"], torch.device(device))
         first_epoch, best, history = state["epoch"] + 1, state["best"], state["history"]
 
     objective = TrainingObjective(model, entry.task, view=train_src is not train_pos)
@@ -628,6 +635,7 @@ def train(
             f"{recipe['grad_clip']}, {recipe['precision']}; seed {seed}; checkpoints in {out_dir}",
             flush=True,
         )
+    step_graph = CudaGraphStep(net, model, optimizer, recipe, device) if graphed else None
     for epoch in range(first_epoch, recipe["epochs"]):
         if hasattr(model, "start_epoch"):  # e.g. warm-up phases, statistics over the data
             if train_src is train_pos:
@@ -653,8 +661,7 @@ def train(
                 recipe["epochs"],
                 epoch * steps_per_epoch + step,
             )
-            for group in optimizer.param_groups:
-                group["lr"] = lr
+            set_learning_rate(optimizer, lr)
             rows = order[step * batch_size : (step + 1) * batch_size].numpy()
             rows = rows[dist_info.rank :: dist_info.world]  # this process's share of the batch
             windows = gather_windows(train_src, train_index[rows], length)[:, :, src_points]
@@ -662,16 +669,20 @@ def train(
                 flip = augment_rng.random(len(windows)) < 0.5
                 windows[flip] = windows[flip, ::-1]
             windows = torch.from_numpy(np.ascontiguousarray(windows)).to(device)
-            loss = training_step(
-                net,
-                model,
-                optimizer,
-                windows[:, :t_in],
-                windows[:, t_in:],
-                recipe,
-                device,
-                where=f"{model_name}: {{loss}} at epoch {epoch + 1}, batch {step + 1}",
-            )
+            where = f"{model_name}: {{loss}} at epoch {epoch + 1}, batch {step + 1}"
+            if step_graph is not None:
+                loss = step_graph(windows[:, :t_in], windows[:, t_in:], where)
+            else:
+                loss = training_step(
+                    net,
+                    model,
+                    optimizer,
+                    windows[:, :t_in],
+                    windows[:, t_in:],
+                    recipe,
+                    device,
+                    where=where,
+                )
             seen += len(rows) * dist_info.world
             loss_sum += loss.item()
             if bar is not None:
@@ -702,6 +713,7 @@ def train(
             **validation,
             "seconds": time.perf_counter() - started,
             "samples": seen,
+            "device": device_name(device),  # a resumed run may move between machines
         }
         history.append(record)
         if dist_info.rank == 0:
@@ -755,6 +767,12 @@ def save_epoch(
             "state_dict": model.state_dict(),
             "optimizer": optimizer.state_dict(),
             "rng": torch.get_rng_state(),
+            # dropout on a GPU draws from the device's generator
+            **(
+                {"cuda_rng": torch.cuda.get_rng_state(torch.device(device))}
+                if torch.device(device).type == "cuda"
+                else {}
+            ),
             "epoch": epoch,
             "best": best,
             "history": history,
@@ -883,24 +901,112 @@ def training_step(
     recipe: dict[str, Any],
     device,
     where: str = "{loss}",
+    check_finite: bool = True,
 ) -> torch.Tensor:
     """One optimizer step, as the engine runs it and the cost columns time it: the loss
     (``objective``, in the recipe's precision), refused where it is not finite, its gradients,
     the recipe's gradient clip on ``model``'s parameters, and the step. Returns the loss.
-    ``where`` says where a non-finite loss happened, ``{loss}`` standing for "loss is <value>"."""
+    ``where`` says where a non-finite loss happened, ``{loss}`` standing for "loss is <value>".
+    ``check_finite=False`` leaves that check to the caller (a CUDA graph cannot stop to look)."""
     with forward_precision(recipe["precision"], device):
         loss = objective(history, future)
-    if not torch.isfinite(loss):
-        raise TrainingError(
-            where.format(loss=f"loss is {loss.item()}")
-            + ": training stopped (lower the lr or check the data)"
-        )
+    if check_finite:
+        refuse_non_finite(loss, where)
     optimizer.zero_grad(set_to_none=True)
     loss.backward()
     if recipe.get("grad_clip"):
         nn.utils.clip_grad_norm_(model.parameters(), recipe["grad_clip"])
     optimizer.step()
     return loss
+
+
+def refuse_non_finite(loss: torch.Tensor, where: str) -> None:
+    if not torch.isfinite(loss):
+        raise TrainingError(
+            where.format(loss=f"loss is {loss.item()}")
+            + ": training stopped (lower the lr or check the data)"
+        )
+
+
+def make_optimizer(
+    model: nn.Module, recipe: dict[str, Any], device, graphed: bool = False
+) -> torch.optim.Optimizer:
+    """The recipe's Adam; for a CUDA graph, capturable, its learning rate a device tensor that
+    :func:`set_learning_rate` changes in place (a float would be frozen into the graph)."""
+    lr = torch.tensor(recipe["lr"], device=device) if graphed else recipe["lr"]
+    return torch.optim.Adam(
+        model.parameters(), lr=lr, weight_decay=recipe["weight_decay"], capturable=graphed
+    )
+
+
+def optimizer_for_device(optimizer: torch.optim.Optimizer, device, graphed: bool) -> None:
+    """After ``load_state_dict``: the loaded groups' learning rate and ``capturable`` as
+    :func:`make_optimizer` sets them for this run, the step counters where Adam expects them (on
+    the device when capturable, else on the CPU), so a run written on a GPU resumes on a CPU and
+    the other way round."""
+    for group in optimizer.param_groups:
+        lr = float(group["lr"])
+        group["lr"] = torch.tensor(lr, device=device) if graphed else lr
+        group["capturable"] = graphed
+    for state in optimizer.state.values():
+        if torch.is_tensor(state.get("step")):
+            state["step"] = state["step"].to(device if graphed else "cpu", torch.float32)
+
+
+def set_learning_rate(optimizer: torch.optim.Optimizer, lr: float) -> None:
+    for group in optimizer.param_groups:
+        if torch.is_tensor(group["lr"]):
+            group["lr"].fill_(lr)
+        else:
+            group["lr"] = lr
+
+
+class CudaGraphStep:
+    """:func:`training_step` on a CUDA device, captured once as a CUDA graph and replayed.
+
+    A small model's step is thousands of tiny kernels whose launches, not their arithmetic,
+    take the time (PGBIG: about 2,000 a step at batch 16); a graph launches them all at once.
+    The first :attr:`WARMUP` calls are ordinary steps on a side stream (they build Adam's state
+    and let the libraries pick their kernels), the next one captures the step and every call
+    from then on copies its batch into the graph's inputs and replays it: the same step, the
+    same arithmetic. A non-finite loss is refused after its replay (the step is already taken;
+    the checkpoints on disk are the last finished epoch's). The batch must keep its shape."""
+
+    WARMUP = 3
+
+    def __init__(self, objective, model, optimizer, recipe, device) -> None:
+        self.args = (objective, model, optimizer)
+        self.recipe, self.device = recipe, device
+        self.calls = 0
+        self.graph: torch.cuda.CUDAGraph | None = None
+        self.side = torch.cuda.Stream(device)
+
+    def __call__(self, history: torch.Tensor, future: torch.Tensor, where: str) -> torch.Tensor:
+        self.calls += 1
+        if self.calls <= self.WARMUP:
+            self.side.wait_stream(torch.cuda.current_stream(self.device))
+            with torch.cuda.stream(self.side):
+                loss = training_step(*self.args, history, future, self.recipe, self.device, where)
+            torch.cuda.current_stream(self.device).wait_stream(self.side)
+            return loss
+        if self.graph is None:
+            self.history, self.future = history.clone(), future.clone()
+            self.graph = torch.cuda.CUDAGraph()
+            with torch.cuda.graph(self.graph):
+                self.loss = training_step(
+                    *self.args,
+                    self.history,
+                    self.future,
+                    self.recipe,
+                    self.device,
+                    check_finite=False,
+                )
+        else:
+            self.history.copy_(history)
+            self.future.copy_(future)
+        self.graph.replay()
+        refuse_non_finite(self.loss, where)
+        return self.loss
 
 
 @torch.no_grad()
@@ -1075,10 +1181,30 @@ def _training_summary(recipe, history, best, device) -> dict[str, Any]:
         "samples_seen": int(sum(h["samples"] for h in history)),
         "seconds": float(sum(h["seconds"] for h in history)),
         "device": str(device),
-        "device_name": device_name(device),
+        "device_name": devices_text(history, device_name(device)),
         "best": best,
         "final_val_mpjpe": history[-1]["val_mpjpe"] if history else None,
     }
+
+
+def devices_text(history: list[dict[str, Any]], current: str) -> str:
+    """The machines a run's epochs ran on: one name, or each with its epochs and minutes
+    (``NVIDIA H200: epochs 1-7, 8.7 min; CPU ...: epochs 8-50, ...``). An epoch recorded
+    before epochs named their device counts as ``current``'s."""
+    spans: list[list] = []  # [name, first epoch, last epoch, seconds]
+    for i, h in enumerate(history, 1):
+        name = h.get("device", current)
+        if spans and spans[-1][0] == name:
+            spans[-1][2], spans[-1][3] = i, spans[-1][3] + h["seconds"]
+        else:
+            spans.append([name, i, i, h["seconds"]])
+    if len({s[0] for s in spans}) <= 1:
+        return spans[0][0] if spans else current
+    return "; ".join(
+        f"{name}: epoch{'s' if a != b else ''} {a}{f'-{b}' if a != b else ''}, "
+        f"{seconds / 60:.1f} min"
+        for name, a, b, seconds in spans
+    )
 
 
 def device_name(device) -> str:
