@@ -16,6 +16,7 @@ SCRIPTS = [
     "public_spgsn",
     "speed_anny",
     "speed_baselines",
+    "speed_check",
     "speed_eval",
     "speed_spectral",
     "speed_spectrhums",
@@ -71,6 +72,21 @@ def test_speed_eval(swinging_cmu, capsys):
     load("speed_eval").main(["--data-root", str(root), "--repeats", "1"])
     out = capsys.readouterr().out
     assert "per-window loop" in out and "ratio" in out
+
+
+def test_speed_check(swinging_cmu, tmp_path, capsys):
+    from zoo.cli import main
+
+    root, _ = swinging_cmu
+    paths = ["--data-root", str(root), "--weights", str(tmp_path / "none")]
+    paths += ["--checkpoints", str(tmp_path / "none")]
+    out = tmp_path / "results"
+    assert main(["leaderboard", "--benchmark", "cmu", "--out", str(out), *paths]) == 0
+    capsys.readouterr()
+    load("speed_check").main(["--results", str(out), "--benchmark", "cmu", *paths])
+    lines = capsys.readouterr().out.splitlines()
+    assert "GFLOP/s" in lines[0] and "ratio" in lines[1]
+    assert lines[2].startswith("cmu") and lines[2].endswith("passed")
 
 
 def test_speed_spectral(capsys):

@@ -1,0 +1,91 @@
+"""How long ``zoo leaderboard --check`` takes, per benchmark, against the models' own arithmetic.
+
+For each benchmark with committed tables this runs ``zoo leaderboard --check --benchmark NAME``
+(run it once first so datasets and bases are cached: this times the warm check) and prints, side
+by side in the same run:
+
+- the check's wall time;
+- its arithmetic floor: every checked row's forward GFLOPs per window (``costs.json``) times the
+  windows it is scored on, over this machine's float32 matrix-product rate measured here;
+- their ratio: how far the check is above what its models' forward passes cost at best.
+
+A ratio near 1 says the check is the models' arithmetic and only a faster CPU (or fewer rows)
+makes it shorter; a large ratio says the check's own work (data, ground truth, scoring) is what
+to make faster.
+
+Run: python benchmarks/speed/speed_check.py [--benchmark NAME ...] [--results results]
+     [--data-root PATH] [--weights weights] [--checkpoints checkpoints]
+"""
+
+import argparse
+import contextlib
+import io
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from zoo.cli import committed_benchmarks
+from zoo.cli import main as zoo_main
+from zoo.results import WINDOWS_FILE, WindowErrors
+
+
+def matmul_gflops(size: int = 1024, repeats: int = 10) -> float:
+    """This machine's float32 matrix-product rate at torch's current thread count."""
+    a, b = torch.randn(size, size), torch.randn(size, size)
+    torch.mm(a, b)
+    started = time.perf_counter()
+    for _ in range(repeats):
+        torch.mm(a, b)
+    return 2 * size**3 * repeats / (time.perf_counter() - started) / 1e9
+
+
+def forward_gflop(results: Path, benchmark: str) -> float:
+    """Forward GFLOPs of every committed row of ``benchmark``: per-window cost times windows."""
+    costs_file = results / benchmark / "costs.json"
+    costs = json.loads(costs_file.read_text())["rows"] if costs_file.is_file() else {}
+    total = 0.0
+    for windows_file in sorted((results / benchmark).glob(f"*/*/{WINDOWS_FILE}")):
+        label = windows_file.parent.name
+        per_window = (costs.get(label) or {}).get("gflop_per_sample") or 0.0
+        total += per_window * len(WindowErrors.read(windows_file).start)
+    return total
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--benchmark", action="append", help="default: every committed one")
+    parser.add_argument("--results", default="results", help="results root (default results/)")
+    parser.add_argument("--data-root", help="dataset folder (default: each benchmark's)")
+    parser.add_argument("--weights", help="shipped weights folder (default weights/)")
+    parser.add_argument("--checkpoints", help="checkpoints folder (default checkpoints/)")
+    args = parser.parse_args(argv)
+    passed = [*(["--data-root", args.data_root] if args.data_root else [])]
+    passed += ["--weights", args.weights] if args.weights else []
+    passed += ["--checkpoints", args.checkpoints] if args.checkpoints else []
+    results = Path(args.results)
+    names = args.benchmark or committed_benchmarks(results)
+    rate = matmul_gflops()
+    print(f"float32 matrix products here: {rate:.1f} GFLOP/s ({torch.get_num_threads()} threads)")
+    print(f"{'benchmark':<18} {'check s':>9} {'floor s':>9} {'ratio':>7}  verdict")
+    total = 0.0
+    for name in names:
+        out = io.StringIO()
+        started = time.perf_counter()
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(io.StringIO()):
+            code = zoo_main(
+                ["leaderboard", "--check", "--benchmark", name, "--out", str(results), *passed]
+            )
+        seconds = time.perf_counter() - started
+        total += seconds
+        floor = forward_gflop(results, name) / rate
+        ratio = seconds / floor if floor > 0 else np.inf
+        verdict = "passed" if code == 0 else f"exit {code}: {out.getvalue().splitlines()[-1]}"
+        print(f"{name:<18} {seconds:>9.1f} {floor:>9.1f} {ratio:>7.1f}  {verdict}")
+    print(f"{'all':<18} {total:>9.1f}")
+
+
+if __name__ == "__main__":
+    main()
