@@ -635,8 +635,10 @@ def train(
             f"{recipe['grad_clip']}, {recipe['precision']}; seed {seed}; checkpoints in {out_dir}",
             flush=True,
         )
-    step_graph = CudaGraphStep(net, model, optimizer, recipe, device) if graphed else None
     for epoch in range(first_epoch, recipe["epochs"]):
+        # captured anew every epoch: start_epoch may change what a step does (SpecTrHuMS's
+        # autoencoder-only phase, then the joint one)
+        step_graph = CudaGraphStep(net, model, optimizer, recipe, device) if graphed else None
         if hasattr(model, "start_epoch"):  # e.g. warm-up phases, statistics over the data
             if train_src is train_pos:
                 model.start_epoch(epoch, training_frames)
@@ -970,14 +972,17 @@ class CudaGraphStep:
     and let the libraries pick their kernels), the next one captures the step and every call
     from then on copies its batch into the graph's inputs and replays it: the same step, the
     same arithmetic. A non-finite loss is refused after its replay (the step is already taken;
-    the checkpoints on disk are the last finished epoch's). The batch must keep its shape."""
+    the checkpoints on disk are the last finished epoch's). The batch must keep its shape, and
+    what the step does must not change while it is replayed (the engine captures one per
+    epoch). A step that cannot be captured (one that reads a value back to decide what to do)
+    runs eagerly from then on, with a warning that says why."""
 
     WARMUP = 3
 
     def __init__(self, objective, model, optimizer, recipe, device) -> None:
         self.args = (objective, model, optimizer)
         self.recipe, self.device = recipe, device
-        self.calls = 0
+        self.calls, self.eager = 0, False
         self.graph: torch.cuda.CUDAGraph | None = None
         self.side = torch.cuda.Stream(device)
 
@@ -989,18 +994,30 @@ class CudaGraphStep:
                 loss = training_step(*self.args, history, future, self.recipe, self.device, where)
             torch.cuda.current_stream(self.device).wait_stream(self.side)
             return loss
+        if self.eager:
+            return training_step(*self.args, history, future, self.recipe, self.device, where)
         if self.graph is None:
             self.history, self.future = history.clone(), future.clone()
             self.graph = torch.cuda.CUDAGraph()
-            with torch.cuda.graph(self.graph):
-                self.loss = training_step(
-                    *self.args,
-                    self.history,
-                    self.future,
-                    self.recipe,
-                    self.device,
-                    check_finite=False,
+            try:
+                with torch.cuda.graph(self.graph):
+                    self.loss = training_step(
+                        *self.args,
+                        self.history,
+                        self.future,
+                        self.recipe,
+                        self.device,
+                        check_finite=False,
+                    )
+            except RuntimeError as e:
+                warnings.warn(
+                    f"the training step cannot be captured as a CUDA graph "
+                    f"({str(e).splitlines()[0][:200]}); it runs eagerly",
+                    RuntimeWarning,
+                    stacklevel=2,
                 )
+                self.eager, self.graph = True, None
+                return training_step(*self.args, history, future, self.recipe, self.device, where)
         else:
             self.history.copy_(history)
             self.future.copy_(future)
