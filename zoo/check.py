@@ -46,18 +46,19 @@ class CheckReport:
     def table_lines(self) -> list[str]:
         """One line per table: rows checked and the largest difference as a share of the
         tolerance, or its problems (the first named: a refusal and its reason)."""
-        lines = []
-        for name, t in self.per_table.items():
-            verdict = (
-                f"{len(t['problems'])} problem(s), first: {t['problems'][0]}"
-                if t["problems"]
-                else "passed"
-            )
-            lines.append(
-                f"{name}: {t['rows']} rows checked, largest difference {t['share']:.2f} of "
-                f"the tolerance: {verdict}"
-            )
-        return lines
+        return [self.table_line(name) for name in self.per_table]
+
+    def table_line(self, name: str) -> str:
+        t = self.per_table[name]
+        verdict = (
+            f"{len(t['problems'])} problem(s), first: {t['problems'][0]}"
+            if t["problems"]
+            else "passed"
+        )
+        return (
+            f"{name}: {t['rows']} rows checked, largest difference {t['share']:.2f} of "
+            f"the tolerance: {verdict}"
+        )
 
     def note(self, gap: np.ndarray, old: np.ndarray, allowed: np.ndarray, where) -> None:
         """Keep the largest difference (measured as a share of its tolerance) and where

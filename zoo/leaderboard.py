@@ -155,11 +155,15 @@ class Leaderboard:
                             outcome = True
                     else:
                         outcome = self._table(sampler, task, truth, folder)
-                    if outcome:
+                    seconds = time.perf_counter() - started
+                    if outcome and self.plan.check is not None:
+                        # each table's verdict as soon as it is known, not only at the end
+                        name = self.plan.check.current
                         print(
-                            f"{bench.name}/{folder}: {time.perf_counter() - started:.0f} s",
-                            file=sys.stderr,
+                            f"{self.plan.check.table_line(name)} ({seconds:.0f} s)", file=sys.stderr
                         )
+                    elif outcome:
+                        print(f"{bench.name}/{folder}: {seconds:.0f} s", file=sys.stderr)
                     if outcome is not None:
                         written.append(self.root / bench.name / folder)
                         changed |= outcome
