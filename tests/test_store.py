@@ -4,6 +4,7 @@ never deletes a row it did not make."""
 
 import json
 import shutil
+import sys
 import textwrap
 from pathlib import Path
 
@@ -467,3 +468,77 @@ def test_a_rebuild_that_agrees_changes_no_file(project, capsys):
     code, text, _ = cli(capsys, *args, project / "cmu", "--out", out)
     assert code == 0 and "rewritten: the stored result of this identity stored result " in text
     assert (out / "results.csv").read_text().startswith("model,")
+
+
+MODEL_FILE = """\
+import torch
+from torch import nn
+
+from zoo.models.dct import dct_matrix
+
+SCALE = 2.0
+
+
+def helper(x):
+    return x * SCALE
+
+
+class Model(nn.Module):
+    def forward(self, x):
+        return helper(x) + dct_matrix(3)[0, 0]
+"""
+
+
+def _model_class(folder: Path, text: str) -> type:
+    import importlib.util
+
+    folder.mkdir()
+    (folder / "model.py").write_text(text)
+    spec = importlib.util.spec_from_file_location(f"fingerprint_{folder.name}", folder / "model.py")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # as the registry loads a class from a file
+    spec.loader.exec_module(module)
+    return module.Model
+
+
+@pytest.mark.parametrize(
+    "change, stale",
+    [
+        ("a second class", False),
+        ("a comment and a docstring", False),
+        ("a helper's constant", True),
+        ("the helper", True),
+        ("an import from outside zoo", True),
+        ("a statement run on import", True),
+    ],
+)
+def test_a_model_fingerprint_covers_the_code_its_class_reaches(tmp_path, change, stale):
+    from zoo.store import model_fingerprint, reachable_code
+
+    changed = {
+        "a second class": MODEL_FILE + "\n\nclass Other(nn.Module):\n    pass\n",
+        "a comment and a docstring": MODEL_FILE.replace(
+            "def helper(x):\n", 'def helper(x):\n    """Doubles."""  # why\n'
+        ),
+        "a helper's constant": MODEL_FILE.replace("SCALE = 2.0", "SCALE = 3.0"),
+        "the helper": MODEL_FILE.replace("x * SCALE", "x * SCALE + 1"),
+        "an import from outside zoo": MODEL_FILE.replace(
+            "from torch import nn", "import torch.nn as nn"
+        ),
+        "a statement run on import": MODEL_FILE + "\ntorch.set_default_dtype(torch.float32)\n",
+    }[change]
+    before = model_fingerprint(_model_class(tmp_path / "before", MODEL_FILE))
+    after = model_fingerprint(_model_class(tmp_path / "after", changed))
+    assert (before != after) is stale
+    code = reachable_code(_model_class(tmp_path / "again", MODEL_FILE))
+    # what it reaches in zoo: dct_matrix and what dct_matrix itself uses, nothing else there
+    assert {c.split("::")[1] for c in code if c.startswith("zoo/")} <= {"dct_matrix", "import"}
+    assert any(c.startswith("zoo/models/dct.py::dct_matrix::") for c in code)
+
+
+def test_a_model_reaches_its_base_class_in_another_zoo_module():
+    from zoo.models.spectrhums_anchored import AnchoredSpecTrHuMS
+    from zoo.store import reachable_code
+
+    names = {c.split("::")[1] for c in reachable_code(AnchoredSpecTrHuMS)}
+    assert {"AnchoredSpecTrHuMS", "SpecTrHuMS", "probe_projections"} <= names

@@ -11,8 +11,9 @@ the user's own). Its **identity** is what was measured, recorded in ``protocol.j
   ``nn.Module`` handed to :func:`zoo.evaluate`: its class and a hash of its weights);
 - ``trained``: the sha256 of the shipped weights or checkpoint it was computed from;
 - ``code``: fingerprints of the evaluator, the metrics, the window sampler and the model's
-  source (:func:`code_fingerprint`: the syntax tree without docstrings, so comments and
-  formatting do not count and any change to what the code does does).
+  own code (:func:`model_fingerprint`: the definitions its class reaches), each of syntax trees
+  without docstrings, so comments and formatting do not count and any change to what the code
+  does does.
 
 A store never replaces a result of another identity unless told to (the error names the fields
 that differ), and the leaderboard reuses a stored row exactly while its identity holds.
@@ -214,6 +215,159 @@ def code_closure(*files: str | Path) -> list[Path]:
     )
 
 
+# ---- a model's own code: the definitions its class reaches --------------------------------
+
+
+@cache
+def _module_parts(path: str, mtime_ns: int) -> tuple[dict, dict, list]:
+    """A module's top level: ``defs`` (name -> the statements that bind it: functions,
+    classes, assignments), ``imports`` (name -> ``("zoo", module, attribute or None)`` for a zoo
+    module or one of its names, ``("outside", text)`` for anything else) and ``others`` (every
+    other statement: it runs on import, whatever is reached)."""
+    tree = ast.parse(Path(path).read_text(), filename=path)
+    file = Path(path)
+    package = (
+        ".".join(file.relative_to(REPO_ROOT).with_suffix("").parts[:-1])
+        if file.is_relative_to(REPO_ROOT)
+        else ""
+    )
+    defs: dict[str, list] = {}
+    imports: dict[str, tuple] = {}
+    others: list = []
+    body = tree.body[1:] if _is_docstring(tree.body) else tree.body
+    for node in body:
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+            defs.setdefault(node.name, []).append(node)
+        elif isinstance(node, (ast.Assign, ast.AnnAssign, ast.AugAssign)):
+            targets = node.targets if isinstance(node, ast.Assign) else [node.target]
+            names = [n.id for t in targets for n in ast.walk(t) if isinstance(n, ast.Name)]
+            for name in names:
+                defs.setdefault(name, []).append(node)
+            if not names:
+                others.append(node)
+        elif isinstance(node, ast.Import):
+            for alias in node.names:
+                if alias.name.split(".")[0] == "zoo":
+                    # import zoo.a.b binds zoo; import zoo.a.b as m binds the module itself
+                    bound = alias.asname or "zoo"
+                    imports[bound] = ("zoo", alias.name if alias.asname else "zoo", None)
+                else:
+                    imports[alias.asname or alias.name.split(".")[0]] = (
+                        "outside",
+                        _tree_text(ast.Import(names=[alias])),
+                    )
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level and package:
+                parent = package.split(".")[: len(package.split(".")) - node.level + 1]
+                base = ".".join([*parent, *([base] if base else [])])
+            for alias in node.names:
+                bound = alias.asname or alias.name
+                if base.split(".")[0] == "zoo" and alias.name != "*":
+                    submodule = f"{base}.{alias.name}"
+                    imports[bound] = (
+                        ("zoo", submodule, None)
+                        if _zoo_module_file(submodule)
+                        else ("zoo", base, alias.name)
+                    )
+                else:
+                    imports[bound] = ("outside", f"from {base} import {alias.name}")
+        else:
+            others.append(node)
+    return defs, imports, others
+
+
+def _used_names(nodes: list) -> set[tuple[str, ...]]:
+    """Every name the statements use, with the attributes read from it (``a.b.c`` gives
+    ``("a", "b", "c")``, a bare ``a`` gives ``("a",)``)."""
+    used: set[tuple[str, ...]] = set()
+    for node in nodes:
+        for sub in ast.walk(node):
+            if isinstance(sub, ast.Attribute):
+                chain, base = [sub.attr], sub.value
+                while isinstance(base, ast.Attribute):
+                    chain.insert(0, base.attr)
+                    base = base.value
+                if isinstance(base, ast.Name):
+                    used.add((base.id, *chain))
+            elif isinstance(sub, ast.Name):
+                used.add((sub.id,))
+    return used
+
+
+def reachable_code(cls: type) -> list[str] | None:
+    """What a model class's results depend on in code, as text: its own definition and every
+    zoo definition it reaches by name (functions, classes, constants; through imports across
+    zoo modules, base classes included), the imports from outside zoo that those use, and the
+    other top-level statements of every module reached. A second class in the same file is not
+    among them; a changed helper, constant, base class or import is. None where Python keeps no
+    source for the class, or it is not defined at a module's top level."""
+    try:
+        file = inspect.getsourcefile(cls)
+    except (OSError, TypeError):
+        return None
+    if file is None or not Path(file).is_file():
+        return None
+    start = Path(file).resolve()
+    if cls.__name__ not in _module_parts(str(start), start.stat().st_mtime_ns)[0]:
+        return None
+
+    def label(path: Path) -> str:
+        return str(path.relative_to(REPO_ROOT)) if path.is_relative_to(REPO_ROOT) else path.name
+
+    pieces: set[str] = set()
+    seen: set[tuple[Path, str | None]] = set()
+    todo: list[tuple[Path, str | None]] = [(start, cls.__name__)]
+    while todo:
+        path, name = todo.pop()
+        if (path, name) in seen:
+            continue
+        seen.add((path, name))
+        defs, imports, others = _module_parts(str(path), path.stat().st_mtime_ns)
+        if (path, "") not in seen:  # a module's other statements, once
+            seen.add((path, ""))
+            pieces |= {f"{label(path)}::{_tree_text(n)}" for n in others}
+            todo += [(path, None)]  # what those statements use
+        nodes = others if name is None else defs.get(name, [])
+        pieces |= {f"{label(path)}::{name}::{_tree_text(n)}" for n in nodes if name is not None}
+        for used in _used_names(nodes):
+            head = used[0]
+            if head in defs and head != name:
+                todo.append((path, head))
+            elif head in imports:
+                kind, *target = imports[head]
+                if kind == "outside":
+                    pieces.add(f"{label(path)}::import::{target[0]}")
+                    continue
+                module, attribute = target
+                rest = list(used[1:])
+                if attribute is None:  # a module: resolve attributes to its definitions
+                    while rest and _zoo_module_file(f"{module}.{rest[0]}"):
+                        module = f"{module}.{rest.pop(0)}"
+                    attribute = rest[0] if rest else None
+                target_file = _zoo_module_file(module)
+                if target_file is None:
+                    continue
+                target_file = target_file.resolve()
+                if attribute is None:  # the module itself is used: all of it
+                    parts = _module_parts(str(target_file), target_file.stat().st_mtime_ns)
+                    todo += [(target_file, n) for n in parts[0]] + [(target_file, None)]
+                else:
+                    todo.append((target_file, attribute))
+    return sorted(pieces)
+
+
+def model_fingerprint(cls: type) -> str | None:
+    """A model class's code fingerprint: of :func:`reachable_code`, or, for a class defined
+    other than at a module's top level, of its file and the zoo modules it imports; None where
+    Python keeps no source for it (a class typed into an interpreter)."""
+    code = reachable_code(cls)
+    if code is not None:
+        return hashlib.sha256("\n".join(code).encode()).hexdigest()[:16]
+    sources = model_source_files(cls)
+    return code_fingerprint(*sources) if sources else None
+
+
 def model_source_files(cls: type) -> list[Path]:
     """The file defining a model class and the zoo modules it imports: the model's source.
     Empty where Python keeps no file for it (a class typed into an interpreter)."""
@@ -246,8 +400,7 @@ def evaluation_code(model_class: type | None, dataset: str | None = None) -> dic
     files = sorted(set(code_closure(EVALUATOR)) | set(dataset_code(dataset)))
     code: dict[str, str | None] = {"evaluator": code_fingerprint(*files)}
     if model_class is not None:
-        sources = model_source_files(model_class)
-        code["model"] = code_fingerprint(*sources) if sources else None
+        code["model"] = model_fingerprint(model_class)
     return code
 
 
