@@ -84,6 +84,9 @@ def main(argv: list[str] | None = None) -> None:
         ratio = seconds / floor if floor > 0 else np.inf
         verdict = "passed" if code == 0 else f"exit {code}: {out.getvalue().splitlines()[-1]}"
         print(f"{name:<18} {seconds:>9.1f} {floor:>9.1f} {ratio:>7.1f}  {verdict}")
+        for line in out.getvalue().splitlines():  # the check's own line per table
+            if line.startswith(f"{name}/"):
+                print(f"    {line}")
     print(f"{'all':<18} {total:>9.1f}")
 
 
