@@ -542,3 +542,14 @@ def test_a_model_reaches_its_base_class_in_another_zoo_module():
 
     names = {c.split("::")[1] for c in reachable_code(AnchoredSpecTrHuMS)}
     assert {"AnchoredSpecTrHuMS", "SpecTrHuMS", "probe_projections"} <= names
+
+
+def test_a_model_reaches_what_it_imports_inside_its_methods(tmp_path):
+    from zoo.store import reachable_code
+
+    local = MODEL_FILE.replace("from zoo.models.dct import dct_matrix\n", "").replace(
+        "        return helper(x)",
+        "        from zoo.models.dct import dct_matrix\n\n        return helper(x)",
+    )
+    code = reachable_code(_model_class(tmp_path / "local", local))
+    assert any(c.startswith("zoo/models/dct.py::dct_matrix::") for c in code)

@@ -571,16 +571,16 @@ def test_a_cuda_graph_trains_as_the_eager_step_and_resumes_on_the_cpu(setup, tmp
     # 3 epochs differed from the eager step's by up to 1.2e-6 (5.7e-5 relative), losses equal
     # to the printed digits
     eager = run(setup, tmp_path / "eager", device="cuda", cuda_graph=False, epochs=3)
-    graph = run(setup, tmp_path / "graph", device="cuda", epochs=3)
+    graph = run(setup, tmp_path / "graph", device="cuda", cuda_graph=True, epochs=3)
     for key, value in read_checkpoint(eager)["state_dict"].items():
         torch.testing.assert_close(
             read_checkpoint(graph)["state_dict"][key], value, rtol=1e-4, atol=1e-5
         )
     assert read_checkpoint(graph)["training"]["epochs_run"] == 3
     # a graph run resumes on the GPU as it would have gone on, and on the CPU
-    run(setup, tmp_path / "cut", device="cuda", epochs=3, stop_after_epoch=1)
+    run(setup, tmp_path / "cut", device="cuda", cuda_graph=True, epochs=3, stop_after_epoch=1)
     shutil.copytree(tmp_path / "cut", tmp_path / "cut_cpu")
-    run(setup, tmp_path / "cut", device="cuda", epochs=3, resume=True)
+    run(setup, tmp_path / "cut", device="cuda", cuda_graph=True, epochs=3, resume=True)
     for key, value in read_checkpoint(tmp_path / "graph" / "last.pt")["state_dict"].items():
         torch.testing.assert_close(
             read_checkpoint(tmp_path / "cut" / "last.pt")["state_dict"][key],

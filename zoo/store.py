@@ -218,6 +218,14 @@ def code_closure(*files: str | Path) -> list[Path]:
 # ---- a model's own code: the definitions its class reaches --------------------------------
 
 
+def _package_of(path: Path) -> str:
+    return (
+        ".".join(path.relative_to(REPO_ROOT).with_suffix("").parts[:-1])
+        if path.is_relative_to(REPO_ROOT)
+        else ""
+    )
+
+
 @cache
 def _module_parts(path: str, mtime_ns: int) -> tuple[dict, dict, list]:
     """A module's top level: ``defs`` (name -> the statements that bind it: functions,
@@ -225,12 +233,7 @@ def _module_parts(path: str, mtime_ns: int) -> tuple[dict, dict, list]:
     module or one of its names, ``("outside", text)`` for anything else) and ``others`` (every
     other statement: it runs on import, whatever is reached)."""
     tree = ast.parse(Path(path).read_text(), filename=path)
-    file = Path(path)
-    package = (
-        ".".join(file.relative_to(REPO_ROOT).with_suffix("").parts[:-1])
-        if file.is_relative_to(REPO_ROOT)
-        else ""
-    )
+    package = _package_of(Path(path))
     defs: dict[str, list] = {}
     imports: dict[str, tuple] = {}
     others: list = []
@@ -240,41 +243,62 @@ def _module_parts(path: str, mtime_ns: int) -> tuple[dict, dict, list]:
             defs.setdefault(node.name, []).append(node)
         elif isinstance(node, (ast.Assign, ast.AnnAssign, ast.AugAssign)):
             targets = node.targets if isinstance(node, ast.Assign) else [node.target]
-            names = [n.id for t in targets for n in ast.walk(t) if isinstance(n, ast.Name)]
+            names = [n for t in targets for n in _bound_names(t)]  # not mod.attr = ...
             for name in names:
                 defs.setdefault(name, []).append(node)
             if not names:
                 others.append(node)
-        elif isinstance(node, ast.Import):
-            for alias in node.names:
-                if alias.name.split(".")[0] == "zoo":
-                    # import zoo.a.b binds zoo; import zoo.a.b as m binds the module itself
-                    bound = alias.asname or "zoo"
-                    imports[bound] = ("zoo", alias.name if alias.asname else "zoo", None)
-                else:
-                    imports[alias.asname or alias.name.split(".")[0]] = (
-                        "outside",
-                        _tree_text(ast.Import(names=[alias])),
-                    )
-        elif isinstance(node, ast.ImportFrom):
-            base = node.module or ""
-            if node.level and package:
-                parent = package.split(".")[: len(package.split(".")) - node.level + 1]
-                base = ".".join([*parent, *([base] if base else [])])
-            for alias in node.names:
-                bound = alias.asname or alias.name
-                if base.split(".")[0] == "zoo" and alias.name != "*":
-                    submodule = f"{base}.{alias.name}"
-                    imports[bound] = (
-                        ("zoo", submodule, None)
-                        if _zoo_module_file(submodule)
-                        else ("zoo", base, alias.name)
-                    )
-                else:
-                    imports[bound] = ("outside", f"from {base} import {alias.name}")
+        elif isinstance(node, (ast.Import, ast.ImportFrom)):
+            imports.update(_import_bindings(node, package))
         else:
             others.append(node)
     return defs, imports, others
+
+
+def _bound_names(target) -> list[str]:
+    """The names an assignment target binds: ``a``, ``a, (b, *c)``; none for ``m.a`` or
+    ``m[i]``, which change something else."""
+    if isinstance(target, ast.Name):
+        return [target.id]
+    if isinstance(target, ast.Starred):
+        return _bound_names(target.value)
+    if isinstance(target, (ast.Tuple, ast.List)):
+        return [n for t in target.elts for n in _bound_names(t)]
+    return []
+
+
+def _import_bindings(node, package: str) -> dict[str, tuple]:
+    """The names an import statement binds: ``("zoo", module, attribute or None)`` for a zoo
+    module or one of its names, ``("outside", text)`` for anything else."""
+    bindings: dict[str, tuple] = {}
+    if isinstance(node, ast.Import):
+        for alias in node.names:
+            if alias.name.split(".")[0] == "zoo":
+                # import zoo.a.b binds zoo; import zoo.a.b as m binds the module itself
+                bound = alias.asname or "zoo"
+                bindings[bound] = ("zoo", alias.name if alias.asname else "zoo", None)
+            else:
+                bindings[alias.asname or alias.name.split(".")[0]] = (
+                    "outside",
+                    _tree_text(ast.Import(names=[alias])),
+                )
+        return bindings
+    base = node.module or ""
+    if node.level and package:
+        parent = package.split(".")[: len(package.split(".")) - node.level + 1]
+        base = ".".join([*parent, *([base] if base else [])])
+    for alias in node.names:
+        bound = alias.asname or alias.name
+        if base.split(".")[0] == "zoo" and alias.name != "*":
+            submodule = f"{base}.{alias.name}"
+            bindings[bound] = (
+                ("zoo", submodule, None)
+                if _zoo_module_file(submodule)
+                else ("zoo", base, alias.name)
+            )
+        else:
+            bindings[bound] = ("outside", f"from {base} import {alias.name}")
+    return bindings
 
 
 def _used_names(nodes: list) -> set[tuple[str, ...]]:
@@ -329,13 +353,24 @@ def reachable_code(cls: type) -> list[str] | None:
             pieces |= {f"{label(path)}::{_tree_text(n)}" for n in others}
             todo += [(path, None)]  # what those statements use
         nodes = others if name is None else defs.get(name, [])
+        if name is not None and not nodes and name in imports:
+            nodes = []  # a name this module only imports (a re-export): follow the import
+            uses = {(name,)}
+        else:
+            uses = _used_names(nodes)
         pieces |= {f"{label(path)}::{name}::{_tree_text(n)}" for n in nodes if name is not None}
-        for used in _used_names(nodes):
+        # imports written inside the reached definitions bind names there too
+        local: dict[str, tuple] = {}
+        for node in nodes:
+            for sub in ast.walk(node):
+                if isinstance(sub, (ast.Import, ast.ImportFrom)):
+                    local.update(_import_bindings(sub, _package_of(path)))
+        for used in uses:
             head = used[0]
-            if head in defs and head != name:
+            if head in defs and head != name and head not in local:
                 todo.append((path, head))
-            elif head in imports:
-                kind, *target = imports[head]
+            elif head in local or head in imports:
+                kind, *target = local.get(head) or imports[head]
                 if kind == "outside":
                     pieces.add(f"{label(path)}::import::{target[0]}")
                     continue

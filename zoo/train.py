@@ -421,12 +421,12 @@ def train(
     progress: bool = True,
     stop_after_epoch: int | None = None,
     init_from: str | Path | None = None,
-    cuda_graph: bool = True,
+    cuda_graph: bool = False,
 ) -> Path:
     """Train ``model_name`` on ``benchmark``'s training split; returns the best checkpoint path.
 
-    On a CUDA device (one process) the optimizer step is captured once as a CUDA graph and
-    replayed (:class:`CudaGraphStep`), unless ``cuda_graph`` is false.
+    With ``cuda_graph`` on one CUDA device (one process), each epoch's optimizer step is
+    captured once as a CUDA graph and replayed (:class:`CudaGraphStep`).
 
     ``init_from`` (a checkpoint of the same model and protocol) starts from
     those weights with a fresh optimiser and schedule: a further stage of training (e.g. a longer
@@ -571,6 +571,8 @@ def train(
         if "cuda_rng" in state and torch.device(device).type == "cuda":
             torch.cuda.set_rng_state(state["cuda_rng"], torch.device(device))
         first_epoch, best, history = state["epoch"] + 1, state["best"], state["history"]
+        for record in history:  # epochs written before they named their device
+            record.setdefault("device", (state.get("training") or {}).get("device_name"))
 
     objective = TrainingObjective(model, entry.task, view=train_src is not train_pos)
     # Some phases leave parameters without gradients (SpecTrHuMS's transformer while the
@@ -975,18 +977,22 @@ class CudaGraphStep:
     the checkpoints on disk are the last finished epoch's). The batch must keep its shape, and
     what the step does must not change while it is replayed (the engine captures one per
     epoch). A step that cannot be captured (one that reads a value back to decide what to do)
-    runs eagerly from then on, with a warning that says why."""
+    is refused, naming why: the run stops there, its last finished epoch on disk."""
 
     WARMUP = 3
 
     def __init__(self, objective, model, optimizer, recipe, device) -> None:
         self.args = (objective, model, optimizer)
         self.recipe, self.device = recipe, device
-        self.calls, self.eager = 0, False
+        self.calls = 0
         self.graph: torch.cuda.CUDAGraph | None = None
         self.side = torch.cuda.Stream(device)
 
     def __call__(self, history: torch.Tensor, future: torch.Tensor, where: str) -> torch.Tensor:
+        with torch.cuda.device(self.device):  # cuda:N: capture and replay there, not on cuda:0
+            return self._step(history, future, where)
+
+    def _step(self, history: torch.Tensor, future: torch.Tensor, where: str) -> torch.Tensor:
         self.calls += 1
         if self.calls <= self.WARMUP:
             self.side.wait_stream(torch.cuda.current_stream(self.device))
@@ -994,8 +1000,6 @@ class CudaGraphStep:
                 loss = training_step(*self.args, history, future, self.recipe, self.device, where)
             torch.cuda.current_stream(self.device).wait_stream(self.side)
             return loss
-        if self.eager:
-            return training_step(*self.args, history, future, self.recipe, self.device, where)
         if self.graph is None:
             self.history, self.future = history.clone(), future.clone()
             self.graph = torch.cuda.CUDAGraph()
@@ -1010,14 +1014,10 @@ class CudaGraphStep:
                         check_finite=False,
                     )
             except RuntimeError as e:
-                warnings.warn(
-                    f"the training step cannot be captured as a CUDA graph "
-                    f"({str(e).splitlines()[0][:200]}); it runs eagerly",
-                    RuntimeWarning,
-                    stacklevel=2,
-                )
-                self.eager, self.graph = True, None
-                return training_step(*self.args, history, future, self.recipe, self.device, where)
+                raise TrainingError(
+                    f"{where.split(':')[0]}: its training step cannot be captured as a CUDA "
+                    f"graph ({str(e).splitlines()[0][:200]}); train without --cuda-graph"
+                ) from None
         else:
             self.history.copy_(history)
             self.future.copy_(future)

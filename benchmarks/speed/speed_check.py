@@ -72,9 +72,9 @@ def main(argv: list[str] | None = None) -> None:
     print(f"{'benchmark':<18} {'check s':>9} {'floor s':>9} {'ratio':>7}  verdict")
     total = 0.0
     for name in names:
-        out = io.StringIO()
+        out, err = io.StringIO(), io.StringIO()
         started = time.perf_counter()
-        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(io.StringIO()):
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
             code = zoo_main(
                 ["leaderboard", "--check", "--benchmark", name, "--out", str(results), *passed]
             )
@@ -82,7 +82,8 @@ def main(argv: list[str] | None = None) -> None:
         total += seconds
         floor = forward_gflop(results, name) / rate
         ratio = seconds / floor if floor > 0 else np.inf
-        verdict = "passed" if code == 0 else f"exit {code}: {out.getvalue().splitlines()[-1]}"
+        said = (out.getvalue() + err.getvalue()).strip().splitlines() or [""]
+        verdict = "passed" if code == 0 else f"exit {code}: {said[-1]}"
         print(f"{name:<18} {seconds:>9.1f} {floor:>9.1f} {ratio:>7.1f}  {verdict}")
         for line in out.getvalue().splitlines():  # the check's own line per table
             if line.startswith(f"{name}/"):
