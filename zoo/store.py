@@ -179,18 +179,13 @@ def _imported_files(path: Path) -> set[Path]:
         tree = ast.parse(path.read_text())
     except (OSError, SyntaxError):
         return set()
-    package = None
-    if path.is_relative_to(REPO_ROOT):
-        package = ".".join(path.relative_to(REPO_ROOT).with_suffix("").parts[:-1])
+    package = _package_of(path)
     names = []
     for node in ast.walk(tree):
         if isinstance(node, ast.Import):
             names += [a.name for a in node.names]
         elif isinstance(node, ast.ImportFrom):
-            base = node.module or ""
-            if node.level and package is not None:
-                parent = package.split(".")[: len(package.split(".")) - node.level + 1]
-                base = ".".join([*parent, *([base] if base else [])])
+            base = _import_base(node, package)
             names += [base, *(f"{base}.{a.name}" for a in node.names)]
     found = {_zoo_module_file(n) for n in names}
     return {f.resolve() for f in found if f is not None}
@@ -216,6 +211,16 @@ def code_closure(*files: str | Path) -> list[Path]:
 
 
 # ---- a model's own code: the definitions its class reaches --------------------------------
+
+
+def _import_base(node: ast.ImportFrom, package: str) -> str:
+    """The absolute module a ``from ... import`` names, relative ones resolved in ``package``
+    (the importing file's; empty outside the repository, where they stay unresolved)."""
+    base = node.module or ""
+    if node.level and package:
+        parent = package.split(".")[: len(package.split(".")) - node.level + 1]
+        base = ".".join([*parent, *([base] if base else [])])
+    return base
 
 
 def _package_of(path: Path) -> str:
@@ -283,10 +288,7 @@ def _import_bindings(node, package: str) -> dict[str, tuple]:
                     _tree_text(ast.Import(names=[alias])),
                 )
         return bindings
-    base = node.module or ""
-    if node.level and package:
-        parent = package.split(".")[: len(package.split(".")) - node.level + 1]
-        base = ".".join([*parent, *([base] if base else [])])
+    base = _import_base(node, package)
     for alias in node.names:
         bound = alias.asname or alias.name
         if base.split(".")[0] == "zoo" and alias.name != "*":

@@ -1210,7 +1210,7 @@ def devices_text(history: list[dict[str, Any]], current: str) -> str:
     before epochs named their device counts as ``current``'s."""
     spans: list[list] = []  # [name, first epoch, last epoch, seconds]
     for i, h in enumerate(history, 1):
-        name = h.get("device", current)
+        name = h.get("device") or current
         if spans and spans[-1][0] == name:
             spans[-1][2], spans[-1][3] = i, spans[-1][3] + h["seconds"]
         else:
