@@ -26,7 +26,7 @@ import torch
 from zoo.models.dct import dct_matrix
 from zoo.models.dropout import Dropout
 from zoo.models.ltd import LTD
-from zoo.models.pgbig import PGBIG, smooth
+from zoo.models.pgbig import PGBIG, Coder, smooth
 
 T_IN, T_OUT, POINTS = 10, 25, 25  # the CMU setting
 
@@ -163,6 +163,31 @@ def test_pgbig_stage_is_encoder_copy_decoder():
     latent = coder(stage.encoder, x)
     expected = coder(stage.decoder, torch.cat([latent, latent], dim=-1))[..., :35]
     torch.testing.assert_close(stage(x), expected, rtol=1e-10, atol=1e-10)
+
+
+def test_pgbig_coder_on_copies_and_kept_coefficients_is_the_coder_on_the_whole():
+    """A coder given ``x`` and ``copies`` computes, of its output on ``x`` repeated along the
+    coefficient axis, the first ``keep`` coefficients, whichever axis its layers shrink."""
+    g = torch.Generator().manual_seed(5)
+    for in_channels, out_channels in ((3, 4), (4, 3)):
+        module = exact_coder(POINTS, 14, in_channels, 5, out_channels, g)
+        x = torch.randn(2, in_channels, POINTS, 7, generator=g, dtype=torch.float64)
+        whole = coder(module, torch.cat([x, x], dim=-1))
+        for keep in (None, 5, 7, 11, 14):
+            expected = whole if keep is None else whole[..., :keep]
+            torch.testing.assert_close(
+                module(x, copies=2, keep=keep), expected, rtol=1e-10, atol=1e-10
+            )
+        torch.testing.assert_close(module(torch.cat([x, x], dim=-1)), whole, rtol=1e-10, atol=1e-10)
+
+
+def exact_coder(joints, length, in_channels, hidden, out_channels, g):
+    module = Coder(joints, length, in_channels, hidden, out_channels, 1, 0.3).double().eval()
+    for norm in module.modules():
+        if isinstance(norm, torch.nn.BatchNorm1d):
+            norm.running_mean.normal_(generator=g).mul_(0.1)
+            norm.running_var.uniform_(0.5, 1.5, generator=g)
+    return module
 
 
 def test_pgbig_stages_get_the_observed_frames_and_the_previous_future():
