@@ -3,6 +3,7 @@
 import math
 
 import numpy as np
+import pandas as pd
 import pytest
 import scipy.sparse as sp
 import torch
@@ -14,7 +15,7 @@ from zoo.benchmark import BenchmarkError, get_benchmark
 from zoo.data.mesh import MeshDataset, MeshError, MeshSequence, MeshTopology, regress_joints
 from zoo.data.spectral import SpectralBasis, SpectralError
 from zoo.evaluate import EvaluationError, evaluate
-from zoo.metrics import melv, regressed_mpjpe, vertex_rmse
+from zoo.metrics import melv, mpjpe, vertex_rmse
 from zoo.models.repeat_last import RepeatLast
 from zoo.tables import markdown_tables
 
@@ -60,7 +61,10 @@ def test_mpjpe_through_a_sparse_regressor_by_hand():
     pred = target.clone()
     pred[0, 1, 0] += torch.tensor([0.0, 0, 4])  # joint 0 moves by 2, joint 1 stays: mean 1
     pred[0, 1, 2] += torch.tensor([0.0, 3, 4])  # joint 1 moves by 5: mean (2 + 5) / 2
-    torch.testing.assert_close(regressed_mpjpe(pred, target, regressor), torch.tensor([[0.0, 3.5]]))
+    torch.testing.assert_close(
+        mpjpe(regress_joints(pred, regressor), regress_joints(target, regressor)),
+        torch.tensor([[0.0, 3.5]]),
+    )
     with pytest.raises(ValueError, match=r"regressor \(2, 3\) does not fit"):
         regress_joints(torch.zeros(1, 4, 3), regressor)
 
@@ -433,3 +437,54 @@ def test_joints_are_regressed_in_float64_and_rounded_once():
         joints = regress_joints(vertices, regressor)
         assert joints.dtype == torch.float32
         assert np.array_equal(joints.numpy(), exact)
+
+
+def test_one_pass_scores_every_model_as_alone_and_a_failure_leaves_only_its_model(toy_bench):
+    """zoo leaderboard scores a table's rows in one pass (the ground truth prepared once): each
+    model's result equals its evaluation alone, to the last bit, and a model that fails mid-way
+    leaves the pass with its error while the others are scored to the end."""
+    from zoo.evaluate import Scored, evaluate_models
+    from zoo.protocol import plan_protocol
+
+    bench = toy_bench(spectral_k=2, ground_truths=["raw", "spectral"])
+    dataset = toy_dataset()
+    joint_inputs = bench.model_inputs((), dataset=dataset, view="joints")
+
+    class FailsLast(RepeatLast):
+        """Repeats the last frame, then predicts NaN on its third batch (the last window)."""
+
+        calls = 0
+
+        def forward(self, history):
+            self.calls += 1
+            out = super().forward(history)
+            return torch.full_like(out, float("nan")) if self.calls == 3 else out
+
+    for truth in ("raw", "spectral"):
+        protocol = plan_protocol(bench, dataset, ground_truth=truth)
+        models = [
+            Scored(RepeatLast(2, 3, 4), "repeat_last"),
+            Scored(FailsLast(2, 3, 4), "fails"),
+            Scored(RepeatLast(**joint_inputs), "joints_model", view="joints"),
+            Scored(RepeatLast(2, 3, 4), "bad_view", view="pixels"),
+        ]
+        together = evaluate_models(models, protocol, batch_size=1)
+        assert isinstance(together[1], EvaluationError) and "non-finite" in str(together[1])
+        assert isinstance(together[3], EvaluationError) and "pixels" in str(together[3])
+        for scored, result in zip(models, together):
+            if isinstance(result, Exception):
+                continue
+            alone = evaluate(
+                scored.model,
+                bench,
+                model_name=scored.name,
+                protocol=protocol,
+                view=scored.view,
+                batch_size=1,
+            )
+            assert result.windows.errors.keys() == alone.windows.errors.keys()
+            for key, errors in alone.windows.errors.items():
+                np.testing.assert_array_equal(result.windows.errors[key], errors)
+            pd.testing.assert_frame_equal(result.frame, alone.frame)
+        with pytest.raises(EvaluationError, match="non-finite"):
+            evaluate(FailsLast(2, 3, 4), bench, model_name="fails", protocol=protocol, batch_size=1)

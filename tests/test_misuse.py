@@ -132,7 +132,7 @@ def test_ctrl_c_ends_in_one_line(capsys, monkeypatch, root, tmp_path):
     def interrupted(*args, **kwargs):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr("zoo.pipeline.evaluate", interrupted)
+    monkeypatch.setattr("zoo.pipeline.evaluate_models", interrupted)
     code, last = run(
         capsys,
         "eval",

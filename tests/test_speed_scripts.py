@@ -18,6 +18,7 @@ SCRIPTS = [
     "speed_baselines",
     "speed_check",
     "speed_eval",
+    "speed_pass",
     "speed_spectral",
     "speed_spectrhums",
     "speed_spgsn",
@@ -87,6 +88,15 @@ def test_speed_check(swinging_cmu, tmp_path, capsys):
     lines = capsys.readouterr().out.splitlines()
     assert "GFLOP/s" in lines[0] and "ratio" in lines[1]
     assert lines[2].startswith("cmu") and lines[2].endswith("passed")
+
+
+def test_speed_pass(swinging_cmu, tmp_path, capsys):
+    root, _ = swinging_cmu
+    args = ["--benchmark", "cmu", "--data-root", str(root), "--weights", str(tmp_path / "none")]
+    load("speed_pass").main([*args, "--windows", "8", "--repeats", "1"])
+    lines = capsys.readouterr().out.splitlines()
+    assert "rows (" in lines[0] and "repeat_last" in lines[0]
+    assert "ratio" in lines[1] and "per-window errors of both equal" in lines[1]
 
 
 def test_speed_spectral(capsys):

@@ -22,6 +22,8 @@ import copy
 import datetime as _dt
 import inspect
 import sys
+from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -104,19 +106,90 @@ def evaluate(
                 f"evaluate: protocol of benchmark {protocol.benchmark.name}, "
                 f"model asked on {bench.name}"
             )
-    if bench.representation == "mesh":
-        return _evaluate_mesh(model, protocol, model_name, batch_size, device, provenance, view)
-    return _evaluate_skeleton(model, protocol, model_name, batch_size, device, provenance)
+    (result,) = evaluate_models(
+        [Scored(model, model_name, view, provenance)],
+        protocol,
+        batch_size=batch_size,
+        device=device,
+    )
+    if isinstance(result, Exception):
+        raise result
+    return result
 
 
-def _progress(protocol: Protocol, model_name: str, dist_info: DistInfo):
+@dataclass
+class Scored:
+    """A model in an evaluation pass: the module, its row name, what it is fed (``view``: mesh,
+    or joints for a skeleton model on a mesh benchmark) and what its results record about it."""
+
+    model: torch.nn.Module
+    name: str
+    view: str = "mesh"
+    provenance: dict[str, Any] | None = None
+
+
+def evaluate_models(
+    models: list[Scored],
+    protocol: Protocol,
+    *,
+    batch_size: int = EVAL_BATCH,
+    device: str | torch.device = "cpu",
+) -> list[EvalResult | Exception]:
+    """Every model of ``models`` on the windows of ``protocol`` in one pass: each batch of
+    windows, and all that the ground truth alone gives (its spectral reconstruction, regressed
+    joints, edge lengths and MELV), is made once and every model scored on it. Each model's
+    result is the one :func:`evaluate` gives it alone. A model that fails (a broken contract,
+    non-finite values, an error of its own) leaves the pass; its error stands in its place."""
+    if not models:
+        return []
+    if protocol.benchmark.representation == "mesh":
+        return _evaluate_mesh(models, protocol, batch_size, device)
+    return _evaluate_skeleton(models, protocol, batch_size, device)
+
+
+class _Pass:
+    """The models still in a pass, their errors so far and what each has scored per batch."""
+
+    def __init__(self, models: list[Scored], device) -> None:
+        self.models = models
+        self.failed: dict[int, Exception] = {}
+        self.scored: list[dict[int, dict]] = [{} for _ in models]
+        for i, scored in enumerate(models):
+            try:
+                scored.model = scored.model.to(device).eval()
+            except Exception as e:  # noqa: BLE001 - one model's failure ends its part only
+                self.failed[i] = e
+
+    def live(self):
+        return [(i, m) for i, m in enumerate(self.models) if i not in self.failed]
+
+    def score(self, i: int, start: int, compute) -> None:
+        """Model ``i``'s errors on the batch at ``start`` (``compute()``), or its leaving."""
+        try:
+            self.scored[i][start] = compute()
+        except Exception as e:  # noqa: BLE001 - one model's failure ends its part only
+            self.failed[i] = e
+
+    def results(self, dist_info: DistInfo, finish) -> list[EvalResult | Exception]:
+        """Each model's result (``finish(scored model, its batches)``), or its error; the
+        shares of every model are gathered on every process, failed or not, so that a
+        distributed run calls its collectives in step."""
+        out: list[EvalResult | Exception] = []
+        for i, scored in enumerate(self.models):
+            shares = gather_shares(self.scored[i], dist_info)
+            out.append(self.failed[i] if i in self.failed else finish(scored, shares))
+        return out
+
+
+def _progress(protocol: Protocol, models: list[Scored], dist_info: DistInfo):
     """Windows scored so far, on stderr, for an evaluation that takes more than a few seconds
     (nothing for a short one; the first process only under torchrun)."""
     from tqdm import tqdm
 
+    names = ", ".join(m.name for m in models)
     return tqdm(
         total=len(protocol.index),
-        desc=f"{model_name} on {protocol.benchmark.name}/{protocol.sampler}",
+        desc=f"{names} on {protocol.benchmark.name}/{protocol.sampler}",
         unit="window",
         delay=3,
         mininterval=2,
@@ -128,13 +201,8 @@ def _progress(protocol: Protocol, model_name: str, dist_info: DistInfo):
 
 
 def _evaluate_skeleton(
-    model: torch.nn.Module,
-    protocol: Protocol,
-    model_name: str,
-    batch_size: int,
-    device,
-    provenance: dict[str, Any] | None,
-) -> EvalResult:
+    models: list[Scored], protocol: Protocol, batch_size: int, device
+) -> list[EvalResult | Exception]:
     dataset, task = protocol.dataset, protocol.task
     skeleton = dataset.skeleton
     t_in, t_out = protocol.input_frames, protocol.predicted_frames
@@ -143,27 +211,35 @@ def _evaluate_skeleton(
     positions = [s.positions for s in sequences]
     used = list(skeleton.used)
     dist_info = init_distributed(device)
-    scored = {}
-    model = model.to(device).eval()
-    with torch.no_grad(), _progress(protocol, model_name, dist_info) as bar:
+    run = _Pass(models, device)
+
+    def errors(scored: Scored, windows: torch.Tensor, start: int) -> dict:
+        history = windows[:, :t_in, used].to(device)
+        pred = predict(scored.model, history, task, t_out, windows[:, -1, used].to(device))
+        pred = _checked(pred, (len(history), t_out, len(used), 3), scored.name, start)
+        return {
+            (scored.name, "mpjpe", joints): _float64(e)
+            for joints, e in skeleton_errors(pred, windows[:, t_in:], skeleton).items()
+        }
+
+    with torch.no_grad(), _progress(protocol, models, dist_info) as bar:
         for start in _my_batches(len(index), batch_size, dist_info):
             rows = slice(start, start + batch_size)
             windows = torch.from_numpy(gather_windows(positions, index[rows], t_in + t_out))
-            history = windows[:, :t_in, used].to(device)
-            pred = predict(model, history, task, t_out, windows[:, -1, used].to(device))
-            pred = _checked(pred, (len(history), t_out, len(used), 3), model_name, start)
-            scored[start] = {
-                (model_name, "mpjpe", joints): _float64(errors)
-                for joints, errors in skeleton_errors(pred, windows[:, t_in:], skeleton).items()
-            }
-            bar.update(len(history) * dist_info.world)
-    accumulators, log = _accumulate(gather_shares(scored, dist_info), actions)
-    record = _sealed(protocol, model_name, device, provenance)
-    return EvalResult(
-        frame=_frame(accumulators, record, record["windows_per_action"]),
-        protocol=record,
-        windows=log.compute(sequences, index, actions, record["protocol_id"], t_in + t_out),
-    )
+            for i, scored in run.live():
+                run.score(i, start, partial(errors, scored, windows, start))
+            bar.update(len(windows) * dist_info.world)
+
+    def finish(scored: Scored, shares: dict) -> EvalResult:
+        accumulators, log = _accumulate(shares, actions)
+        record = _sealed(protocol, scored.name, device, scored.provenance)
+        return EvalResult(
+            frame=_frame(accumulators, record, record["windows_per_action"]),
+            protocol=record,
+            windows=log.compute(sequences, index, actions, record["protocol_id"], t_in + t_out),
+        )
+
+    return run.results(dist_info, finish)
 
 
 class _WindowLog:
@@ -327,16 +403,10 @@ def _frame(
 
 
 def _evaluate_mesh(
-    model: torch.nn.Module,
-    protocol: Protocol,
-    model_name: str,
-    batch_size: int,
-    device,
-    provenance: dict[str, Any] | None,
-    view: str,
-) -> EvalResult:
-    """Evaluate ``model`` on a mesh benchmark: windows ``(B, T_in, V, 3)`` in, ``(B, T_out, V,
-    3)`` out, rows for ``melv``, ``rmse`` and (with a joint regressor) ``mpjpe``.
+    models: list[Scored], protocol: Protocol, batch_size: int, device
+) -> list[EvalResult | Exception]:
+    """Models on a mesh benchmark: windows ``(B, T_in, V, 3)`` in, ``(B, T_out, V, 3)`` out,
+    rows for ``melv``, ``rmse`` and (with a joint regressor) ``mpjpe``.
 
     ``melv_frames``: ``spectral`` (the default of benchmarks with a basis) measures MELV on the
     k-coefficient reconstruction of the reference frame and of the scored frames, as SpecTrHuMS
@@ -348,21 +418,26 @@ def _evaluate_mesh(
 
     ``view='joints'``: a skeleton model sees the regressed joints ``(B, T_in, J, 3)`` of the same
     windows and predicts ``(B, T_out, J, 3)``; it gets the ``mpjpe`` rows only, under the very
-    protocol record of the mesh models, so both share one MPJPE table."""
+    protocol record of the mesh models, so both share one MPJPE table.
+
+    What the ground truth alone gives (its spectral reconstruction, the reference frame's edge
+    lengths, its own MELV, its regressed joints) is computed once a batch for all the models."""
     from zoo.data.mesh import regress_joints
     from zoo.data.spectral import SpectralBasis
-    from zoo.metrics import melv, mpjpe, regressed_mpjpe, vertex_rmse
+    from zoo.metrics import edge_lengths, length_variation, mpjpe, vertex_rmse
 
-    if view not in ("mesh", "joints"):
-        raise EvaluationError(f"view must be mesh or joints, got {view!r}")
     bench, dataset, task = protocol.benchmark, protocol.dataset, protocol.task
     topology = dataset.topology
     regressor = dataset.joint_regressor
-    if view == "joints" and regressor is None:
-        raise EvaluationError(
-            f"benchmark {bench.name}: {dataset.name} has no joint regressor, so "
-            f"skeleton model {model_name!r} cannot be evaluated on it"
-        )
+    run = _Pass(models, device)
+    for i, scored in enumerate(models):
+        if scored.view not in ("mesh", "joints"):
+            run.failed[i] = EvaluationError(f"view must be mesh or joints, got {scored.view!r}")
+        elif scored.view == "joints" and regressor is None:
+            run.failed[i] = EvaluationError(
+                f"benchmark {bench.name}: {dataset.name} has no joint regressor, so "
+                f"skeleton model {scored.name!r} cannot be evaluated on it"
+            )
     t_out, index, actions, basis = (
         protocol.predicted_frames,
         protocol.index,
@@ -371,100 +446,132 @@ def _evaluate_mesh(
     )
     melv_frames = protocol.melv_frames
     truth_basis = basis if protocol.ground_truth == "spectral" else None
+    joint_column = f"regressor{regressor.shape[0]}" if regressor is not None else None
 
-    def melv_of(frames: torch.Tensor, reference: torch.Tensor) -> torch.Tensor:
-        if melv_frames == "spectral":  # both reconstructed from k coefficients (SpecTrHuMS)
-            frames, reference = (
-                basis.reconstruct(basis.project(x.double())).float() for x in (frames, reference)
-            )
-        return melv(frames, reference, edges)
+    def melv_lengths(frames: torch.Tensor) -> torch.Tensor:
+        """Edge lengths of the frames MELV is measured on."""
+        if melv_frames == "spectral":  # reconstructed from k coefficients (SpecTrHuMS)
+            frames = basis.reconstruct(basis.project(frames.double())).float()
+        return edge_lengths(frames, edges)
 
-    floor = getattr(model, "autoencoder_floor", None) if view == "mesh" else None
     t_in = protocol.input_frames
     sequences = dataset.sequences
     vertices = [s.vertices for s in sequences]
-    edges = topology.edges
+    edges = torch.as_tensor(np.asarray(topology.edges), dtype=torch.long)
     dist_info = init_distributed(device)
-    scored = {}
     batch = max(
         1, min(batch_size, MESH_BATCH_VALUES // ((t_in + t_out) * topology.num_vertices * 3))
     )
     expected_tail = (t_out, topology.num_vertices, 3)
-    model = model.to(device).eval()
-    with torch.no_grad(), _progress(protocol, model_name, dist_info) as bar:
+
+    def joint_errors(scored: Scored, truth: _MeshTruth, start: int) -> dict:
+        joints = truth.joints()
+        pred = predict(
+            scored.model, joints[:, :t_in].to(device), task, t_out, joints[:, -1].to(device)
+        )
+        pred = _checked(pred, (len(joints), t_out, regressor.shape[0], 3), scored.name, start)
+        return {(scored.name, "mpjpe", joint_column): _float64(mpjpe(pred, joints[:, t_in:]))}
+
+    def mesh_errors(scored: Scored, truth: _MeshTruth, start: int) -> dict:
+        windows = truth.windows
+        pred = predict(
+            scored.model, windows[:, :t_in].to(device), task, t_out, windows[:, -1].to(device)
+        )
+        pred = _checked(pred, (len(windows), *expected_tail), scored.name, start)
+        scored_frames = {scored.name: pred}
+        floor = getattr(scored.model, "autoencoder_floor", None)
+        if floor is not None:
+            name = scored.name + FLOOR_SUFFIX
+            rebuilt = floor(truth.target.to(device))
+            scored_frames[name] = _checked(rebuilt, (len(windows), *expected_tail), name, start)
+        errors = {}
+        for name, frames in scored_frames.items():
+            errors[(name, "melv", "vertices")] = length_variation(
+                melv_lengths(frames), truth.reference_lengths
+            )
+            errors[(name, "rmse", "vertices")] = vertex_rmse(frames, truth.target)
+            if regressor is not None:
+                predicted_joints = regress_joints(frames, regressor)
+                errors[(name, "mpjpe", joint_column)] = mpjpe(
+                    predicted_joints, truth.joints()[:, t_in:]
+                )
+        errors[("ground_truth", "melv", "vertices")] = truth.melv
+        return {key: _float64(value) for key, value in errors.items()}
+
+    with torch.no_grad(), _progress(protocol, models, dist_info) as bar:
         for start in _my_batches(len(index), batch, dist_info):
             bar.update(min(batch, len(index) - start) * dist_info.world)
+            live = run.live()
+            if not live:
+                continue
             rows = slice(start, start + batch)
             windows = torch.from_numpy(gather_windows(vertices, index[rows], t_in + t_out))
             if truth_basis is not None:
                 windows = truth_basis.reconstruct(truth_basis.project(windows.double())).float()
-            if view == "joints":
-                joints = regress_joints(windows, regressor)
-                pred = predict(
-                    model, joints[:, :t_in].to(device), task, t_out, joints[:, -1].to(device)
-                )
-                pred = _checked(
-                    pred, (len(windows), t_out, regressor.shape[0], 3), model_name, start
-                )
-                scored[start] = {
-                    (model_name, "mpjpe", f"regressor{regressor.shape[0]}"): _float64(
-                        mpjpe(pred, joints[:, t_in:])
-                    )
-                }
-                continue
-            pred = predict(
-                model, windows[:, :t_in].to(device), task, t_out, windows[:, -1].to(device)
-            )
-            pred = _checked(pred, (len(windows), *expected_tail), model_name, start)
-            target, reference = windows[:, t_in:], windows[:, t_in - 1]
-            scored_frames = {model_name: pred}
-            if floor is not None:
-                rebuilt = floor(target.to(device))
-                scored_frames[model_name + FLOOR_SUFFIX] = _checked(
-                    rebuilt, (len(windows), *expected_tail), model_name + FLOOR_SUFFIX, start
-                )
-            errors = {}
-            for name, frames in scored_frames.items():
-                errors[(name, "melv", "vertices")] = melv_of(frames, reference)
-                errors[(name, "rmse", "vertices")] = vertex_rmse(frames, target)
-                if regressor is not None:
-                    errors[(name, "mpjpe", f"regressor{regressor.shape[0]}")] = regressed_mpjpe(
-                        frames, target, regressor
-                    )
-            # the data's own MELV, once per mesh evaluation: the ground-truth rows
-            errors[("ground_truth", "melv", "vertices")] = melv_of(target, reference)
-            scored[start] = {key: _float64(value) for key, value in errors.items()}
-    accumulators, log = _accumulate(gather_shares(scored, dist_info), actions)
+            truth = _MeshTruth(windows, t_in, regressor)
+            target, reference = truth.target, windows[:, t_in - 1]
+            if any(s.view == "mesh" for _, s in live):
+                truth.reference_lengths = melv_lengths(reference.unsqueeze(1))[:, 0]
+                # the data's own MELV: the ground-truth rows of every mesh model
+                truth.melv = length_variation(melv_lengths(target), truth.reference_lengths)
 
-    model_basis = getattr(model, "basis", None)
-    record = _sealed(
-        protocol,
-        model_name,
-        device,
-        {
-            # The data are named by their recipe in the protocol; the bytes of a generated mesh
-            # follow the machine's float kernels (CMU-on-Anny's skinning: other bytes on another
-            # CPU), so their hash is this build's provenance, not part of the protocol.
-            "data_hash": dataset.content_hash(),
-            "data_exactness": "generated from its recipe on this machine: another CPU's build may "
-            "differ in the last bits of its vertices (data_hash), and so may "
-            "errors computed from them (MELV most: a difference of edge lengths)",
-            **({"basis_checksum": basis.checksum} if isinstance(basis, SpectralBasis) else {}),
-            **(
-                {"model_basis": {"k": model_basis.k, "hash": model_basis.hash}}
-                if isinstance(model_basis, SpectralBasis)
-                else {}
-            ),
-            **(
-                {"model_input": f"regressed joints (regressor{regressor.shape[0]})"}
-                if view == "joints"
-                else {}
-            ),
-            **(provenance or {}),
-        },
-    )
-    return EvalResult(
-        frame=_frame(accumulators, record, record["windows_per_action"]),
-        protocol=record,
-        windows=log.compute(sequences, index, actions, record["protocol_id"], t_in + t_out),
-    )
+            for i, scored in live:
+                errors = joint_errors if scored.view == "joints" else mesh_errors
+                run.score(i, start, partial(errors, scored, truth, start))
+
+    def finish(scored: Scored, shares: dict) -> EvalResult:
+        accumulators, log = _accumulate(shares, actions)
+        model_basis = getattr(scored.model, "basis", None)
+        record = _sealed(
+            protocol,
+            scored.name,
+            device,
+            {
+                # The data are named by their recipe in the protocol; the bytes of a generated
+                # mesh follow the machine's float kernels (CMU-on-Anny's skinning: other bytes
+                # on another CPU), so their hash is this build's provenance, not the protocol's.
+                "data_hash": dataset.content_hash(),
+                "data_exactness": "generated from its recipe on this machine: another CPU's "
+                "build may differ in the last bits of its vertices (data_hash), and so may "
+                "errors computed from them (MELV most: a difference of edge lengths)",
+                **({"basis_checksum": basis.checksum} if isinstance(basis, SpectralBasis) else {}),
+                **(
+                    {"model_basis": {"k": model_basis.k, "hash": model_basis.hash}}
+                    if isinstance(model_basis, SpectralBasis)
+                    else {}
+                ),
+                **(
+                    {"model_input": f"regressed joints ({joint_column})"}
+                    if scored.view == "joints"
+                    else {}
+                ),
+                **(scored.provenance or {}),
+            },
+        )
+        return EvalResult(
+            frame=_frame(accumulators, record, record["windows_per_action"]),
+            protocol=record,
+            windows=log.compute(sequences, index, actions, record["protocol_id"], t_in + t_out),
+        )
+
+    return run.results(dist_info, finish)
+
+
+class _MeshTruth:
+    """One batch of ground-truth windows and what is computed from them once for every model:
+    the reference frame's edge lengths and the future's own MELV (set by the pass), the
+    regressed joints (on first use)."""
+
+    def __init__(self, windows: torch.Tensor, t_in: int, regressor) -> None:
+        self.windows, self.regressor = windows, regressor
+        self.target = windows[:, t_in:]
+        self.reference_lengths: torch.Tensor | None = None
+        self.melv: torch.Tensor | None = None
+        self._joints: torch.Tensor | None = None
+
+    def joints(self) -> torch.Tensor:
+        if self._joints is None:
+            from zoo.data.mesh import regress_joints
+
+            self._joints = regress_joints(self.windows, self.regressor)
+        return self._joints

@@ -17,7 +17,7 @@ from zoo.check import CheckReport, check_table
 from zoo.efficiency import COSTS_FILE, Costs, architecture, cost_key
 from zoo.io import atomic_write_json, replace_folder
 from zoo.model_source import ModelSource
-from zoo.pipeline import Subject, compute
+from zoo.pipeline import Subject, compute_all
 from zoo.protocol import plan_protocol
 from zoo.report import plot_training_curves, training_curves, write_leaderboard
 from zoo.store import (
@@ -251,11 +251,6 @@ class Leaderboard:
             )
         return self.protocols[key]
 
-    def _evaluate(self, loaded, protocol, identity):
-        return compute(
-            Subject.of_loaded(loaded), protocol, identity, made_by=MADE_BY, device=self.device
-        )
-
     def _load(self, row: Row):
         """A row's model, built once and used by every table."""
         if row.label not in self.loaded:
@@ -362,24 +357,21 @@ class Leaderboard:
         fresh, reused, efficiency, reasons = [], [], {}, []
         refreshed: dict[str, dict] = {}  # rows that agree, whose stored identity is updated
         failed = set()  # rows of a check that could not be recomputed
-        for number, row in enumerate(rows, 1):
+        pending = []  # rows to evaluate: (row, loaded, identity, stored folder, why)
+        for row in rows:
             if check is not None:
-                print(f"checking {where}: {row.label} ({number}/{len(rows)})", file=sys.stderr)
                 try:  # a refusal (weights for another basis, a missing file) ends one row only
                     loaded = self._load(row)
-                    identity = loaded.identity(bench, planned.id)
-                    result = self._evaluate(loaded, planned, identity)
+                    pending.append((row, loaded, loaded.identity(bench, planned.id), None, None))
                 except Exception as e:  # noqa: BLE001 - every failure is reported, none stops
                     check.problem(f"{where}: {row.label}: not recomputed: {e}")
                     failed.add(row.label)
-                    continue
-                fresh.append(result)
                 continue
             loaded = self._load(row)
             identity = loaded.identity(bench, protocol["protocol_id"])
             old = stored.get(row.label)
-            if check is not None or plan.recompute:
-                why = "asked (--recompute)" if check is None else None
+            if plan.recompute:
+                why = "asked (--recompute)"
             elif plan.models and row.name not in plan.models:
                 if old is not None:
                     reused.append(old)
@@ -404,9 +396,35 @@ class Leaderboard:
                     self.counts["reused"] += 1
                     self._cost(efficiency, row.label, loaded, task)
                     continue
-            if why is not None:
-                reasons.append(f"{row.label}: {why}")
-            result = self._evaluate(loaded, planned, identity)
+            pending.append((row, loaded, identity, old, why))
+        if pending:
+            labels = ", ".join(row.label for row, *_ in pending)
+            verb = "checking" if check is not None else "evaluating"
+            print(
+                f"{verb} {where}: {labels} ({len(pending)} of {len(rows)} rows, one pass)",
+                file=sys.stderr,
+            )
+        computed = (
+            compute_all(
+                [(Subject.of_loaded(loaded), identity) for _, loaded, identity, _, _ in pending],
+                planned,
+                made_by=MADE_BY,
+                device=self.device,
+            )
+            if pending
+            else []
+        )
+        for (row, loaded, identity, old, why), result in zip(pending, computed):
+            if isinstance(result, Exception):
+                if check is None:
+                    raise result
+                check.problem(f"{where}: {row.label}: not recomputed: {result}")
+                failed.add(row.label)
+                continue
+            if check is not None:
+                fresh.append(result)
+                continue
+            reasons.append(f"{row.label}: {why}")
             if old is not None:
                 # A recomputation within the tolerance of the stored row leaves its files as
                 # they are (only a stale identity is brought up to date): a rebuild on another
@@ -425,10 +443,9 @@ class Leaderboard:
                         + ("its files kept, its identity updated" if stale else "kept as stored"),
                         file=sys.stderr,
                     )
-                    if reasons and why is not None:
-                        reasons.pop()  # said above; nothing of this row is rewritten
+                    reasons.pop()  # said above; nothing of this row is rewritten
                     continue
-                reasons[-1:] = [f"{reasons[-1]}; rewritten: {agreed.why}"] if reasons else []
+                reasons[-1] = f"{reasons[-1]}; rewritten: {agreed.why}"
             fresh.append(result)
             self.counts["recomputed"] += 1
             self._cost(efficiency, row.label, loaded, task)

@@ -7,7 +7,8 @@
    under it;
 3. the place checked before anything runs (:func:`place`: a stored result of another identity
    is refused unless replaced);
-4. the evaluation (:func:`compute`: the evaluator on the planned windows, the identity stamped);
+4. the evaluation (:func:`compute`: the evaluator on the planned windows, the identity stamped;
+   :func:`compute_all`: several subjects in one pass over the windows);
 5. the result stored (:func:`store`: a recomputation that agrees with the stored result of its
    identity, within :mod:`zoo.tolerance`, leaves the stored files byte for byte).
 
@@ -24,7 +25,7 @@ from typing import Any
 
 from torch import nn
 
-from zoo.evaluate import EVAL_BATCH, evaluate
+from zoo.evaluate import EVAL_BATCH, Scored, evaluate_models
 from zoo.io import check_output_folder
 from zoo.protocol import Protocol
 from zoo.results import EvalResult
@@ -111,18 +112,35 @@ def compute(
     batch_size: int = EVAL_BATCH,
 ) -> EvalResult:
     """The subject evaluated on the protocol's windows, its identity and maker stamped."""
-    result = evaluate(
-        subject.model,
-        protocol.benchmark,
-        model_name=subject.label,
-        protocol=protocol,
-        view=subject.view,
+    (result,) = compute_all(
+        [(subject, identity)], protocol, made_by=made_by, device=device, batch_size=batch_size
+    )
+    if isinstance(result, Exception):
+        raise result
+    return result
+
+
+def compute_all(
+    subjects: list[tuple[Subject, dict[str, Any]]],
+    protocol: Protocol,
+    *,
+    made_by: str,
+    device: str = "cpu",
+    batch_size: int = EVAL_BATCH,
+) -> list[EvalResult | Exception]:
+    """Subjects (each with its identity) evaluated in one pass over the protocol's windows
+    (:func:`zoo.evaluate.evaluate_models`: the ground truth prepared once for all), each result
+    stamped as :func:`compute` stamps it; a subject that failed gets its error instead."""
+    results = evaluate_models(
+        [Scored(s.model, s.label, s.view, s.provenance) for s, _ in subjects],
+        protocol,
         batch_size=batch_size,
         device=device,
-        provenance=subject.provenance,
     )
-    stamp(result, identity, made_by=made_by)
-    return result
+    for result, (_, identity) in zip(results, subjects):
+        if not isinstance(result, Exception):
+            stamp(result, identity, made_by=made_by)
+    return results
 
 
 @dataclass
