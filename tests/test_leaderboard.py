@@ -189,7 +189,7 @@ def test_check_recomputes_every_row_and_names_what_differs(tmp_path, capsys):
     best.write_bytes(b"not a checkpoint")
     assert main(["leaderboard", "--check", *common]) == 1
     captured = capsys.readouterr()
-    assert "checking cmu/all: repeat_last" in captured.err  # progress, row by row
+    assert "checking cmu/all: repeat_last" in captured.err  # progress: the rows of each pass
     assert "cmu/all/tiny: not recomputed:" not in captured.err
     assert "cmu/all: tiny: not recomputed:" in captured.err
     table_lines = [line for line in captured.out.splitlines() if line.startswith("cmu/")]

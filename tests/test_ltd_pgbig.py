@@ -169,8 +169,8 @@ def test_pgbig_coder_on_copies_and_kept_coefficients_is_the_coder_on_the_whole()
     """A coder given ``x`` and ``copies`` computes, of its output on ``x`` repeated along the
     coefficient axis, the first ``keep`` coefficients, whichever axis its layers shrink."""
     g = torch.Generator().manual_seed(5)
-    for in_channels, out_channels in ((3, 4), (4, 3)):
-        module = exact_coder(POINTS, 14, in_channels, 5, out_channels, g)
+    for in_channels, hidden, out_channels in ((3, 5, 4), (4, 5, 3), (6, 2, 3)):
+        module = exact_coder(POINTS, 14, in_channels, hidden, out_channels, g)
         x = torch.randn(2, in_channels, POINTS, 7, generator=g, dtype=torch.float64)
         whole = coder(module, torch.cat([x, x], dim=-1))
         for keep in (None, 5, 7, 11, 14):
@@ -179,6 +179,8 @@ def test_pgbig_coder_on_copies_and_kept_coefficients_is_the_coder_on_the_whole()
                 module(x, copies=2, keep=keep), expected, rtol=1e-10, atol=1e-10
             )
         torch.testing.assert_close(module(torch.cat([x, x], dim=-1)), whole, rtol=1e-10, atol=1e-10)
+    with pytest.raises(ValueError, match="14 coefficients given 2 x 2"):
+        module.last(torch.zeros(1, hidden, POINTS, 2), copies=2, keep=7)
 
 
 def exact_coder(joints, length, in_channels, hidden, out_channels, g):

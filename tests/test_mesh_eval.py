@@ -488,3 +488,29 @@ def test_one_pass_scores_every_model_as_alone_and_a_failure_leaves_only_its_mode
             pd.testing.assert_frame_equal(result.frame, alone.frame)
         with pytest.raises(EvaluationError, match="non-finite"):
             evaluate(FailsLast(2, 3, 4), bench, model_name="fails", protocol=protocol, batch_size=1)
+
+
+def test_a_model_failing_on_another_process_fails_on_every_process(toy_bench, monkeypatch):
+    """Under torchrun each process scores its share of the batches; a model that failed on
+    another process must not give this one a result missing that process's windows."""
+    import zoo.evaluate as evaluator
+    from zoo.distributed import DistInfo
+    from zoo.protocol import plan_protocol
+
+    bench = toy_bench()
+    protocol = plan_protocol(bench, toy_dataset())
+
+    def gather_from_two(share, info):  # this process is 0; process 1 saw model 0 fail
+        other = ({1: {}}, {0: "ValueError: broke on process 1's batch"})
+        return {**share, 1: other}
+
+    monkeypatch.setattr(evaluator, "gather_shares", gather_from_two)
+    monkeypatch.setattr(evaluator, "init_distributed", lambda device: DistInfo(rank=0, world=2))
+    models = [
+        evaluator.Scored(RepeatLast(2, 3, 4), "a"),
+        evaluator.Scored(RepeatLast(2, 3, 4), "b"),
+    ]
+    first, second = evaluator.evaluate_models(models, protocol, batch_size=1)
+    assert isinstance(first, EvaluationError)
+    assert "model 'a' failed on process 1: ValueError: broke" in str(first)
+    assert not isinstance(second, Exception) and set(second.frame.model) == {"b", "ground_truth"}

@@ -22,6 +22,7 @@ import copy
 import datetime as _dt
 import inspect
 import sys
+import traceback
 from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
@@ -111,9 +112,8 @@ def evaluate(
         protocol,
         batch_size=batch_size,
         device=device,
+        keep_going=False,
     )
-    if isinstance(result, Exception):
-        raise result
     return result
 
 
@@ -134,51 +134,114 @@ def evaluate_models(
     *,
     batch_size: int = EVAL_BATCH,
     device: str | torch.device = "cpu",
+    keep_going: bool = True,
 ) -> list[EvalResult | Exception]:
     """Every model of ``models`` on the windows of ``protocol`` in one pass: each batch of
     windows, and all that the ground truth alone gives (its spectral reconstruction, regressed
-    joints, edge lengths and MELV), is made once and every model scored on it. Each model's
-    result is the one :func:`evaluate` gives it alone. A model that fails (a broken contract,
-    non-finite values, an error of its own) leaves the pass; its error stands in its place."""
+    joints, edge lengths and MELV), is made once and every model scored on it. A model's result
+    is the one :func:`evaluate` gives it alone (for models deterministic in eval mode, as every
+    registered one is: models that draw random numbers share the stream).
+
+    A model that fails (a broken contract, non-finite values, an error of its own, on any
+    process of a distributed run) leaves the pass and its error stands in its place; with
+    ``keep_going=False`` the first failure is raised at once instead."""
     if not models:
         return []
     if protocol.benchmark.representation == "mesh":
-        return _evaluate_mesh(models, protocol, batch_size, device)
-    return _evaluate_skeleton(models, protocol, batch_size, device)
+        return _evaluate_mesh(models, protocol, batch_size, device, keep_going)
+    return _evaluate_skeleton(models, protocol, batch_size, device, keep_going)
 
 
 class _Pass:
-    """The models still in a pass, their errors so far and what each has scored per batch."""
+    """The models of a pass: those still in it, the errors of those that left, and each
+    model's errors per batch (``batches[i]``: ``{first window: {(model, metric, joints):
+    errors}}``)."""
 
-    def __init__(self, models: list[Scored], device) -> None:
-        self.models = models
+    def __init__(self, models: list[Scored], device, keep_going: bool) -> None:
+        self.models, self.keep_going = models, keep_going
         self.failed: dict[int, Exception] = {}
-        self.scored: list[dict[int, dict]] = [{} for _ in models]
+        self.batches: list[dict[int, dict]] = [{} for _ in models]
         for i, scored in enumerate(models):
-            try:
-                scored.model = scored.model.to(device).eval()
-            except Exception as e:  # noqa: BLE001 - one model's failure ends its part only
-                self.failed[i] = e
+            model = self.attempt(i, lambda model=scored.model: model.to(device).eval())
+            if model is not None:
+                scored.model = model
 
-    def live(self):
+    def live(self) -> list[tuple[int, Scored]]:
         return [(i, m) for i, m in enumerate(self.models) if i not in self.failed]
+
+    def attempt(self, i: int, work) -> Any:
+        """``work()`` for model ``i``, or the model leaves the pass with the error (raised at
+        once without ``keep_going``). The error's frames are cleared: a failed model's
+        activations and batch are not kept for the rest of the pass."""
+        try:
+            return work()
+        except Exception as e:
+            if not self.keep_going:
+                raise
+            traceback.clear_frames(e.__traceback__)
+            self.failed[i] = e
+            return None
 
     def score(self, i: int, start: int, compute) -> None:
         """Model ``i``'s errors on the batch at ``start`` (``compute()``), or its leaving."""
-        try:
-            self.scored[i][start] = compute()
-        except Exception as e:  # noqa: BLE001 - one model's failure ends its part only
-            self.failed[i] = e
+        errors = self.attempt(i, compute)
+        if i not in self.failed:
+            self.batches[i][start] = errors
 
     def results(self, dist_info: DistInfo, finish) -> list[EvalResult | Exception]:
-        """Each model's result (``finish(scored model, its batches)``), or its error; the
-        shares of every model are gathered on every process, failed or not, so that a
-        distributed run calls its collectives in step."""
+        """Each model's result, ``finish(model, its batches in window order)``, or its error.
+        Under torchrun every process's batches and failures are gathered in one collective: a
+        model that failed on any process fails on all of them (none writes a result missing
+        that process's windows)."""
+        shares = gather_shares(
+            {
+                dist_info.rank: (
+                    {i: b for i, b in enumerate(self.batches) if i not in self.failed},
+                    {i: f"{type(e).__name__}: {e}" for i, e in self.failed.items()},
+                )
+            },
+            dist_info,
+        )
+        self.batches = [{} for _ in self.models]  # released: the gathered copies are used
+        merged: list[dict[int, dict]] = [{} for _ in self.models]
+        for rank, (batches, failures) in shares.items():
+            for i, message in failures.items():
+                if i not in self.failed:
+                    self.failed[i] = EvaluationError(
+                        f"model {self.models[i].name!r} failed on process {rank}: {message}"
+                    )
+            for i, theirs in batches.items():
+                merged[i].update(theirs)
         out: list[EvalResult | Exception] = []
         for i, scored in enumerate(self.models):
-            shares = gather_shares(self.scored[i], dist_info)
-            out.append(self.failed[i] if i in self.failed else finish(scored, shares))
+            if i in self.failed:
+                out.append(self.failed[i])
+                continue
+            batches = dict(sorted(merged[i].items()))
+            result = self.attempt(i, lambda scored=scored, batches=batches: finish(scored, batches))
+            out.append(self.failed[i] if i in self.failed else result)
         return out
+
+
+def _finished(
+    protocol: Protocol, scored: Scored, batches: dict, device, recorded: dict[str, Any]
+) -> EvalResult:
+    """A model's result from its errors per batch: per-action sums, the long-format rows of
+    both averagings, per-window errors, and the sealed protocol record (with ``recorded``
+    beside the model's own provenance)."""
+    accumulators, log = _accumulate(batches, protocol.actions)
+    record = _sealed(protocol, scored.name, device, {**recorded, **(scored.provenance or {})})
+    return EvalResult(
+        frame=_frame(accumulators, record, record["windows_per_action"]),
+        protocol=record,
+        windows=log.compute(
+            protocol.dataset.sequences,
+            protocol.index,
+            protocol.actions,
+            record["protocol_id"],
+            protocol.window_frames,
+        ),
+    )
 
 
 def _progress(protocol: Protocol, models: list[Scored], dist_info: DistInfo):
@@ -186,7 +249,7 @@ def _progress(protocol: Protocol, models: list[Scored], dist_info: DistInfo):
     (nothing for a short one; the first process only under torchrun)."""
     from tqdm import tqdm
 
-    names = ", ".join(m.name for m in models)
+    names = ", ".join(m.name for m in models) if len(models) <= 3 else f"{len(models)} rows"
     return tqdm(
         total=len(protocol.index),
         desc=f"{names} on {protocol.benchmark.name}/{protocol.sampler}",
@@ -201,17 +264,16 @@ def _progress(protocol: Protocol, models: list[Scored], dist_info: DistInfo):
 
 
 def _evaluate_skeleton(
-    models: list[Scored], protocol: Protocol, batch_size: int, device
+    models: list[Scored], protocol: Protocol, batch_size: int, device, keep_going: bool
 ) -> list[EvalResult | Exception]:
     dataset, task = protocol.dataset, protocol.task
     skeleton = dataset.skeleton
     t_in, t_out = protocol.input_frames, protocol.predicted_frames
-    index, actions = protocol.index, protocol.actions
-    sequences = dataset.sequences
-    positions = [s.positions for s in sequences]
+    index = protocol.index
+    positions = [s.positions for s in dataset.sequences]
     used = list(skeleton.used)
     dist_info = init_distributed(device)
-    run = _Pass(models, device)
+    run = _Pass(models, device, keep_going)
 
     def errors(scored: Scored, windows: torch.Tensor, start: int) -> dict:
         history = windows[:, :t_in, used].to(device)
@@ -224,22 +286,17 @@ def _evaluate_skeleton(
 
     with torch.no_grad(), _progress(protocol, models, dist_info) as bar:
         for start in _my_batches(len(index), batch_size, dist_info):
+            bar.update(min(batch_size, len(index) - start) * dist_info.world)
+            if not run.live():
+                continue  # every model has left the pass: no window is worth reading
             rows = slice(start, start + batch_size)
             windows = torch.from_numpy(gather_windows(positions, index[rows], t_in + t_out))
             for i, scored in run.live():
                 run.score(i, start, partial(errors, scored, windows, start))
-            bar.update(len(windows) * dist_info.world)
 
-    def finish(scored: Scored, shares: dict) -> EvalResult:
-        accumulators, log = _accumulate(shares, actions)
-        record = _sealed(protocol, scored.name, device, scored.provenance)
-        return EvalResult(
-            frame=_frame(accumulators, record, record["windows_per_action"]),
-            protocol=record,
-            windows=log.compute(sequences, index, actions, record["protocol_id"], t_in + t_out),
-        )
-
-    return run.results(dist_info, finish)
+    return run.results(
+        dist_info, lambda scored, batches: _finished(protocol, scored, batches, device, {})
+    )
 
 
 class _WindowLog:
@@ -403,7 +460,7 @@ def _frame(
 
 
 def _evaluate_mesh(
-    models: list[Scored], protocol: Protocol, batch_size: int, device
+    models: list[Scored], protocol: Protocol, batch_size: int, device, keep_going: bool
 ) -> list[EvalResult | Exception]:
     """Models on a mesh benchmark: windows ``(B, T_in, V, 3)`` in, ``(B, T_out, V, 3)`` out,
     rows for ``melv``, ``rmse`` and (with a joint regressor) ``mpjpe``.
@@ -429,21 +486,20 @@ def _evaluate_mesh(
     bench, dataset, task = protocol.benchmark, protocol.dataset, protocol.task
     topology = dataset.topology
     regressor = dataset.joint_regressor
-    run = _Pass(models, device)
-    for i, scored in enumerate(models):
+    run = _Pass(models, device, keep_going)
+
+    def view_of(scored: Scored) -> None:
         if scored.view not in ("mesh", "joints"):
-            run.failed[i] = EvaluationError(f"view must be mesh or joints, got {scored.view!r}")
-        elif scored.view == "joints" and regressor is None:
-            run.failed[i] = EvaluationError(
+            raise EvaluationError(f"view must be mesh or joints, got {scored.view!r}")
+        if scored.view == "joints" and regressor is None:
+            raise EvaluationError(
                 f"benchmark {bench.name}: {dataset.name} has no joint regressor, so "
                 f"skeleton model {scored.name!r} cannot be evaluated on it"
             )
-    t_out, index, actions, basis = (
-        protocol.predicted_frames,
-        protocol.index,
-        protocol.actions,
-        protocol.basis,
-    )
+
+    for i, scored in run.live():
+        run.attempt(i, partial(view_of, scored))
+    t_out, index, basis = protocol.predicted_frames, protocol.index, protocol.basis
     melv_frames = protocol.melv_frames
     truth_basis = basis if protocol.ground_truth == "spectral" else None
     joint_column = f"regressor{regressor.shape[0]}" if regressor is not None else None
@@ -455,9 +511,8 @@ def _evaluate_mesh(
         return edge_lengths(frames, edges)
 
     t_in = protocol.input_frames
-    sequences = dataset.sequences
-    vertices = [s.vertices for s in sequences]
-    edges = torch.as_tensor(np.asarray(topology.edges), dtype=torch.long)
+    vertices = [s.vertices for s in dataset.sequences]
+    edges = torch.as_tensor(np.asarray(topology.edges), dtype=torch.long)  # once, not per call
     dist_info = init_distributed(device)
     batch = max(
         1, min(batch_size, MESH_BATCH_VALUES // ((t_in + t_out) * topology.num_vertices * 3))
@@ -495,8 +550,9 @@ def _evaluate_mesh(
                 errors[(name, "mpjpe", joint_column)] = mpjpe(
                     predicted_joints, truth.joints()[:, t_in:]
                 )
+        errors = {key: _float64(value) for key, value in errors.items()}
         errors[("ground_truth", "melv", "vertices")] = truth.melv
-        return {key: _float64(value) for key, value in errors.items()}
+        return errors
 
     with torch.no_grad(), _progress(protocol, models, dist_info) as bar:
         for start in _my_batches(len(index), batch, dist_info):
@@ -508,51 +564,42 @@ def _evaluate_mesh(
             windows = torch.from_numpy(gather_windows(vertices, index[rows], t_in + t_out))
             if truth_basis is not None:
                 windows = truth_basis.reconstruct(truth_basis.project(windows.double())).float()
-            truth = _MeshTruth(windows, t_in, regressor)
-            target, reference = truth.target, windows[:, t_in - 1]
+            truth = _MeshTruth(windows, t_in, partial(regress_joints, regressor=regressor))
             if any(s.view == "mesh" for _, s in live):
-                truth.reference_lengths = melv_lengths(reference.unsqueeze(1))[:, 0]
+                reference = windows[:, t_in - 1 : t_in]
+                truth.reference_lengths = melv_lengths(reference)[:, 0]
                 # the data's own MELV: the ground-truth rows of every mesh model
-                truth.melv = length_variation(melv_lengths(target), truth.reference_lengths)
+                truth.melv = _float64(
+                    length_variation(melv_lengths(truth.target), truth.reference_lengths)
+                )
 
             for i, scored in live:
                 errors = joint_errors if scored.view == "joints" else mesh_errors
                 run.score(i, start, partial(errors, scored, truth, start))
 
-    def finish(scored: Scored, shares: dict) -> EvalResult:
-        accumulators, log = _accumulate(shares, actions)
+    def finish(scored: Scored, batches: dict) -> EvalResult:
         model_basis = getattr(scored.model, "basis", None)
-        record = _sealed(
-            protocol,
-            scored.name,
-            device,
-            {
-                # The data are named by their recipe in the protocol; the bytes of a generated
-                # mesh follow the machine's float kernels (CMU-on-Anny's skinning: other bytes
-                # on another CPU), so their hash is this build's provenance, not the protocol's.
-                "data_hash": dataset.content_hash(),
-                "data_exactness": "generated from its recipe on this machine: another CPU's "
-                "build may differ in the last bits of its vertices (data_hash), and so may "
-                "errors computed from them (MELV most: a difference of edge lengths)",
-                **({"basis_checksum": basis.checksum} if isinstance(basis, SpectralBasis) else {}),
-                **(
-                    {"model_basis": {"k": model_basis.k, "hash": model_basis.hash}}
-                    if isinstance(model_basis, SpectralBasis)
-                    else {}
-                ),
-                **(
-                    {"model_input": f"regressed joints ({joint_column})"}
-                    if scored.view == "joints"
-                    else {}
-                ),
-                **(scored.provenance or {}),
-            },
-        )
-        return EvalResult(
-            frame=_frame(accumulators, record, record["windows_per_action"]),
-            protocol=record,
-            windows=log.compute(sequences, index, actions, record["protocol_id"], t_in + t_out),
-        )
+        recorded = {
+            # The data are named by their recipe in the protocol; the bytes of a generated mesh
+            # follow the machine's float kernels (CMU-on-Anny's skinning: other bytes on another
+            # CPU), so their hash is this build's provenance, not the protocol's.
+            "data_hash": dataset.content_hash(),
+            "data_exactness": "generated from its recipe on this machine: another CPU's build "
+            "may differ in the last bits of its vertices (data_hash), and so may errors "
+            "computed from them (MELV most: a difference of edge lengths)",
+            **({"basis_checksum": basis.checksum} if isinstance(basis, SpectralBasis) else {}),
+            **(
+                {"model_basis": {"k": model_basis.k, "hash": model_basis.hash}}
+                if isinstance(model_basis, SpectralBasis)
+                else {}
+            ),
+            **(
+                {"model_input": f"regressed joints ({joint_column})"}
+                if scored.view == "joints"
+                else {}
+            ),
+        }
+        return _finished(protocol, scored, batches, device, recorded)
 
     return run.results(dist_info, finish)
 
@@ -560,18 +607,16 @@ def _evaluate_mesh(
 class _MeshTruth:
     """One batch of ground-truth windows and what is computed from them once for every model:
     the reference frame's edge lengths and the future's own MELV (set by the pass), the
-    regressed joints (on first use)."""
+    regressed joints (``regress(windows)``, on first use)."""
 
-    def __init__(self, windows: torch.Tensor, t_in: int, regressor) -> None:
-        self.windows, self.regressor = windows, regressor
+    def __init__(self, windows: torch.Tensor, t_in: int, regress) -> None:
+        self.windows, self.regress = windows, regress
         self.target = windows[:, t_in:]
         self.reference_lengths: torch.Tensor | None = None
-        self.melv: torch.Tensor | None = None
+        self.melv: np.ndarray | None = None
         self._joints: torch.Tensor | None = None
 
     def joints(self) -> torch.Tensor:
         if self._joints is None:
-            from zoo.data.mesh import regress_joints
-
-            self._joints = regress_joints(self.windows, self.regressor)
+            self._joints = self.regress(self.windows)
         return self._joints

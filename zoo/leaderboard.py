@@ -410,14 +410,13 @@ class Leaderboard:
                 planned,
                 made_by=MADE_BY,
                 device=self.device,
+                keep_going=check is not None,  # a rebuild stops at its first failure
             )
             if pending
             else []
         )
         for (row, loaded, identity, old, why), result in zip(pending, computed):
             if isinstance(result, Exception):
-                if check is None:
-                    raise result
                 check.problem(f"{where}: {row.label}: not recomputed: {result}")
                 failed.add(row.label)
                 continue

@@ -216,7 +216,9 @@ class FrameErrorMean:
 
 def edge_lengths(vertices: torch.Tensor, edges: np.ndarray | torch.Tensor) -> torch.Tensor:
     """Lengths of ``edges (E, 2)`` in ``vertices (..., V, 3)``: ``(..., E)``."""
-    edges = torch.as_tensor(np.asarray(edges), dtype=torch.long, device=vertices.device)
+    if not isinstance(edges, torch.Tensor):
+        edges = torch.as_tensor(np.asarray(edges))
+    edges = edges.to(device=vertices.device, dtype=torch.long)
     if edges.ndim != 2 or edges.shape[1] != 2:
         raise ValueError(f"edge_lengths: edges must be (E, 2), got {tuple(edges.shape)}")
     # index_select on the vertex axis of one (N, V, 3) view: 1.4 times faster than indexing

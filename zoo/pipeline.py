@@ -44,6 +44,10 @@ class Subject:
     provenance: dict[str, Any]
     identity_under: Callable[[Protocol], dict[str, Any]]
 
+    def scored(self) -> Scored:
+        """What the evaluator scores: the module, under its label, fed its view."""
+        return Scored(self.model, self.label, self.view, self.provenance)
+
     @classmethod
     def of_loaded(cls, loaded) -> Subject:
         """A model from :meth:`zoo.model_source.ModelSource.load`."""
@@ -113,10 +117,13 @@ def compute(
 ) -> EvalResult:
     """The subject evaluated on the protocol's windows, its identity and maker stamped."""
     (result,) = compute_all(
-        [(subject, identity)], protocol, made_by=made_by, device=device, batch_size=batch_size
+        [(subject, identity)],
+        protocol,
+        made_by=made_by,
+        device=device,
+        batch_size=batch_size,
+        keep_going=False,
     )
-    if isinstance(result, Exception):
-        raise result
     return result
 
 
@@ -127,19 +134,28 @@ def compute_all(
     made_by: str,
     device: str = "cpu",
     batch_size: int = EVAL_BATCH,
+    keep_going: bool = True,
 ) -> list[EvalResult | Exception]:
     """Subjects (each with its identity) evaluated in one pass over the protocol's windows
     (:func:`zoo.evaluate.evaluate_models`: the ground truth prepared once for all), each result
-    stamped as :func:`compute` stamps it; a subject that failed gets its error instead."""
+    stamped as :func:`compute` stamps it; a subject that failed gets its error instead (or, with
+    ``keep_going=False``, the first failure is raised at once)."""
     results = evaluate_models(
-        [Scored(s.model, s.label, s.view, s.provenance) for s, _ in subjects],
+        [subject.scored() for subject, _ in subjects],
         protocol,
         batch_size=batch_size,
         device=device,
+        keep_going=keep_going,
     )
-    for result, (_, identity) in zip(results, subjects):
-        if not isinstance(result, Exception):
+    for i, (result, (_, identity)) in enumerate(zip(results, subjects)):
+        if isinstance(result, Exception):
+            continue
+        try:
             stamp(result, identity, made_by=made_by)
+        except Exception as e:
+            if not keep_going:
+                raise
+            results[i] = e
     return results
 
 

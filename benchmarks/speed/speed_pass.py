@@ -33,6 +33,7 @@ def table_models(bench, data_root=None, weights=None) -> tuple[object, list[Scor
     ``weights``, default the repository's; no checkpoints), as ``zoo leaderboard`` loads them."""
     from zoo.leaderboard import Leaderboard, Plan
     from zoo.paths import REPO_ROOT
+    from zoo.pipeline import Subject
     from zoo.registry import load_registry
 
     board = Leaderboard(
@@ -47,8 +48,7 @@ def table_models(bench, data_root=None, weights=None) -> tuple[object, list[Scor
     )
     models = []
     for row in board._rows("prediction"):
-        loaded = board._load(row)
-        models.append(Scored(loaded.model, loaded.label, loaded.view, loaded.provenance))
+        models.append(Subject.of_loaded(board._load(row)).scored())
     return board.dataset, models
 
 

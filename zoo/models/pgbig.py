@@ -73,6 +73,10 @@ class PlainLayer(nn.Module):
         its first ``keep`` output coefficients (default all)."""
         b, c, p, n = x.shape
         coefficients, bias = self.coefficients, self.bias
+        if copies * n != len(coefficients):
+            raise ValueError(
+                f"PGBIG layer of {len(coefficients)} coefficients given {copies} x {n}"
+            )
         if copies > 1:  # [x, x] W = x (W_top + W_bottom): no copy made, half the product
             coefficients = coefficients.view(copies, n, -1).sum(dim=0)
         if keep is not None:  # output coefficients nobody reads are not computed
