@@ -7,6 +7,7 @@ anny cache the first model build takes a few minutes; afterwards loading takes s
 
 import importlib.util
 import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -292,6 +293,23 @@ def test_build_one_identity_low(low_model, cache):
         == ds.recipe_hash
     )
     assert MeshDataset.load(folder).topology.hash == ds.topology.hash
+    # The regressor is the shipped one, also for a dataset cached with another machine's fit.
+    recipe, _ = am.regressor_recipe(CMU_BVH, "low")
+    shipped, _ = am.load_regressor(am.shipped_regressor_path("low", recipe))
+    assert (abs(ds.joint_regressor - shipped) > 0).nnz == 0
+    other = MeshDataset.load(folder)
+    other.joint_regressor = other.joint_regressor.multiply(0.5).tocsr()
+    other.save(folder)
+    reloaded = am.build_cmu_anny(
+        CMU_BVH,
+        identities="one",
+        topology="low",
+        split="train",
+        trials=[SHORT],
+        cache_dir=cache,
+        progress=False,
+    )
+    assert (abs(reloaded.joint_regressor - shipped) > 0).nnz == 0
 
 
 @needs_anny
@@ -389,3 +407,67 @@ def test_full_resolution_directions_and_edge_lengths(short_motion):
     change = np.abs(lengths[1:] - lengths[0])
     assert 9 < lengths[0].mean() < 11
     assert 0.1 < change.mean() < 0.4 and 2 < np.percentile(change, 99) < 8
+
+
+# ---- the shipped joint regressors ----------------------------------------------------------------
+
+
+@needs_anny
+@needs_data
+@pytest.mark.parametrize("topology", ["low", "full"])
+def test_a_fit_here_is_the_shipped_regressor(low_model, topology):
+    """Each shipped regressor is what its recipe fits on this machine (to rounding; on the
+    machine that shipped it, exactly)."""
+    report = am.check_joint_regressor(
+        CMU_BVH, topology, model=low_model if topology == "low" else None
+    )
+    assert report["same"], report
+    assert report["joints_mm"] <= am.REGRESSOR_TOLERANCE_MM
+    assert report["stats"]["fit_frames"] == (1280.0, 1280.0)
+
+
+@needs_data
+def test_the_regressor_is_loaded_from_the_shipped_file_not_fitted(tmp_path, monkeypatch):
+    pytest.importorskip("anny")
+
+    def no_fit(*args, **kwargs):
+        raise AssertionError("a shipped regressor was fitted again")
+
+    monkeypatch.setattr(am, "fit_joint_regressor", no_fit)
+    regressor = am.joint_regressor(CMU_BVH, "low", cache_dir=tmp_path)
+    assert regressor.source == str(
+        am.shipped_regressor_path("low", am.regressor_recipe(CMU_BVH, "low")[0])
+    )
+    assert regressor.matrix.shape == (31, 1229) and regressor.recipe["fit_frames"] == 1280.0
+    assert not (tmp_path / "anny").exists()  # nothing fitted, nothing cached
+
+
+@needs_anny
+@needs_data
+def test_a_recipe_with_no_shipped_regressor_is_fitted_here_and_says_so(
+    low_model, tmp_path, monkeypatch, capsys
+):
+    monkeypatch.setattr(am, "SHIPPED_REGRESSORS", tmp_path / "none")
+    fitted = am.joint_regressor(CMU_BVH, "low", cache_dir=tmp_path, model=low_model)
+    assert "no shipped joint regressor" in capsys.readouterr().err
+    assert Path(fitted.source).parent == tmp_path / "anny"
+    again = am.joint_regressor(CMU_BVH, "low", cache_dir=tmp_path)  # from the cache
+    assert (abs(again.matrix - fitted.matrix) > 0).nnz == 0 and again.recipe == fitted.recipe
+
+
+def test_a_damaged_regressor_file_is_named(tmp_path):
+    import scipy.sparse as sp
+
+    matrix = sp.csr_matrix(np.array([[0.25, 0.75, 0.0], [0.0, 0.0, 1.0]]))
+    path = am.save_regressor(tmp_path / "r.npz", matrix, {k: 1.0 for k in am.REGRESSOR_STATS})
+    loaded, stats = am.load_regressor(path)
+    assert (abs(loaded - matrix) > 0).nnz == 0 and stats["fit_frames"] == 1.0
+    with np.load(path) as z:
+        fields = dict(z)
+    fields["data"] = fields["data"] + 1e-9
+    np.savez(tmp_path / "edited.npz", **fields)
+    with pytest.raises(DataFormatError, match="edited.npz: its weights do not match"):
+        am.load_regressor(tmp_path / "edited.npz")
+    (tmp_path / "text.npz").write_text("not a regressor")
+    with pytest.raises(DataFormatError, match="text.npz: not a joint regressor file"):
+        am.load_regressor(tmp_path / "text.npz")

@@ -535,6 +535,56 @@ def _data_basis(bench, args) -> int:
     return 0 if report["same"] else 1
 
 
+def _data_regressor(bench, args) -> int:
+    """``zoo data regressor NAME``: fit the benchmark body's joint regressor here and compare it
+    with the shipped one; ``--ship`` writes it for a recipe that has none yet."""
+    import time
+
+    from zoo.benchmark import MESH_DATASETS
+    from zoo.data import anny_motion as am
+
+    loader, options = MESH_DATASETS.get(bench.dataset, (None, {}))
+    if not str(loader).endswith(":cmu_anny_dataset"):
+        raise UsageError(
+            f"benchmark {bench.name} has no fitted joint regressor (only the CMU-on-Anny "
+            f"benchmarks fit one)"
+        )
+    topology = options["topology"]
+    root = args.data_root or bench.resolve_data_root()
+    if root is None:
+        raise UsageError(f"{bench.name}: give --data-root (the CMU BVH folder)")
+    recipe, files = am.regressor_recipe(root, topology)
+    path = am.shipped_regressor_path(topology, recipe)
+    if args.ship:
+        if path.is_file():
+            raise UsageError(
+                f"{path} is shipped already (committed MPJPE rows depend on it); delete it "
+                f"deliberately to ship another"
+            )
+        print(f"fitting the joint regressor of the {topology} Anny body ...", file=sys.stderr)
+        with am.one_thread():
+            matrix, stats = am.fit_joint_regressor(
+                am.load_anny_model(topology), files, seed=0, **am.REGRESSOR_SETTINGS[topology]
+            )
+        am.save_regressor(path, matrix, stats)
+        print(f"wrote {path} ({matrix.nnz} weights; fit {stats})")
+        return 0
+    print(f"fitting the joint regressor of the {topology} Anny body ...", file=sys.stderr)
+    started = time.perf_counter()
+    report = am.check_joint_regressor(root, topology)
+    took = time.perf_counter() - started
+    print(
+        f"{bench.name}: joint regressor {report['path'].name} fitted here in {took:.1f} s: "
+        f"weights within {report['weights']:.2g} of the shipped ones ({report['support'][0]} "
+        f"against {report['support'][1]} non-zeros; a joint's row within "
+        f"{report['rows_l1']:.2g} in L1), regressed joints on the fit's "
+        f"{int(report['stats']['fit_frames'][0])} frames within {report['joints_mm']:.3g} mm "
+        f"(mean {report['joints_mean_mm']:.2g} mm; tolerance {am.REGRESSOR_TOLERANCE_MM} mm): "
+        f"{'the same regressor' if report['same'] else 'ANOTHER REGRESSOR'}"
+    )
+    return 0 if report["same"] else 1
+
+
 def cmd_data(args) -> int:
     from tabulate import tabulate
 
@@ -588,6 +638,8 @@ def cmd_data(args) -> int:
     )
     if args.action == "basis":
         return _data_basis(bench, args)
+    if args.action == "regressor":
+        return _data_regressor(bench, args)
     if args.action in ("build", "describe"):
         for split in splits:
             dataset = bench.load(args.data_root, split=split)
@@ -877,7 +929,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_render)
 
     p = sub.add_parser("data", help="build, list, describe and export datasets")
-    p.add_argument("action", choices=["list", "build", "describe", "export", "basis"])
+    p.add_argument("action", choices=["list", "build", "describe", "export", "basis", "regressor"])
     p.add_argument("benchmark", nargs="?", help="benchmark whose dataset to use")
     p.add_argument("--split", help="split (default: the benchmark's test split; 'all': both)")
     p.add_argument("--data-root", help="dataset folder (default: the benchmark's)")
@@ -886,7 +938,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--ship",
         action="store_true",
-        help="basis: compute and write benchmarks/bases/ for a mesh that has no shipped basis",
+        help="basis, regressor: compute and write benchmarks/bases/ (benchmarks/regressors/) "
+        "for a mesh that has none shipped",
     )
     p.add_argument(
         "--out", help="export: FILE.glb (all frames side by side) or FILE.ply (one file per frame)"

@@ -35,7 +35,12 @@ and no exact vertex regressor exists. Two things are kept, so MPJPE is defined:
   per bone, non-negative weights summing to 1 over the 40 (low) or 100 (full) rest vertices
   nearest its head, fitted by least squares so that the weighted skinned vertices reproduce
   Anny's posed bone heads over frames of ``REGRESSOR_TRIALS`` (training trials) for 8
-  identities (``fit_joint_regressor``). This is how SpecTrHuMS defines joints on SMPL meshes:
+  identities (``fit_joint_regressor``). The fitted regressors ship as data
+  (``SHIPPED_REGRESSORS``, one file per topology and recipe, checksummed): an active-set
+  non-negative least squares fit on float32 skinned vertices keeps other weights on another
+  CPU, and a joint is a weighted sum of a few vertices, so a fit per machine would move MPJPE
+  beyond the rounding tolerance. ``check_joint_regressor`` (``zoo data regressor NAME``) fits
+  one here and compares. This is how SpecTrHuMS defines joints on SMPL meshes:
   the same regressor applied to ground-truth and predicted meshes; it is the MPJPE of the
   benchmark. It follows the rig's heads to a few mm, worse at knees in deep flexion, where linear
   blend skinning collapses the surface (``regressor_error``);
@@ -74,6 +79,7 @@ from zoo.data.mesh import (
 )
 from zoo.errors import DataNotFoundError
 from zoo.io import atomic_path, sha256_file
+from zoo.paths import REPO_ROOT
 
 # BVH name -> Anny ``cmu_mb`` bone name where they differ (all others are the same).
 BVH_TO_ANNY = {"LeftHandIndex1": "LeftHandFinger1", "RightHandIndex1": "RightHandFinger1"}
@@ -499,6 +505,16 @@ REGRESSOR_SETTINGS = {
     "full": {"support": 100, "frames_per_trial": 20, "identities": 8},
     "low": {"support": 40, "frames_per_trial": 20, "identities": 8},
 }
+REGRESSOR_STATS = ("fit_mean_mm", "fit_p99_mm", "fit_frames")
+# Every topology's fitted regressor ships here, one file per recipe (module docstring).
+SHIPPED_REGRESSORS = REPO_ROOT / "benchmarks" / "regressors"
+# Largest distance (mm) between a joint regressed by a fresh fit and by the shipped regressor,
+# on the fit's own frames, that counts as the same regressor. Measured: refits from vertices
+# moved by one float32 unit in the last place (another CPU's skinning) move those joints by at
+# most 0.001 mm (full body; 1.2e-5 mm low); the fit's own residual is 4.7-6.5 mm on average.
+# Off the fit's frames the weights' differences (up to 0.011 per weight on the full body, where
+# nearby vertices are nearly collinear) weigh a prediction's error: hence the shipped weights.
+REGRESSOR_TOLERANCE_MM = 0.05
 
 
 @dataclass
@@ -508,6 +524,7 @@ class JointRegressor:
     matrix: sp.csr_matrix
     joint_names: list[str]
     recipe: dict[str, Any]
+    source: str = ""  # the file it was read from
 
 
 def mi_phenotype(seed: int, key: str) -> dict[str, float]:
@@ -519,22 +536,18 @@ def mi_phenotype(seed: int, key: str) -> dict[str, float]:
     return {k: float(rng.uniform(*MI_PHENOTYPE_RANGES[k])) for k in PHENOTYPE_LABELS}
 
 
-def fit_joint_regressor(
+def regressor_fit_frames(
     model,
     bvh_files: Sequence[str | Path],
     *,
-    support: int,
     frames_per_trial: int,
     identities: int,
     seed: int = 0,
-) -> tuple[sp.csr_matrix, dict[str, float]]:
-    """Fit each bone head as a convex combination of its ``support`` nearest rest vertices.
-
-    Fit data: ``frames_per_trial`` evenly spaced 25 Hz frames of each BVH file, skinned for the
-    default identity and ``identities - 1`` MI identities; targets are Anny's own posed bone
-    heads. Non-negative least squares with the sum-to-one constraint as a heavily weighted row.
-    Returns the ``(31, V)`` matrix in BVH joint order and the fit's residual statistics (mm).
-    """
+) -> tuple[np.ndarray, np.ndarray]:
+    """The frames a joint regressor is fitted on: ``frames_per_trial`` evenly spaced 25 Hz
+    frames of each BVH file, skinned for the default identity and ``identities - 1`` MI
+    identities. Returns vertices ``(F, V, 3)`` float32 and Anny's posed bone heads ``(F, B, 3)``
+    in Anny's bone order."""
     vertices, heads = [], []
     phenotypes = [None] + [mi_phenotype(seed, f"regressor-{i}") for i in range(1, identities)]
     for path in bvh_files:
@@ -546,8 +559,36 @@ def fit_joint_regressor(
             out = skin(model, target.pose_parameters(rots), pheno, return_bone_ends=True)
             vertices.append(out["vertices"])
             heads.append(out["heads"])
-    vertices = np.concatenate(vertices)
-    heads = np.concatenate(heads)
+    return np.concatenate(vertices), np.concatenate(heads)
+
+
+def regressed_joints(regressor: sp.spmatrix, vertices: np.ndarray) -> np.ndarray:
+    """``(F, J, 3)`` float64 joints of vertices ``(F, V, 3)`` through a ``(J, V)`` regressor."""
+    return np.einsum("jv,fvc->fjc", regressor.toarray(), vertices.astype(np.float64))
+
+
+def fit_joint_regressor(
+    model,
+    bvh_files: Sequence[str | Path],
+    *,
+    support: int,
+    frames_per_trial: int,
+    identities: int,
+    seed: int = 0,
+    frames: tuple[np.ndarray, np.ndarray] | None = None,
+) -> tuple[sp.csr_matrix, dict[str, float]]:
+    """Fit each bone head as a convex combination of its ``support`` nearest rest vertices.
+
+    Fit data: ``regressor_fit_frames`` (or ``frames``, what it returned); targets are Anny's own
+    posed bone heads. Non-negative least squares with the sum-to-one constraint as a heavily
+    weighted row. Returns the ``(31, V)`` matrix in BVH joint order and the fit's residual
+    statistics (mm).
+    """
+    if frames is None:
+        frames = regressor_fit_frames(
+            model, bvh_files, frames_per_trial=frames_per_trial, identities=identities, seed=seed
+        )
+    vertices, heads = frames
     rest = rest_skeleton(model)
     num_v = vertices.shape[1]
     order = [model.bone_labels.index(BVH_TO_ANNY.get(n, n)) for n in CMU_BVH_JOINTS]
@@ -569,10 +610,7 @@ def fit_joint_regressor(
         cols += idx[keep].tolist()
         vals += (w[keep] / w[keep].sum()).tolist()
     matrix = sp.csr_matrix((vals, (rows, cols)), shape=(len(CMU_BVH_JOINTS), num_v))
-    err = np.linalg.norm(
-        np.einsum("jv,fvc->fjc", matrix.toarray(), vertices.astype(np.float64)) - heads[:, order],
-        axis=-1,
-    )
+    err = np.linalg.norm(regressed_joints(matrix, vertices) - heads[:, order], axis=-1)
     stats = {
         "fit_mean_mm": round(float(err.mean()), 3),
         "fit_p99_mm": round(float(np.percentile(err, 99)), 3),
@@ -585,8 +623,7 @@ def regressor_error(
     regressor: sp.spmatrix, vertices: np.ndarray, heads_bvh_order: np.ndarray
 ) -> np.ndarray:
     """Per frame and joint distance (mm) between regressed joints and the rig's bone heads."""
-    joints = np.einsum("jv,fvc->fjc", regressor.toarray(), vertices.astype(np.float64))
-    return np.linalg.norm(joints - heads_bvh_order, axis=-1)
+    return np.linalg.norm(regressed_joints(regressor, vertices) - heads_bvh_order, axis=-1)
 
 
 # ---- trials, split and cache -----------------------------------------------------------------
@@ -738,11 +775,9 @@ def _model(topology: str):
     return _MODELS[topology]
 
 
-def joint_regressor(
-    bvh_root: str | Path, topology: str, *, cache_dir: str | Path | None = None, model=None
-) -> JointRegressor:
-    """The topology's joint regressor, fitted once (``fit_joint_regressor`` on
-    ``REGRESSOR_TRIALS``) and cached in ``<cache>/anny/``."""
+def regressor_recipe(bvh_root: str | Path, topology: str) -> tuple[dict[str, Any], list[Path]]:
+    """What a topology's joint regressor is fitted from (hashed; the stats are added once
+    fitted) and the BVH files of ``REGRESSOR_TRIALS`` under ``bvh_root``."""
     by_key = {t.key: t for t in list_trials(bvh_root)}
     missing = [k for k in REGRESSOR_TRIALS if k not in by_key]
     if missing:
@@ -761,30 +796,136 @@ def joint_regressor(
         **REGRESSOR_SETTINGS[topology],
         "trials": [{"trial": t.key, "sha256": sha256_file(t.path)} for t in files],
     }
-    path = cache_root(cache_dir) / "anny" / f"joint_regressor-{topology}-{_recipe_hash(recipe)}.npz"
-    if path.is_file():
+    return recipe, [t.path for t in files]
+
+
+def shipped_regressor_path(topology: str, recipe: dict[str, Any]) -> Path:
+    """Where the regressor fitted from ``recipe`` ships (``SHIPPED_REGRESSORS``)."""
+    return SHIPPED_REGRESSORS / f"joint_regressor-{topology}-{_recipe_hash(recipe)}.npz"
+
+
+def regressor_checksum(matrix: sp.csr_matrix) -> str:
+    """sha256 of a regressor's shape, sparsity pattern and float64 weights."""
+    m = sp.csr_matrix(matrix)
+    m.sort_indices()
+    digest = hashlib.sha256(np.asarray(m.shape, dtype="<i8").tobytes())
+    digest.update(m.indptr.astype("<i8").tobytes())
+    digest.update(m.indices.astype("<i8").tobytes())
+    digest.update(m.data.astype("<f8").tobytes())
+    return digest.hexdigest()
+
+
+def save_regressor(path: str | Path, matrix: sp.csr_matrix, stats: dict[str, float]) -> Path:
+    """Write a regressor (CSR arrays, fit statistics, checksum) atomically."""
+    m = sp.csr_matrix(matrix)
+    m.sort_indices()
+    with atomic_path(path) as tmp:
+        with open(tmp, "wb") as f:
+            np.savez(
+                f,
+                data=m.data,
+                indices=m.indices,
+                indptr=m.indptr,
+                shape=np.asarray(m.shape),
+                checksum=np.asarray(regressor_checksum(m)),
+                **stats,
+            )
+    return Path(path)
+
+
+def load_regressor(path: str | Path) -> tuple[sp.csr_matrix, dict[str, float]]:
+    """Read what ``save_regressor`` wrote; a file whose weights do not match its checksum, or
+    that lacks a field, is an error naming it."""
+    try:
         with np.load(path) as z:
             matrix = sp.csr_matrix((z["data"], z["indices"], z["indptr"]), shape=tuple(z["shape"]))
-            stats = {k: float(z[k]) for k in ("fit_mean_mm", "fit_p99_mm", "fit_frames")}
+            stats = {k: float(z[k]) for k in REGRESSOR_STATS}
+            checksum = str(z["checksum"]) if "checksum" in z.files else None
+    except (OSError, ValueError, KeyError) as e:
+        raise DataFormatError(
+            f"{path}: not a joint regressor file (CSR arrays data, indices, indptr, shape and "
+            f"{', '.join(REGRESSOR_STATS)} expected): {e}"
+        ) from e
+    if checksum is not None and checksum != regressor_checksum(matrix):
+        raise DataFormatError(
+            f"{path}: its weights do not match its checksum {checksum[:12]}... (a damaged or "
+            f"edited file: restore it from the repository)"
+        )
+    return matrix, stats
+
+
+def joint_regressor(
+    bvh_root: str | Path, topology: str, *, cache_dir: str | Path | None = None, model=None
+) -> JointRegressor:
+    """The topology's joint regressor: the shipped one (``SHIPPED_REGRESSORS``) for this recipe,
+    else fitted here once (``fit_joint_regressor`` on ``REGRESSOR_TRIALS``) and cached in
+    ``<cache>/anny/``, with a warning: a fit follows the CPU's rounding (module docstring)."""
+    recipe, files = regressor_recipe(bvh_root, topology)
+    shipped = shipped_regressor_path(topology, recipe)
+    path = cache_root(cache_dir) / "anny" / shipped.name
+    if shipped.is_file():
+        matrix, stats = load_regressor(shipped)
+        source = str(shipped)
+    elif path.is_file():
+        matrix, stats = load_regressor(path)
+        source = str(path)
     else:
+        print(
+            f"no shipped joint regressor for the {topology} Anny body with this recipe "
+            f"({shipped.name}): fitting one here; its weights follow this CPU's rounding, so "
+            f"MPJPE through it may differ from another machine's (zoo data regressor ... --ship "
+            f"ships it)",
+            file=sys.stderr,
+        )
         model = _model(topology) if model is None else model
         with one_thread():
             matrix, stats = fit_joint_regressor(
-                model, [t.path for t in files], seed=0, **REGRESSOR_SETTINGS[topology]
+                model, files, seed=0, **REGRESSOR_SETTINGS[topology]
             )
-        with atomic_path(path) as tmp:
-            with open(tmp, "wb") as f:
-                np.savez(
-                    f,
-                    data=matrix.data,
-                    indices=matrix.indices,
-                    indptr=matrix.indptr,
-                    shape=np.asarray(matrix.shape),
-                    **stats,
-                )
+        save_regressor(path, matrix, stats)
+        source = str(path)
     return JointRegressor(
-        matrix=matrix, joint_names=list(CMU_BVH_JOINTS), recipe={**recipe, **stats}
+        matrix=matrix, joint_names=list(CMU_BVH_JOINTS), recipe={**recipe, **stats}, source=source
     )
+
+
+def check_joint_regressor(bvh_root: str | Path, topology: str, *, model=None) -> dict[str, Any]:
+    """Fit the topology's regressor here and compare it with the shipped one: the largest
+    difference of a weight, of the fit statistics, and of a regressed joint (mm) on the fit's
+    own frames. ``same`` when every joint is within ``REGRESSOR_TOLERANCE_MM``."""
+    recipe, files = regressor_recipe(bvh_root, topology)
+    shipped_path = shipped_regressor_path(topology, recipe)
+    if not shipped_path.is_file():
+        raise DataNotFoundError(
+            f"no shipped joint regressor for the {topology} Anny body with this recipe "
+            f"({shipped_path}); zoo data regressor ... --ship writes one"
+        )
+    shipped, shipped_stats = load_regressor(shipped_path)
+    model = _model(topology) if model is None else model
+    settings = REGRESSOR_SETTINGS[topology]
+    with one_thread():
+        frames = regressor_fit_frames(
+            model,
+            files,
+            frames_per_trial=settings["frames_per_trial"],
+            identities=settings["identities"],
+        )
+        fitted, stats = fit_joint_regressor(model, files, seed=0, frames=frames, **settings)
+    gap = np.linalg.norm(
+        regressed_joints(fitted, frames[0]) - regressed_joints(shipped, frames[0]), axis=-1
+    )
+    joints_mm = float(gap.max())
+    return {
+        "path": shipped_path,
+        "weights": float(abs(fitted - shipped).max()),
+        # bounds a regressed joint's change per mm of vertex displacement, on any frames
+        "rows_l1": float(abs(fitted - shipped).sum(axis=1).max()),
+        "support": (int(fitted.nnz), int(shipped.nnz)),
+        "stats": {k: (stats[k], shipped_stats[k]) for k in REGRESSOR_STATS},
+        "joints_mm": joints_mm,
+        "joints_mean_mm": float(gap.mean()),
+        "same": joints_mm <= REGRESSOR_TOLERANCE_MM,
+    }
 
 
 # ---- the dataset builder ---------------------------------------------------------------------
@@ -865,6 +1006,12 @@ def build_cmu_anny(
     if (folder / "dataset.json").is_file() and (folder / "meshes.npz").is_file():
         cached = MeshDataset.load(folder)
         if cached.recipe_hash == _recipe_hash(recipe):
+            # A dataset cached before its regressor shipped carries this machine's fit.
+            if (
+                cached.joint_regressor is None
+                or (abs(cached.joint_regressor - regressor.matrix) > 0).nnz
+            ):
+                cached.joint_regressor = regressor.matrix
             return cached
     model = _model(topology)
     topo = MeshTopology(
