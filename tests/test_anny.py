@@ -132,7 +132,7 @@ def short_motion():
 
 @pytest.fixture(scope="session")
 def cache(tmp_path_factory):
-    """One cache folder for the session: the joint regressor is fitted once."""
+    """One cache folder for the session: each dataset is built once."""
     return tmp_path_factory.mktemp("zoo-cache")
 
 
@@ -310,6 +310,7 @@ def test_build_one_identity_low(low_model, cache):
         progress=False,
     )
     assert (abs(reloaded.joint_regressor - shipped) > 0).nnz == 0
+    reloaded.save(folder)  # the session's cache as it was
 
 
 @needs_anny
@@ -428,7 +429,7 @@ def test_a_fit_here_is_the_shipped_regressor(low_model, topology):
 
 @needs_data
 def test_the_regressor_is_loaded_from_the_shipped_file_not_fitted(tmp_path, monkeypatch):
-    pytest.importorskip("anny")
+    pytest.importorskip("anny")  # its version is part of the regressor's recipe
 
     def no_fit(*args, **kwargs):
         raise AssertionError("a shipped regressor was fitted again")
@@ -449,10 +450,17 @@ def test_a_recipe_with_no_shipped_regressor_is_fitted_here_and_says_so(
 ):
     monkeypatch.setattr(am, "SHIPPED_REGRESSORS", tmp_path / "none")
     fitted = am.joint_regressor(CMU_BVH, "low", cache_dir=tmp_path, model=low_model)
-    assert "no shipped joint regressor" in capsys.readouterr().err
+    assert "fitting one here" in capsys.readouterr().err
     assert Path(fitted.source).parent == tmp_path / "anny"
+
+    def no_fit(*args, **kwargs):
+        raise AssertionError("a cached regressor was fitted again")
+
+    monkeypatch.setattr(am, "fit_joint_regressor", no_fit)
     again = am.joint_regressor(CMU_BVH, "low", cache_dir=tmp_path)  # from the cache
-    assert (abs(again.matrix - fitted.matrix) > 0).nnz == 0 and again.recipe == fitted.recipe
+    assert "using the one fitted here" in capsys.readouterr().err
+    assert again.source == fitted.source and again.recipe == fitted.recipe
+    assert (abs(again.matrix - fitted.matrix) > 0).nnz == 0
 
 
 def test_a_damaged_regressor_file_is_named(tmp_path):
@@ -471,3 +479,11 @@ def test_a_damaged_regressor_file_is_named(tmp_path):
     (tmp_path / "text.npz").write_text("not a regressor")
     with pytest.raises(DataFormatError, match="text.npz: not a joint regressor file"):
         am.load_regressor(tmp_path / "text.npz")
+    (tmp_path / "cut.npz").write_bytes(path.read_bytes()[:2000])
+    with pytest.raises(DataFormatError, match="cut.npz: not a joint regressor file"):
+        am.load_regressor(tmp_path / "cut.npz")
+    del fields["checksum"]
+    np.savez(tmp_path / "old.npz", **fields)  # a cache file from before checksums
+    with pytest.raises(DataFormatError, match="old.npz: no checksum field"):
+        am.load_regressor(tmp_path / "old.npz")
+    am.load_regressor(tmp_path / "old.npz", checksum_required=False)

@@ -55,6 +55,7 @@ import importlib.metadata
 import math
 import os
 import sys
+import zipfile
 from collections.abc import Iterable, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -806,7 +807,7 @@ def shipped_regressor_path(topology: str, recipe: dict[str, Any]) -> Path:
 
 def regressor_checksum(matrix: sp.csr_matrix) -> str:
     """sha256 of a regressor's shape, sparsity pattern and float64 weights."""
-    m = sp.csr_matrix(matrix)
+    m = sp.csr_matrix(matrix, copy=True)
     m.sort_indices()
     digest = hashlib.sha256(np.asarray(m.shape, dtype="<i8").tobytes())
     digest.update(m.indptr.astype("<i8").tobytes())
@@ -817,7 +818,7 @@ def regressor_checksum(matrix: sp.csr_matrix) -> str:
 
 def save_regressor(path: str | Path, matrix: sp.csr_matrix, stats: dict[str, float]) -> Path:
     """Write a regressor (CSR arrays, fit statistics, checksum) atomically."""
-    m = sp.csr_matrix(matrix)
+    m = sp.csr_matrix(matrix, copy=True)
     m.sort_indices()
     with atomic_path(path) as tmp:
         with open(tmp, "wb") as f:
@@ -833,23 +834,28 @@ def save_regressor(path: str | Path, matrix: sp.csr_matrix, stats: dict[str, flo
     return Path(path)
 
 
-def load_regressor(path: str | Path) -> tuple[sp.csr_matrix, dict[str, float]]:
-    """Read what ``save_regressor`` wrote; a file whose weights do not match its checksum, or
-    that lacks a field, is an error naming it."""
+def load_regressor(
+    path: str | Path, remedy: str = "restore it from the repository", checksum_required=True
+) -> tuple[sp.csr_matrix, dict[str, float]]:
+    """Read what ``save_regressor`` wrote; a file that is not one, lacks a field, or whose
+    weights do not match its checksum is an error naming it and ``remedy``. Cache files written
+    before regressors carried a checksum load with ``checksum_required=False``."""
     try:
         with np.load(path) as z:
             matrix = sp.csr_matrix((z["data"], z["indices"], z["indptr"]), shape=tuple(z["shape"]))
             stats = {k: float(z[k]) for k in REGRESSOR_STATS}
             checksum = str(z["checksum"]) if "checksum" in z.files else None
-    except (OSError, ValueError, KeyError) as e:
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as e:
         raise DataFormatError(
-            f"{path}: not a joint regressor file (CSR arrays data, indices, indptr, shape and "
-            f"{', '.join(REGRESSOR_STATS)} expected): {e}"
+            f"{path}: not a joint regressor file (CSR arrays data, indices, indptr, shape, "
+            f"checksum and {', '.join(REGRESSOR_STATS)} expected; {remedy}): {e}"
         ) from e
+    if checksum is None and checksum_required:
+        raise DataFormatError(f"{path}: no checksum field ({remedy})")
     if checksum is not None and checksum != regressor_checksum(matrix):
         raise DataFormatError(
             f"{path}: its weights do not match its checksum {checksum[:12]}... (a damaged or "
-            f"edited file: restore it from the repository)"
+            f"edited file: {remedy})"
         )
     return matrix, stats
 
@@ -859,33 +865,37 @@ def joint_regressor(
 ) -> JointRegressor:
     """The topology's joint regressor: the shipped one (``SHIPPED_REGRESSORS``) for this recipe,
     else fitted here once (``fit_joint_regressor`` on ``REGRESSOR_TRIALS``) and cached in
-    ``<cache>/anny/``, with a warning: a fit follows the CPU's rounding (module docstring)."""
+    ``<cache>/anny/``, with a warning whenever it is used: a fit follows the CPU's rounding
+    (module docstring)."""
     recipe, files = regressor_recipe(bvh_root, topology)
     shipped = shipped_regressor_path(topology, recipe)
     path = cache_root(cache_dir) / "anny" / shipped.name
     if shipped.is_file():
         matrix, stats = load_regressor(shipped)
-        source = str(shipped)
-    elif path.is_file():
-        matrix, stats = load_regressor(path)
-        source = str(path)
-    else:
-        print(
-            f"no shipped joint regressor for the {topology} Anny body with this recipe "
-            f"({shipped.name}): fitting one here; its weights follow this CPU's rounding, so "
-            f"MPJPE through it may differ from another machine's (zoo data regressor ... --ship "
-            f"ships it)",
-            file=sys.stderr,
+        return JointRegressor(
+            matrix, list(CMU_BVH_JOINTS), recipe={**recipe, **stats}, source=str(shipped)
         )
+    print(
+        f"no shipped joint regressor for the {topology} Anny body with this recipe "
+        f"({shipped.name}): "
+        + ("using the one fitted here" if path.is_file() else "fitting one here")
+        + "; its weights follow this CPU's rounding, so MPJPE through it may differ from "
+        "another machine's (zoo data regressor NAME --ship ships it)",
+        file=sys.stderr,
+    )
+    if path.is_file():
+        matrix, stats = load_regressor(
+            path, remedy="delete it and it is fitted again", checksum_required=False
+        )
+    else:
         model = _model(topology) if model is None else model
         with one_thread():
             matrix, stats = fit_joint_regressor(
                 model, files, seed=0, **REGRESSOR_SETTINGS[topology]
             )
         save_regressor(path, matrix, stats)
-        source = str(path)
     return JointRegressor(
-        matrix=matrix, joint_names=list(CMU_BVH_JOINTS), recipe={**recipe, **stats}, source=source
+        matrix, list(CMU_BVH_JOINTS), recipe={**recipe, **stats}, source=str(path)
     )
 
 
