@@ -234,18 +234,24 @@ def test_built_meshes_do_not_depend_on_the_thread_count(low_model, tmp_path):
     assert hashes[0] == hashes[1]
 
 
-@needs_anny
-@needs_data
-def test_build_one_identity_low(low_model, cache):
-    ds = am.build_cmu_anny(
+def build_low(cache, identities="one", seed=0, split="train", trials=(SHORT,)):
+    """A low-resolution CMU-on-Anny dataset of a few trials, in the session's cache."""
+    return am.build_cmu_anny(
         CMU_BVH,
-        identities="one",
+        identities=identities,
         topology="low",
-        split="train",
-        trials=[SHORT],
+        split=split,
+        trials=list(trials),
+        seed=seed,
         cache_dir=cache,
         progress=False,
     )
+
+
+@needs_anny
+@needs_data
+def test_build_one_identity_low(low_model, cache):
+    ds = build_low(cache)
     assert ds.name == "cmu_anny-oi-low-train" and ds.split == "train" and ds.fps == 25.0
     (seq,) = ds.sequences
     assert seq.vertices.shape == (27, 1229, 3) and seq.vertices.dtype == np.float32
@@ -268,30 +274,10 @@ def test_build_one_identity_low(low_model, cache):
     assert err.mean() < 10, f"regressed joints {err.mean():.1f} mm from the rig's bone heads"
     # Cached on disk under its recipe hash; a second call loads the same data.
     assert folder.name == f"{ds.name}-{ds.recipe_hash}"
-    again = am.build_cmu_anny(
-        CMU_BVH,
-        identities="one",
-        topology="low",
-        split="train",
-        trials=[SHORT],
-        cache_dir=cache,
-        progress=False,
-    )
+    again = build_low(cache)
     assert again.content_hash() == ds.content_hash() and again.recipe_hash == ds.recipe_hash
     # The seed draws MI bodies only: an OI build of another seed is the same dataset.
-    assert (
-        am.build_cmu_anny(
-            CMU_BVH,
-            identities="one",
-            topology="low",
-            split="train",
-            trials=[SHORT],
-            seed=7,
-            cache_dir=cache,
-            progress=False,
-        ).recipe_hash
-        == ds.recipe_hash
-    )
+    assert build_low(cache, seed=7).recipe_hash == ds.recipe_hash
     assert MeshDataset.load(folder).topology.hash == ds.topology.hash
     # The regressor is the shipped one, also for a dataset cached with another machine's fit.
     recipe, _ = am.regressor_recipe(CMU_BVH, "low")
@@ -300,15 +286,7 @@ def test_build_one_identity_low(low_model, cache):
     other = MeshDataset.load(folder)
     other.joint_regressor = other.joint_regressor.multiply(0.5).tocsr()
     other.save(folder)
-    reloaded = am.build_cmu_anny(
-        CMU_BVH,
-        identities="one",
-        topology="low",
-        split="train",
-        trials=[SHORT],
-        cache_dir=cache,
-        progress=False,
-    )
+    reloaded = build_low(cache)
     assert (abs(reloaded.joint_regressor - shipped) > 0).nnz == 0
     reloaded.save(folder)  # the session's cache as it was
 
@@ -317,27 +295,10 @@ def test_build_one_identity_low(low_model, cache):
 @needs_data
 def test_many_identities_share_the_triangulation_differ_in_shape_and_are_seeded(low_model, cache):
     def build(seed, split="train", trials=(SHORT, "02_03")):
-        return am.build_cmu_anny(
-            CMU_BVH,
-            identities="many",
-            topology="low",
-            split=split,
-            trials=list(trials),
-            seed=seed,
-            cache_dir=cache,
-            progress=False,
-        )
+        return build_low(cache, "many", seed, split, trials)
 
     ds = build(0)
-    oi = am.build_cmu_anny(
-        CMU_BVH,
-        identities="one",
-        topology="low",
-        split="train",
-        trials=[SHORT],
-        cache_dir=cache,
-        progress=False,
-    )
+    oi = build_low(cache)
     assert ds.topology.hash == oi.topology.hash  # one triangulation for every identity
     a, b = ds.sequences
     assert a.identity != b.identity and a.meta["phenotype"] != b.meta["phenotype"]
