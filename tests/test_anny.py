@@ -448,3 +448,20 @@ def test_a_damaged_regressor_file_is_named(tmp_path):
     with pytest.raises(DataFormatError, match="old.npz: no checksum field"):
         am.load_regressor(tmp_path / "old.npz")
     am.load_regressor(tmp_path / "old.npz", checksum_required=False)
+
+
+@needs_anny
+@needs_data
+def test_zoo_data_regressor_ships_a_fit_and_refuses_to_overwrite(low_model, tmp_path, monkeypatch):
+    from zoo.cli import main
+
+    monkeypatch.setattr(am, "SHIPPED_REGRESSORS", tmp_path / "regressors")
+    args = ["data", "regressor", "cmu_anny_oi_low", "--data-root", str(CMU_BVH), "--ship"]
+    assert main(args) == 0
+    (written,) = (tmp_path / "regressors").iterdir()
+    recipe, _ = am.regressor_recipe(CMU_BVH, "low")
+    assert written == am.shipped_regressor_path("low", recipe)
+    shipped, _ = am.load_regressor(REPO_ROOT / "benchmarks" / "regressors" / written.name)
+    assert (abs(am.load_regressor(written)[0] - shipped) > 0).nnz == 0
+    assert main(args) == 2  # shipped already: refused, nothing overwritten
+    assert main(args[:-1]) == 0  # a fit here is the same regressor

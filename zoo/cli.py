@@ -553,21 +553,23 @@ def _data_regressor(bench, args) -> int:
     root = args.data_root or bench.resolve_data_root()
     if root is None:
         raise UsageError(f"{bench.name}: give --data-root (the CMU BVH folder)")
-    recipe, files = am.regressor_recipe(root, topology)
-    path = am.shipped_regressor_path(topology, recipe)
+    path = am.shipped_regressor_path(topology, am.regressor_recipe(root, topology)[0])
     if args.ship:
         if path.is_file():
             raise UsageError(
                 f"{path} is shipped already (committed MPJPE rows depend on it); delete it "
                 f"deliberately to ship another"
             )
-        print(f"fitting the joint regressor of the {topology} Anny body ...", file=sys.stderr)
-        with am.one_thread():
-            matrix, stats = am.fit_joint_regressor(
-                am.load_anny_model(topology), files, seed=0, **am.REGRESSOR_SETTINGS[topology]
-            )
-        am.save_regressor(path, matrix, stats)
-        print(f"wrote {path} ({matrix.nnz} weights; fit {stats})")
+        import shutil
+        import tempfile
+
+        # The one fitting path (joint_regressor, which fits where none is shipped), into a
+        # scratch cache, then its file moved to where it ships.
+        with tempfile.TemporaryDirectory() as scratch:
+            fitted = am.joint_regressor(root, topology, cache_dir=scratch)
+            path.parent.mkdir(parents=True, exist_ok=True)
+            shutil.move(fitted.source, path)
+        print(f"wrote {path} ({fitted.matrix.nnz} weights; fit {fitted.recipe['fit_mean_mm']} mm)")
         return 0
     print(f"fitting the joint regressor of the {topology} Anny body ...", file=sys.stderr)
     started = time.perf_counter()
