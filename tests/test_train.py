@@ -489,8 +489,11 @@ def test_validation_by_recordings_holds_out_whole_recordings_and_records_them(tm
         "walking_7",
     ]
     assert validation["split"] == "recordings" and validation["windows"] == 2 * (150 - 35 + 1)
+    # auto: these 150-frame recordings cannot spare 10% for a 35-frame window, so the last
+    # recording (10% of 8, rounded) is held out whole, and the record names it
     auto = read_checkpoint(run_default(registry, root, tmp_path / "auto"))["validation"]
-    assert auto["split"] == "auto" and "last 10%" in auto["rule"]
+    assert auto["split"] == "auto" and "tails" not in auto
+    assert [h.rsplit("/", 1)[-1] for h in auto["recordings"]] == ["walking_8.txt"]
     with pytest.raises(TrainingError, match="val_split 'shuffled' unknown; valid: auto"):
         train(
             "tiny",
@@ -501,6 +504,44 @@ def test_validation_by_recordings_holds_out_whole_recordings_and_records_them(tm
             progress=False,
             train_overrides={"val_split": "shuffled"},
         )
+
+
+def test_validation_by_tails_takes_the_end_of_long_recordings_and_trains_on_short_ones(tmp_path):
+    from zoo.benchmark import get_benchmark
+    from zoo.train import held_out_frames, split_train_val
+
+    root = tmp_path / "cmu"
+    # frames after halving the rate: 400 (a 10% tail of 40 frames holds a 35-frame window)
+    # and 150 (too short: trained on whole); two actions, as on CMU where short recordings of
+    # one action (walking) sort last
+    write_cmu_file(root / "train" / "basketball" / "basketball_1.txt", 0.01 * np.arange(800))
+    for i in (1, 2):
+        write_cmu_file(root / "train" / "walking" / f"walking_{i}.txt", 0.01 * np.arange(300))
+    write_cmu_file(root / "test" / "walking" / "walking_1.txt", 0.01 * np.arange(300))
+    bench = get_benchmark("cmu")
+    dataset = bench.load(root, split=bench.train_split)
+    lengths = [400, 150, 150]
+    assert held_out_frames(dataset, lengths, 0.1, 35, "tails") == {0: 360}
+    # auto holds out whole recordings here (some are short): the last one, a walk
+    assert held_out_frames(dataset, lengths, 0.1, 35, "auto") == {2: 0}
+    kept, held = split_train_val(dataset, 0.1, 35, rule="tails")
+    assert [len(a) for a in kept] == [360, 150, 150] and [len(a) for a in held] == [40]
+    np.testing.assert_array_equal(
+        np.concatenate([kept[0], held[0]]), dataset.sequences[0].positions
+    )
+    reg_file = tmp_path / "registry.yaml"
+    reg_file.write_text(REGISTRY)
+    shutil.copy(HERE / "tiny_models.py", tmp_path / "tiny_models.py")
+    registry = Registry.from_files(Path(__file__).resolve().parents[1] / "registry.yaml", reg_file)
+    best = train("tiny", "cmu", registry=registry, data_root=root, out_dir=tmp_path / "run",
+                 progress=False, epochs=1, train_overrides={"val_split": "tails"})  # fmt: skip
+    validation = read_checkpoint(best)["validation"]
+    assert validation["split"] == "tails" and "recordings" not in validation
+    assert validation["tails"]["fraction"] == 0.1
+    assert [h.rsplit("/", 1)[-1] for h in validation["tails"]["of"]] == ["basketball_1.txt"]
+    assert validation["windows"] == 40 - 35 + 1
+    with pytest.raises(TrainingError, match="no recording is long enough.*val_split=recordings"):
+        held_out_frames(dataset, [150, 150, 150], 0.1, 35, "tails")
 
 
 def run_default(registry, root, out):

@@ -6,8 +6,9 @@ line. The engine is seeded and deterministic on CPU; an interrupted run resumed 
 ``resume=True`` ends with the same weights as an uninterrupted one, because the data order of
 every epoch derives from (seed, epoch) and the RNG states are saved with each epoch's state.
 
-Validation: the last ``val_fraction`` of every training sequence (by time), or whole recordings
-(``val_split: recordings``), held out; its windows never overlap the training windows. The
+Validation: the last ``val_fraction`` of training recordings (by time), or whole recordings,
+held out (``val_split``, :func:`held_out_frames`); its windows never overlap the training
+windows. The
 checkpoint with the lowest mean validation MPJPE is kept as ``best.pt``; ``last.pt`` holds the
 full state for ``--resume``. Each epoch also records the error at the first predicted frame and
 at 80, 400 and 1000 ms beside repeat-last's on the same windows (:func:`validate`).
@@ -84,10 +85,13 @@ DEFAULT_RECIPE: dict[str, Any] = {
     "schedule": {"type": "constant"},
     "augment": [],
     "val_fraction": 0.1,
-    # Which frames validate (see split_train_val): "auto", the last val_fraction of every
-    # sequence where all are long enough (CMU), else the last val_fraction of the sequences
-    # (cloth); "recordings", whole recordings spread over the data (every k-th by name, k =
-    # 1 / val_fraction), so that validation sees many recordings and subjects.
+    # Which frames validate (see held_out_frames): "auto", the last val_fraction of every
+    # sequence where all are long enough (H3.6M), else the last val_fraction of the sequences
+    # (cloth; on CMU the last 3 recordings, all of them walking); "tails", the last
+    # val_fraction of every recording long enough to spare a window, the shorter ones trained
+    # on whole (CMU: every action keeps its recordings); "recordings", whole recordings spread
+    # over the data (every k-th by name, k = 1 / val_fraction), so that validation sees many
+    # recordings and subjects.
     "val_split": "auto",
     "train_sampler": "all",
     # Validation windows of the held-out frames: every window by default; a sparser sampler
@@ -99,7 +103,7 @@ DEFAULT_RECIPE: dict[str, Any] = {
     "precision": "float32",
 }
 PRECISIONS = {"float32": None, "bfloat16": torch.bfloat16}
-VAL_SPLITS = ("auto", "recordings")
+VAL_SPLITS = ("auto", "tails", "recordings")
 SCHEDULES = ("constant", "step", "cosine", "multistep")
 AUGMENTATIONS = ("time_reversal",)
 
@@ -264,38 +268,59 @@ def held_out_recordings(names: list[str], val_fraction: float) -> list[int]:
     return sorted(order[step // 2 :: step])
 
 
+def held_out_frames(
+    dataset, lengths: list[int], val_fraction: float, window: int, rule: str = "auto"
+) -> dict[int, int]:
+    """Which frames of the training recordings validate: ``{recording index: first held-out
+    frame}`` for every recording that gives frames to validation (0: the whole recording).
+
+    ``rule`` ``tails``: the last ``val_fraction`` of every recording long enough to spare a
+    window (at least ``window / val_fraction`` frames); shorter ones are trained on whole.
+    ``auto``: the same where every recording is long enough (H3.6M), otherwise the last
+    ``val_fraction`` of the recordings, whole (cloth: one window per sequence; on CMU this is
+    the last three recordings, all walking). ``recordings``: whole recordings, every k-th by
+    name (:func:`held_out_recordings`).
+    """
+    count = len(lengths)
+    if rule == "recordings":
+        held = held_out_recordings([s.name for s in dataset.sequences], val_fraction)
+        if len(held) >= count:
+            raise TrainingError(
+                f"{dataset.name}/{dataset.split}: {count} recordings are too few to "
+                f"hold {val_fraction:.0%} of them out for validation"
+            )
+        return {i: 0 for i in held}
+    long_enough = [i for i, n in enumerate(lengths) if n * val_fraction >= window]
+    if rule == "tails" or len(long_enough) == count:
+        if not long_enough:
+            raise TrainingError(
+                f"{dataset.name}/{dataset.split}: no recording is long enough to spare "
+                f"{val_fraction:.0%} of its frames for a validation window of {window} (the "
+                f"longest has {max(lengths, default=0)} frames, at least "
+                f"{math.ceil(window / val_fraction)} needed); choose "
+                f"--train-set val_split=recordings"
+            )
+        return {i: int(round(lengths[i] * (1 - val_fraction))) for i in long_enough}
+    held = max(1, int(round(count * val_fraction)))
+    if held >= count:
+        raise TrainingError(
+            f"{dataset.name}/{dataset.split}: {count} sequences are too few "
+            f"to hold {val_fraction:.0%} out for validation"
+        )
+    return {i: 0 for i in range(count - held, count)}
+
+
 def split_train_val(
     dataset, val_fraction: float, window: int, arrays: list | None = None, rule: str = "auto"
 ) -> tuple[list, list]:
-    """Training and validation arrays ``(T, P, 3)``, never overlapping.
-
-    ``rule`` ``auto``: where every sequence is long enough, the last ``val_fraction`` of each
-    (in time) is held out (CMU: long recordings); otherwise whole sequences are, the last
-    ``val_fraction`` of them (cloth: one window per sequence). ``recordings``: whole recordings,
-    every k-th by name (:func:`held_out_recordings`). ``arrays``: other per-frame arrays of the
-    dataset's sequences (a training view), split exactly as the frames are.
-    """
+    """Training and validation arrays ``(T, P, 3)``, never overlapping, as
+    :func:`held_out_frames` divides the recordings. ``arrays``: other per-frame arrays of the
+    dataset's sequences (a training view), split exactly as the frames are."""
     if arrays is None:
         arrays = [sequence_frames(s) for s in dataset.sequences]
-    if rule == "recordings":
-        held = set(held_out_recordings([s.name for s in dataset.sequences], val_fraction))
-        if len(held) >= len(arrays):
-            raise TrainingError(
-                f"{dataset.name}/{dataset.split}: {len(arrays)} recordings are too few to "
-                f"hold {val_fraction:.0%} of them out for validation"
-            )
-        kept = [a for i, a in enumerate(arrays) if i not in held]
-        return kept, [arrays[i] for i in sorted(held)]
-    if all(len(a) * val_fraction >= window for a in arrays):
-        cuts = [int(round(len(a) * (1 - val_fraction))) for a in arrays]
-        return [a[:c] for a, c in zip(arrays, cuts)], [a[c:] for a, c in zip(arrays, cuts)]
-    held = max(1, int(round(len(arrays) * val_fraction)))
-    if held >= len(arrays):
-        raise TrainingError(
-            f"{dataset.name}/{dataset.split}: {len(arrays)} sequences are too few "
-            f"to hold {val_fraction:.0%} out for validation"
-        )
-    return arrays[:-held], arrays[-held:]
+    plan = held_out_frames(dataset, [len(a) for a in arrays], val_fraction, window, rule)
+    kept = [a[: plan[i]] if i in plan else a for i, a in enumerate(arrays) if plan.get(i) != 0]
+    return kept, [arrays[i][plan[i] :] for i in sorted(plan)]
 
 
 VIEW_FORMAT = 1
@@ -596,7 +621,7 @@ def train(
         "max_batches": max_batches,
         "recipe_changes": recipe_changes,
         "init_from": init_record,
-        "validation": validation_record(dataset, recipe, len(val_index)),
+        "validation": validation_record(dataset, recipe, length, len(val_index)),
     }
 
     def training_frames():
@@ -1085,18 +1110,18 @@ def horizons_text(horizons: dict[str, Any]) -> str:
     )
 
 
-def validation_record(dataset, recipe: dict[str, Any], windows: int) -> dict[str, Any]:
+def validation_record(dataset, recipe: dict[str, Any], window: int, windows: int) -> dict[str, Any]:
     """What a run validated on, as its checkpoint and shipped record say: the rule, the
-    held-out recordings (or the share of every recording) and the number of windows."""
+    recordings held out whole and those whose last frames validate, and the number of
+    windows."""
     names = [s.name for s in dataset.sequences]
-    if recipe["val_split"] == "recordings":
-        held = [names[i] for i in held_out_recordings(names, recipe["val_fraction"])]
-        what = {"recordings": held}
-    else:
-        what = {
-            "rule": f"auto: the last {recipe['val_fraction']:.0%} of every recording, or "
-            f"of the recordings where some are shorter than 1 / val_fraction windows"
-        }
+    lengths = [len(sequence_frames(s)) for s in dataset.sequences]
+    plan = held_out_frames(dataset, lengths, recipe["val_fraction"], window, recipe["val_split"])
+    what: dict[str, Any] = {}
+    if whole := [names[i] for i in sorted(plan) if plan[i] == 0]:
+        what["recordings"] = whole
+    if tails := [names[i] for i in sorted(plan) if plan[i] > 0]:
+        what["tails"] = {"fraction": recipe["val_fraction"], "of": tails}
     return {
         "split": recipe["val_split"],
         "of": f"{dataset.name}/{dataset.split} ({len(names)} recordings)",
