@@ -47,6 +47,21 @@ def test_exported_weights_are_the_checkpoint_s_and_carry_its_record(trained, tmp
     assert [h["epoch"] for h in read_weights(best)[1]["history"]] == list(range(1, best_epoch + 1))
 
 
+def test_weights_beyond_float16_are_refused_in_float16_and_nothing_is_written(trained, tmp_path):
+    # a BatchNorm running variance of positions in mm (PGBIG's reach 4e9) overflows float16
+    ckpt = read_checkpoint(trained / "best.pt")
+    name = next(n for n, t in ckpt["state_dict"].items() if t.is_floating_point())
+    ckpt["state_dict"][name] = ckpt["state_dict"][name].clone().fill_(1e6)
+    torch.save(ckpt, tmp_path / "big.pt")
+    with pytest.raises(WeightsError, match=rf"1 tensor\(s\) exceed float16's range: {name} "
+                       r"\(largest magnitude 1e\+06\); export with --dtype float32"):  # fmt: skip
+        export_weights(tmp_path / "big.pt", root=tmp_path / "w", label="tiny")
+    assert not (tmp_path / "w" / "cmu").exists() or not any((tmp_path / "w" / "cmu").iterdir())
+    state, _ = read_weights(export_weights(tmp_path / "big.pt", root=tmp_path / "w",
+                                           label="tiny", dtype="float32"))  # fmt: skip
+    assert torch.equal(state[name], ckpt["state_dict"][name])
+
+
 def test_a_changed_weights_file_is_refused_naming_it(trained, tmp_path):
     path = export_weights(trained / "best.pt", root=tmp_path / "w")
     data = bytearray(path.read_bytes())

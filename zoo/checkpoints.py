@@ -335,6 +335,21 @@ def export_weights(
         .contiguous()
         for name, t in ckpt["state_dict"].items()
     }
+    # float16 ends at 65504: statistics of unnormalised inputs (BatchNorm's running variance of
+    # positions in mm) pass it and would load as inf
+    overflow = [
+        f"{name} (largest magnitude {ckpt['state_dict'][name].abs().max().item():.4g})"
+        for name, t in tensors.items()
+        if t.is_floating_point()
+        and not torch.isfinite(t).all()
+        and torch.isfinite(ckpt["state_dict"][name]).all()
+    ]
+    if overflow:
+        raise WeightsError(
+            f"{checkpoint}: {len(overflow)} tensor(s) exceed {dtype}'s range: "
+            f"{', '.join(overflow[:3])}{', ...' if len(overflow) > 3 else ''}; "
+            f"export with --dtype float32"
+        )
     with atomic_path(path) as tmp:
         save_file(tensors, str(tmp), metadata={"format": RECORD_FORMAT, "model": ckpt["model"]})
         digest = sha256_file(tmp)
