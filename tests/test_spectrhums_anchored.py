@@ -101,8 +101,13 @@ def test_the_residual_transformer_starts_as_repeat_last_and_shares_the_papers_in
         torch.testing.assert_close(
             residual(history), expected.expand(-1, T_OUT, -1, -1), rtol=1e-5, atol=1e-3
         )
-    entry = load_registry().get("spectrhums_residual")
-    assert entry.trainable and entry.train == load_registry().get("spectrhums").train
+    # the paper's recipe, validated on whole held-out recordings (issue 29's split)
+    entry, paper = load_registry().get("spectrhums_residual"), load_registry().get("spectrhums")
+    assert entry.trainable and entry.train == {
+        **paper.train,
+        "val_split": "recordings",
+        "val_fraction": 0.125,
+    }
 
 
 def test_the_residual_model_anchored_is_both_changes():
