@@ -56,7 +56,7 @@ def test_weights_beyond_float16_are_refused_in_float16_and_nothing_is_written(tr
     with pytest.raises(WeightsError, match=rf"1 tensor\(s\) exceed float16's range: {name} "
                        r"\(largest magnitude 1e\+06\); export with --dtype float32"):  # fmt: skip
         export_weights(tmp_path / "big.pt", root=tmp_path / "w", label="tiny")
-    assert not (tmp_path / "w" / "cmu").exists() or not any((tmp_path / "w" / "cmu").iterdir())
+    assert not (tmp_path / "w").exists()
     state, _ = read_weights(export_weights(tmp_path / "big.pt", root=tmp_path / "w",
                                            label="tiny", dtype="float32"))  # fmt: skip
     assert torch.equal(state[name], ckpt["state_dict"][name])

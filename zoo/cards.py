@@ -394,8 +394,12 @@ def generated_card(
         # a state dict also holds buffers (BatchNorm's running statistics): LTD stores 3.66 M
         # numbers for its 2.70 M parameters, so the card says which count it gives
         "- **Stored values** (parameters and buffers): "
-        + ("; ".join(f"{p:,} on {b}" for p, b in params) if params else "no weights shipped yet")
-        + " (the parameters alone: each row's cost columns, `zoo costs`)",
+        + (
+            "; ".join(f"{p:,} on {b}" for p, b in params)
+            + " (the parameters alone: each row's cost columns, `zoo costs`)"
+            if params
+            else "no weights shipped yet"
+        ),
         "",
         "## Hyper-parameters",
         "",
