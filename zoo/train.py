@@ -8,10 +8,10 @@ every epoch derives from (seed, epoch) and the RNG states are saved with each ep
 
 Validation: the last ``val_fraction`` of training recordings (by time), or whole recordings,
 held out (``val_split``, :func:`held_out_frames`); its windows never overlap the training
-windows. The
-checkpoint with the lowest mean validation MPJPE is kept as ``best.pt``; ``last.pt`` holds the
-full state for ``--resume``. Each epoch also records the error at the first predicted frame and
-at 80, 400 and 1000 ms beside repeat-last's on the same windows (:func:`validate`).
+windows. The checkpoint with the lowest mean validation MPJPE is kept as ``best.pt``;
+``last.pt`` holds the full state for ``--resume``. Each epoch also records the error at the
+first predicted frame and at 80, 400 and 1000 ms beside repeat-last's on the same windows
+(:func:`validate`).
 
 Model hooks (both optional): ``training_loss(history, future)`` replaces the default loss (mean
 MPJPE over predicted frames); ``start_epoch(epoch, frames)`` runs before every epoch, with
