@@ -94,12 +94,11 @@ def test_a_card_without_its_end_marker_is_refused(tmp_path):
 
 
 def test_a_card_sets_its_rows_against_the_paper_per_action_under_the_same_protocol():
-    import pandas as pd
-
     from zoo.published import load_published
+    from zoo.results import read_table
 
     paper = next(p for p in load_published() if p.label == "spgsn (reported)")
-    frame = pd.read_csv(REPO_ROOT / "results" / "cmu" / "all" / "results.csv")
+    frame = read_table(REPO_ROOT / "results" / "cmu" / "all").frame
     mine = frame[
         (frame["model"] == "spgsn")
         & (frame["metric"] == "mpjpe")

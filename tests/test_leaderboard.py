@@ -10,10 +10,11 @@ import pytest
 from conftest import write_cmu_file
 from tiny_models import REGISTRY
 
+from zoo.errors import EvaluationError
 from zoo.leaderboard import Plan, regenerate
 from zoo.registry import Registry
 from zoo.report import write_leaderboard
-from zoo.results import EvalResult
+from zoo.results import EvalResult, read_table
 from zoo.train import train
 
 HERE = Path(__file__).resolve().parent
@@ -51,21 +52,36 @@ def test_regenerate_with_checkpoint_and_stale_result(tmp_path, capsys):
     board = (out / "cmu" / "all" / "leaderboard.md").read_text()
     assert "| tiny " in board and "| repeat_last " in board
     assert (out / "cmu" / "all" / "mpjpe.png").stat().st_size > 0
-    combined = pd.read_csv(out / "cmu" / "all" / "results.csv")
+    combined = read_table(out / "cmu" / "all").frame
     assert set(combined.model) == {"tiny", "repeat_last"}
     assert combined.protocol_id.nunique() == 1
+    # each row's numbers are kept once, in its own folder
+    assert not (out / "cmu" / "all" / "results.csv").exists()
+    assert combined.equals(
+        pd.concat(
+            [pd.read_csv(out / "cmu" / "all" / m / "results.csv") for m in ("repeat_last", "tiny")],
+            ignore_index=True,
+        )
+    )
 
     # Without its checkpoint the trained model's stored result is kept while it still matches
     # (the same table, rows in the same order: a fresh clone rewrites no stored number)...
     shutil.rmtree(checkpoints)
     regenerate("cmu", registry=registry, data_root=root, out_root=out, checkpoints=checkpoints)
     assert "| tiny " in (out / "cmu" / "all" / "leaderboard.md").read_text()
-    assert (out / "cmu" / "all" / "results.csv").read_text() == combined.to_csv(index=False)
+    assert read_table(out / "cmu" / "all").frame.to_csv(index=False) == combined.to_csv(index=False)
+    # a table an older zoo wrote (a table-wide results.csv beside its rows) loses that copy
+    (out / "cmu" / "all" / "results.csv").write_text(combined.to_csv(index=False))
+    regenerate("cmu", registry=registry, data_root=root, out_root=out, checkpoints=checkpoints)
+    assert not (out / "cmu" / "all" / "results.csv").exists()
     runs = [EvalResult.read(out / "cmu" / "all" / name) for name in ("tiny", "repeat_last")]
     for order, folder in ((runs, "a"), (runs[::-1], "b")):
         write_leaderboard(order, tmp_path / folder)
-    for name in ("results.csv", "leaderboard.md"):
+    for name in ("protocol.json", "leaderboard.md"):
         assert (tmp_path / "a" / name).read_text() == (tmp_path / "b" / name).read_text()
+    # a table read without the row folders it lists says which one is missing
+    with pytest.raises(EvaluationError, match=r"a/repeat_last/results.csv: missing"):
+        read_table(tmp_path / "a")
     # ...and left out, with the difference named, once the data under it changed.
     stored = out / "cmu" / "all" / "tiny" / "protocol.json"
     record = json.loads(stored.read_text())
@@ -93,7 +109,7 @@ def test_fully_trained_checkpoint_joins_as_model_at_last(tmp_path):
     )
     out = tmp_path / "results"
     regenerate("cmu", registry=registry, data_root=root, out_root=out, checkpoints=checkpoints)
-    combined = pd.read_csv(out / "cmu" / "all" / "results.csv")
+    combined = read_table(out / "cmu" / "all").frame
     assert set(combined.model) == {"tiny", "tiny@last", "repeat_last"}
     record = json.loads((out / "cmu" / "all" / "tiny@last" / "protocol.json").read_text())
     assert record["provenance"]["checkpoint"].endswith("last.pt")
@@ -117,10 +133,10 @@ def test_completion_models_get_their_own_tables(tmp_path, capsys):
         out_dir=checkpoints / "cmu" / "tiny_completion",
     )
     regenerate("cmu", registry=registry, data_root=root, out_root=out, checkpoints=checkpoints)
-    completion = pd.read_csv(out / "cmu" / "all-completion" / "results.csv")
+    completion = read_table(out / "cmu" / "all-completion").frame
     assert set(completion.model) == {"tiny_completion", "interpolate"}
     assert set(completion.task) == {"completion"}
-    prediction = pd.read_csv(out / "cmu" / "all" / "results.csv")
+    prediction = read_table(out / "cmu" / "all").frame
     assert set(prediction.model) == {"repeat_last"}  # no trained predictor here
     assert set(prediction.task) == {"prediction"}
     # The interpolation ends exactly on the given final frame.
@@ -198,34 +214,29 @@ def test_check_recomputes_every_row_and_names_what_differs(tmp_path, capsys):
     assert "rows checked" in table_lines[1] and not table_lines[1].startswith("cmu/all: 0 rows")
     best.write_bytes(saved)
 
-    table = out / "cmu" / "all" / "results.csv"
-    frame = pd.read_csv(table)
-    frame.loc[
-        (frame.model == "tiny")
-        & (frame.horizon_ms == 400)
-        & (frame.action == "average")
-        & (frame.averaging == "frame")
-        & (frame.joints == "all38"),
-        "value",
-    ] += 0.01
-    frame.loc[
-        (frame.model == "repeat_last")
-        & (frame.horizon_ms == 80)
-        & (frame.action == "average")
-        & (frame.averaging == "cumulative")
-        & (frame.joints == "all38"),
-        "std",
-    ] += 0.01
-    frame.to_csv(table, index=False)
+    for label, horizon, averaging, column in (
+        ("tiny", 400, "frame", "value"),
+        ("repeat_last", 80, "cumulative", "std"),
+    ):
+        row = out / "cmu" / "all" / label / "results.csv"
+        frame = pd.read_csv(row)
+        frame.loc[
+            (frame.horizon_ms == horizon)
+            & (frame.action == "average")
+            & (frame.averaging == averaging)
+            & (frame.joints == "all38"),
+            column,
+        ] += 0.01
+        frame.to_csv(row, index=False)
     (out / "cmu" / "ltd8" / "repeat_last" / "windows.npz").unlink()
     assert main(["leaderboard", "--check", "--benchmark", "cmu", *common]) == 1
     captured = capsys.readouterr()
     assert (
-        "all/results.csv: model=tiny, action=average, metric=mpjpe, averaging=frame, "
+        "cmu/all: model=tiny, action=average, metric=mpjpe, averaging=frame, "
         "joints=all38, horizon_ms=400: value committed" in captured.err
     )
     assert (
-        "all/results.csv: model=repeat_last, action=average, metric=mpjpe, averaging="
+        "cmu/all: model=repeat_last, action=average, metric=mpjpe, averaging="
         "cumulative, joints=all38, horizon_ms=80: std committed" in captured.err
     )
     assert "ltd8/repeat_last/windows.npz: missing" in captured.err

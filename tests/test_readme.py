@@ -5,9 +5,8 @@ from __future__ import annotations
 
 import re
 
-import pandas as pd
-
 from zoo.paths import REPO_ROOT
+from zoo.results import read_table
 from zoo.tables import metric_unit
 
 BLOCK = re.compile(r"<!-- headline (\S+)/(\S+) (\S+) (\S+) -->\n(.*?)<!-- end headline -->", re.S)
@@ -18,7 +17,7 @@ def test_readme_headline_numbers_are_the_committed_ones():
     blocks = BLOCK.findall(text)
     assert len(blocks) >= 2, "the README's headline tables lost their markers"
     for bench, table, metric, joints, body in blocks:
-        frame = pd.read_csv(REPO_ROOT / "results" / bench / table / "results.csv")
+        frame = read_table(REPO_ROOT / "results" / bench / table).frame
         frame = frame[
             (frame["action"] == "average")
             & (frame["metric"] == metric)
@@ -35,5 +34,5 @@ def test_readme_headline_numbers_are_the_committed_ones():
             for horizon, cell in zip(horizons, cells):
                 assert cell == format(values[horizon], fmt), (
                     f"README: {bench}/{table} {model} at {horizon} ms says {cell}, "
-                    f"results.csv {format(values[horizon], fmt)}"
+                    f"its rows' results.csv {format(values[horizon], fmt)}"
                 )

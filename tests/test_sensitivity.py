@@ -3,6 +3,7 @@
 import numpy as np
 import pandas as pd
 
+from zoo.report import write_leaderboard
 from zoo.results import EvalResult
 from zoo.sensitivity import protocol_sensitivity
 
@@ -43,7 +44,17 @@ def table(folder, sampler, values):
         "joint_protocols": {"all": "every joint"},
         "protocol_id": sampler,
     }
-    EvalResult(frame=pd.DataFrame(rows), protocol=protocol).write(folder / sampler)
+    frame = pd.DataFrame(rows)
+    results = [
+        EvalResult(
+            frame=frame[frame.model == model].reset_index(drop=True),
+            protocol={**protocol, "provenance": {"identity": {"label": model}}},
+        )
+        for model in values
+    ]
+    for result in results:  # a leaderboard's table: its rows' folders, then its own files
+        result.write(folder / sampler / str(result.frame.model.iloc[0]))
+    write_leaderboard(results, folder / sampler)
 
 
 def test_ranks_under_every_protocol_and_the_changes_are_marked(tmp_path):

@@ -17,6 +17,7 @@ from tiny_models import REGISTRY
 
 from zoo.cli import main
 from zoo.registry import Registry
+from zoo.results import read_table
 from zoo.train import train
 
 HERE = Path(__file__).resolve().parent
@@ -119,21 +120,21 @@ def test_a_users_row_survives_a_rebuild_without_its_registry(project, capsys):
     code, _, _ = cli(capsys, "leaderboard", *board_args(project, "mine"))
     assert code == 0
     table = project / "results" / "cmu" / "ltd8"
-    assert set(pd.read_csv(table / "results.csv").model) == {"damped_velocity", "repeat_last"}
+    assert set(read_table(table).frame.model) == {"damped_velocity", "repeat_last"}
     before = (table / "damped_velocity" / "results.csv").read_bytes()
 
     # The same rebuild without the user's registry: their row stays, on disk and in the table.
     code, _, err = cli(capsys, "leaderboard", "--recompute", *board_args(project))
     assert code == 0
     assert (table / "damped_velocity" / "results.csv").read_bytes() == before
-    assert "damped_velocity" in set(pd.read_csv(table / "results.csv").model)
+    assert "damped_velocity" in set(read_table(table).frame.model)
     assert "damped_velocity: kept as stored (registry" in err and "not loaded" in err
     assert "--drop damped_velocity removes it" in err
 
     # Only a deliberate --drop removes it.
     code, _, _ = cli(capsys, "leaderboard", "--drop", "damped_velocity", *board_args(project))
     assert code == 0 and not (table / "damped_velocity").exists()
-    assert set(pd.read_csv(table / "results.csv").model) == {"repeat_last"}
+    assert set(read_table(table).frame.model) == {"repeat_last"}
 
 
 def test_a_stored_row_of_another_registry_is_never_replaced(project, capsys):
@@ -358,7 +359,7 @@ def test_a_rebuild_keeps_whatever_else_is_in_a_table_folder(project, capsys):
     assert cli(capsys, "leaderboard", *board_args(project, "mine"))[0] == 0
     assert (table / "NOTES.md").read_text() == "my notes"
     assert (table / "my-comparison" / "comparison.md").is_file()
-    assert set(pd.read_csv(table / "results.csv").model) == {"damped_velocity", "repeat_last"}
+    assert set(read_table(table).frame.model) == {"damped_velocity", "repeat_last"}
 
 
 def test_a_users_row_under_a_planned_label_stops_the_rebuild(project, capsys):

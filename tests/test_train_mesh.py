@@ -16,6 +16,7 @@ from zoo.checkpoints import CheckpointError, load_checkpoint, read_checkpoint
 from zoo.data.mesh import MeshDataset, MeshSequence, MeshTopology
 from zoo.io import sha256_file
 from zoo.registry import Registry
+from zoo.results import read_table
 from zoo.train import train
 
 HERE = Path(__file__).resolve().parent
@@ -335,7 +336,7 @@ def test_an_entry_with_weights_of_runs_that_models_weights_beside_its_rows(toy_m
     written = regenerate(
         bench, registry=registry, out_root=tmp_path / "out", checkpoints=checkpoints
     )
-    rows = pd.concat(pd.read_csv(p / "results.csv") for p in written)
+    rows = pd.concat(read_table(p).frame for p in written)
     assert {"tiny_spectral", "tiny_spectral_still"} <= set(rows.model)
     still = rows[(rows.model == "tiny_spectral_still") & (rows.metric == "rmse")]
     plain = rows[(rows.model == "tiny_spectral") & (rows.metric == "rmse")]

@@ -13,7 +13,7 @@ import zoo.weights
 from zoo.checkpoints import export_weights, load_weights, read_checkpoint
 from zoo.cli import main
 from zoo.leaderboard import regenerate
-from zoo.results import EvalResult
+from zoo.results import EvalResult, read_table
 from zoo.weights import WeightsError, read_weights
 
 
@@ -180,7 +180,7 @@ def test_eval_and_leaderboard_compute_the_row_from_the_weights(
         checkpoints=tmp_path / "no-checkpoints",
         weights=weights,
     )
-    board = pd.read_csv(tmp_path / "results" / "cmu" / "ltd8" / "results.csv")
+    board = read_table(tmp_path / "results" / "cmu" / "ltd8").frame
     row = board[board["model"] == "tiny@last"]
     assert len(row) > 0
     ltd8 = EvalResult.read(tmp_path / "results" / "cmu" / "ltd8" / "tiny@last")

@@ -29,6 +29,7 @@ from zoo.metrics import FLOOR_SUFFIX
 from zoo.paths import REPO_ROOT
 from zoo.published import load_published
 from zoo.registry import Registry, load_registry
+from zoo.results import TABLE_FILE, read_table
 from zoo.store import RESULTS_DIR
 from zoo.tables import default_horizons, headline_key, metric_unit
 from zoo.weights import (
@@ -247,12 +248,12 @@ def _belongs(label: str, name: str) -> bool:
 
 def _row_tables(name: str, results_root: Path) -> list[str]:
     out = []
-    for csv in sorted(results_root.glob("*/*/results.csv")):
-        frame = pd.read_csv(csv)
+    for table in sorted(results_root.glob(f"*/*/{TABLE_FILE}")):
+        frame = read_table(table.parent).frame
         labels = sorted({m for m in frame["model"] if _belongs(m, name)})
         if not labels:
             continue
-        record = json.loads((csv.parent / "protocol.json").read_text())
+        record = json.loads((table.parent / "protocol.json").read_text())
         metric, joints = headline_key(record)
         rows = frame[
             (frame["action"] == "average")
@@ -263,7 +264,7 @@ def _row_tables(name: str, results_root: Path) -> list[str]:
         horizons = default_horizons(rows)
         unit, fmt = metric_unit(metric)
         shown = labels + ([BASELINE] if BASELINE in set(rows["model"]) else [])
-        costs = _costs(csv.parent.parent)
+        costs = _costs(table.parent.parent)
         body = []
         for label in shown:
             values = rows[rows["model"] == label].set_index("horizon_ms")["value"]
@@ -276,7 +277,7 @@ def _row_tables(name: str, results_root: Path) -> list[str]:
                     f"{cost['latency_ms']:.3g}" if cost.get("latency_ms") is not None else "–",
                 ]
             )
-        bench, table = csv.parent.parent.name, csv.parent.name
+        bench, table = table.parent.parent.name, table.parent.name
         out += [
             f"### [{bench}/{table}](../../results/{bench}/{table}/leaderboard.md): "
             f"{metric.upper()}{f' ({unit})' if 0 < len(unit) <= 6 else ''}, frame averaging, "

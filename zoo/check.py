@@ -91,9 +91,9 @@ class CheckReport:
 def check_table(
     results: list, folder: Path, check: CheckReport, unplanned: set = frozenset()
 ) -> None:
-    """Compare freshly computed results with the committed table in ``folder`` (and each
-    model's per-window errors with its ``windows.npz``)."""
-    from zoo.results import WINDOWS_FILE, WindowErrors
+    """Compare freshly computed results with the committed table in ``folder`` (its rows'
+    ``results.csv``, and each model's per-window errors with its ``windows.npz``)."""
+    from zoo.results import TABLE_FILE, WINDOWS_FILE, WindowErrors, read_table
 
     check.tables += 1
     if check.current:
@@ -103,10 +103,10 @@ def check_table(
     fresh = pd.concat([r.frame for r in results], ignore_index=True)
     check.rows += len(fresh)
     check.models |= set(fresh["model"])
-    if not (folder / "results.csv").is_file():
-        check.problem(f"{folder}/results.csv: missing; the leaderboard makes this table")
+    if not (folder / TABLE_FILE).is_file():
+        check.problem(f"{folder}/{TABLE_FILE}: missing; the leaderboard makes this table")
         return
-    committed = pd.read_csv(folder / "results.csv")
+    committed = read_table(folder).frame
     committed = committed[~committed["model"].isin(unplanned)]  # named once, as folders
     both = fresh.merge(
         committed, on=KEY_COLUMNS, how="outer", suffixes=("", "_committed"), indicator="side"
@@ -114,15 +114,13 @@ def check_table(
     for row in both[both["side"] != "both"].itertuples():
         where = "committed only" if row.side == "right_only" else "recomputed only"
         check.problem(
-            f"{folder}/results.csv: {where}: "
-            + ", ".join(f"{k}={getattr(row, k)}" for k in KEY_COLUMNS)
+            f"{folder}: {where}: " + ", ".join(f"{k}={getattr(row, k)}" for k in KEY_COLUMNS)
         )
     matched = both[both["side"] == "both"]
     for column in ("value", "std"):  # the mean and its standard deviation over windows
         if f"{column}_committed" not in matched:
             check.problem(
-                f"{folder}/results.csv: no column {column!r} (written by an "
-                f"older zoo); regenerate the table"
+                f"{folder}: no column {column!r} (written by an older zoo); regenerate the table"
             )
             continue
         new, old = matched[column].to_numpy(float), matched[f"{column}_committed"].to_numpy(float)
@@ -139,14 +137,14 @@ def check_table(
             old[keep],
             allowed[keep],
             lambda i, rows=rows, column=column: (
-                f"{folder.parent.name}/{folder.name}/results.csv "
+                f"{folder.parent.name}/{folder.name} "
                 + ", ".join(f"{k}={rows.iloc[i][k]}" for k in KEY_COLUMNS)
                 + f" ({column})"
             ),
         )
         for row, rel in zip(matched[differs].itertuples(), relative[differs]):
             check.problem(
-                f"{folder}/results.csv: "
+                f"{folder}: "
                 + ", ".join(f"{k}={getattr(row, k)}" for k in KEY_COLUMNS)
                 + f": {column} committed "
                 f"{getattr(row, column + '_committed')!r}, recomputed {getattr(row, column)!r} "
@@ -158,7 +156,7 @@ def check_table(
         .itertuples()
     ):
         check.problem(
-            f"{folder}/results.csv: {row.model}: protocol "
+            f"{folder}: {row.model}: protocol "
             f"{row.protocol_id_committed} committed, {row.protocol_id} now"
         )
     for r in results:

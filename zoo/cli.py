@@ -256,11 +256,13 @@ def cmd_leaderboard(args) -> int:
             f"({', '.join(names)})"
         )
     if check:
+        from zoo.results import TABLE_FILE
+
         for name in names:
-            if not list((Path(args.out) / name).glob("*/results.csv")):
+            if not list((Path(args.out) / name).glob(f"*/{TABLE_FILE}")):
                 raise UsageError(
                     f"--check: no committed table of {name} under {args.out} "
-                    f"(expected {args.out}/{name}/<sampler>/results.csv)"
+                    f"(expected {args.out}/{name}/<sampler>/{TABLE_FILE})"
                 )
     started = time.perf_counter()
     for bench, name in zip(args.benchmark, names):
@@ -361,9 +363,10 @@ def cmd_cards(args) -> int:
 def committed_benchmarks(results: Path) -> list[str]:
     """Every benchmark with a table under ``results`` (what ``--check`` checks by default)."""
     from zoo.benchmark import list_benchmarks
+    from zoo.results import TABLE_FILE
 
     known = set(list_benchmarks())
-    found = sorted(p.parent.parent.name for p in results.glob("*/*/results.csv"))
+    found = sorted(p.parent.parent.name for p in results.glob(f"*/*/{TABLE_FILE}"))
     unknown = sorted({b for b in found if b not in known})
     if unknown:
         raise UsageError(

@@ -13,13 +13,12 @@ import time
 from collections.abc import Iterable
 from pathlib import Path
 
-import pandas as pd
-
 from zoo.efficiency import architecture, cost_key, measure
 from zoo.errors import ZooError
 from zoo.io import atomic_write_text, folder_lock
 from zoo.leaderboard import Leaderboard, Plan
 from zoo.report import efficiency_csv
+from zoo.results import TABLE_FILE, read_table, table_labels
 from zoo.store import RESULTS_DIR, table_folder
 from zoo.tables import with_costs
 
@@ -149,15 +148,9 @@ def committed_tables(board: Leaderboard) -> list[tuple[Path, str, set[str]]]:
         for task in tasks:
             for truth in truths:
                 path = board.root / bench.name / table_folder(sampler, task, truth)
-                if not (path / "results.csv").is_file():
+                if not (path / TABLE_FILE).is_file():
                     continue
-                named = set(pd.read_csv(path / "results.csv", usecols=["model"])["model"])
-                labels = {
-                    p.name
-                    for p in path.iterdir()
-                    if p.is_dir() and p.name in named and (p / "protocol.json").is_file()
-                }
-                tables.append((path, task, labels))
+                tables.append((path, task, set(table_labels(path))))
     return tables
 
 
@@ -169,7 +162,7 @@ def render_costs(board: Leaderboard, path: Path, task: str, labels: set[str]) ->
     for row in board._rows(task):
         if row.label in labels:
             board._cost(efficiency, row.label, board._load(row), task)
-    models = set(pd.read_csv(path / "results.csv", usecols=["model"])["model"])
+    models = set(read_table(path).frame["model"])
     board_md = path / "leaderboard.md"
     new = {
         board_md: with_costs(board_md.read_text(), models, efficiency, board.bench.name),

@@ -20,6 +20,7 @@ from zoo.model_source import ModelSource
 from zoo.pipeline import Subject, compute_all
 from zoo.protocol import plan_protocol
 from zoo.report import plot_training_curves, training_curves, write_leaderboard
+from zoo.results import TABLE_FILE
 from zoo.store import (
     RESULTS_DIR,
     StoreError,
@@ -170,7 +171,7 @@ class Leaderboard:
         check = self.plan.check
         if check is not None:
             produced = {p.name for p in written}
-            for table in sorted((self.root / bench.name).glob("*/results.csv")):
+            for table in sorted((self.root / bench.name).glob(f"*/{TABLE_FILE}")):
                 if table.parent.name not in produced:
                     check.current = ""
                     check.problem(
@@ -499,7 +500,7 @@ class Leaderboard:
             # everything in the folder that this run does not produce again is carried over:
             # result folders reused or kept, and whatever else a user put there
             for entry in sorted(path.iterdir()) if path.is_dir() else ():
-                if entry.name in produced or entry.name in TABLE_FILES:
+                if entry.name in produced or entry.name in TABLE_FILES + RETIRED_TABLE_FILES:
                     continue
                 if entry.is_dir() and not entry.is_symlink():
                     shutil.copytree(entry, tmp / entry.name, copy_function=os.link, symlinks=True)
@@ -533,7 +534,10 @@ class Leaderboard:
 
 MADE_BY = "zoo leaderboard"
 # The files of a table itself (the rows' folders are beside them).
-TABLE_FILES = ("results.csv", "leaderboard.md", "protocol.json", "efficiency.csv", "mpjpe.png")
+TABLE_FILES = (TABLE_FILE, "protocol.json", "efficiency.csv", "mpjpe.png")
+# What older zoo versions wrote beside them and a rebuild removes: a table-wide copy of every
+# row's results.csv (zoo.results.read_table reads the rows themselves).
+RETIRED_TABLE_FILES = ("results.csv",)
 
 
 class _Unchanged(Exception):
@@ -541,8 +545,9 @@ class _Unchanged(Exception):
 
 
 def _same_files(old: Path, new: Path) -> bool:
-    """Whether a rebuilt table's own files equal the stored ones, byte for byte."""
-    return all(
+    """Whether a rebuilt table's own files equal the stored ones, byte for byte (and the stored
+    table holds no file a rebuild removes)."""
+    return not any((old / name).exists() for name in RETIRED_TABLE_FILES) and all(
         (old / name).is_file() == (new / name).is_file()
         and (not (new / name).is_file() or (old / name).read_bytes() == (new / name).read_bytes())
         for name in TABLE_FILES

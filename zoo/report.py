@@ -1,5 +1,6 @@
-"""What a leaderboard writes and draws: a table's ``results.csv``, ``leaderboard.md`` (tables
-from :mod:`zoo.tables`), ``protocol.json``, ``efficiency.csv`` and ``mpjpe.png``; the shipped
+"""What a leaderboard writes and draws: a table's ``leaderboard.md`` (tables from
+:mod:`zoo.tables`), ``protocol.json`` (listing its rows, whose folders beside it hold their
+numbers: :func:`zoo.results.read_table`), ``efficiency.csv`` and ``mpjpe.png``; the shipped
 models' training curves; ``results/README.md``, the index of every table. Nothing here
 evaluates."""
 
@@ -21,7 +22,8 @@ def write_leaderboard(
     efficiency: dict[str, dict] | None = None,
 ) -> Path:
     """Combine :class:`zoo.results.EvalResult` objects of one protocol into ``out_dir``:
-    ``results.csv``, ``leaderboard.md``, ``protocol.json`` and ``mpjpe.png``; ``efficiency``
+    ``leaderboard.md``, ``protocol.json`` and ``mpjpe.png`` (each result's own folder, beside
+    them, holds its ``results.csv``); ``efficiency``
     (per row label, the costs ``zoo costs`` stored: :class:`zoo.efficiency.Costs`) fills the
     headline's cost columns and ``efficiency.csv`` (a dict without a row's label: its cost
     cells stay empty, and the table says how to fill them)."""
@@ -37,7 +39,6 @@ def write_leaderboard(
     )
     protocol = dict(results[0].protocol)
     protocol["provenance"] = {"runs": [r.protocol.get("provenance", {}) for r in results]}
-    atomic_write_text(out_dir / "results.csv", frame.to_csv(index=False))
     atomic_write_text(out_dir / "leaderboard.md", tables)
     atomic_write_json(out_dir / "protocol.json", protocol)
     if efficiency:
@@ -166,8 +167,10 @@ How each number is made:
 
 - Each row is one model evaluated by `zoo.evaluate` under the protocol recorded in the folder's
   `protocol.json` (data files and hashes, window sampler, frame rate, joints, averaging); its
-  `protocol_id` is in every row of `results.csv`, and rows of different protocols never share a
-  table. Trained rows name the shipped weights (and their sha256) they were computed from.
+  numbers are in the row's own `<table>/<label>/results.csv`, each line carrying the
+  `protocol_id`, and rows of different protocols never share a table (`zoo.results.read_table`
+  reads a table's rows as one frame). Trained rows name the shipped weights (and their sha256)
+  they were computed from.
 - Headline tables: the benchmark's first metric, frame averaging, mean over actions. `±` is half
   a 95% interval whose meaning each table states: with one recording per action (CMU,
   CMU-on-Anny), a window-sampling interval, conditional on these recordings and not a confidence
@@ -181,7 +184,8 @@ How each number is made:
 - Cost columns (parameters, forward GFLOPs per window, latency of one window, training windows
   per second, every model in float32) are measured by `zoo costs`, never by `zoo leaderboard`,
   and kept in `<benchmark>/costs.json`; the machine (CPU, threads) and date that measured them
-  are named under each table; they are not in `results.csv` and `--check` does not compare them.
+  are named under each table; they are not in the rows' `results.csv` and `--check` does not
+  compare them.
 - Mesh tables: RMSE is per vertex, normalised by the ground-truth frame's bounding-box
   diagonal; MELV is measured on the k-coefficient reconstructions of the reference and scored
   frames (as SpecTrHuMS measures it) and printed as mean (standard deviation over windows);
@@ -224,8 +228,8 @@ def write_index(out_root: str | Path) -> Path:
             lines += [
                 f"### {folder}",
                 "",
-                f"[leaderboard]({folder}/leaderboard.md) · [results.csv]({folder}/results.csv)"
-                f" · [plot]({folder}/mpjpe.png)",
+                f"[leaderboard]({folder}/leaderboard.md) · [rows]({folder}) (each row's "
+                f"`results.csv` in its folder) · [plot]({folder}/mpjpe.png)",
                 "",
             ]
             if headline:  # its heading and table; the leaderboard explains them

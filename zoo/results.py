@@ -1,7 +1,8 @@
 """A result as it is kept: the long-format rows (``results.csv``), the protocol record
 (``protocol.json``), the per-window errors (``windows.npz``) and the tables (``tables.md``) of
-one model under one protocol, read and written atomically. Nothing here computes a number (the
-evaluator, :mod:`zoo.evaluate`, does)."""
+one model under one protocol, read and written atomically; and a leaderboard's table read as
+one result (:func:`read_table`: its rows' folders, listed by the table's ``protocol.json``).
+Nothing here computes a number (the evaluator, :mod:`zoo.evaluate`, does)."""
 
 from __future__ import annotations
 
@@ -40,6 +41,11 @@ RESULT_COLUMNS = [
     "protocol_id",
 ]
 WINDOWS_FILE = "windows.npz"
+# What makes a folder a leaderboard's table (zoo.report writes it); its rows are the result
+# folders beside it that its protocol.json lists. The rows' numbers are kept once, in the rows'
+# own results.csv: a table-wide copy doubled every row's bytes and grew past the 5 MiB a
+# tracked file may have at about twelve mesh rows.
+TABLE_FILE = "leaderboard.md"
 
 
 @dataclass
@@ -175,3 +181,33 @@ class EvalResult:
                 f"{protocol['protocol_id']}; re-evaluate the folder"
             )
         return cls(frame=pd.read_csv(out_dir / "results.csv"), protocol=protocol, windows=windows)
+
+
+def table_labels(folder: str | Path) -> list[str]:
+    """The labels of a leaderboard table's rows (``<folder>/<label>/``), in the table's order,
+    as its ``protocol.json`` lists them."""
+    path = Path(folder) / "protocol.json"
+    if not path.is_file():
+        raise EvaluationError(f"{path}: missing (not a leaderboard table)")
+    runs = json.loads(path.read_text()).get("provenance", {}).get("runs")
+    labels = [(run.get("identity") or {}).get("label") for run in runs or ()]
+    if not labels or None in labels:
+        raise EvaluationError(
+            f"{path}: provenance.runs does not name every row's label (identity.label); "
+            f"regenerate the table with zoo leaderboard"
+        )
+    return labels
+
+
+def read_table(folder: str | Path) -> EvalResult:
+    """A leaderboard table as one result: the rows of every result folder it lists, in its
+    order, under the table's own ``protocol.json`` (no per-window errors)."""
+    folder = Path(folder)
+    frames = []
+    for label in table_labels(folder):
+        path = folder / label / "results.csv"
+        if not path.is_file():
+            raise EvaluationError(f"{path}: missing (a row that {folder}/protocol.json lists)")
+        frames.append(pd.read_csv(path))
+    protocol = json.loads((folder / "protocol.json").read_text())
+    return EvalResult(frame=pd.concat(frames, ignore_index=True), protocol=protocol)
