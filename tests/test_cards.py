@@ -114,3 +114,39 @@ def test_a_card_sets_its_rows_against_the_paper_per_action_under_the_same_protoc
         assert lines[action] == f"{mine[action] / paper.per_action[action][80]:.2f}"
     mean = sum(mine[a] for a in actions) / sum(paper.per_action[a][80] for a in actions)
     assert lines[f"mean of {len(actions)}"] == f"{mean:.2f}"
+
+
+def test_a_card_counts_every_stage_its_weights_were_trained_on_from():
+    """Weights trained on from another checkpoint (``--init-from``) name each earlier stage's
+    budget and what it set differently; the budget table holds the last stage only."""
+    from zoo.cards import Shipped, _first_stage_lines
+
+    def stage(epochs, samples, seconds, ae, sampler, before=None):
+        return {
+            "kind": "checkpoint",
+            "path": f"checkpoints/stage{epochs}/last.pt",
+            "sha256": "ab" * 32,
+            "hparams": {"autoencoder_epochs": ae, "latent": 256},
+            "recipe": {"batch_size": 32, "val_sampler": sampler},
+            "training": {"epochs_run": epochs, "samples_seen": samples, "seconds": seconds},
+            "init_from": before,
+        }
+
+    record = {
+        "hparams": {"autoencoder_epochs": 2, "latent": 256},
+        "init_from": stage(22, 64768, 600.0, 22, "stride5_strict", stage(3, 3200, 60.0, 3, "")),
+    }
+    lines = _first_stage_lines(
+        [Shipped("m", ("x",), REPO_ROOT / "weights/x/m.safetensors", record)]
+    )
+    assert len(lines) == 3 and lines[-1] == ""
+    assert lines[0].startswith("- `weights/x/m.safetensors` was trained on from `checkpoints/")
+    assert "22 epochs, 2,024 optimizer steps, 64,768 samples, 10 min" in lines[0]
+    assert "`autoencoder_epochs: 22`" in lines[0] and "latent" not in lines[0]
+    assert "validated on `stride5_strict` windows" in lines[0]
+    assert ": before that, from `checkpoints/stage3/last.pt`" in lines[1]
+    assert "3 epochs, 100 optimizer steps" in lines[1] and "`autoencoder_epochs: 3`" in lines[1]
+    assert (
+        _first_stage_lines([Shipped("m", ("x",), REPO_ROOT / "m.safetensors", {"hparams": {}})])
+        == []
+    )

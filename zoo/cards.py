@@ -146,6 +146,42 @@ def _budget_rows(files: list[Shipped]) -> list[list[str]]:
     return rows
 
 
+def _first_stage_lines(files: list[Shipped]) -> list[str]:
+    """Where weights were trained on from another checkpoint (``zoo train --init-from``), each
+    earlier stage's budget and what it set differently: the table above counts the last stage
+    only."""
+    out = []
+    for s in files:
+        later, stage = s.record, s.record.get("init_from")
+        while stage and stage.get("kind") == "checkpoint":
+            t = stage.get("training") or {}
+            steps = _steps(stage)
+            changed = {
+                k: v
+                for k, v in (stage.get("hparams") or {}).items()
+                if (later.get("hparams") or {}).get(k) != v
+            }
+            sampler = (stage.get("recipe") or {}).get("val_sampler")
+            out.append(
+                f"- `{repo_relative(s.path)}`"
+                + (" was trained on from" if later is s.record else ": before that, from")
+                + f" `{stage.get('path', '?')}` (sha256 {stage.get('sha256', '?')[:12]}), a "
+                f"stage of {t.get('epochs_run', '?')} epochs, "
+                f"{f'{steps:,}' if steps is not None else '?'} optimizer steps, "
+                f"{t.get('samples_seen', 0):,} samples, {t.get('seconds', 0) / 60:.0f} min on "
+                f"{t.get('device_name', t.get('device', '?'))}"
+                + (
+                    ", with " + ", ".join(f"`{k}: {_value(v)}`" for k, v in changed.items())
+                    if changed
+                    else ""
+                )
+                + (f", validated on `{sampler}` windows" if sampler else "")
+                + "."
+            )
+            later, stage = stage, stage.get("init_from")
+    return out + [""] if out else []
+
+
 def _recipe_lines(entry_recipe: dict[str, Any], files: list[Shipped]) -> list[str]:
     out = []
     if entry_recipe:
@@ -428,6 +464,7 @@ def generated_card(
             ],
             _budget_rows(files),
         )
+        out += _first_stage_lines(files)
         out += [
             f"`zoo.create_model({name!r}, benchmark=..., pretrained=True)` loads one; "
             "`zoo weights list` lists them all.",
