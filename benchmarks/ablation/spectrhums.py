@@ -15,6 +15,9 @@ prints a markdown table with each arm's budget (steps, samples, minutes, device)
 
     python benchmarks/ablation/spectrhums.py train A
     python benchmarks/ablation/spectrhums.py score > table.md
+
+``--benchmark NAME`` runs an arm's recipe, at the same epochs, on another mesh benchmark (how
+the winner is trained where it ships), its runs under ``<out>/<NAME>/``.
 """
 
 from __future__ import annotations
@@ -214,6 +217,11 @@ def score(cfg: dict) -> str:
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--config", type=Path, default=HERE / "spectrhums_29.yaml")
+    parser.add_argument(
+        "--benchmark",
+        help="another mesh benchmark than the config's (the winner's recipe where it ships); "
+        "its runs go under <out>/<benchmark>/",
+    )
     sub = parser.add_subparsers(dest="command", required=True)
     run = sub.add_parser("train", help="train (or resume) one arm")
     run.add_argument("arm")
@@ -221,6 +229,12 @@ def main(argv=None) -> int:
     sub.add_parser("score", help="score every trained arm; markdown on stdout")
     args = parser.parse_args(argv)
     cfg = load_config(args.config)
+    if args.benchmark and args.benchmark != cfg["benchmark"]:
+        from zoo.benchmark import get_benchmark
+
+        if get_benchmark(args.benchmark).representation != "mesh":
+            raise SystemExit(f"--benchmark {args.benchmark}: not a mesh benchmark")
+        cfg = {**cfg, "benchmark": args.benchmark, "out": f"{cfg['out']}/{args.benchmark}"}
     if args.command == "train":
         for seed in [args.seed] if args.seed is not None else cfg["seeds"]:
             train(cfg, args.arm, seed)
