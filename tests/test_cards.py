@@ -119,7 +119,7 @@ def test_a_card_sets_its_rows_against_the_paper_per_action_under_the_same_protoc
 def test_a_card_counts_every_stage_its_weights_were_trained_on_from():
     """Weights trained on from another checkpoint (``--init-from``) name each earlier stage's
     budget and what it set differently; the budget table holds the last stage only."""
-    from zoo.cards import Shipped, _first_stage_lines
+    from zoo.cards import Shipped, _earlier_stage_lines
 
     def stage(epochs, samples, seconds, ae, sampler, before=None):
         return {
@@ -136,7 +136,7 @@ def test_a_card_counts_every_stage_its_weights_were_trained_on_from():
         "hparams": {"autoencoder_epochs": 2, "latent": 256},
         "init_from": stage(22, 64768, 600.0, 22, "stride5_strict", stage(3, 3200, 60.0, 3, "")),
     }
-    lines = _first_stage_lines(
+    lines = _earlier_stage_lines(
         [Shipped("m", ("x",), REPO_ROOT / "weights/x/m.safetensors", record)]
     )
     assert len(lines) == 3 and lines[-1] == ""
@@ -147,6 +147,6 @@ def test_a_card_counts_every_stage_its_weights_were_trained_on_from():
     assert ": before that, from `checkpoints/stage3/last.pt`" in lines[1]
     assert "3 epochs, 100 optimizer steps" in lines[1] and "`autoencoder_epochs: 3`" in lines[1]
     assert (
-        _first_stage_lines([Shipped("m", ("x",), REPO_ROOT / "m.safetensors", {"hparams": {}})])
+        _earlier_stage_lines([Shipped("m", ("x",), REPO_ROOT / "m.safetensors", {"hparams": {}})])
         == []
     )

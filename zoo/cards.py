@@ -146,7 +146,7 @@ def _budget_rows(files: list[Shipped]) -> list[list[str]]:
     return rows
 
 
-def _first_stage_lines(files: list[Shipped]) -> list[str]:
+def _earlier_stage_lines(files: list[Shipped]) -> list[str]:
     """Where weights were trained on from another checkpoint (``zoo train --init-from``), each
     earlier stage's budget and what it set differently: the table above counts the last stage
     only."""
@@ -285,11 +285,12 @@ def _belongs(label: str, name: str) -> bool:
 def _row_tables(name: str, results_root: Path) -> list[str]:
     out = []
     for table in sorted(results_root.glob(f"*/*/{TABLE_FILE}")):
-        frame = read_table(table.parent).frame
+        result = read_table(table.parent)
+        frame = result.frame
         labels = sorted({m for m in frame["model"] if _belongs(m, name)})
         if not labels:
             continue
-        record = json.loads((table.parent / "protocol.json").read_text())
+        record = result.protocol
         metric, joints = headline_key(record)
         rows = frame[
             (frame["action"] == "average")
@@ -464,7 +465,7 @@ def generated_card(
             ],
             _budget_rows(files),
         )
-        out += _first_stage_lines(files)
+        out += _earlier_stage_lines(files)
         out += [
             f"`zoo.create_model({name!r}, benchmark=..., pretrained=True)` loads one; "
             "`zoo weights list` lists them all.",

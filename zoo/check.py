@@ -96,11 +96,9 @@ def check_table(
     from zoo.results import TABLE_FILE, WINDOWS_FILE, WindowErrors, read_table
 
     check.tables += 1
-    if check.current:
-        check.per_table[check.current]["rows"] += len(
-            pd.concat([r.frame for r in results], ignore_index=True)
-        )
     fresh = pd.concat([r.frame for r in results], ignore_index=True)
+    if check.current:
+        check.per_table[check.current]["rows"] += len(fresh)
     check.rows += len(fresh)
     check.models |= set(fresh["model"])
     if not (folder / TABLE_FILE).is_file():

@@ -162,7 +162,7 @@ def render_costs(board: Leaderboard, path: Path, task: str, labels: set[str]) ->
     for row in board._rows(task):
         if row.label in labels:
             board._cost(efficiency, row.label, board._load(row), task)
-    models = set(read_table(path).frame["model"])
+    models = set(read_table(path, columns=["model"]).frame["model"])
     board_md = path / "leaderboard.md"
     new = {
         board_md: with_costs(board_md.read_text(), models, efficiency, board.bench.name),

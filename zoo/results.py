@@ -186,10 +186,18 @@ class EvalResult:
 def table_labels(folder: str | Path) -> list[str]:
     """The labels of a leaderboard table's rows (``<folder>/<label>/``), in the table's order,
     as its ``protocol.json`` lists them."""
+    return _labels(_table_protocol(folder), Path(folder) / "protocol.json")
+
+
+def _table_protocol(folder: str | Path) -> dict[str, Any]:
     path = Path(folder) / "protocol.json"
     if not path.is_file():
         raise EvaluationError(f"{path}: missing (not a leaderboard table)")
-    runs = json.loads(path.read_text()).get("provenance", {}).get("runs")
+    return json.loads(path.read_text())
+
+
+def _labels(protocol: dict[str, Any], path: Path) -> list[str]:
+    runs = protocol.get("provenance", {}).get("runs")
     labels = [(run.get("identity") or {}).get("label") for run in runs or ()]
     if not labels or None in labels:
         raise EvaluationError(
@@ -199,15 +207,16 @@ def table_labels(folder: str | Path) -> list[str]:
     return labels
 
 
-def read_table(folder: str | Path) -> EvalResult:
+def read_table(folder: str | Path, columns: list[str] | None = None) -> EvalResult:
     """A leaderboard table as one result: the rows of every result folder it lists, in its
-    order, under the table's own ``protocol.json`` (no per-window errors)."""
+    order, under the table's own ``protocol.json`` (no per-window errors); ``columns``: only
+    those of each row's ``results.csv``."""
     folder = Path(folder)
+    protocol = _table_protocol(folder)
     frames = []
-    for label in table_labels(folder):
+    for label in _labels(protocol, folder / "protocol.json"):
         path = folder / label / "results.csv"
         if not path.is_file():
             raise EvaluationError(f"{path}: missing (a row that {folder}/protocol.json lists)")
-        frames.append(pd.read_csv(path))
-    protocol = json.loads((folder / "protocol.json").read_text())
+        frames.append(pd.read_csv(path, usecols=columns))
     return EvalResult(frame=pd.concat(frames, ignore_index=True), protocol=protocol)
