@@ -16,8 +16,9 @@ prints a markdown table with each arm's budget (steps, samples, minutes, device)
     python benchmarks/ablation/spectrhums.py train A
     python benchmarks/ablation/spectrhums.py score > table.md
 
-``--benchmark NAME`` runs an arm's recipe, at the same epochs, on another mesh benchmark (how
-the winner is trained where it ships), its runs under ``<out>/<NAME>/``.
+``--benchmark NAME`` runs an arm's recipe on another mesh benchmark (how the winner is trained
+where it ships), its runs under ``<out>/<NAME>/``, at the same epochs unless the config's
+``per_benchmark`` gives NAME its own (budget, samplers).
 """
 
 from __future__ import annotations
@@ -46,7 +47,33 @@ def load_config(path: Path) -> dict:
             raise SystemExit(f"{path}: arm {arm}: field(s) {', '.join(missing)} required")
         if spec.get("pretrain") and "train_set" not in spec["pretrain"]:
             raise SystemExit(f"{path}: arm {arm}: pretrain needs its train_set (epochs at least)")
+    for name, own in (cfg.get("per_benchmark") or {}).items():
+        if not isinstance(own, dict) or set(own) - {"train_set", "pretrain"}:
+            raise SystemExit(
+                f"{path}: per_benchmark: {name}: expected a mapping of train_set and pretrain "
+                f"(train_set entries), got {own!r}"
+            )
     return cfg
+
+
+def on_benchmark(cfg: dict, name: str) -> dict:
+    """The config moved to mesh benchmark ``name``: its runs under ``<out>/<name>/``, and
+    the settings ``per_benchmark`` gives ``name`` (if any) over every arm's own."""
+    own = (cfg.get("per_benchmark") or {}).get(name) or {}
+    arms = {}
+    for arm, spec in cfg["arms"].items():
+        spec = {
+            **spec,
+            "train_set": {**(spec.get("train_set") or {}), **own.get("train_set", {})},
+        }
+        if spec.get("pretrain"):
+            stage = spec["pretrain"]
+            spec["pretrain"] = {
+                **stage,
+                "train_set": {**stage["train_set"], **own.get("pretrain", {})},
+            }
+        arms[arm] = spec
+    return {**cfg, "benchmark": name, "out": f"{cfg['out']}/{name}", "arms": arms}
 
 
 def run_folder(cfg: dict, arm: str, seed: int) -> Path:
@@ -234,7 +261,7 @@ def main(argv=None) -> int:
 
         if get_benchmark(args.benchmark).representation != "mesh":
             raise SystemExit(f"--benchmark {args.benchmark}: not a mesh benchmark")
-        cfg = {**cfg, "benchmark": args.benchmark, "out": f"{cfg['out']}/{args.benchmark}"}
+        cfg = on_benchmark(cfg, args.benchmark)
     if args.command == "train":
         for seed in [args.seed] if args.seed is not None else cfg["seeds"]:
             train(cfg, args.arm, seed)
