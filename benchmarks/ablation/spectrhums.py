@@ -48,11 +48,34 @@ def load_config(path: Path) -> dict:
         if spec.get("pretrain") and "train_set" not in spec["pretrain"]:
             raise SystemExit(f"{path}: arm {arm}: pretrain needs its train_set (epochs at least)")
     for name, own in (cfg.get("per_benchmark") or {}).items():
+        where = f"{path}: per_benchmark.{name}"
         if not isinstance(own, dict) or set(own) - {"train_set", "pretrain"}:
             raise SystemExit(
-                f"{path}: per_benchmark: {name}: expected a mapping of train_set and pretrain "
-                f"(train_set entries), got {own!r}"
+                f"{where}: expected a mapping of train_set and pretrain (each of train_set "
+                f"entries), got {own!r}"
             )
+        for key, entries in own.items():
+            if not isinstance(entries, dict) or {"train_set", "set"} & set(entries):
+                raise SystemExit(
+                    f"{where}.{key}: expected train_set entries (epochs: 6, ...), got {entries!r}"
+                )
+        if name == cfg["benchmark"]:
+            raise SystemExit(f"{where}: the config's own benchmark; set its arms' recipes instead")
+        from zoo.benchmark import get_benchmark
+
+        if get_benchmark(name).representation != "mesh":
+            raise SystemExit(f"{where}: not a mesh benchmark")
+    for name in [None, *(cfg.get("per_benchmark") or {})]:
+        moved = on_benchmark(cfg, name) if name else cfg
+        for arm, spec in moved["arms"].items():
+            stage = spec.get("pretrain")
+            alone = (stage or {}).get("set", {}).get("autoencoder_epochs")
+            if alone is not None and int(stage["train_set"]["epochs"]) > int(alone):
+                raise SystemExit(
+                    f"{path}: arm {arm}'s pretrain{' on ' + name if name else ''}: "
+                    f"{stage['train_set']['epochs']} epochs but autoencoder_epochs {alone}: its "
+                    f"later epochs would train the transformer too"
+                )
     return cfg
 
 
