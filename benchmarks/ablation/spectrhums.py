@@ -47,6 +47,8 @@ def load_config(path: Path) -> dict:
             raise SystemExit(f"{path}: arm {arm}: field(s) {', '.join(missing)} required")
         if spec.get("pretrain") and "train_set" not in spec["pretrain"]:
             raise SystemExit(f"{path}: arm {arm}: pretrain needs its train_set (epochs at least)")
+    from zoo.benchmark import get_benchmark
+
     for name, own in (cfg.get("per_benchmark") or {}).items():
         where = f"{path}: per_benchmark.{name}"
         if not isinstance(own, dict) or set(own) - {"train_set", "pretrain"}:
@@ -61,8 +63,6 @@ def load_config(path: Path) -> dict:
                 )
         if name == cfg["benchmark"]:
             raise SystemExit(f"{where}: the config's own benchmark; set its arms' recipes instead")
-        from zoo.benchmark import get_benchmark
-
         if get_benchmark(name).representation != "mesh":
             raise SystemExit(f"{where}: not a mesh benchmark")
     for name in [None, *(cfg.get("per_benchmark") or {})]:
