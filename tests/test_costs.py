@@ -213,6 +213,32 @@ def test_a_slow_model_gets_fewer_repeats_within_its_budget():
     assert unboxed["latency_repeats"] == LATENCY_REPEATS and unboxed["training_steps"] is None
 
 
+@pytest.mark.parametrize("epochs, phase", [(3, "joint"), (2, "autoencoder")])
+def test_a_phased_model_is_timed_in_the_phase_its_recipe_ends_in(monkeypatch, epochs, phase):
+    # SpecTrHuMS is built in its autoencoder phase (autoencoder_epochs 2) and the engine moves it
+    # to the joint phase (the transformer trains too: a step many times dearer) from epoch 2 on
+    from test_spectrhums import T_IN, T_OUT, V, make
+
+    from zoo.models.spectrhums import SpecTrHuMS
+
+    timed = []
+    terms = SpecTrHuMS.coefficient_loss_terms
+
+    def recorded(self, coeffs):
+        timed.append(self.phase)
+        return terms(self, coeffs)
+
+    monkeypatch.setattr(SpecTrHuMS, "coefficient_loss_terms", recorded)
+    model = make(autoencoder_epochs=2)
+    before = {k: v.clone() for k, v in model.state_dict().items()}
+    recipe = {"batch_size": 4, "grad_clip": 1.0, "epochs": epochs}
+    row = measure(model, input_frames=T_IN, output_frames=T_OUT, points=V, recipe=recipe)
+    assert row["training_steps"] == TRAINING_STEPS and row["train_samples_per_s"] > 0
+    assert timed == [phase] * (TRAINING_STEPS + 1)  # the warm-up step and the timed ones
+    assert model.phase == "autoencoder"  # a copy was stepped, the model is as it was
+    assert all(torch.equal(v, before[k]) for k, v in model.state_dict().items())
+
+
 @pytest.mark.parametrize("version", [None, 2])
 def test_costs_file_of_another_format_is_not_read(tmp_path, version):
     from zoo.efficiency import Costs

@@ -2,7 +2,8 @@
 
 Measured by :func:`measure`, and only by ``zoo costs`` (:mod:`zoo.costs`): parameters, forward
 GFLOPs per window (torch's FLOP counter), latency of one window (batch 1) and training
-throughput (forward, backward, gradient clip and Adam at the recipe's batch size). Every model
+throughput (forward, backward, gradient clip and Adam at the recipe's batch size, a step of the
+recipe's last epoch: SpecTrHuMS's joint phase, not its autoencoder-only one). Every model
 is timed in float32, whatever precision its recipe trains in, so that the columns compare
 across models; within a time budget per model (``seconds``): a slow model gets fewer latency
 repeats or training steps (at least one of each after a warm-up), and the counts are recorded
@@ -118,7 +119,8 @@ def training_samples_per_s(
     """Training windows per second of full optimizer steps in float32 (whatever the recipe's
     precision) on a copy of ``model`` (the model itself is left untouched), after one warm-up
     step, and how many steps were timed (``steps``, fewer where ``seconds`` runs out); a model
-    with a training view steps on windows of it, as the engine trains it."""
+    with a training view steps on windows of it, and one with a ``start_epoch`` hook in the
+    recipe's last epoch, as the engine trains it."""
     trainee = copy.deepcopy(model).to(device).train()
     view = hasattr(trainee, "training_view")  # trained on its view, computed once (zoo.train)
     objective = TrainingObjective(trainee, task, view=view)
@@ -129,6 +131,17 @@ def training_samples_per_s(
         with torch.no_grad():
             flat = trainee.training_view(windows.flatten(0, 1)).to(windows.dtype)
         windows = flat.view(batch, input_frames + output_frames, *flat.shape[1:])
+    if hasattr(trainee, "start_epoch"):
+        # the step of the recipe's last epoch, as the engine prepares it: a model whose epochs
+        # differ (SpecTrHuMS: autoencoder-only first, then the transformer too) is timed in the
+        # phase that ends its training, its statistics taken over these windows' frames
+        frames = windows.flatten(0, 1)
+        every = [(frames, torch.ones(len(frames), dtype=torch.long, device=device))]
+        last = max(int(recipe.get("epochs") or 1) - 1, 0)
+        if view:
+            trainee.start_epoch(last, lambda: iter(every), view=True)
+        else:
+            trainee.start_epoch(last, lambda: iter(every))
     history, future = windows[:, :input_frames], windows[:, input_frames:]
 
     in_float32 = {**recipe, "precision": "float32"}  # every model's column in one precision
