@@ -239,6 +239,24 @@ def test_a_phased_model_is_timed_in_the_phase_its_recipe_ends_in(monkeypatch, ep
     assert all(torch.equal(v, before[k]) for k, v in model.state_dict().items())
 
 
+class Phased(Recorder):
+    """A model whose training-engine hook sees frames, not a training view."""
+
+    def start_epoch(self, epoch, frames):
+        PHASES.append((epoch, [(tuple(f.shape), counts.tolist()) for f, counts in frames()]))
+
+
+PHASES: list = []
+
+
+def test_a_model_without_a_training_view_gets_its_last_epoch_on_the_windows_frames():
+    PHASES.clear()
+    measure(Phased(), input_frames=10, output_frames=25, points=5, recipe={"batch_size": 2,
+            "epochs": 7})  # fmt: skip
+    # every frame of the timed windows (2 of 35 frames) once, counted once
+    assert PHASES == [(6, [((70, 5, 3), [1] * 70)])]
+
+
 @pytest.mark.parametrize("version", [None, 2])
 def test_costs_file_of_another_format_is_not_read(tmp_path, version):
     from zoo.efficiency import Costs
