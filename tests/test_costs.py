@@ -17,7 +17,7 @@ import zoo.efficiency
 from zoo.cli import main
 from zoo.efficiency import LATENCY_REPEATS, TRAINING_STEPS, measure
 from zoo.leaderboard import Plan, regenerate
-from zoo.train import forward_precision, train
+from zoo.train import DEFAULT_RECIPE, forward_precision, train
 
 
 def files(folder: Path) -> dict[Path, bytes]:
@@ -181,6 +181,7 @@ class Recorder(torch.nn.Module):
 
 
 def test_a_bfloat16_recipe_is_timed_in_float32():
+    SEEN.clear()
     model = Recorder()
     with forward_precision("bfloat16", "cpu"):  # what training in its recipe would compute in
         model(torch.zeros(2, 10, 5, 3))
@@ -243,18 +244,25 @@ class Phased(Recorder):
     """A model whose training-engine hook sees frames, not a training view."""
 
     def start_epoch(self, epoch, frames):
-        PHASES.append((epoch, [(tuple(f.shape), counts.tolist()) for f, counts in frames()]))
+        CALLS.append((epoch, [(tuple(f.shape), counts.tolist()) for f, counts in frames()]))
+
+    def forward(self, history):
+        if self.training:
+            CALLS.append("step")
+        return super().forward(history)
 
 
-PHASES: list = []
+CALLS: list = []
 
 
-def test_a_model_without_a_training_view_gets_its_last_epoch_on_the_windows_frames():
-    PHASES.clear()
+@pytest.mark.parametrize("recipe, epoch", [({"epochs": 7}, 6), ({}, DEFAULT_RECIPE["epochs"] - 1)])
+def test_a_model_without_a_training_view_gets_its_last_epoch_on_the_windows_frames(recipe, epoch):
+    CALLS.clear()
     measure(Phased(), input_frames=10, output_frames=25, points=5, recipe={"batch_size": 2,
-            "epochs": 7})  # fmt: skip
-    # every frame of the timed windows (2 of 35 frames) once, counted once
-    assert PHASES == [(6, [((70, 5, 3), [1] * 70)])]
+            **recipe})  # fmt: skip
+    # before any step: the recipe's last epoch (the engine's default epochs where it gives
+    # none), every frame of the timed windows (2 windows of 35 frames) once, counted once
+    assert CALLS == [(epoch, [((70, 5, 3), [1] * 70)])] + ["step"] * (TRAINING_STEPS + 1)
 
 
 @pytest.mark.parametrize("version", [None, 2])

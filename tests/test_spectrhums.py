@@ -663,19 +663,29 @@ def test_training_on_coefficients_is_training_on_vertices():
         by_view.start_epoch(0, frames, view=True)  # vertices where coefficients belong
 
 
-def test_cost_columns_time_the_step_the_engine_runs():
+def test_cost_columns_time_the_step_the_engine_runs(monkeypatch):
     """The training throughput of a model with a training view is measured on windows of it
-    (zoo.efficiency), as zoo.train steps it."""
+    (zoo.efficiency), as zoo.train steps it: a trained model's coefficient statistics kept."""
     from zoo.efficiency import measure
 
-    model = make()
-    for epoch in (0, 2):
-        model.start_epoch(epoch, frames)
+    model = trained_stats(make())  # as loaded from a checkpoint: statistics, autoencoder phase
+    model.phase = "autoencoder"
+    kept = model.coeff_mean.clone()
+    views = []
+    original = SpecTrHuMS.coefficient_loss_terms
+
+    def recorded(self, coeffs):
+        views.append((self.phase, torch.equal(self.coeff_mean, kept), coeffs.shape[-2:]))
+        return original(self, coeffs)
+
+    monkeypatch.setattr(SpecTrHuMS, "coefficient_loss_terms", recorded)
     row = measure(
         model,
         input_frames=T_IN,
         output_frames=T_OUT,
         points=V,
-        recipe={"batch_size": 4, "precision": "float32", "grad_clip": None},
+        recipe={"batch_size": 4, "precision": "float32", "grad_clip": None, "epochs": 3},
     )
     assert row["train_samples_per_s"] > 0 and row["gflop_per_sample"] > 0
+    # coefficients (the view), the joint phase of epoch 3, the trained statistics kept
+    assert views and set(views) == {("joint", True, (BASIS.k, 3))}

@@ -3,7 +3,7 @@
 Measured by :func:`measure`, and only by ``zoo costs`` (:mod:`zoo.costs`): parameters, forward
 GFLOPs per window (torch's FLOP counter), latency of one window (batch 1) and training
 throughput (forward, backward, gradient clip and Adam at the recipe's batch size, a step of the
-recipe's last epoch: SpecTrHuMS's joint phase, not its autoencoder-only one). Every model
+recipe's last epoch: SpecTrHuMS's joint phase where its recipe reaches it). Every model
 is timed in float32, whatever precision its recipe trains in, so that the columns compare
 across models; within a time budget per model (``seconds``): a slow model gets fewer latency
 repeats or training steps (at least one of each after a warm-up), and the counts are recorded
@@ -25,9 +25,10 @@ measured them under it. Timings depend on that machine and its load; they are ne
 
 ``architecture`` digests what the numbers depend on besides the machine (:func:`cost_key`:
 model class, hyper-parameters and code, view, task, points, frames, batch size, gradient
-clip); a table shows a row's stored costs only while it matches the row's model (else empty
-cells, until ``zoo costs`` measures it again). A value is null where it does not apply
-(no FLOPs or latency for a task whose model takes more than the history; no training
+clip, and for a model whose step changes with the epoch the epoch timed); a table shows a
+row's stored costs only while it matches the row's model (else empty cells, until ``zoo
+costs`` measures it again). A value is null where it does not apply (no FLOPs or latency
+for a task whose model takes more than the history; no training
 throughput for a model that does not train).
 
 An older ``costs.json`` (no ``version``: ``{"entries": {digest: {"key": {..., "machine"},
@@ -50,7 +51,7 @@ from typing import Any
 
 import torch
 
-from zoo.train import TrainingObjective, device_name, training_step
+from zoo.train import DEFAULT_RECIPE, TrainingObjective, device_name, training_step
 
 LATENCY_REPEATS = 20
 TRAINING_STEPS = 3
@@ -105,6 +106,14 @@ def latency_ms(
     return 1000 * statistics.median(times), len(times)
 
 
+def timed_epoch(model: torch.nn.Module, recipe: dict[str, Any]) -> int | None:
+    """The epoch whose training step is timed for a model with a ``start_epoch`` hook (None
+    without one): the recipe's last (the engine's default epochs where it gives none)."""
+    if not hasattr(model, "start_epoch"):
+        return None
+    return max(int({**DEFAULT_RECIPE, **recipe}["epochs"]) - 1, 0)
+
+
 def training_samples_per_s(
     model: torch.nn.Module,
     task: str,
@@ -134,10 +143,11 @@ def training_samples_per_s(
     if hasattr(trainee, "start_epoch"):
         # the step of the recipe's last epoch, as the engine prepares it: a model whose epochs
         # differ (SpecTrHuMS: autoencoder-only first, then the transformer too) is timed in the
-        # phase that ends its training, its statistics taken over these windows' frames
+        # phase that ends its training; the statistics the hook computes (on the copy) are taken
+        # over the timed windows' frames
         frames = windows.flatten(0, 1)
         every = [(frames, torch.ones(len(frames), dtype=torch.long, device=device))]
-        last = max(int(recipe.get("epochs") or 1) - 1, 0)
+        last = timed_epoch(trainee, recipe)
         if view:
             trainee.start_epoch(last, lambda: iter(every), view=True)
         else:
@@ -237,7 +247,7 @@ def cost_key(loaded, bench, dataset, task: str) -> dict[str, Any]:
     from zoo.store import evaluation_code
 
     recipe = loaded.recipe or {}
-    return {
+    key = {
         "class": loaded.entry.class_path,
         "hparams": loaded.hparams,
         "view": loaded.view,
@@ -249,6 +259,10 @@ def cost_key(loaded, bench, dataset, task: str) -> dict[str, Any]:
         "grad_clip": recipe.get("grad_clip"),
         "code": evaluation_code(type(loaded.model))["model"],
     }
+    epoch = timed_epoch(loaded.model, recipe)
+    if epoch is not None:  # a model whose step changes with the epoch: which one was timed
+        key["timed_epoch"] = epoch
+    return key
 
 
 def architecture(key: dict[str, Any]) -> str:
