@@ -51,7 +51,13 @@ from typing import Any
 
 import torch
 
-from zoo.train import DEFAULT_RECIPE, TrainingObjective, device_name, training_step
+from zoo.train import (
+    DEFAULT_RECIPE,
+    TrainingObjective,
+    device_name,
+    prepare_epoch,
+    training_step,
+)
 
 LATENCY_REPEATS = 20
 TRAINING_STEPS = 3
@@ -140,18 +146,15 @@ def training_samples_per_s(
         with torch.no_grad():
             flat = trainee.training_view(windows.flatten(0, 1)).to(windows.dtype)
         windows = flat.view(batch, input_frames + output_frames, *flat.shape[1:])
-    if hasattr(trainee, "start_epoch"):
+    last = timed_epoch(trainee, recipe)
+    if last is not None:
         # the step of the recipe's last epoch, as the engine prepares it: a model whose epochs
         # differ (SpecTrHuMS: autoencoder-only first, then the transformer too) is timed in the
         # phase that ends its training; the statistics the hook computes (on the copy) are taken
         # over the timed windows' frames
         frames = windows.flatten(0, 1)
         every = [(frames, torch.ones(len(frames), dtype=torch.long, device=device))]
-        last = timed_epoch(trainee, recipe)
-        if view:
-            trainee.start_epoch(last, lambda: iter(every), view=True)
-        else:
-            trainee.start_epoch(last, lambda: iter(every))
+        prepare_epoch(trainee, last, lambda: iter(every), view=view)
     history, future = windows[:, :input_frames], windows[:, input_frames:]
 
     in_float32 = {**recipe, "precision": "float32"}  # every model's column in one precision

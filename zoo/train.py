@@ -666,11 +666,9 @@ def train(
         # captured anew every epoch: start_epoch may change what a step does (SpecTrHuMS's
         # autoencoder-only phase, then the joint one)
         step_graph = CudaGraphStep(net, model, optimizer, recipe, device) if graphed else None
-        if hasattr(model, "start_epoch"):  # e.g. warm-up phases, statistics over the data
-            if train_src is train_pos:
-                model.start_epoch(epoch, training_frames)
-            else:  # frames in the model's training view
-                model.start_epoch(epoch, training_frames, view=True)
+        # e.g. warm-up phases, statistics over the data; frames in the model's training view
+        # where it trains on one
+        prepare_epoch(model, epoch, training_frames, view=train_src is not train_pos)
         order = torch.randperm(
             len(train_index), generator=torch.Generator().manual_seed(seed * 100003 + epoch)
         )
@@ -919,6 +917,19 @@ def check_hooks(model: nn.Module, model_name: str) -> None:
                 f"{model_name} ({type(model).__name__}) defines {', '.join(present)} but not "
                 f"{', '.join(missing)}: the {group} hooks go together (zoo.train.MODEL_HOOKS)"
             )
+
+
+def prepare_epoch(model: nn.Module, epoch: int, frames, view: bool = False) -> None:
+    """A model's ``start_epoch`` hook for ``epoch``, where it has one, as the engine runs it
+    before each epoch: ``frames()`` yields ``(frames, counts)``, in the model's training view
+    with ``view`` (only then is the hook given ``view=True``: a model without a view need not
+    take it)."""
+    if not hasattr(model, "start_epoch"):
+        return
+    if view:
+        model.start_epoch(epoch, frames, view=True)
+    else:
+        model.start_epoch(epoch, frames)
 
 
 def training_step(
