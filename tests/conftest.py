@@ -1,9 +1,15 @@
 """Shared fixtures: tiny datasets written in the exact on-disk formats."""
 
+import os
 from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
+
+# One thread per pytest-xdist worker: the workers share the machine's cores.
+if os.environ.get("PYTEST_XDIST_WORKER"):
+    torch.set_num_threads(1)
 
 REPO = Path(__file__).resolve().parents[1]
 CMU_DATA = REPO.parent / "shared" / "data" / "cmu_mocap"

@@ -376,15 +376,17 @@ def test_full_resolution_directions_and_edge_lengths(short_motion):
 
 @needs_anny
 @needs_data
-@pytest.mark.parametrize("topology", ["low", "full"])
-def test_a_fit_here_is_the_shipped_regressor(low_model, topology):
-    """Each shipped regressor is what its recipe fits on this machine (to rounding; on the
-    machine that shipped it, exactly)."""
+@pytest.mark.parametrize("topology", ["low", pytest.param("full", marks=pytest.mark.slow)])
+def test_the_shipped_regressor_fits_the_frames_skinned_here_as_recorded(low_model, topology):
+    """What holds on every CPU: the shipped file passes its checksum (load_regressor) and
+    misses the bone heads of the fit frames skinned here by what its record says. A fit here
+    may land on other weights (the full body's fit is ill-conditioned), which is why it ships."""
     report = am.check_joint_regressor(
         CMU_BVH, topology, model=low_model if topology == "low" else None
     )
-    assert report["same"], report
-    assert report["joints_mm"] <= am.REGRESSOR_TOLERANCE_MM
+    assert report["fits_here"], report
+    for key, value in report["shipped_here"].items():
+        assert abs(value - report["stats"][key][1]) <= am.REGRESSOR_TOLERANCE_MM + 5e-4
     assert report["stats"]["fit_frames"] == (1280.0, 1280.0)
 
 
@@ -461,7 +463,15 @@ def test_zoo_data_regressor_ships_a_fit_and_refuses_to_overwrite(low_model, tmp_
     (written,) = (tmp_path / "regressors").iterdir()
     recipe, _ = am.regressor_recipe(CMU_BVH, "low")
     assert written == am.shipped_regressor_path("low", recipe)
-    shipped, _ = am.load_regressor(REPO_ROOT / "benchmarks" / "regressors" / written.name)
-    assert (abs(am.load_regressor(written)[0] - shipped) > 0).nnz == 0
+    shipped, shipped_stats = am.load_regressor(
+        REPO_ROOT / "benchmarks" / "regressors" / written.name
+    )
+    fitted, stats = am.load_regressor(written)  # its checksum holds
+    assert fitted.shape == shipped.shape
+    # a fit on another CPU may differ in its last bits, not in how well it fits
+    for key in ("fit_mean_mm", "fit_p99_mm"):
+        assert abs(stats[key] - shipped_stats[key]) <= am.REGRESSOR_TOLERANCE_MM
+    before = written.read_bytes()
     assert main(args) == 2  # shipped already: refused, nothing overwritten
-    assert main(args[:-1]) == 0  # a fit here is the same regressor
+    assert written.read_bytes() == before
+    assert main(args[:-1]) == 0  # the shipped regressor fits the frames skinned here

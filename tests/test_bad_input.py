@@ -101,3 +101,36 @@ def test_interrupted_write_leaves_no_partial_file(tmp_path, monkeypatch):
             tmp.write_text("half")
             raise RuntimeError("disk full")
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_misnamed_action_folder_is_refused_before_anything_is_scored(tmp_path, capsys):
+    """test/Walking where the benchmark expects test/walking: one line naming the folder
+    expected and the folders found, never a table scored on the other action alone."""
+    root = tmp_path / "cmu"
+    write_cmu_file(root / "test" / "Walking" / "walking_1.txt", 0.01 * np.arange(200))
+    write_cmu_file(root / "test" / "running" / "running_1.txt", 0.01 * np.arange(200))
+    assert run_eval(root, tmp_path / "out") == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "Traceback" not in err
+    assert f"{root / 'test' / 'walking'}: no folder for action 'walking' of the benchmark" in err
+    assert f"found in {root / 'test'}: Walking, running; is 'Walking' meant to be 'walking'?" in err
+    assert not (tmp_path / "out").exists()
+
+
+def test_an_absent_or_extra_action_folder_is_a_warning_and_a_declared_one_is_not(tmp_path, capsys):
+    root = tmp_path / "cmu"
+    write_cmu_file(root / "test" / "walking" / "walking_1.txt", 0.01 * np.arange(200))
+    actions = ("walking", "running")
+    load_cmu(root, "test", actions)
+    load_cmu(root, "test", actions)
+    (warning,) = capsys.readouterr().err.splitlines()  # once a process
+    assert warning.startswith(f"warning: {root / 'test'}: no folder for action(s) running of ")
+    assert "scored without them" in warning
+    (root / "MISSING.txt").write_text("MISSING cmu/test/running/running_1.txt\n")
+    write_cmu_file(root / "test" / "walking_extra" / "walking_extra_1.txt", np.zeros(200))
+    assert load_cmu(root, "test", actions).actions_present == ("walking",)
+    (only,) = capsys.readouterr().err.splitlines()
+    assert only == (
+        f"warning: {root / 'test'}: folder(s) walking_extra are no action of the benchmark "
+        "(walking, running); their files are not read"
+    )

@@ -43,6 +43,7 @@ def _copy_weights(tmp_path: Path, benchmark: str) -> Path:
     return root
 
 
+@pytest.mark.slow  # out of the README test command's 2 minutes; .ci/run runs it after
 def test_a_changed_record_makes_its_card_stale_and_a_rebuild_keeps_the_hand_written_part(
     tmp_path, capsys
 ):

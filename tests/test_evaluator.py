@@ -161,6 +161,7 @@ def test_cli_contract_writes_results_and_protocol(swinging_cmu, tmp_path):
     assert set(df.protocol_id) == {protocol["protocol_id"]}
 
 
+@pytest.mark.slow  # out of the README test command's 2 minutes; .ci/run runs it after
 def test_two_process_evaluation_equals_one_to_the_last_digit(tmp_path):
     """torchrun splits the windows (every other batch) and gathers every process's errors; the
     sums are then added in one order, so the files are the single process's, byte for byte."""

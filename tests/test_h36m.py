@@ -71,7 +71,10 @@ def test_missing_subject_or_file_is_named(tmp_path):
         load_h36m(tmp_path, "test")
     write_h36m(tmp_path)
     (tmp_path / "S5" / "eating_2.txt").unlink()
-    with pytest.raises(DataNotFoundError, match="eating_2.txt: Human3.6M file missing"):
+    with pytest.raises(
+        DataNotFoundError,
+        match="eating_2.txt: Human3.6M file of action 'eating' missing.*found in .*eating_1.txt",
+    ):
         load_h36m(tmp_path, "test", actions=ACTIONS)
     bad = tmp_path / "S5" / "walking_1.txt"
     bad.write_text("1,2,3\n")

@@ -186,18 +186,21 @@ def test_check_recomputes_every_row_and_names_what_differs(tmp_path, capsys):
     assert main(["leaderboard", "--benchmark", "cmu", *common]) == 0
     before = {p: p.stat().st_mtime_ns for p in out.rglob("*") if p.is_file()}
     capsys.readouterr()
-    assert main(["leaderboard", "--check", *common]) == 0  # every committed benchmark: cmu
-    summary = capsys.readouterr().out.strip().splitlines()[-1]
-    assert summary.startswith(
-        "checked 800 rows of 2 models in 2 tables against tolerance |difference| <= 1.5e-05 x "
-        "|value| + 0.002 mm (3.8e-06 in RMSE; a std: of its mean; float32 rounding across CPUs): "
-        "largest difference 0 "
+    # every committed benchmark (cmu), every window (--full: the averages recomputed too)
+    assert main(["leaderboard", "--check", "--full", *common]) == 0
+    lines = capsys.readouterr().out.strip().splitlines()
+    assert lines[-2].startswith(
+        "checked 4 leaderboard rows (2 models: repeat_last, tiny) in 2 tables, on 374 of their "
+        "374 windows: largest difference "
+    )
+    assert "relative, 0.00 of its tolerance)" in lines[-2]
+    assert lines[-1] == (
+        "tolerance: mpjpe: |difference| <= 1.5e-05 x |value| + 0.002 mm (a std: the tolerance "
+        "of its mean)"
     )
     assert {p: p.stat().st_mtime_ns for p in out.rglob("*") if p.is_file()} == before
-    assert main(["leaderboard", "--check", *common]) == 0
-    lines = capsys.readouterr().out.strip().splitlines()
-    assert lines[-3].startswith("cmu/ltd8: 400 rows checked, largest difference 0.00 of ")
-    assert lines[-3].endswith(": passed") and lines[-2].startswith("cmu/all: 400 rows checked")
+    assert lines[0].startswith("cmu/ltd8: 2 rows on all 8 windows (walking 8), largest ")
+    assert lines[0].endswith(": passed (0 s)") and lines[1].startswith("cmu/all: 2 rows on all")
 
     # a row that cannot be loaded (a corrupted checkpoint) is reported and the check goes on
     best = checkpoints / "cmu" / "tiny" / "best.pt"
@@ -211,7 +214,7 @@ def test_check_recomputes_every_row_and_names_what_differs(tmp_path, capsys):
     table_lines = [line for line in captured.out.splitlines() if line.startswith("cmu/")]
     # one problem per table (the row not recomputed), not one per committed value of it
     assert len(table_lines) == 2 and all("1 problem(s), first: cmu/" in t for t in table_lines)
-    assert "rows checked" in table_lines[1] and not table_lines[1].startswith("cmu/all: 0 rows")
+    assert table_lines[1].startswith("cmu/all: 2 rows on 32 of 366 windows (walking 32)")
     best.write_bytes(saved)
 
     for label, horizon, averaging, column in (
@@ -229,18 +232,15 @@ def test_check_recomputes_every_row_and_names_what_differs(tmp_path, capsys):
         ] += 0.01
         frame.to_csv(row, index=False)
     (out / "cmu" / "ltd8" / "repeat_last" / "windows.npz").unlink()
-    assert main(["leaderboard", "--check", "--benchmark", "cmu", *common]) == 1
+    assert main(["leaderboard", "--check", "--full", "--benchmark", "cmu", *common]) == 1
     captured = capsys.readouterr()
-    assert (
-        "cmu/all: model=tiny, action=average, metric=mpjpe, averaging=frame, "
-        "joints=all38, horizon_ms=400: value committed" in captured.err
-    )
-    assert (
-        "cmu/all: model=repeat_last, action=average, metric=mpjpe, averaging="
-        "cumulative, joints=all38, horizon_ms=80: std committed" in captured.err
-    )
+    for label, what in (("tiny", "averaging=frame"), ("repeat_last", "averaging=cumulative")):
+        row = out / "cmu" / "all" / label / "results.csv"
+        # named twice: against the recomputation and against its own windows.npz
+        assert f"cmu/all: model={label}, action=average, metric=mpjpe, {what}" in captured.err
+        assert f"{row}: model={label}, action=average, metric=mpjpe, {what}" in captured.err
     assert "ltd8/repeat_last/windows.npz: missing" in captured.err
-    assert "3 problem(s) above" in captured.out
+    assert "5 problem(s) above" in captured.out
 
     # a trained row whose checkpoint is gone cannot be recomputed: a problem, never kept
     shutil.rmtree(checkpoints)

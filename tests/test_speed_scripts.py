@@ -127,6 +127,7 @@ def test_speed_spgsn(capsys):
     assert "public code" in out and "== mlp ==" in out and "aim (>=" in out
 
 
+@pytest.mark.slow  # out of the README test command's 2 minutes; .ci/run runs it after
 @pytest.mark.skipif(
     importlib.util.find_spec("anny") is None,
     reason="the anny package is not installed (pip install anny==0.6.2)",

@@ -228,13 +228,16 @@ def test_a_stale_row_is_recomputed_and_a_current_one_reused(project, capsys):
     written = {p: p.stat().st_mtime_ns for p in table.rglob("*") if p.is_file()}
 
     code, _, err = cli(capsys, "leaderboard", *board_args(project, "tiny"))
-    assert code == 0 and "cmu: 4 row(s) reused, 0 recomputed" in err
+    assert code == 0 and "cmu: 4 row(s) reused, 0 re-stamped after a code change" in err
     assert {p: p.stat().st_mtime_ns for p in table.rglob("*") if p.is_file()} == written
 
     shipped_tiny(project, seed=1)  # retrained: other weights under the same label
     code, _, err = cli(capsys, "leaderboard", *board_args(project, "tiny"))
     assert code == 0 and "recomputing tiny: trained.sha256: stored" in err
-    assert "cmu: 2 row(s) reused, 2 recomputed" in err  # repeat_last reused on both tables
+    assert (
+        "cmu: 2 row(s) reused, 0 re-stamped after a code change (a sample agreed), 2 recomputed"
+        in err
+    )  # repeat_last reused on both tables
     assert (table / "repeat_last" / "results.csv").stat().st_mtime_ns == written[
         table / "repeat_last" / "results.csv"
     ]
@@ -438,14 +441,17 @@ def test_a_rebuild_that_agrees_changes_no_file(project, capsys):
     current = record["provenance"]["identity"]["code"]["evaluator"]
     record["provenance"]["identity"]["code"]["evaluator"] = "0" * 16  # as if the code changed
     record_path.write_text(json.dumps(record))
-    code, _, err = cli(capsys, "leaderboard", *board_args(project))
+    code, _, err = cli(capsys, "leaderboard", *board_args(project), "--full")  # every window
     assert code == 0 and "its files kept, its identity updated" in err
     refreshed = json.loads(record_path.read_text())
     assert refreshed["provenance"]["identity"]["code"]["evaluator"] == current
+    (verified,) = refreshed["provenance"]["verified"]
+    assert verified["every_window"] and verified["code_before"]["evaluator"] == "0" * 16
     for name in ("results.csv", "windows.npz", "tables.md"):
         assert (table / "repeat_last" / name).read_bytes() == before[table / "repeat_last" / name]
     # the table's own record carries the updated identity: the next rebuild writes nothing
-    assert (table / "protocol.json").read_bytes() == before[table / "protocol.json"]
+    table_record = json.loads((table / "protocol.json").read_text())
+    assert '"every_window": true' in json.dumps(table_record)
     stamps = {p: p.stat().st_mtime_ns for p in table.rglob("*") if p.is_file()}
     code, _, err = cli(capsys, "leaderboard", *board_args(project))
     assert {p: p.stat().st_mtime_ns for p in table.rglob("*") if p.is_file()} == stamps

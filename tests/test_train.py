@@ -245,6 +245,7 @@ def test_recipe_errors_are_named(setup, tmp_path):
         train("repeat_last", "cmu", registry=setup[1], data_root=setup[0], out_dir=tmp_path)
 
 
+@pytest.mark.slow  # out of the README test command's 2 minutes; .ci/run runs it after
 def test_two_process_ddp_ends_with_identical_weights(setup, tmp_path):
     root, _, reg_file = setup
     torchrun = Path(sys.executable).parent / "torchrun"
@@ -491,7 +492,8 @@ def test_validation_by_recordings_holds_out_whole_recordings_and_records_them(tm
     assert validation["split"] == "recordings" and validation["windows"] == 2 * (150 - 35 + 1)
     # auto: these 150-frame recordings cannot spare 10% for a 35-frame window, so the last
     # recording (10% of 8, rounded) is held out whole, and the record names it
-    auto = read_checkpoint(run_default(registry, root, tmp_path / "auto"))["validation"]
+    auto = read_checkpoint(run_default(registry, root, tmp_path / "auto", val_split="auto"))
+    auto = auto["validation"]
     assert auto["split"] == "auto" and "tails" not in auto
     assert [h.rsplit("/", 1)[-1] for h in auto["recordings"]] == ["walking_8.txt"]
     with pytest.raises(TrainingError, match="val_split 'shuffled' unknown; valid: auto"):
@@ -544,9 +546,51 @@ def test_validation_by_tails_takes_the_end_of_long_recordings_and_trains_on_shor
         held_out_frames(dataset, [150, 150, 150], 0.1, 35, "tails")
 
 
-def run_default(registry, root, out):
+def test_validation_by_actions_gives_every_action_windows_and_holds_none_out_whole(tmp_path):
+    """``actions``: tails where a recording can spare one; an action with no such recording
+    (walking here, as on CMU) gives the last 10% of its frames, at least one window, from the
+    end of its longest recording."""
+    from zoo.benchmark import get_benchmark
+    from zoo.train import held_out_frames
+
+    root = tmp_path / "cmu"
+    write_cmu_file(root / "train" / "basketball" / "basketball_1.txt", 0.01 * np.arange(800))
+    write_cmu_file(root / "train" / "walking" / "walking_1.txt", 0.01 * np.arange(300))
+    write_cmu_file(root / "train" / "walking" / "walking_2.txt", 0.01 * np.arange(300))
+    write_cmu_file(root / "train" / "running" / "running_1.txt", 0.01 * np.arange(300))
+    bench = get_benchmark("cmu")
+    dataset = bench.load(root, split=bench.train_split)
+    by_name = {s.name.rsplit("/", 1)[-1]: i for i, s in enumerate(dataset.sequences)}
+    basketball, walking_1, walking_2, running = (
+        by_name[n] for n in ("basketball_1.txt", "walking_1.txt", "walking_2.txt", "running_1.txt")
+    )
+    lengths = [0] * 4
+    for i, n in ((basketball, 400), (walking_1, 150), (walking_2, 200), (running, 80)):
+        lengths[i] = n
+    plan = held_out_frames(dataset, lengths, 0.1, 35, "actions")
+    # basketball: its 10% tail; walking: 10% of 350 frames is 35 (one window) from walking_2,
+    # its longest; running: one recording of 80, which spares a window and keeps one
+    assert plan == {basketball: 360, walking_2: 200 - 35, running: 80 - 35}
+    assert all(start > 0 for start in plan.values())  # no recording held out whole
+    with pytest.raises(TrainingError, match="action 'running'.*60 frames.*val_split=tails"):
+        lengths[running] = 60
+        held_out_frames(dataset, lengths, 0.1, 35, "actions")
+    # CMU's own rule (benchmarks/cmu.yaml), for every model whose recipe names none
+    (tmp_path / "registry.yaml").write_text(REGISTRY)
+    shutil.copy(HERE / "tiny_models.py", tmp_path / "tiny_models.py")
+    registry = Registry.from_files(HERE.parent / "registry.yaml", tmp_path / "registry.yaml")
+    validation = read_checkpoint(run_default(registry, root, tmp_path / "run"))["validation"]
+    assert validation["split"] == "actions" and "recordings" not in validation
+    assert [h.rsplit("/", 1)[-1] for h in validation["tails"]["of"]] == [
+        "basketball_1.txt",
+        "running_1.txt",
+        "walking_1.txt",  # as long as walking_2: the first of them
+    ]
+
+
+def run_default(registry, root, out, **recipe):
     return train("tiny", "cmu", registry=registry, data_root=root, out_dir=out, progress=False,
-                 epochs=1)  # fmt: skip
+                 epochs=1, train_overrides=recipe)  # fmt: skip
 
 
 def test_a_model_with_part_of_a_hook_group_is_refused_naming_the_rest(setup, tmp_path):
@@ -631,3 +675,46 @@ def test_a_cuda_graph_trains_as_the_eager_step_and_resumes_on_the_cpu(setup, tmp
         )
     run(setup, tmp_path / "cut_cpu", epochs=3, resume=True)
     assert read_checkpoint(tmp_path / "cut_cpu" / "last.pt")["epoch"] == 2
+
+
+WRONG_SHAPE = """\
+models:
+  wrong_shape:
+    class: wrong_shape.py:DropsAFrame
+    representation: joints
+    trainable: true
+    hparams: {}
+    reference: test model
+    train: {lr: 0.001, batch_size: 8, epochs: 1}
+"""
+
+
+def test_a_model_whose_output_has_the_wrong_shape_is_refused_before_the_first_step(
+    setup, tmp_path, capsys
+):
+    """One line, as zoo eval gives it, and no checkpoint: not a traceback from the loss."""
+    root, _, _ = setup
+    (tmp_path / "wrong.yaml").write_text(WRONG_SHAPE)
+    (tmp_path / "wrong_shape.py").write_text(
+        "import torch\n\n\n"
+        "class DropsAFrame(torch.nn.Module):\n"
+        "    def __init__(self, input_frames, output_frames, num_points):\n"
+        "        super().__init__()\n"
+        "        self.scale = torch.nn.Parameter(torch.ones(()))\n"
+        "        self.frames = output_frames - 1\n\n"
+        "    def forward(self, history):\n"
+        "        return self.scale * history[:, -1:].expand(-1, self.frames, -1, -1)\n"
+    )
+    common = ["--registry", str(tmp_path / "wrong.yaml"), "--data-root", str(root)]
+    out = tmp_path / "run"
+    assert main(["train", "--model", "wrong_shape", "--out", str(out), *common]) == 2
+    err = capsys.readouterr().err.strip()
+    lines = [line for line in err.splitlines() if not line.startswith("warning: ")]
+    assert "Traceback" not in err and len(lines) == 1  # beside the data's (absent actions)
+    assert err.endswith(
+        "model 'wrong_shape' returned (1, 24, 25, 3); the contract (zoo.models) expects "
+        "(1, 25, 25, 3); nothing was trained"
+    )
+    assert not (out / "last.pt").exists()
+    assert main(["eval", "--model", "wrong_shape", "--out", str(tmp_path / "e"), *common]) == 2
+    assert "model 'wrong_shape' returned (8, 24, 25, 3); the contract" in capsys.readouterr().err

@@ -44,6 +44,7 @@ _OPTIONAL = (
     "ground_truths",
     "melv_frames",
     "weights_from",
+    "val_split",
 )
 # Mesh datasets: name -> a loader ``(root: Path | None, split) -> MeshDataset`` or the
 # "module:function" that names one (``root``: where the data, or the cache of generated data,
@@ -88,6 +89,9 @@ class Benchmark:
     melv_frames: str | None = None  # None: spectral where there is a basis, else raw
     # A benchmark whose trained models are also scored here (same mesh, basis and frames).
     weights_from: str | None = None
+    # The validation rule of every model trained here (zoo.train.held_out_frames) unless its
+    # recipe or the run names another: one rule per benchmark, so its models compare.
+    val_split: str | None = None
 
     @property
     def melv_on(self) -> str:
@@ -268,6 +272,8 @@ def get_benchmark(name_or_path: str | Path) -> Benchmark:
     for key in ("input_frames", "output_frames"):
         if not isinstance(raw[key], int) or raw[key] < 1:
             raise BenchmarkError(f"{path}: field {key!r} must be a positive integer")
+    if not isinstance(raw.get("val_split", ""), str):
+        raise BenchmarkError(f"{path}: field 'val_split' must name a validation rule")
     samplers = tuple(raw.get("samplers") or (raw["sampler"],))
     for s in (raw["sampler"], *samplers):
         try:

@@ -1,7 +1,13 @@
-"""``zoo leaderboard --check``: freshly recomputed rows compared with the committed tables,
-value by value and window by window, against :mod:`zoo.tolerance`; what was found, per table
-and overall (:class:`CheckReport`). The leaderboard recomputes; this module compares and
-reports, and writes nothing."""
+"""``zoo leaderboard --check``: committed rows recomputed and compared with the committed tables
+against :mod:`zoo.tolerance`; what was found, per table and overall (:class:`CheckReport`).
+
+By default a table is checked on a sample of its windows (:func:`draw_sample`: stratified, so
+every action has windows in it): every row is recomputed on those windows and each window's
+errors compared with the stored ones (``windows.npz``). Every row's ``results.csv`` is also
+recomputed exactly from its stored per-window errors, and its identity compared with the one it
+records (weights' sha256, protocol and data, hyper-parameters). ``--full`` recomputes every
+window. The leaderboard recomputes; this module draws, compares and reports, and writes
+nothing."""
 
 from __future__ import annotations
 
@@ -11,106 +17,291 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from zoo.tolerance import KEY_COLUMNS, tolerance_text
+from zoo.tolerance import KEY_COLUMNS, tolerance_by_metric, window_gaps
+from zoo.tolerance import Incomparable as _Incomparable
 from zoo.tolerance import allowed as tolerated
+
+# Windows a table's sampled check scores: a fault in 5% of a row's windows escapes it with
+# probability 0.95**n (docs/reproducibility.md gives the sizes and times).
+DEFAULT_WINDOWS = 32
+
+
+def draw_sample(actions: np.ndarray, n: int, seed: int) -> np.ndarray:
+    """Positions of ``n`` windows (sorted) drawn without replacement from windows of
+    ``actions``, stratified: every action gets at least one window (``n`` permitting), the rest
+    in proportion to its windows (largest remainders). Every window when ``n`` covers them."""
+    actions = np.asarray(actions)
+    if n >= len(actions):
+        return np.arange(len(actions))
+    names, counts = np.unique(actions, return_counts=True)
+    take = np.minimum(counts, 1 if n >= len(names) else 0)
+    if n < len(names):  # fewer windows than actions: the largest actions get one each
+        take[np.argsort(-counts, kind="stable")[:n]] = 1
+    left = n - int(take.sum())
+    while left > 0:  # the rest in proportion to the windows not yet taken
+        room = counts - take
+        quota = left * room / room.sum()
+        extra = np.floor(quota).astype(int)
+        order = np.argsort(-(quota - extra), kind="stable")
+        extra[order[: left - int(extra.sum())]] += 1
+        extra = np.minimum(extra, room)
+        take += extra
+        left = n - int(take.sum())
+    rng = np.random.default_rng(seed)
+    chosen = [
+        rng.choice(np.flatnonzero(actions == name), size=k, replace=False)
+        for name, k in zip(names, take)
+        if k
+    ]
+    return np.sort(np.concatenate(chosen))
+
+
+def fresh_seed() -> int:
+    """A sample's seed, drawn anew for each run that is given none."""
+    import secrets
+
+    return secrets.randbelow(2**31)
+
+
+def escape_sentence(n: int) -> str:
+    """What a sample of ``n`` windows a row can miss, with the numbers worked out."""
+    odds = ", ".join(f"f = {f:.0%}: {(1 - f) ** n:.2g}" for f in (0.01, 0.05, 0.1))
+    return (
+        f"a fault touching a fraction f of a row's windows escapes a sample of n = {n} of them "
+        f"with probability (1 - f)^n ({odds}); a fault in every window of one action cannot "
+        f"escape (each action is sampled); --full checks every window"
+    )
+
+
+@dataclass
+class TableCheck:
+    """One table's check: its rows (labels), the windows scored of how many (per action), the
+    largest difference as a share of its tolerance, its problems, its rows stamped by older
+    code and whether the data built here has the bytes each row records."""
+
+    rows: list = field(default_factory=list)
+    windows: int = 0
+    total: int = 0
+    per_action: dict = field(default_factory=dict)
+    share: float = 0.0
+    problems: list = field(default_factory=list)
+    stale: list = field(default_factory=list)  # rows stamped by older code
+    data: dict = field(default_factory=dict)  # row -> whether data built here has its bytes
 
 
 @dataclass
 class CheckReport:
-    """What ``zoo leaderboard --check`` found: rows and tables recomputed, the largest
-    difference from the committed values (and where), and every problem (a value outside its
-    tolerance, a row or table missing on either side, a row that cannot be recomputed).
+    """What ``zoo leaderboard --check`` found: tables and rows recomputed, on how many windows
+    (``windows``: the sample asked for, None: every window; ``seed``: the sample's), the
+    largest difference from the committed values (and where), and every problem (a value
+    outside its tolerance, a row or table missing on either side, a row that cannot be
+    recomputed, weights that are not the recorded ones)."""
 
-    Tolerances follow from the arithmetic (see :data:`TOLERANCES`): a value is named when it
-    differs from the committed one by more than ``tolerance(metric) * max(|value|, scale)``."""
-
-    rows: int = 0
-    tables: int = 0
-    models: set = field(default_factory=set)
+    windows: int | None = DEFAULT_WINDOWS
+    seed: int = field(default_factory=fresh_seed)
     largest: tuple = (0.0, 0.0, 0.0, "")  # (share of its tolerance, relative, absolute, where)
     problems: list = field(default_factory=list)
-    # per table ("<benchmark>/<table>"): rows checked, largest share of the tolerance, problems
-    per_table: dict = field(default_factory=dict)
+    tables: dict = field(default_factory=dict)  # "<benchmark>/<table>" -> TableCheck
+    metrics: set = field(default_factory=set)
     current: str = ""
 
     def start_table(self, name: str) -> None:
         self.current = name
-        self.per_table.setdefault(name, {"rows": 0, "share": 0.0, "problems": []})
+        self.tables.setdefault(name, TableCheck())
+
+    def sample(self, actions: np.ndarray) -> np.ndarray | None:
+        """The windows (positions) the current table is checked on; None: every one."""
+        table = self.tables[self.current]
+        table.total = len(actions)
+        rows = None if self.windows is None else draw_sample(actions, self.windows, self.seed)
+        scored = np.asarray(actions) if rows is None else np.asarray(actions)[rows]
+        table.windows = len(scored)
+        table.per_action = dict(zip(*np.unique(scored, return_counts=True)))
+        return rows
 
     def problem(self, text: str) -> None:
         """A problem of the table being checked (or of the run, outside any table)."""
         self.problems.append(text)
         if self.current:
-            self.per_table[self.current]["problems"].append(text)
-
-    def table_lines(self) -> list[str]:
-        """One line per table: rows checked and the largest difference as a share of the
-        tolerance, or its problems (the first named: a refusal and its reason)."""
-        return [self.table_line(name) for name in self.per_table]
+            self.tables[self.current].problems.append(text)
 
     def table_line(self, name: str) -> str:
-        t = self.per_table[name]
+        """One table: rows, windows (per action) and the largest difference as a share of the
+        tolerance, or its problems (the first named)."""
+        t = self.tables[name]
         verdict = (
-            f"{len(t['problems'])} problem(s), first: {t['problems'][0]}"
-            if t["problems"]
-            else "passed"
+            f"{len(t.problems)} problem(s), first: {t.problems[0]}" if t.problems else "passed"
         )
-        return (
-            f"{name}: {t['rows']} rows checked, largest difference {t['share']:.2f} of "
-            f"the tolerance: {verdict}"
-        )
-
-    def note(self, gap: np.ndarray, old: np.ndarray, allowed: np.ndarray, where) -> None:
-        """Keep the largest difference (measured as a share of its tolerance) and where
-        (``where``: text, or a function of the position of that difference)."""
-        if not gap.size:
-            return
-        share = gap / allowed
-        i = int(np.argmax(share))
-        if self.current:
-            table = self.per_table[self.current]
-            table["share"] = max(table["share"], float(share.flat[i]))
-        if share.flat[i] > self.largest[0] or not self.largest[3]:
-            relative = gap.flat[i] / max(abs(old.flat[i]), 1e-12)
-            self.largest = (
-                float(share.flat[i]),
-                float(relative),
-                float(gap.flat[i]),
-                where(i) if callable(where) else where,
+        if t.total:
+            scored = "all" if t.windows == t.total else f"{t.windows} of"
+            counts = sorted(t.per_action.values())
+            actions = (
+                ", ".join(f"{a} {n}" for a, n in t.per_action.items())
+                if len(counts) <= 8
+                else f"{len(counts)} actions, {counts[0]}-{counts[-1]} each"
             )
-
-    def summary(self) -> str:
-        share, relative, absolute, where = self.largest
+            windows = f" on {scored} {t.total} windows ({actions})"
+        else:
+            windows = ""
+        notes = []
+        if t.data:
+            other = sum(not same for same in t.data.values())
+            notes.append(
+                f"data built here with other last bits than {other} of its rows record (a "
+                f"generated mesh follows the CPU's float kernels; compared within the tolerance)"
+                if other
+                else "data built here as its rows record"
+            )
+        if t.stale:
+            notes.append(f"{len(t.stale)} of its rows stamped by older code")
         return (
-            f"checked {self.rows} rows of {len(self.models)} models in {self.tables} tables "
-            f"against tolerance {tolerance_text()}: largest difference {absolute:.2g} "
-            f"({relative:.2g} relative, {share:.2f} of its tolerance) at {where or '-'}"
+            f"{name}: {len(t.rows)} rows{windows}, largest difference {t.share:.2f} of the "
+            f"tolerance: {verdict}" + "".join(f"; {n}" for n in notes)
         )
+
+    def gap(self, share: float, relative: float, absolute: float, where: str) -> None:
+        """Keep the largest difference (as a share of its tolerance) and where it is."""
+        if self.current:
+            table = self.tables[self.current]
+            table.share = max(table.share, share)
+        if share > self.largest[0] or not self.largest[3]:
+            self.largest = (share, relative, absolute, where)
+
+    def summary(self) -> list[str]:
+        """The closing lines: what was checked, the largest difference, what a sample can
+        miss, the tolerances."""
+        share, relative, absolute, where = self.largest
+        rows = [label for t in self.tables.values() for label in t.rows]
+        models = sorted({label.split("@")[0] for label in rows})
+        scored = sum(t.windows for t in self.tables.values())
+        total = sum(t.total for t in self.tables.values())
+        sampled = [t.windows for t in self.tables.values() if t.windows < t.total]
+        lines = [
+            f"checked {len(rows)} leaderboard rows ({len(models)} models: {', '.join(models)}) "
+            f"in {len(self.tables)} tables, on {scored:,} of their {total:,} windows: largest "
+            f"difference {absolute:.2g} ({relative:.2g} relative, {share:.2f} of its "
+            f"tolerance) at {where or '-'}"
+        ]
+        if sampled:
+            lines.append(
+                f"sample: seed {self.seed} (--seed {self.seed} draws it again); "
+                + escape_sentence(min(sampled))
+            )
+        stale = sum(len(t.stale) for t in self.tables.values())
+        if stale:
+            lines.append(
+                f"{stale} rows were stamped by older code (the evaluator's, the data's or their "
+                f"model's; the same data, protocol, hyper-parameters and weights): their numbers "
+                f"were checked as they stand, and zoo leaderboard re-stamps them once a sample "
+                f"agrees"
+            )
+        if self.metrics:
+            lines.append(f"tolerance: {tolerance_by_metric(self.metrics)}")
+        return lines
 
 
 def check_table(
-    results: list, folder: Path, check: CheckReport, unplanned: set = frozenset()
+    results: list,
+    folder: Path,
+    check: CheckReport,
+    unplanned: set = frozenset(),
+    rows: np.ndarray | None = None,
 ) -> None:
-    """Compare freshly computed results with the committed table in ``folder`` (its rows'
-    ``results.csv``, and each model's per-window errors with its ``windows.npz``)."""
-    from zoo.results import TABLE_FILE, WINDOWS_FILE, WindowErrors, read_table
+    """Compare freshly computed results with the committed table in ``folder``: each row's
+    per-window errors with its ``windows.npz`` (at positions ``rows``, the sample; None: every
+    window, and then its averages with its ``results.csv`` too), and every committed row's
+    ``results.csv`` with what its own ``windows.npz`` gives."""
+    from zoo.results import TABLE_FILE, WINDOWS_FILE, WindowErrors, read_table, table_labels
 
-    check.tables += 1
-    fresh = pd.concat([r.frame for r in results], ignore_index=True)
-    if check.current:
-        check.per_table[check.current]["rows"] += len(fresh)
-    check.rows += len(fresh)
-    check.models |= set(fresh["model"])
+    name = f"{folder.parent.name}/{folder.name}"
     if not (folder / TABLE_FILE).is_file():
         check.problem(f"{folder}/{TABLE_FILE}: missing; the leaderboard makes this table")
         return
     committed = read_table(folder).frame
     committed = committed[~committed["model"].isin(unplanned)]  # named once, as folders
+    check.metrics |= set(committed["metric"])
+    recomputed = {str(r.frame["model"].iloc[0]) for r in results}
+    for label in table_labels(folder):  # rows not recomputed: their files checked still
+        if label not in recomputed:
+            _consistent(folder / label, check)
+    for r in results:
+        label = str(r.frame["model"].iloc[0])
+        path = folder / label / WINDOWS_FILE
+        if not path.is_file():
+            check.problem(f"{path}: missing (per-window errors of {label})")
+            continue
+        stored = WindowErrors.read(path)
+        try:
+            gaps = window_gaps(r.windows, stored, rows)
+        except _Incomparable as e:
+            check.problem(f"{path}: {e}")
+            continue
+        for g in gaps:
+            check.gap(
+                g.share, g.relative, g.absolute, f"{name}/{label}/{WINDOWS_FILE} {'/'.join(g.key)}"
+            )
+            if g.share > 1:
+                check.problem(
+                    f"{path}: {'/'.join(g.key)}: per-window errors differ beyond tolerance "
+                    f"(window {g.window}, {stored.action[g.window]}: {g.absolute:.2g} apart, "
+                    f"{g.relative:.2g} relative, {g.share:.2f} of the tolerance)"
+                )
+        kept = _consistent(folder / label, check, stored)
+        if kept is not None:
+            _data_note(kept.protocol, r.protocol, label, check)
+    if rows is None:
+        fresh = pd.concat([r.frame for r in results], ignore_index=True)
+        _compare_values(fresh, committed, folder, check)
+
+
+def _place(path: Path) -> str:
+    """Where a difference is, short: ``<benchmark>/<table>[/<row>/results.csv]``."""
+    parts = path.parts
+    return "/".join(parts[-4:] if path.name == "results.csv" else parts[-2:])
+
+
+def _data_note(stored: dict, fresh: dict, label: str, check: CheckReport) -> None:
+    """A generated dataset's bytes (``data_hash``) against those the row was computed on: the
+    same, or built with other last bits (another CPU's float kernels), which the per-window
+    comparison then judges. A skeleton dataset's files are in the protocol, checked with it."""
+    before = (stored.get("provenance") or {}).get("data_hash")
+    now = (fresh.get("provenance") or {}).get("data_hash")
+    if before is not None and now is not None and check.current:
+        check.tables[check.current].data[label] = before == now
+
+
+def _consistent(row: Path, check: CheckReport, windows=None):
+    """A committed row's ``results.csv`` against what its own ``windows.npz`` gives, exactly as
+    the evaluator sums them (a value edited in one file and not the other is named); the stored
+    result, or None where it cannot be read."""
+    from zoo.evaluate import frame_from_windows
+    from zoo.results import WINDOWS_FILE, EvalResult
+
+    try:
+        stored = EvalResult.read(row)
+    except Exception as e:  # noqa: BLE001 - an unreadable row is a problem, the check goes on
+        check.problem(f"{row}: not readable: {e}")
+        return None
+    windows = windows if windows is not None else stored.windows
+    if windows is None:
+        check.problem(f"{row / WINDOWS_FILE}: missing (per-window errors of {row.name})")
+        return stored
+    again = frame_from_windows(windows, stored.protocol)
+    _compare_values(again, stored.frame, row / "results.csv", check, against=f"its {WINDOWS_FILE}")
+    return stored
+
+
+def _compare_values(
+    fresh: pd.DataFrame, committed: pd.DataFrame, folder: Path, check: CheckReport, against=""
+) -> None:
+    """Values and standard deviations of ``fresh`` rows against the ``committed`` ones, key by
+    key; ``against``: what ``fresh`` was computed from, when not a recomputation."""
     both = fresh.merge(
         committed, on=KEY_COLUMNS, how="outer", suffixes=("", "_committed"), indicator="side"
     )
+    source = f", from {against}" if against else ""
     for row in both[both["side"] != "both"].itertuples():
-        where = "committed only" if row.side == "right_only" else "recomputed only"
+        where = "committed only" if row.side == "right_only" else f"recomputed only{source}"
         check.problem(
             f"{folder}: {where}: " + ", ".join(f"{k}={getattr(row, k)}" for k in KEY_COLUMNS)
         )
@@ -128,66 +319,55 @@ def check_table(
         nan = np.isnan(new) | np.isnan(old)  # a NaN (one window's spread) matches only a NaN
         allowed = tolerated(matched["metric"].to_numpy(), scale)
         differs = np.where(nan, np.isnan(new) != np.isnan(old), difference > allowed)
-        keep = ~nan
-        rows = matched[keep]
-        check.note(
-            difference[keep],
-            old[keep],
-            allowed[keep],
-            lambda i, rows=rows, column=column: (
-                f"{folder.parent.name}/{folder.name} "
-                + ", ".join(f"{k}={rows.iloc[i][k]}" for k in KEY_COLUMNS)
-                + f" ({column})"
-            ),
-        )
+        keep = np.flatnonzero(~nan)
+        if keep.size:
+            share = difference[keep] / allowed[keep]
+            i = keep[int(np.argmax(share))]
+            check.gap(
+                float(share.max()),
+                float(relative[i]),
+                float(difference[i]),
+                f"{_place(folder)} "
+                + ", ".join(f"{k}={matched.iloc[i][k]}" for k in KEY_COLUMNS)
+                + f" ({column}{source})",
+            )
         for row, rel in zip(matched[differs].itertuples(), relative[differs]):
             check.problem(
                 f"{folder}: "
                 + ", ".join(f"{k}={getattr(row, k)}" for k in KEY_COLUMNS)
-                + f": {column} committed "
-                f"{getattr(row, column + '_committed')!r}, recomputed {getattr(row, column)!r} "
-                f"(relative {rel:.2g}; tolerance {tolerance_text()})"
+                + f": {column} committed {getattr(row, column + '_committed')!r}, "
+                + ("recomputed" if not against else f"{against} gives")
+                + f" {getattr(row, column)!r} (relative {rel:.2g}; tolerance "
+                f"{tolerance_by_metric([row.metric])})"
             )
-    for row in (
-        matched[matched["protocol_id"] != matched["protocol_id_committed"]]
-        .drop_duplicates("model")
-        .itertuples()
-    ):
-        check.problem(
-            f"{folder}: {row.model}: protocol "
-            f"{row.protocol_id_committed} committed, {row.protocol_id} now"
-        )
-    for r in results:
-        if r.windows is None:
-            continue
-        label = str(r.frame["model"].iloc[0])
-        path = folder / label / WINDOWS_FILE
-        if not path.is_file():
-            check.problem(f"{path}: missing (per-window errors of {label})")
-            continue
-        stored = WindowErrors.read(path)
-        same_windows = np.array_equal(stored.start, r.windows.start) and np.array_equal(
-            stored.sequence, r.windows.sequence
-        )
-        for key, values in r.windows.errors.items():
-            old = stored.errors.get(key)
-            if old is None or not same_windows:
-                check.problem(f"{path}: {'/'.join(key)}: missing or for other windows")
-                continue
-            old = old.astype(np.float64)
-            gap = np.abs(old - values)
-            relative = gap / np.maximum(np.abs(old), 1e-12)
-            allowed = tolerated(key[1], old)
-            check.note(
-                gap,
-                old,
-                allowed,
-                f"{folder.parent.name}/{folder.name}/{label}/{WINDOWS_FILE} {'/'.join(key)}",
+    if "protocol_id_committed" in matched:
+        for row in (
+            matched[matched["protocol_id"] != matched["protocol_id_committed"]]
+            .drop_duplicates("model")
+            .itertuples()
+        ):
+            check.problem(
+                f"{folder}: {row.model}: protocol "
+                f"{row.protocol_id_committed} committed, {row.protocol_id} now"
             )
-            if (gap > allowed).any():
-                check.problem(
-                    f"{path}: {'/'.join(key)}: per-window errors differ "
-                    f"beyond tolerance (relative up to {relative.max():.2g}, "
-                    f"absolute up to {gap.max():.2g}; tolerance "
-                    f"{tolerance_text()})"
-                )
+
+
+def check_identity(label: str, stored: dict | None, fresh: dict, check: CheckReport) -> None:
+    """A row's recorded identity against the one it has now: other weights (their sha256),
+    another protocol (data files, windows), other hyper-parameters are problems; code changed
+    since the row was stamped is a note (``zoo leaderboard`` re-stamps such a row once a sample
+    agrees)."""
+    from zoo.store import identity_differences
+
+    differences = identity_differences(stored, fresh)
+    code = [d for d in differences if d.startswith("code.")]
+    other = [d for d in differences if not d.startswith("code.")]
+    for d in other:
+        what = (
+            "weights are not the ones it records"
+            if d.startswith("trained")
+            else "recorded identity differs"
+        )
+        check.problem(f"{check.current}: {label}: {what}: {d}")
+    if code and not other and check.current:
+        check.tables[check.current].stale.append(label)

@@ -10,6 +10,7 @@ from typing import Any
 
 import yaml
 
+from zoo.check import DEFAULT_WINDOWS
 from zoo.errors import ZooError
 from zoo.evaluate import EVAL_BATCH
 from zoo.paths import REPO_ROOT
@@ -234,15 +235,32 @@ def cmd_weights(args) -> int:
 def cmd_leaderboard(args) -> int:
     import time
 
-    from zoo.check import CheckReport
+    from zoo.check import CheckReport, fresh_seed
     from zoo.leaderboard import Plan, regenerate
 
     registry = _registry(args)
-    check = CheckReport() if args.check else None
+    if args.windows is not None and args.windows < 1:
+        raise UsageError(f"--windows {args.windows}: expected a positive number of windows")
+    if args.windows is not None and args.full:
+        raise UsageError("--windows samples; --full checks every window: give one of them")
+    windows = None if args.full else (args.windows or DEFAULT_WINDOWS)
+    seed = args.seed if args.seed is not None else fresh_seed()
+    check = CheckReport(windows=windows, seed=seed) if args.check else None
     if check and (args.recompute is not None or args.model or args.drop):
         raise UsageError(
             "--check recomputes every committed row and writes nothing; it takes "
             "no --recompute, --model or --drop"
+        )
+    if check:
+        print(
+            "zoo leaderboard --check: "
+            + (
+                "every window of every table (--full)"
+                if windows is None
+                else f"{windows} windows a table, every action among them (seed {seed}; "
+                f"--seed {seed} draws them again; --full checks every window)"
+            ),
+            file=sys.stderr,
         )
     if not args.benchmark:
         args.benchmark = (
@@ -271,6 +289,8 @@ def cmd_leaderboard(args) -> int:
             models=frozenset(args.model or ()),
             drop=frozenset(args.drop or ()),
             check=check,
+            windows=windows,
+            seed=seed,
         )
         run = lambda bench=bench, plan=plan: regenerate(  # noqa: E731
             bench,
@@ -298,12 +318,13 @@ def cmd_leaderboard(args) -> int:
         return 0
     for problem in check.problems:
         print(f"zoo leaderboard --check: {problem}", file=sys.stderr)
-    for line in check.table_lines():
-        print(line)
+    first, *rest = check.summary()
     print(
-        f"{check.summary()} ({', '.join(names)}; {time.perf_counter() - started:.0f} "
+        f"{first} ({', '.join(names)}; {time.perf_counter() - started:.0f} "
         f"s){'' if not check.problems else f'; {len(check.problems)} problem(s) above'}"
     )
+    for line in rest:
+        print(line)
     return 1 if check.problems else 0
 
 
@@ -585,9 +606,21 @@ def _data_regressor(bench, args) -> int:
         f"{report['rows_l1']:.2g} in L1), regressed joints on the fit's "
         f"{int(report['stats']['fit_frames'][0])} frames within {report['joints_mm']:.3g} mm "
         f"(mean {report['joints_mean_mm']:.2g} mm; tolerance {am.REGRESSOR_TOLERANCE_MM} mm): "
-        f"{'the same regressor' if report['same'] else 'ANOTHER REGRESSOR'}"
+        + (
+            "the same regressor"
+            if report["same"]
+            else "another regressor (the full-body fit is ill-conditioned: another CPU's "
+            "skinning moves its weights; docs/reproducibility.md)"
+        )
     )
-    return 0 if report["same"] else 1
+    here, recorded = report["shipped_here"], report["stats"]
+    print(
+        f"the shipped regressor on the fit's frames skinned here: misses the bone heads by "
+        f"{here['fit_mean_mm']:.3f} mm on average, {here['fit_p99_mm']:.3f} at the 99th "
+        f"percentile (its record: {recorded['fit_mean_mm'][1]}, {recorded['fit_p99_mm'][1]}): "
+        + ("as recorded" if report["fits_here"] else "NOT AS RECORDED")
+    )
+    return 0 if report["fits_here"] else 1
 
 
 def cmd_data(args) -> int:
@@ -810,8 +843,29 @@ def build_parser() -> argparse.ArgumentParser:
         "--check",
         action="store_true",
         help="write nothing: recompute every row of every committed table (default: "
-        "every benchmark under --out) and exit 1 naming each value that differs "
-        "by more than float32 rounding across CPUs (tolerance in the summary)",
+        "every benchmark under --out) on a sample of its windows (--windows, --full), "
+        "recompute each row's averages from its stored per-window errors, and exit 1 "
+        "naming each value that differs by more than float32 rounding across CPUs "
+        "(tolerances in the summary) and each row whose weights are not the recorded ones",
+    )
+    p.add_argument(
+        "--windows",
+        type=int,
+        metavar="N",
+        help=f"windows a table's sample has (default {DEFAULT_WINDOWS}, every action among "
+        "them): what --check recomputes, and what verifies a row stale only because code "
+        "changed before it is re-stamped",
+    )
+    p.add_argument(
+        "--seed",
+        type=int,
+        help="the sample's seed (default: drawn anew each run, and printed)",
+    )
+    p.add_argument(
+        "--full",
+        action="store_true",
+        help="every window: --check recomputes every row in full, and a row stale only "
+        "because code changed is recomputed instead of verified on a sample",
     )
     p.add_argument(
         "--model",

@@ -244,6 +244,16 @@ def _finished(
     )
 
 
+def frame_from_windows(windows: WindowErrors, record: dict[str, Any]) -> pd.DataFrame:
+    """The long-format rows that the per-window errors ``windows`` give under ``record`` (a
+    result's protocol record), summed as the evaluator sums them: a stored ``results.csv``
+    recomputed from its own ``windows.npz`` (which keeps the errors in float32, so the two
+    agree to that rounding, far inside :mod:`zoo.tolerance`)."""
+    errors = {key: values.astype(np.float64) for key, values in windows.errors.items()}
+    accumulators, _ = _accumulate({0: errors}, windows.action)
+    return _frame(accumulators, record, record["windows_per_action"])
+
+
 def _progress(protocol: Protocol, models: list[Scored], dist_info: DistInfo):
     """Windows scored so far, on stderr, for an evaluation that takes more than a few seconds
     (nothing for a short one; the first process only under torchrun)."""
@@ -278,7 +288,7 @@ def _evaluate_skeleton(
     def errors(scored: Scored, windows: torch.Tensor, start: int) -> dict:
         history = windows[:, :t_in, used].to(device)
         pred = predict(scored.model, history, task, t_out, windows[:, -1, used].to(device))
-        pred = _checked(pred, (len(history), t_out, len(used), 3), scored.name, start)
+        pred = checked_prediction(pred, (len(history), t_out, len(used), 3), scored.name, start)
         return {
             (scored.name, "mpjpe", joints): _float64(e)
             for joints, e in skeleton_errors(pred, windows[:, t_in:], skeleton).items()
@@ -354,7 +364,7 @@ def predict(
     return torch.cat(out, dim=1)[:, :frames]
 
 
-def _checked(pred, expected: tuple, model_name: str, start: int) -> torch.Tensor:
+def checked_prediction(pred, expected: tuple, model_name: str, start: int) -> torch.Tensor:
     """A model's output on CPU in float32, or an error if it breaks the contract."""
     if not isinstance(pred, torch.Tensor) or tuple(pred.shape) != expected:
         got = tuple(pred.shape) if isinstance(pred, torch.Tensor) else type(pred).__name__
@@ -524,7 +534,9 @@ def _evaluate_mesh(
         pred = predict(
             scored.model, joints[:, :t_in].to(device), task, t_out, joints[:, -1].to(device)
         )
-        pred = _checked(pred, (len(joints), t_out, regressor.shape[0], 3), scored.name, start)
+        pred = checked_prediction(
+            pred, (len(joints), t_out, regressor.shape[0], 3), scored.name, start
+        )
         return {(scored.name, "mpjpe", joint_column): _float64(mpjpe(pred, joints[:, t_in:]))}
 
     def mesh_errors(scored: Scored, truth: _MeshTruth, start: int) -> dict:
@@ -532,13 +544,15 @@ def _evaluate_mesh(
         pred = predict(
             scored.model, windows[:, :t_in].to(device), task, t_out, windows[:, -1].to(device)
         )
-        pred = _checked(pred, (len(windows), *expected_tail), scored.name, start)
+        pred = checked_prediction(pred, (len(windows), *expected_tail), scored.name, start)
         scored_frames = {scored.name: pred}
         floor = getattr(scored.model, "autoencoder_floor", None)
         if floor is not None:
             name = scored.name + FLOOR_SUFFIX
             rebuilt = floor(truth.target.to(device))
-            scored_frames[name] = _checked(rebuilt, (len(windows), *expected_tail), name, start)
+            scored_frames[name] = checked_prediction(
+                rebuilt, (len(windows), *expected_tail), name, start
+            )
         errors = {}
         for name, frames in scored_frames.items():
             errors[(name, "melv", "vertices")] = length_variation(

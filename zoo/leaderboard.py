@@ -10,10 +10,17 @@ import os
 import shutil
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
-from zoo.check import CheckReport, check_table
+from zoo.check import (
+    DEFAULT_WINDOWS,
+    CheckReport,
+    check_identity,
+    check_table,
+    draw_sample,
+    fresh_seed,
+)
 from zoo.efficiency import COSTS_FILE, Costs, architecture, cost_key
 from zoo.io import atomic_write_json, replace_folder
 from zoo.model_source import ModelSource
@@ -25,12 +32,13 @@ from zoo.store import (
     RESULTS_DIR,
     StoreError,
     identity_differences,
-    stamp_record,
+    only_code_changed,
+    restamp_record,
     stored_identity,
     table_folder,
 )
 from zoo.tables import protocol_differences
-from zoo.tolerance import agreement
+from zoo.tolerance import agreement, sample_agreement
 
 
 @dataclass
@@ -38,12 +46,17 @@ class Plan:
     """What one ``zoo leaderboard`` run does on a benchmark. ``recompute``: every row anew;
     ``models``: (re)compute only these models' rows, keep every other stored row as it is;
     ``drop``: labels whose result folders are removed (deliberately) from the tables;
-    ``check``: write nothing, recompute every committed row and compare."""
+    ``check``: write nothing, recompute every committed row (on the report's sample of windows)
+    and compare. ``windows`` and ``seed``: a row stale only because code changed is verified on
+    that many windows (:func:`zoo.check.draw_sample`) and re-stamped if they agree, else
+    recomputed; None: recomputed on every window."""
 
     recompute: bool = False
     models: frozenset = frozenset()
     drop: frozenset = frozenset()
     check: CheckReport | None = None
+    windows: int | None = DEFAULT_WINDOWS
+    seed: int = field(default_factory=fresh_seed)
 
 
 @dataclass
@@ -118,7 +131,14 @@ class Leaderboard:
                 f"read: cost cells stay empty; zoo costs --benchmark {bench.name} replaces it",
                 file=sys.stderr,
             )
-        self.counts = {"reused": 0, "recomputed": 0, "agreed": 0, "kept": 0, "dropped": 0}
+        self.counts = {
+            "reused": 0,
+            "restamped": 0,
+            "recomputed": 0,
+            "agreed": 0,
+            "kept": 0,
+            "dropped": 0,
+        }
         self.loaded: dict = {}
         self.protocols: dict = {}  # each table's protocol, planned once: {(sampler, task, truth)}
         unknown = sorted(set(plan.models) - set(registry.list_models()))
@@ -160,9 +180,7 @@ class Leaderboard:
                     if outcome and self.plan.check is not None:
                         # each table's verdict as soon as it is known, not only at the end
                         name = self.plan.check.current
-                        print(
-                            f"{self.plan.check.table_line(name)} ({seconds:.0f} s)", file=sys.stderr
-                        )
+                        print(f"{self.plan.check.table_line(name)} ({seconds:.0f} s)")
                     elif outcome:
                         print(f"{bench.name}/{folder}: {seconds:.0f} s", file=sys.stderr)
                     if outcome is not None:
@@ -191,7 +209,8 @@ class Leaderboard:
             )
         c = self.counts
         print(
-            f"{bench.name}: {c['reused']} row(s) reused, {c['recomputed']} recomputed, "
+            f"{bench.name}: {c['reused']} row(s) reused, {c['restamped']} re-stamped after a "
+            f"code change (a sample agreed), {c['recomputed']} recomputed, "
             f"{c['agreed']} recomputed in agreement with the stored row (files kept), "
             f"{c['kept']} kept as stored (not planned by this registry), {c['dropped']} "
             f"dropped",
@@ -353,20 +372,30 @@ class Leaderboard:
             return None  # a table of baselines alone says nothing about this task
         planned = self._protocol(sampler, task, truth)
         protocol = planned.record
+        sample = None  # the windows a check scores (positions; None: every one)
         if check is not None:
             check.start_table(where)
+            sample = check.sample(planned.actions)
         fresh, reused, efficiency, reasons = [], [], {}, []
-        refreshed: dict[str, dict] = {}  # rows that agree, whose stored identity is updated
+        # rows whose numbers stand and whose stored identity is updated: label -> (identity,
+        # how the numbers were verified under it)
+        refreshed: dict[str, tuple[dict, dict]] = {}
         failed = set()  # rows of a check that could not be recomputed
         pending = []  # rows to evaluate: (row, loaded, identity, stored folder, why)
+        verify = []  # rows stale only because code changed: (row, loaded, identity, folder, why)
         for row in rows:
             if check is not None:
+                check.tables[where].rows.append(row.label)
                 try:  # a refusal (weights for another basis, a missing file) ends one row only
                     loaded = self._load(row)
-                    pending.append((row, loaded, loaded.identity(bench, planned.id), None, None))
+                    identity = loaded.identity(bench, planned.id)
                 except Exception as e:  # noqa: BLE001 - every failure is reported, none stops
                     check.problem(f"{where}: {row.label}: not recomputed: {e}")
                     failed.add(row.label)
+                    continue
+                if row.label in stored:
+                    check_identity(row.label, stored_identity(stored[row.label]), identity, check)
+                pending.append((row, loaded, identity, None, None))
                 continue
             loaded = self._load(row)
             identity = loaded.identity(bench, protocol["protocol_id"])
@@ -397,7 +426,18 @@ class Leaderboard:
                     self.counts["reused"] += 1
                     self._cost(efficiency, row.label, loaded, task)
                     continue
+                if plan.windows is not None and only_code_changed(differences):
+                    verify.append((row, loaded, identity, old, why))
+                    continue
             pending.append((row, loaded, identity, old, why))
+        for row, loaded, identity, old, verification in self._verify(verify, planned, where):
+            if verification is None:  # the sample disagreed: recomputed on every window
+                pending.append((row, loaded, identity, old, "code changed; a sample disagreed"))
+                continue
+            refreshed[row.label] = (identity, verification)
+            reused.append(old)
+            self.counts["restamped"] += 1
+            self._cost(efficiency, row.label, loaded, task)
         if pending:
             labels = ", ".join(row.label for row, *_ in pending)
             verb = "checking" if check is not None else "evaluating"
@@ -408,7 +448,7 @@ class Leaderboard:
         computed = (
             compute_all(
                 [(Subject.of_loaded(loaded), identity) for _, loaded, identity, _, _ in pending],
-                planned,
+                planned if sample is None else planned.subset(sample),
                 made_by=MADE_BY,
                 device=self.device,
                 keep_going=check is not None,  # a rebuild stops at its first failure
@@ -431,9 +471,13 @@ class Leaderboard:
                 # CPU rewrites nothing that merely rounded differently.
                 agreed = agreement(result, old)
                 if agreed.same:
-                    stale = bool(identity_differences(stored_identity(old), identity))
+                    before = stored_identity(old)
+                    stale = bool(identity_differences(before, identity))
                     if stale:
-                        refreshed[row.label] = identity
+                        refreshed[row.label] = (
+                            identity,
+                            _verification(before, identity, len(planned.index), None, agreed),
+                        )
                     reused.append(old)
                     self.counts["agreed"] += 1
                     self._cost(efficiency, row.label, loaded, task)
@@ -459,13 +503,15 @@ class Leaderboard:
                 check.problem(f"{p}: cannot be recomputed ({_why_not_planned(p, self)})")
             if fresh:
                 # a row not recomputed is named once, above, not once per committed value
-                check_table(fresh, path, check, unplanned={p.name for p in foreign} | failed)
+                check_table(
+                    fresh, path, check, unplanned={p.name for p in foreign} | failed, rows=sample
+                )
             return True if fresh or foreign or rows else None
         kept = []
         for p in [*reused, *foreign]:
             result = EvalResult.read(p)
             if p.name in refreshed:  # the table records the identity its row now has
-                stamp_record(result.protocol, refreshed[p.name])
+                restamp_record(result.protocol, *refreshed[p.name])
             differences = protocol_differences(protocol, result.protocol)
             if differences:
                 print(
@@ -508,10 +554,10 @@ class Leaderboard:
                     os.link(entry, tmp / entry.name, follow_symlinks=False)
             for result in fresh:
                 result.write(tmp / str(result.frame["model"].iloc[0]), replace=False)
-            for label, identity in (refreshed or {}).items():
+            for label, (identity, verification) in (refreshed or {}).items():
                 # a new file in place of the hard link: the stored folder stays as it was
                 record = json.loads((tmp / label / "protocol.json").read_text())
-                stamp_record(record, identity)
+                restamp_record(record, identity, verification)
                 atomic_write_json(tmp / label / "protocol.json", record)
             write_leaderboard(results, tmp, bench.horizons_ms, efficiency)
             if not fresh and not dropped and not refreshed and _same_files(path, tmp):
@@ -523,6 +569,54 @@ class Leaderboard:
         )
         return True
 
+    def _verify(self, rows: list, planned, where: str):
+        """Rows stale only because code changed, verified in one pass over a sample of the
+        table's windows: each with its verification record if the sample agrees with its
+        stored per-window errors, else with None (to be recomputed on every window)."""
+        if not rows:
+            return []
+        from zoo.results import WINDOWS_FILE, WindowErrors
+
+        sample = draw_sample(planned.actions, self.plan.windows, self.plan.seed)
+        print(
+            f"verifying {where} after a code change: {', '.join(r.label for r, *_ in rows)} on "
+            f"{len(sample)} of {len(planned.index)} windows (seed {self.plan.seed})",
+            file=sys.stderr,
+        )
+        computed = compute_all(
+            [(Subject.of_loaded(loaded), identity) for _, loaded, identity, _, _ in rows],
+            planned.subset(sample),
+            made_by=MADE_BY,
+            device=self.device,
+            keep_going=True,  # a row that fails here is recomputed in full, and fails there
+        )
+        out = []
+        for (row, loaded, identity, old, why), result in zip(rows, computed):
+            stored = old / WINDOWS_FILE
+            agreed = (
+                sample_agreement(result.windows, WindowErrors.read(stored), sample)
+                if not isinstance(result, Exception) and stored.is_file()
+                else None
+            )
+            if agreed is None or not agreed.same:
+                print(
+                    f"{where}: {row.label}: {why}; "
+                    + (f"the sample disagrees ({agreed.why})" if agreed else "not verifiable")
+                    + ": recomputed on every window",
+                    file=sys.stderr,
+                )
+                out.append((row, loaded, identity, old, None))
+                continue
+            before = stored_identity(old)
+            print(
+                f"{where}: {row.label}: {why}; verified on {len(sample)} windows (largest "
+                f"difference {agreed.share:.2f} of the tolerance): numbers kept, re-stamped",
+                file=sys.stderr,
+            )
+            verification = _verification(before, identity, len(sample), self.plan.seed, agreed)
+            out.append((row, loaded, identity, old, verification))
+        return out
+
     def _cost(self, efficiency: dict, label: str, loaded, task: str) -> None:
         """A row's cost columns as ``zoo costs`` stored them (this measures nothing), while
         they are those of its model (:func:`zoo.efficiency.cost_key`); else none."""
@@ -530,6 +624,26 @@ class Leaderboard:
         stored = self.costs.get(label, architecture(key))
         if stored is not None:
             efficiency[label] = stored
+
+
+def _verification(before: dict | None, after: dict, windows: int, seed: int | None, agreed):
+    """How a row's stored numbers were verified under its new identity (code changed): on
+    ``windows`` windows (``seed``: of a sample; None: every window), the code identities
+    before and after, the largest difference found."""
+    import datetime
+
+    from zoo.io import code_version
+
+    return {
+        "after": "code change",
+        "windows": windows,
+        **({"seed": seed} if seed is not None else {"every_window": True}),
+        "largest_difference": f"{agreed.share:.3f} of the tolerance",
+        "code_before": (before or {}).get("code"),
+        "code_after": after.get("code"),
+        "zoo": code_version(),
+        "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+    }
 
 
 MADE_BY = "zoo leaderboard"

@@ -10,6 +10,7 @@ differently can never be mistaken for each other.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 from dataclasses import dataclass
 from typing import Any
@@ -66,6 +67,12 @@ class Protocol:
     @property
     def window_frames(self) -> int:
         return self.input_frames + self.predicted_frames
+
+    def subset(self, rows: np.ndarray) -> Protocol:
+        """Only the windows at positions ``rows`` of this protocol's (a sampled check), its
+        record and id kept: a pass over them gives the protocol's per-window errors of those
+        windows, not its averages."""
+        return dataclasses.replace(self, index=self.index[rows], actions=self.actions[rows])
 
 
 def check_task(task: str, horizon: int | None, output_frames: int) -> int:

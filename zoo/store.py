@@ -482,6 +482,24 @@ def stamp_record(protocol: dict, identity: dict) -> None:
     protocol["provenance"]["identity_id"] = identity_id(identity)
 
 
+def restamp_record(protocol: dict, identity: dict, verification: dict | None = None) -> None:
+    """A stored row's record given the identity it has now, its numbers kept: for a row whose
+    identity went stale only because code changed, with how its numbers were verified under the
+    new code (``verification``: windows, seed, old and new code), kept in order under
+    ``provenance.verified``."""
+    if verification is not None:
+        protocol["provenance"].setdefault("verified", []).append(verification)
+    stamp_record(protocol, identity)
+
+
+def only_code_changed(differences: list[str]) -> bool:
+    """Whether identity differences (:func:`identity_differences`) are of code alone: the same
+    data, protocol, hyper-parameters and weights, so a sample can verify the stored numbers."""
+    return bool(differences) and all(
+        d.startswith("code.") and "no result is its twin" not in d for d in differences
+    )
+
+
 def identity_differences(stored: dict[str, Any] | None, new: dict[str, Any]) -> list[str]:
     """The fields in which two identities differ, as ``field: stored X, now Y``; one line for
     a result that records none (written by an older zoo)."""

@@ -40,6 +40,26 @@ def tolerance_text() -> str:
     )
 
 
+def tolerance_by_metric(metrics) -> str:
+    """The tolerance of each of ``metrics``, in its own unit (metrics of one unit together)."""
+    by_floor: dict[str, list[str]] = {}
+    for m in sorted(set(metrics)):
+        unit = metric_unit(m)[0]
+        floor = (
+            f"{ABSOLUTE_TOLERANCE['mm']:.2g} mm"
+            if unit == "mm"
+            else f"{ABSOLUTE_TOLERANCE.get(m, 0.0):.2g}" + (f" ({unit})" if unit else "")
+        )
+        by_floor.setdefault(floor, []).append(m)
+    return (
+        "; ".join(
+            f"{', '.join(names)}: |difference| <= {RELATIVE_TOLERANCE:.2g} x |value| + {floor}"
+            for floor, names in by_floor.items()
+        )
+        + " (a std: the tolerance of its mean)"
+    )
+
+
 def allowed(metric, scale: np.ndarray) -> np.ndarray:
     """The largest difference tolerated for values of ``metric`` (a name or an array of names)
     of magnitude ``scale`` (the value itself, or a std's mean)."""
@@ -103,18 +123,79 @@ def _compare(result, stored) -> Agreement:
     if (result.windows is None) != (stored.windows is None):
         return Agreement(False, float("inf"), "per-window errors on one side only")
     if result.windows is not None:
-        w, s = result.windows, stored.windows
-        if not (np.array_equal(w.start, s.start) and np.array_equal(w.sequence, s.sequence)):
-            return Agreement(False, float("inf"), "other windows")
-        if set(w.errors) != set(s.errors):
+        if set(result.windows.errors) != set(stored.windows.errors):
             return Agreement(False, float("inf"), "other per-window error series")
-        for key, values in w.errors.items():
-            before = s.errors[key].astype(np.float64)
-            if values.shape != before.shape:
-                return Agreement(False, float("inf"), f"{'/'.join(key)}: another shape")
-            gap = np.abs(values.astype(np.float64) - before)
-            if gap.size:
-                share = max(share, float((gap / allowed(key[1], before)).max()))
+        try:
+            gaps = window_gaps(result.windows, stored.windows)
+        except Incomparable as e:
+            return Agreement(False, float("inf"), str(e))
+        share = max([share, *(g.share for g in gaps)])
     if share > 1:
         return Agreement(False, share, f"values differ by up to {share:.2f} of the tolerance")
     return Agreement(True, share)
+
+
+def sample_agreement(fresh, stored, rows: np.ndarray) -> Agreement:
+    """Whether per-window errors ``fresh`` (a :class:`zoo.results.WindowErrors` of the windows
+    at positions ``rows`` of ``stored``'s) agree with the stored ones there, series by series."""
+    try:
+        gaps = window_gaps(fresh, stored, rows)
+    except Incomparable as e:
+        return Agreement(False, float("inf"), str(e))
+    share = max((g.share for g in gaps), default=0.0)
+    if share > 1:
+        worst = max(gaps, key=lambda g: g.share)
+        return Agreement(
+            False, share, f"{'/'.join(worst.key)} differs by up to {share:.2f} of the tolerance"
+        )
+    return Agreement(True, share)
+
+
+class Incomparable(ValueError):
+    """Per-window errors that cannot be compared: other windows, a series missing."""
+
+
+@dataclass
+class WindowGap:
+    """The largest difference of one series of per-window errors from the stored one: as a
+    share of its tolerance, relative, absolute, and at which window (its stored position)."""
+
+    key: tuple[str, str, str]
+    share: float
+    relative: float
+    absolute: float
+    window: int
+
+
+def window_gaps(fresh, stored, rows: np.ndarray | None = None) -> list[WindowGap]:
+    """Each series of ``fresh`` per-window errors against ``stored``'s at its windows'
+    positions ``rows`` (None: every window, in order); :class:`Incomparable` where the windows
+    are not the same ones or a series is missing from ``stored``."""
+    rows = np.arange(len(stored.start)) if rows is None else np.asarray(rows)
+    if len(rows) != len(fresh.start) or not (
+        np.array_equal(stored.start[rows], fresh.start)
+        and np.array_equal(stored.sequence[rows], fresh.sequence)
+    ):
+        raise Incomparable("other windows")
+    gaps = []
+    for key, values in fresh.errors.items():
+        if key not in stored.errors:
+            raise Incomparable(f"{'/'.join(key)}: not among the stored per-window errors")
+        before = stored.errors[key][rows].astype(np.float64)
+        if values.shape != before.shape:
+            raise Incomparable(f"{'/'.join(key)}: another shape")
+        if not before.size:
+            continue
+        gap = np.abs(values.astype(np.float64) - before)
+        share = gap / allowed(key[1], before)
+        i = int(np.argmax(share))
+        gaps.append(
+            WindowGap(
+                key,
+                float(share.flat[i]),
+                float(gap.flat[i] / max(abs(before.flat[i]), 1e-12)),
+                float(gap.flat[i]),
+                int(rows[i // before.shape[1]]) if before.ndim == 2 else int(rows[i]),
+            )
+        )
+    return gaps

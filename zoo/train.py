@@ -67,8 +67,8 @@ from zoo.checkpoints import (
 )
 from zoo.data.windows import frame_counts, gather_windows, window_sampler
 from zoo.distributed import DistInfo, init_distributed
-from zoo.errors import ZooError
-from zoo.evaluate import EVAL_BATCH, predict
+from zoo.errors import EvaluationError, ZooError
+from zoo.evaluate import EVAL_BATCH, checked_prediction, predict
 from zoo.io import code_version, repo_relative, sha256_file
 from zoo.metrics import mpjpe, vertex_rmse
 from zoo.paths import REPO_ROOT
@@ -89,8 +89,10 @@ DEFAULT_RECIPE: dict[str, Any] = {
     # sequence where all are long enough (H3.6M), else the last val_fraction of the sequences
     # (cloth; on CMU the last 3 recordings, all of them walking); "tails", the last
     # val_fraction of every recording long enough to spare a window, the shorter ones trained
-    # on whole (CMU: every action keeps its recordings); "recordings", whole recordings spread
-    # over the data (every k-th by name, k = 1 / val_fraction), so that validation sees many
+    # on whole (CMU: every action keeps its recordings); "actions", "tails" and, for an action
+    # none of whose recordings can spare a tail, the end of its longest recording, so that every
+    # action validates and none is held out whole; "recordings", whole recordings spread over
+    # the data (every k-th by name, k = 1 / val_fraction), so that validation sees many
     # recordings and subjects.
     "val_split": "auto",
     "train_sampler": "all",
@@ -103,7 +105,7 @@ DEFAULT_RECIPE: dict[str, Any] = {
     "precision": "float32",
 }
 PRECISIONS = {"float32": None, "bfloat16": torch.bfloat16}
-VAL_SPLITS = ("auto", "tails", "recordings")
+VAL_SPLITS = ("auto", "tails", "actions", "recordings")
 SCHEDULES = ("constant", "step", "cosine", "multistep")
 AUGMENTATIONS = ("time_reversal",)
 
@@ -276,6 +278,9 @@ def held_out_frames(
 
     ``rule`` ``tails``: the last ``val_fraction`` of every recording long enough to spare a
     window (at least ``window / val_fraction`` frames); shorter ones are trained on whole.
+    ``actions``: ``tails``, and for an action none of whose recordings is that long, the last
+    ``val_fraction`` of the action's frames (at least one window) from the end of its longest
+    recording: every action validates, none is held out whole.
     ``auto``: the same where every recording is long enough (H3.6M), otherwise the last
     ``val_fraction`` of the recordings, whole (cloth: one window per sequence; on CMU this is
     the last three recordings, all walking). ``recordings``: whole recordings, every k-th by
@@ -291,6 +296,8 @@ def held_out_frames(
             )
         return {i: 0 for i in held}
     long_enough = [i for i, n in enumerate(lengths) if n * val_fraction >= window]
+    if rule == "actions":
+        return _held_out_per_action(dataset, lengths, val_fraction, window)
     if rule == "tails" or len(long_enough) == count:
         if not long_enough:
             raise TrainingError(
@@ -308,6 +315,31 @@ def held_out_frames(
             f"to hold {val_fraction:.0%} out for validation"
         )
     return {i: 0 for i in range(count - held, count)}
+
+
+def _held_out_per_action(
+    dataset, lengths: list[int], val_fraction: float, window: int
+) -> dict[int, int]:
+    """The ``actions`` rule of :func:`held_out_frames`."""
+    by_action: dict[str, list[int]] = {}
+    for i, sequence in enumerate(dataset.sequences[: len(lengths)]):
+        by_action.setdefault(getattr(sequence, "action", ""), []).append(i)
+    plan: dict[int, int] = {}
+    for action, indices in by_action.items():
+        tails = [i for i in indices if lengths[i] * val_fraction >= window]
+        if tails:
+            plan.update({i: int(round(lengths[i] * (1 - val_fraction))) for i in tails})
+            continue
+        longest = max(indices, key=lambda i: lengths[i])
+        held = max(window, int(round(val_fraction * sum(lengths[i] for i in indices))))
+        if lengths[longest] - held < window:  # the recording would train on no window
+            raise TrainingError(
+                f"{dataset.name}/{dataset.split}: action {action!r}: its longest recording "
+                f"({lengths[longest]} frames) cannot spare {held} frames for validation and "
+                f"keep a training window of {window}; choose --train-set val_split=tails"
+            )
+        plan[longest] = lengths[longest] - held
+    return plan
 
 
 def split_train_val(
@@ -478,7 +510,7 @@ def train(
             f"max_batches (--max-batches) must be a positive integer, got {max_batches!r}"
         )
     recipe = training_recipe(
-        entry.train,
+        {**({"val_split": bench.val_split} if bench.val_split else {}), **entry.train},
         {**(train_overrides or {}), **({"epochs": epochs} if epochs is not None else {})},
     )
     dist_info = init_distributed(device)
@@ -651,6 +683,8 @@ def train(
                 weights[start : start + batch].to(device),
             )
 
+    if not objective.view and getattr(model, "training_loss", None) is None:
+        check_output(model, model_name, val_pos, val_index, used, t_in, t_out, entry.task, device)
     if dist_info.rank == 0:
         schedule = recipe["schedule"] or {"type": "constant"}
         print(
@@ -878,6 +912,24 @@ class TrainingObjective(nn.Module):
             return own(history, future)
         pred = predict(self.model, history, self.task, future.shape[1], future[:, -1])
         return mpjpe(pred, future).mean()
+
+
+def check_output(model, model_name, positions, index, used, t_in, t_out, task, device) -> None:
+    """Before the first step: the model's prediction for one validation window has the
+    contract's shape and finite values, or the one-line error ``zoo eval`` gives (else a wrong
+    shape ends training in a traceback from inside the loss)."""
+    window = torch.from_numpy(gather_windows(positions, index[:1], t_in + t_out)[:, :, used])
+    window = window.to(device)
+    was_training = model.training
+    model.eval()
+    try:
+        with torch.no_grad():
+            pred = predict(model, window[:, :t_in], task, t_out, window[:, -1])
+        checked_prediction(pred, (1, t_out, window.shape[2], 3), model_name, 0)
+    except EvaluationError as e:
+        raise TrainingError(f"{e}; nothing was trained") from None
+    finally:
+        model.train(was_training)
 
 
 # Validation horizons logged every epoch beside the mean (the first predicted frame, then the

@@ -7,6 +7,7 @@ carry their action, file, hash and fps.
 
 from __future__ import annotations
 
+import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -123,6 +124,85 @@ def _check_root(root: str | Path | None, what: str, hint: str) -> Path:
     return root
 
 
+def found_entries(folder: Path, expected: str) -> str:
+    """What ``folder`` holds, for an error that names ``expected`` among them: its entries, and
+    the one that differs from ``expected`` only in case or is closest to it, if any."""
+    import difflib
+
+    names = sorted(p.name for p in folder.iterdir()) if folder.is_dir() else []
+    if not names:
+        return f"{folder} is empty" if folder.is_dir() else f"{folder} does not exist"
+    near = [n for n in names if n.lower() == expected.lower()] or difflib.get_close_matches(
+        expected, names, n=1, cutoff=0.75
+    )
+    hint = f"; is {near[0]!r} meant to be {expected!r}?" if near else ""
+    return f"found in {folder}: {', '.join(names)}{hint}"
+
+
+def declared_missing(root: Path) -> set[str]:
+    """Paths (relative to ``root``) that a data root's ``MISSING.txt`` declares absent (lines
+    ``MISSING <root name>/<path>``, as ``../shared/data/cmu_mocap`` has): a copy that lacks some
+    files of the standard set says so, and the zoo then does not take their absence for a
+    misnamed folder."""
+    path = root / "MISSING.txt"
+    if not path.is_file():
+        return set()
+    out = set()
+    for line in path.read_text().splitlines():
+        parts = line.split()
+        if len(parts) == 2 and parts[0] == "MISSING":
+            out.add(parts[1].removeprefix(f"{root.name}/"))
+    return out
+
+
+_WARNED: set[str] = set()
+
+
+def _warn_once(text: str) -> None:
+    """A warning about the data, on stderr, once per process (a run loads a root repeatedly)."""
+    if text not in _WARNED:
+        _WARNED.add(text)
+        print(f"warning: {text}", file=sys.stderr)
+
+
+def check_cmu_root(root: Path, split: str, actions: tuple[str, ...]) -> None:
+    """Before anything is loaded, every action of the benchmark against ``<root>/<split>``:
+    its folder is there, or the data root declares its files missing (``MISSING.txt``). An
+    action without either, where the split holds a folder that looks like its name (another
+    case, a near spelling), is an error naming the folder expected and the folders found;
+    with nothing like it in its place, a warning (the action is scored without: partial copies
+    are common). A folder that is no action is a warning too: its files are not read."""
+    split_dir = root / split
+    declared = declared_missing(root)
+    extra = sorted(p.name for p in split_dir.iterdir() if p.is_dir() and p.name not in actions)
+    absent = [
+        a
+        for a in actions
+        if not (split_dir / a).is_dir() and not any(p.startswith(f"{split}/{a}/") for p in declared)
+    ]  # neither there nor declared missing by this copy
+    # an absent action that a stray folder looks like (another case, a near spelling)
+    misnamed = [a for a in absent if "meant to be" in found_entries(split_dir, a)]
+    if misnamed:
+        action, others = misnamed[0], [a for a in absent if a != misnamed[0]]
+        raise DataNotFoundError(
+            f"{split_dir / action}: no folder for action {action!r} of the benchmark (expected "
+            f"{split}/{action}/{action}_<n>.txt); {found_entries(split_dir, action)}; name the "
+            f"folder {action!r}, or list its files in {root / 'MISSING.txt'} if this copy "
+            f"lacks them" + (f" (absent too: {', '.join(others)})" if others else "")
+        )
+    if absent:
+        _warn_once(
+            f"{split_dir}: no folder for action(s) {', '.join(absent)} of the benchmark "
+            f"(expected {split}/<action>/<action>_<n>.txt): scored without them (list their "
+            f"files in {root / 'MISSING.txt'} to say this copy lacks them)"
+        )
+    if extra:
+        _warn_once(
+            f"{split_dir}: folder(s) {', '.join(extra)} are no action of the benchmark "
+            f"({', '.join(actions)}); their files are not read"
+        )
+
+
 def cmu_skipped(root: Path, split: str, actions: tuple[str, ...] = CMU_ACTIONS) -> list[str]:
     """What :func:`load_cmu` passes over in ``<root>/<split>``: files of an action folder that
     are not ``<action>_<n>.txt``, and folders that are not among ``actions``."""
@@ -171,11 +251,12 @@ def load_cmu(
             f"{split_dir}: CMU split folder missing (expected "
             f"<data-root>/{split}/<action>/<action>_<n>.txt)"
         )
+    check_cmu_root(root, split, tuple(actions))
     sequences, notes = [], []
     for action in actions:
         folder = split_dir / action
         if not folder.is_dir():
-            notes.append(f"action {action}: no folder {folder.relative_to(root)}")
+            notes.append(f"action {action}: no folder {folder.relative_to(root)} (MISSING.txt)")
             continue
         files = sorted(folder.glob(f"{action}_*.txt"), key=_file_number)
         if not files:
@@ -218,13 +299,17 @@ def load_h36m(
     for subject in H36M_SPLITS[split]:
         subject_dir = root / f"S{subject}"
         if not subject_dir.is_dir():
-            raise DataNotFoundError(f"{subject_dir}: subject folder of split {split!r} missing")
+            raise DataNotFoundError(
+                f"{subject_dir}: subject folder of split {split!r} missing; "
+                f"{found_entries(root, subject_dir.name)}"
+            )
         for action in actions:
             for sub in (1, 2):
                 path = subject_dir / f"{action}_{sub}.txt"
                 if not path.is_file():
                     raise DataNotFoundError(
-                        f"{path}: Human3.6M file missing (each action has sub-actions 1 and 2)"
+                        f"{path}: Human3.6M file of action {action!r} missing (each action has "
+                        f"sub-actions 1 and 2); {found_entries(subject_dir, path.name)}"
                     )
                 sequences.append(_load_sequence(path, root, action, H36M, 50.0, 2, sub))
     return MotionDataset(

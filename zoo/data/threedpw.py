@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from zoo.data.expmap import DataFormatError
-from zoo.data.motion import MotionDataset, MotionSequence, _check_root
+from zoo.data.motion import MotionDataset, MotionSequence, _check_root, found_entries
 from zoo.data.skeleton import THREEDPW
 from zoo.errors import DataNotFoundError, ZooError
 from zoo.io import sha256_file
@@ -113,8 +113,10 @@ def load_3dpw(
     folder = root / "sequenceFiles" / split
     folder = folder if folder.is_dir() else root / split
     if not folder.is_dir():
+        parent = root / "sequenceFiles" if (root / "sequenceFiles").is_dir() else root
         raise DataNotFoundError(
-            f"{root}: no 3DPW split folder sequenceFiles/{split}/ (nor {split}/)"
+            f"{root}: no 3DPW split folder sequenceFiles/{split}/ (nor {split}/); "
+            f"{found_entries(parent, split)}"
         )
     files = sorted(folder.glob("*.pkl"))
     if not files:

@@ -1,0 +1,238 @@
+"""zoo leaderboard --check on a sample of windows, and re-stamping after a code change: what
+the check names (an edited value, raised per-window errors, other weights, a changed forward
+pass), what it prints, and rows whose identity went stale because code changed."""
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+from conftest import write_cmu_file
+from tiny_models import REGISTRY
+
+from zoo.check import draw_sample, escape_sentence
+from zoo.cli import main
+from zoo.registry import Registry
+from zoo.results import WindowErrors
+from zoo.train import train
+
+HERE = Path(__file__).resolve().parent
+
+
+def _train(tmp, root, out, seed=0):
+    train(
+        "tiny",
+        "cmu",
+        registry=Registry.from_files(HERE.parent / "registry.yaml", tmp / "registry.yaml"),
+        data_root=root,
+        epochs=1,
+        progress=False,
+        seed=seed,
+        out_dir=out,
+    )
+
+
+@pytest.fixture(scope="module")
+def built(tmp_path_factory):
+    """Two actions of CMU (walking, running), a trained tiny model beside repeat_last, and the
+    leaderboard built from them; each test works on its own copy."""
+    tmp = tmp_path_factory.mktemp("check") / "board"
+    root = tmp / "cmu"
+    for split in ("train", "test"):
+        write_cmu_file(root / split / "walking" / "walking_1.txt", 0.01 * np.arange(800))
+        write_cmu_file(root / split / "running" / "running_1.txt", 0.03 * np.arange(300))
+    (tmp / "registry.yaml").write_text(REGISTRY)
+    shutil.copy(HERE / "tiny_models.py", tmp / "tiny_models.py")
+    _train(tmp, root, tmp / "checkpoints" / "cmu" / "tiny")
+    _train(tmp, root, tmp / "other", seed=1)  # another checkpoint of the same model
+    assert main(["leaderboard", "--benchmark", "cmu", *_common(tmp)]) == 0
+    shutil.copytree(tmp, tmp.with_name("pristine"))
+    return tmp
+
+
+def _common(tmp):
+    return [
+        "--registry",
+        str(tmp / "registry.yaml"),
+        "--data-root",
+        str(tmp / "cmu"),
+        "--out",
+        str(tmp / "results"),
+        "--checkpoints",
+        str(tmp / "checkpoints"),
+        "--weights",
+        str(tmp / "weights"),
+    ]
+
+
+@pytest.fixture
+def board(built):
+    """The built board as it was made (rows record their registry's path, so it stays put)."""
+    shutil.rmtree(built)
+    shutil.copytree(built.with_name("pristine"), built)
+    return built
+
+
+def _files(folder):
+    return {p: p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+def test_draw_sample_gives_every_action_windows_in_proportion():
+    actions = np.array(["walking"] * 1000 + ["running"] * 10 + ["jumping"])
+    rows = draw_sample(actions, 20, seed=3)
+    assert len(rows) == 20 and len(set(rows)) == 20 and (np.diff(rows) > 0).all()
+    drawn = dict(zip(*np.unique(actions[rows], return_counts=True)))
+    assert drawn == {"jumping": 1, "running": 1, "walking": 18}
+    assert np.array_equal(draw_sample(actions, 20, seed=3), rows)  # the seed repeats it
+    assert not np.array_equal(draw_sample(actions, 20, seed=4), rows)
+    assert np.array_equal(draw_sample(actions, 5000, seed=3), np.arange(len(actions)))
+    assert len(draw_sample(actions, 2, seed=0)) == 2  # fewer windows than actions
+    assert "(1 - f)^n (f = 1%: 0.53, f = 5%: 0.038, f = 10%: 0.0012)" in escape_sentence(64)
+
+
+def test_sampled_check_passes_prints_each_table_once_and_says_what_it_can_miss(board, capsys):
+    before = _files(board / "results")
+    assert main(["leaderboard", "--check", "--seed", "3", *_common(board)]) == 0
+    captured = capsys.readouterr()
+    out = captured.out.splitlines()
+    assert "32 windows a table, every action among them (seed 3;" in captured.err
+    ltd8 = [line for line in out if line.startswith("cmu/ltd8:")]
+    every = [line for line in out if line.startswith("cmu/all:")]
+    assert len(ltd8) == len(every) == 1  # each table once
+    assert ltd8[0].startswith("cmu/ltd8: 2 rows on all 16 windows (running 8, walking 8)")
+    assert every[0].startswith("cmu/all: 2 rows on 32 of 482 windows (running 8, walking 24)")
+    assert ": passed (" in every[0]
+    assert any(
+        line.startswith(
+            "checked 4 leaderboard rows (2 models: repeat_last, tiny) in 2 tables, on 48 of "
+            "their 498 windows: largest difference"
+        )
+        for line in out
+    )
+    assert f"sample: seed 3 (--seed 3 draws it again); {escape_sentence(32)}" in out
+    assert "tolerance: mpjpe: |difference| <= 1.5e-05 x |value| + 0.002 mm" in out[-1]
+    assert _files(board / "results") == before  # a check writes nothing
+
+    assert main(["leaderboard", "--check", "--full", *_common(board)]) == 0
+    assert "cmu/all: 2 rows on all 482 windows" in capsys.readouterr().out
+    assert main(["leaderboard", "--check", "--windows", "0", *_common(board)]) == 2
+    assert "--windows 0: expected a positive number" in capsys.readouterr().err
+
+
+def test_check_names_a_value_edited_in_results_csv(board, capsys):
+    row = board / "results" / "cmu" / "all" / "tiny" / "results.csv"
+    frame = pd.read_csv(row)
+    at = (frame.horizon_ms == 400) & (frame.action == "walking") & (frame.averaging == "frame")
+    frame.loc[at & (frame.joints == "all38"), "value"] += 0.01
+    frame.to_csv(row, index=False)
+    assert main(["leaderboard", "--check", "--seed", "3", *_common(board)]) == 1
+    err = capsys.readouterr().err
+    assert (
+        f"{row}: model=tiny, action=walking, metric=mpjpe, averaging=frame, joints=all38, "
+        "horizon_ms=400: value committed" in err
+    )
+    assert "its windows.npz gives" in err
+
+
+def test_check_names_one_actions_per_window_errors_raised_by_one_percent(board, capsys):
+    path = board / "results" / "cmu" / "all" / "repeat_last" / "windows.npz"
+    stored = WindowErrors.read(path)
+    running = stored.action == "running"
+    for key in stored.errors:
+        stored.errors[key][running] *= 1.01
+    stored.write(path)
+    assert main(["leaderboard", "--check", "--seed", "3", *_common(board)]) == 1
+    err = capsys.readouterr().err
+    assert f"{path}: repeat_last/mpjpe/used25: per-window errors differ beyond tolerance" in err
+    assert ", running:" in err  # the window named is one of running's
+    assert "action=running" in err and "its windows.npz gives" in err  # results.csv disagrees
+
+
+def test_check_names_weights_that_are_not_the_recorded_ones(board, capsys):
+    shutil.copy(board / "other" / "best.pt", board / "checkpoints" / "cmu" / "tiny" / "best.pt")
+    assert main(["leaderboard", "--check", "--seed", "3", *_common(board)]) == 1
+    err = capsys.readouterr().err
+    assert "cmu/all: tiny: weights are not the ones it records: trained.sha256" in err
+    assert "tiny/mpjpe/used25: per-window errors differ beyond tolerance" in err
+
+
+def test_check_names_a_forward_pass_changed_by_a_tenth_of_a_percent(board, capsys, monkeypatch):
+    from zoo.models.repeat_last import RepeatLast
+
+    forward = RepeatLast.forward
+    monkeypatch.setattr(RepeatLast, "forward", lambda self, x: forward(self, x) * 1.001)
+    assert main(["leaderboard", "--check", "--seed", "3", *_common(board)]) == 1
+    err = capsys.readouterr().err
+    assert "repeat_last/mpjpe/used25: per-window errors differ beyond tolerance" in err
+    assert "tiny/mpjpe" not in err  # the other row still agrees
+
+
+def _age_code(results: Path, labels=("repeat_last", "tiny")) -> dict:
+    """Make rows look stamped by older code (another evaluator fingerprint), numbers kept."""
+    old = {}
+    for record in sorted(results.glob("cmu/*/*/protocol.json")):
+        if record.parent.name not in labels:
+            continue
+        data = json.loads(record.read_text())
+        identity = data["provenance"]["identity"]
+        old[record] = dict(identity["code"])
+        identity["code"]["evaluator"] = "0123456789abcdef"
+        record.write_text(json.dumps(data))
+    return old
+
+
+def test_a_code_change_that_moves_no_number_re_stamps_rows_on_a_sample(board, capsys):
+    results = board / "results"
+    current = _age_code(results)
+    numbers = {p: b for p, b in _files(results).items() if p.name != "protocol.json"}
+    assert main(["leaderboard", "--check", "--seed", "3", *_common(board)]) == 0
+    assert "4 rows were stamped by older code" in capsys.readouterr().out
+    assert main(["leaderboard", "--benchmark", "cmu", "--seed", "5", *_common(board)]) == 0
+    err = capsys.readouterr().err
+    assert "verifying cmu/all after a code change: repeat_last, tiny on 32 of 482 windows" in err
+    assert "verified on 32 windows" in err and "numbers kept, re-stamped" in err
+    assert "cmu: 0 row(s) reused, 4 re-stamped after a code change" in err
+    assert {p: b for p, b in _files(results).items() if p.name != "protocol.json"} == numbers
+    for record, code in current.items():
+        provenance = json.loads(record.read_text())["provenance"]
+        assert provenance["identity"]["code"] == code
+        (verified,) = provenance["verified"]
+        assert verified["after"] == "code change" and verified["seed"] == 5
+        assert verified["windows"] == (16 if "ltd8" in str(record) else 32)
+        assert verified["code_before"]["evaluator"] == "0123456789abcdef"
+        assert verified["code_after"] == code
+    assert main(["leaderboard", "--benchmark", "cmu", *_common(board)]) == 0
+    assert "cmu: 4 row(s) reused" in capsys.readouterr().err
+    assert main(["leaderboard", "--check", "--full", *_common(board)]) == 0
+    assert "stamped by older code" not in capsys.readouterr().out
+
+
+def test_a_code_change_that_moves_numbers_recomputes_the_row_in_full(board, capsys):
+    results = board / "results"
+    _age_code(results, labels=("tiny",))
+    path = results / "cmu" / "all" / "tiny" / "windows.npz"
+    stored = WindowErrors.read(path)
+    for key in stored.errors:
+        stored.errors[key] *= 1.01  # what the old code computed, say
+    stored.write(path)
+    assert main(["leaderboard", "--benchmark", "cmu", "--seed", "5", *_common(board)]) == 0
+    err = capsys.readouterr().err
+    assert "cmu/all: tiny: " in err and "the sample disagrees" in err
+    assert "recomputing tiny: code changed; a sample disagreed" in err
+    record = json.loads((results / "cmu" / "all" / "tiny" / "protocol.json").read_text())
+    assert "verified" not in record["provenance"]  # computed anew, not re-stamped
+    assert main(["leaderboard", "--check", "--full", *_common(board)]) == 0
+
+
+def test_full_recomputes_a_row_stale_because_of_code_instead_of_sampling(board, capsys):
+    results = board / "results"
+    _age_code(results, labels=("tiny",))
+    assert main(["leaderboard", "--benchmark", "cmu", "--full", *_common(board)]) == 0
+    err = capsys.readouterr().err
+    assert "verifying" not in err
+    assert "its files kept, its identity updated" in err
+    record = json.loads((results / "cmu" / "all" / "tiny" / "protocol.json").read_text())
+    (verified,) = record["provenance"]["verified"]
+    assert verified["every_window"] is True and verified["windows"] == 482
