@@ -84,10 +84,13 @@ def test_speed_check(swinging_cmu, tmp_path, capsys):
     out = tmp_path / "results"
     assert main(["leaderboard", "--benchmark", "cmu", "--out", str(out), *paths]) == 0
     capsys.readouterr()
-    load("speed_check").main(["--results", str(out), "--benchmark", "cmu", *paths])
+    load("speed_check").main(
+        ["--results", str(out), "--benchmark", "cmu", "--seed", "1", "--against-full", *paths]
+    )
     lines = capsys.readouterr().out.splitlines()
-    assert "GFLOP/s" in lines[0] and "ratio" in lines[1]
-    assert lines[2].startswith("cmu") and lines[2].endswith("passed")
+    assert "GFLOP/s" in lines[0] and lines[1] == "check: 32 windows a table, seed 1"
+    assert "ratio" in lines[2] and "faster" in lines[2]
+    assert lines[3].startswith("cmu") and lines[3].endswith("passed")
 
 
 def test_speed_pass(swinging_cmu, tmp_path, capsys):
