@@ -236,3 +236,17 @@ def test_full_recomputes_a_row_stale_because_of_code_instead_of_sampling(board, 
     record = json.loads((results / "cmu" / "all" / "tiny" / "protocol.json").read_text())
     (verified,) = record["provenance"]["verified"]
     assert verified["every_window"] is True and verified["windows"] == 482
+
+
+def test_a_row_whose_results_csv_is_not_its_windows_is_recomputed_not_re_stamped(board, capsys):
+    results = board / "results"
+    _age_code(results, labels=("tiny",))
+    row = results / "cmu" / "all" / "tiny" / "results.csv"
+    frame = pd.read_csv(row)
+    frame.loc[frame.action == "walking", "value"] += 0.01
+    frame.to_csv(row, index=False)
+    assert main(["leaderboard", "--benchmark", "cmu", "--seed", "5", *_common(board)]) == 0
+    err = capsys.readouterr().err
+    assert "its results.csv is not what its windows.npz gives" in err
+    assert "recomputing tiny: code changed; a sample disagreed" in err
+    assert main(["leaderboard", "--check", "--full", *_common(board)]) == 0

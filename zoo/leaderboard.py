@@ -10,7 +10,7 @@ import os
 import shutil
 import sys
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from zoo.check import (
@@ -598,6 +598,8 @@ class Leaderboard:
                 if not isinstance(result, Exception) and stored.is_file()
                 else None
             )
+            if agreed is not None and agreed.same:  # its averages are its windows' own
+                agreed = _self_consistent(old) or agreed
             if agreed is None or not agreed.same:
                 print(
                     f"{where}: {row.label}: {why}; "
@@ -624,6 +626,20 @@ class Leaderboard:
         stored = self.costs.get(label, architecture(key))
         if stored is not None:
             efficiency[label] = stored
+
+
+def _self_consistent(folder: Path):
+    """None where a stored row's ``results.csv`` is what its own ``windows.npz`` gives (the
+    evaluator's sums, :func:`zoo.evaluate.frame_from_windows`), else the disagreement."""
+    from zoo.evaluate import frame_from_windows
+    from zoo.results import EvalResult
+
+    stored = EvalResult.read(folder)
+    frame = frame_from_windows(stored.windows, stored.protocol)
+    agreed = agreement(EvalResult(frame, stored.protocol, stored.windows), folder)
+    if agreed.same:
+        return None
+    return replace(agreed, why=f"its results.csv is not what its windows.npz gives: {agreed.why}")
 
 
 def _verification(before: dict | None, after: dict, windows: int, seed: int | None, agreed):
