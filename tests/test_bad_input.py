@@ -134,3 +134,16 @@ def test_an_absent_or_extra_action_folder_is_a_warning_and_a_declared_one_is_not
         f"warning: {root / 'test'}: folder(s) walking_extra are no action of the benchmark "
         "(walking, running); their files are not read"
     )
+
+
+def test_a_bvh_root_that_is_missing_or_holds_no_trial_is_one_line(tmp_path, capsys):
+    (tmp_path / "cmu_bvh_copy" / "trials").mkdir(parents=True)
+    for root, said in (
+        (tmp_path / "cmu_bvh", "CMU BVH folder not found"),
+        (tmp_path / "cmu_bvh_copy", "no BVH trials (expected MANIFEST.tsv or data/NNN/NN_TT.bvh)"),
+    ):
+        args = ["eval", "--model", "repeat_last", "--benchmark", "cmu_anny_oi_low"]
+        assert main([*args, "--data-root", str(root), "--out", str(tmp_path / "out")]) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and f"{root}: {said}" in err
+    assert "found in" in err and "trials" in err

@@ -78,6 +78,7 @@ from zoo.data.mesh import (
     cache_root,
     triangulate_quads,
 )
+from zoo.data.motion import found_entries
 from zoo.errors import DataNotFoundError
 from zoo.io import atomic_path, sha256_file
 from zoo.paths import REPO_ROOT
@@ -674,9 +675,9 @@ def list_trials(bvh_root: str | Path) -> list[Trial]:
     there is none, every ``data/*/*.bvh``; descriptions fall back to the subject."""
     root = Path(bvh_root)
     if not root.is_dir():
-        raise FileNotFoundError(
-            f"{root}: CMU BVH folder not found (expected shared/data/cmu_bvh "
-            f"with MANIFEST.tsv and data/NNN/NN_TT.bvh)"
+        raise DataNotFoundError(
+            f"{root}: CMU BVH folder not found (expected a folder like ../shared/data/cmu_bvh "
+            f"with MANIFEST.tsv and data/NNN/NN_TT.bvh); {found_entries(root.parent, root.name)}"
         )
     manifest = root / "MANIFEST.tsv"
     trials: list[Trial] = []
@@ -710,7 +711,10 @@ def list_trials(bvh_root: str | Path) -> list[Trial]:
         for path in sorted(root.glob("data/*/*.bvh")):
             trials.append(_trial_from_path(path, str(path.relative_to(root)), "", str(path)))
     if not trials:
-        raise DataFormatError(f"{root}: no BVH trials found")
+        raise DataNotFoundError(
+            f"{root}: no BVH trials (expected MANIFEST.tsv or data/NNN/NN_TT.bvh); "
+            f"{found_entries(root, 'data')}"
+        )
     keys = [t.key for t in trials]
     if len(set(keys)) != len(keys):
         dup = next(k for k in keys if keys.count(k) > 1)

@@ -136,7 +136,8 @@ def found_entries(folder: Path, expected: str) -> str:
         expected, names, n=1, cutoff=0.75
     )
     hint = f"; is {near[0]!r} meant to be {expected!r}?" if near else ""
-    return f"found in {folder}: {', '.join(names)}{hint}"
+    shown = ", ".join(names[:12]) + (f" and {len(names) - 12} more" if len(names) > 12 else "")
+    return f"found in {folder}: {shown}{hint}"
 
 
 def declared_missing(root: Path) -> set[str]:
