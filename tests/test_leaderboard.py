@@ -200,7 +200,7 @@ def test_check_recomputes_every_row_and_names_what_differs(tmp_path, capsys):
     )
     assert {p: p.stat().st_mtime_ns for p in out.rglob("*") if p.is_file()} == before
     assert lines[0].startswith("cmu/ltd8: 2 rows on all 8 windows (walking 8), largest ")
-    assert lines[0].endswith(": passed (0 s)") and lines[1].startswith("cmu/all: 2 rows on all")
+    assert ": passed (" in lines[0] and lines[1].startswith("cmu/all: 2 rows on all")
 
     # a row that cannot be loaded (a corrupted checkpoint) is reported and the check goes on
     best = checkpoints / "cmu" / "tiny" / "best.pt"
