@@ -119,6 +119,26 @@ def test_sampled_check_passes_prints_each_table_once_and_says_what_it_can_miss(b
     assert "cmu/all: 2 rows on all 482 windows" in capsys.readouterr().out
     assert main(["leaderboard", "--check", "--windows", "0", *_common(board)]) == 2
     assert "--windows 0: expected a positive number" in capsys.readouterr().err
+    assert main(["leaderboard", "--check", "--seed", "-1", *_common(board)]) == 2
+    assert "--seed -1: expected an integer in 0..2**32-1" in capsys.readouterr().err
+
+
+def test_a_nan_a_missing_series_or_other_windows_never_agree():
+    from zoo.tolerance import sample_agreement
+
+    def windows(values, series=("m", "mpjpe", "all")):
+        errors = {series: np.array(values, np.float32).reshape(3, 1)}
+        return WindowErrors(["a"], np.zeros(3, int), np.arange(3), np.array(["x"] * 3), errors,
+                            "p", 2)  # fmt: skip
+
+    rows = np.arange(3)
+    assert sample_agreement(windows([1, 2, 3]), windows([1, 2, 3]), rows).same
+    assert sample_agreement(windows([1, 2, np.nan]), windows([1, 2, np.nan]), rows).same
+    assert not sample_agreement(windows([1, 2, np.nan]), windows([1, 2, 3]), rows).same
+    assert not sample_agreement(windows([1, 2, 3]), windows([1, 2, np.nan]), rows).same
+    other = windows([1, 2, 3], ("m", "melv", "vertices"))
+    assert "other per-window error series" in sample_agreement(other, windows([1, 2, 3]), rows).why
+    assert "other windows" in sample_agreement(windows([1, 2, 3]), windows([1, 2, 3]), rows + 2).why
 
 
 def test_check_names_a_value_edited_in_results_csv(board, capsys):
@@ -139,15 +159,17 @@ def test_check_names_a_value_edited_in_results_csv(board, capsys):
 def test_check_names_one_actions_per_window_errors_raised_by_one_percent(board, capsys):
     path = board / "results" / "cmu" / "all" / "repeat_last" / "windows.npz"
     stored = WindowErrors.read(path)
-    running = stored.action == "running"
+    walking = stored.action == "walking"  # stored after running's windows
     for key in stored.errors:
-        stored.errors[key][running] *= 1.01
+        stored.errors[key][walking] *= 1.01
     stored.write(path)
     assert main(["leaderboard", "--check", "--seed", "3", *_common(board)]) == 1
     err = capsys.readouterr().err
-    assert f"{path}: repeat_last/mpjpe/used25: per-window errors differ beyond tolerance" in err
-    assert ", running:" in err  # the window named is one of running's
-    assert "action=running" in err and "its windows.npz gives" in err  # results.csv disagrees
+    said = f"{path}: repeat_last/mpjpe/used25: per-window errors differ beyond tolerance (window "
+    assert said in err
+    window = int(err.split(said)[1].split(",")[0])  # the stored position of the worst window
+    assert window in draw_sample(stored.action, 32, seed=3) and walking[window]
+    assert "action=walking" in err and "its windows.npz gives" in err  # results.csv disagrees
 
 
 def test_check_names_weights_that_are_not_the_recorded_ones(board, capsys):

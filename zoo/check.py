@@ -29,7 +29,8 @@ DEFAULT_WINDOWS = 32
 def draw_sample(actions: np.ndarray, n: int, seed: int) -> np.ndarray:
     """Positions of ``n`` windows (sorted) drawn without replacement from windows of
     ``actions``, stratified: every action gets at least one window (``n`` permitting), the rest
-    in proportion to its windows (largest remainders). Every window when ``n`` covers them."""
+    in proportion to the windows each has left (largest remainders). Every window when ``n``
+    covers them."""
     actions = np.asarray(actions)
     if n >= len(actions):
         return np.arange(len(actions))
@@ -63,13 +64,18 @@ def fresh_seed() -> int:
     return secrets.randbelow(2**31)
 
 
-def escape_sentence(n: int) -> str:
-    """What a sample of ``n`` windows a row can miss, with the numbers worked out."""
+def escape_sentence(n: int, every_action: bool = True) -> str:
+    """What a sample of ``n`` windows a row can miss, with the numbers worked out
+    (``every_action``: whether each action had windows in every sample)."""
     odds = ", ".join(f"f = {f:.0%}: {(1 - f) ** n:.2g}" for f in (0.01, 0.05, 0.1))
+    actions = (
+        "; a fault in every window of one action cannot escape (each action is sampled)"
+        if every_action
+        else "; some actions had no window in a sample (--windows below their number)"
+    )
     return (
         f"a fault touching a fraction f of a row's windows escapes a sample of n = {n} of them "
-        f"with probability (1 - f)^n ({odds}); a fault in every window of one action cannot "
-        f"escape (each action is sampled); --full checks every window"
+        f"with probability (1 - f)^n ({odds}){actions}; --full checks every window"
     )
 
 
@@ -82,7 +88,8 @@ class TableCheck:
     rows: list = field(default_factory=list)
     windows: int = 0
     total: int = 0
-    per_action: dict = field(default_factory=dict)
+    actions: int = 0  # actions among the table's windows
+    per_action: dict = field(default_factory=dict)  # windows scored per action
     share: float = 0.0
     problems: list = field(default_factory=list)
     stale: list = field(default_factory=list)  # rows stamped by older code
@@ -116,6 +123,7 @@ class CheckReport:
         rows = None if self.windows is None else draw_sample(actions, self.windows, self.seed)
         scored = np.asarray(actions) if rows is None else np.asarray(actions)[rows]
         table.windows = len(scored)
+        table.actions = len(np.unique(actions))
         table.per_action = dict(zip(*np.unique(scored, return_counts=True)))
         return rows
 
@@ -183,9 +191,12 @@ class CheckReport:
             f"tolerance) at {where or '-'}"
         ]
         if sampled:
+            every_action = all(
+                len(t.per_action) == t.actions for t in self.tables.values() if t.total
+            )
             lines.append(
                 f"sample: seed {self.seed} (--seed {self.seed} draws it again); "
-                + escape_sentence(min(sampled))
+                + escape_sentence(min(sampled), every_action)
             )
         stale = sum(len(t.stale) for t in self.tables.values())
         if stale:
@@ -357,17 +368,17 @@ def check_identity(label: str, stored: dict | None, fresh: dict, check: CheckRep
     another protocol (data files, windows), other hyper-parameters are problems; code changed
     since the row was stamped is a note (``zoo leaderboard`` re-stamps such a row once a sample
     agrees)."""
-    from zoo.store import identity_differences
+    from zoo.store import identity_differences, only_code_changed
 
     differences = identity_differences(stored, fresh)
-    code = [d for d in differences if d.startswith("code.")]
-    other = [d for d in differences if not d.startswith("code.")]
-    for d in other:
+    if only_code_changed(differences):
+        if check.current:
+            check.tables[check.current].stale.append(label)
+        return
+    for d in differences:
         what = (
             "weights are not the ones it records"
             if d.startswith("trained")
             else "recorded identity differs"
         )
         check.problem(f"{check.current}: {label}: {what}: {d}")
-    if code and not other and check.current:
-        check.tables[check.current].stale.append(label)

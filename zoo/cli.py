@@ -241,6 +241,8 @@ def cmd_leaderboard(args) -> int:
     registry = _registry(args)
     if args.windows is not None and args.windows < 1:
         raise UsageError(f"--windows {args.windows}: expected a positive number of windows")
+    if args.seed is not None and not 0 <= args.seed < 2**32:
+        raise UsageError(f"--seed {args.seed}: expected an integer in 0..2**32-1")
     if args.windows is not None and args.full:
         raise UsageError("--windows samples; --full checks every window: give one of them")
     windows = None if args.full else (args.windows or DEFAULT_WINDOWS)

@@ -575,7 +575,8 @@ class Leaderboard:
         stored per-window errors, else with None (to be recomputed on every window)."""
         if not rows:
             return []
-        from zoo.results import WINDOWS_FILE, WindowErrors
+        from zoo.errors import EvaluationError
+        from zoo.results import EvalResult
 
         sample = draw_sample(planned.actions, self.plan.windows, self.plan.seed)
         print(
@@ -592,14 +593,16 @@ class Leaderboard:
         )
         out = []
         for (row, loaded, identity, old, why), result in zip(rows, computed):
-            stored = old / WINDOWS_FILE
-            agreed = (
-                sample_agreement(result.windows, WindowErrors.read(stored), sample)
-                if not isinstance(result, Exception) and stored.is_file()
-                else None
-            )
-            if agreed is not None and agreed.same:  # its averages are its windows' own
-                agreed = _self_consistent(old) or agreed
+            agreed = None  # not verifiable: no result, or a stored row that cannot be read
+            if not isinstance(result, Exception):
+                try:
+                    stored = EvalResult.read(old)
+                except EvaluationError:
+                    stored = None
+                if stored is not None and stored.windows is not None:
+                    agreed = sample_agreement(result.windows, stored.windows, sample)
+                    if agreed.same:  # and its averages are its windows' own
+                        agreed = _self_consistent(stored, old) or agreed
             if agreed is None or not agreed.same:
                 print(
                     f"{where}: {row.label}: {why}; "
@@ -628,13 +631,12 @@ class Leaderboard:
             efficiency[label] = stored
 
 
-def _self_consistent(folder: Path):
+def _self_consistent(stored, folder: Path):
     """None where a stored row's ``results.csv`` is what its own ``windows.npz`` gives (the
     evaluator's sums, :func:`zoo.evaluate.frame_from_windows`), else the disagreement."""
     from zoo.evaluate import frame_from_windows
     from zoo.results import EvalResult
 
-    stored = EvalResult.read(folder)
     frame = frame_from_windows(stored.windows, stored.protocol)
     agreed = agreement(EvalResult(frame, stored.protocol, stored.windows), folder)
     if agreed.same:
@@ -643,15 +645,16 @@ def _self_consistent(folder: Path):
 
 
 def _verification(before: dict | None, after: dict, windows: int, seed: int | None, agreed):
-    """How a row's stored numbers were verified under its new identity (code changed): on
-    ``windows`` windows (``seed``: of a sample; None: every window), the code identities
-    before and after, the largest difference found."""
+    """How a row's stored numbers were verified under its new identity: why it was stale (a
+    code change, or the identity differences), on ``windows`` windows (``seed``: of a sample;
+    None: every window), the code identities before and after, the largest difference."""
     import datetime
 
     from zoo.io import code_version
 
+    differences = identity_differences(before, after)
     return {
-        "after": "code change",
+        "after": "code change" if only_code_changed(differences) else "; ".join(differences),
         "windows": windows,
         **({"seed": seed} if seed is not None else {"every_window": True}),
         "largest_difference": f"{agreed.share:.3f} of the tolerance",

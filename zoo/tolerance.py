@@ -123,8 +123,6 @@ def _compare(result, stored) -> Agreement:
     if (result.windows is None) != (stored.windows is None):
         return Agreement(False, float("inf"), "per-window errors on one side only")
     if result.windows is not None:
-        if set(result.windows.errors) != set(stored.windows.errors):
-            return Agreement(False, float("inf"), "other per-window error series")
         try:
             gaps = window_gaps(result.windows, stored.windows)
         except Incomparable as e:
@@ -172,22 +170,30 @@ def window_gaps(fresh, stored, rows: np.ndarray | None = None) -> list[WindowGap
     positions ``rows`` (None: every window, in order); :class:`Incomparable` where the windows
     are not the same ones or a series is missing from ``stored``."""
     rows = np.arange(len(stored.start)) if rows is None else np.asarray(rows)
-    if len(rows) != len(fresh.start) or not (
+    if len(rows) != len(fresh.start) or (len(rows) and rows.max() >= len(stored.start)):
+        raise Incomparable(f"other windows ({len(stored.start)} stored)")
+    if not (
         np.array_equal(stored.start[rows], fresh.start)
         and np.array_equal(stored.sequence[rows], fresh.sequence)
     ):
         raise Incomparable("other windows")
+    if set(fresh.errors) != set(stored.errors):
+        missing = sorted("/".join(k) for k in set(fresh.errors) ^ set(stored.errors))
+        raise Incomparable(f"other per-window error series ({', '.join(missing)} on one side)")
     gaps = []
     for key, values in fresh.errors.items():
-        if key not in stored.errors:
-            raise Incomparable(f"{'/'.join(key)}: not among the stored per-window errors")
         before = stored.errors[key][rows].astype(np.float64)
         if values.shape != before.shape:
             raise Incomparable(f"{'/'.join(key)}: another shape")
         if not before.size:
             continue
-        gap = np.abs(values.astype(np.float64) - before)
-        share = gap / allowed(key[1], before)
+        after = values.astype(np.float64)
+        gap = np.abs(after - before)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            share = np.nan_to_num(gap / allowed(key[1], before), nan=0.0, posinf=np.inf)
+        # a NaN on one side only is a difference; on both sides, the same value
+        one, both = np.isnan(after) != np.isnan(before), np.isnan(after) & np.isnan(before)
+        share = np.where(one, np.inf, np.where(both, 0.0, share))
         i = int(np.argmax(share))
         gaps.append(
             WindowGap(
