@@ -222,7 +222,7 @@ def check_table(
     per-window errors with its ``windows.npz`` (at positions ``rows``, the sample; None: every
     window, and then its averages with its ``results.csv`` too), and every committed row's
     ``results.csv`` with what its own ``windows.npz`` gives."""
-    from zoo.results import TABLE_FILE, WINDOWS_FILE, WindowErrors, read_table, table_labels
+    from zoo.results import TABLE_FILE, WINDOWS_FILE, read_table, table_labels
 
     name = f"{folder.parent.name}/{folder.name}"
     if not (folder / TABLE_FILE).is_file():
@@ -233,17 +233,16 @@ def check_table(
     check.metrics |= set(committed["metric"])
     recomputed = {str(r.frame["model"].iloc[0]) for r in results}
     for label in table_labels(folder):  # rows not recomputed: their files checked still
-        if label not in recomputed:
-            _consistent(folder / label, check)
+        if label not in recomputed and (stored := _read(folder / label, check)) is not None:
+            _consistent(stored, folder / label, check)
     for r in results:
         label = str(r.frame["model"].iloc[0])
         path = folder / label / WINDOWS_FILE
-        if not path.is_file():
-            check.problem(f"{path}: missing (per-window errors of {label})")
+        stored = _read(folder / label, check)  # once: its windows, averages and record
+        if stored is None:
             continue
-        stored = WindowErrors.read(path)
         try:
-            gaps = window_gaps(r.windows, stored, rows)
+            gaps = window_gaps(r.windows, stored.windows, rows)
         except _Incomparable as e:
             check.problem(f"{path}: {e}")
             continue
@@ -254,12 +253,11 @@ def check_table(
             if g.share > 1:
                 check.problem(
                     f"{path}: {'/'.join(g.key)}: per-window errors differ beyond tolerance "
-                    f"(window {g.window}, {stored.action[g.window]}: {g.absolute:.2g} apart, "
-                    f"{g.relative:.2g} relative, {g.share:.2f} of the tolerance)"
+                    f"(window {g.window}, {stored.windows.action[g.window]}: {g.absolute:.2g} "
+                    f"apart, {g.relative:.2g} relative, {g.share:.2f} of the tolerance)"
                 )
-        kept = _consistent(folder / label, check, stored)
-        if kept is not None:
-            _data_note(kept.protocol, r.protocol, label, check)
+        _consistent(stored, folder / label, check)
+        _data_note(stored.protocol, r.protocol, label, check)
     if rows is None:
         fresh = pd.concat([r.frame for r in results], ignore_index=True)
         _compare_values(fresh, committed, folder, check)
@@ -281,11 +279,9 @@ def _data_note(stored: dict, fresh: dict, label: str, check: CheckReport) -> Non
         check.tables[check.current].data[label] = before == now
 
 
-def _consistent(row: Path, check: CheckReport, windows=None):
-    """A committed row's ``results.csv`` against what its own ``windows.npz`` gives, exactly as
-    the evaluator sums them (a value edited in one file and not the other is named); the stored
-    result, or None where it cannot be read."""
-    from zoo.evaluate import frame_from_windows
+def _read(row: Path, check: CheckReport):
+    """A committed row (``zoo.results.EvalResult``) with its per-window errors, or None and a
+    problem where it cannot be read or has none."""
     from zoo.results import WINDOWS_FILE, EvalResult
 
     try:
@@ -293,13 +289,20 @@ def _consistent(row: Path, check: CheckReport, windows=None):
     except Exception as e:  # noqa: BLE001 - an unreadable row is a problem, the check goes on
         check.problem(f"{row}: not readable: {e}")
         return None
-    windows = windows if windows is not None else stored.windows
-    if windows is None:
+    if stored.windows is None:
         check.problem(f"{row / WINDOWS_FILE}: missing (per-window errors of {row.name})")
-        return stored
-    again = frame_from_windows(windows, stored.protocol)
-    _compare_values(again, stored.frame, row / "results.csv", check, against=f"its {WINDOWS_FILE}")
+        return None
     return stored
+
+
+def _consistent(stored, row: Path, check: CheckReport) -> None:
+    """A committed row's ``results.csv`` against what its own ``windows.npz`` gives, as the
+    evaluator sums them (a value edited in one file and not the other is named)."""
+    from zoo.evaluate import frame_from_windows
+    from zoo.results import WINDOWS_FILE
+
+    again = frame_from_windows(stored.windows, stored.protocol)
+    _compare_values(again, stored.frame, row / "results.csv", check, against=f"its {WINDOWS_FILE}")
 
 
 def _compare_values(
