@@ -29,7 +29,7 @@ from zoo.metrics import FLOOR_SUFFIX
 from zoo.paths import REPO_ROOT
 from zoo.published import load_published
 from zoo.registry import Registry, load_registry
-from zoo.results import TABLE_FILE, read_table
+from zoo.results import read_table, table_files
 from zoo.store import RESULTS_DIR
 from zoo.tables import default_horizons, headline_key, metric_unit
 from zoo.weights import (
@@ -284,7 +284,7 @@ def _belongs(label: str, name: str) -> bool:
 
 def _row_tables(name: str, results_root: Path) -> list[str]:
     out = []
-    for table in sorted(results_root.glob(f"*/*/{TABLE_FILE}")):
+    for table in table_files(results_root, depth=2):
         result = read_table(table.parent)
         frame = result.frame
         labels = sorted({m for m in frame["model"] if _belongs(m, name)})

@@ -349,3 +349,71 @@ def compare(
         units="recordings" if shape.recording_level else "actions",
         design=shape.counts(),
     )
+
+
+def reader_pairs(results: list[EvalResult]) -> list[tuple[str, str]]:
+    """The pairs of a table a reader asks about first: each trained predictor (its best
+    validation row, not ``@last``) against ``repeat_last`` and against the best other
+    predictor (lowest headline error summed over the table's horizons)."""
+    from zoo.tables import is_floor
+
+    by_label = {_label(r): r for r in results if r.windows is not None}
+    if not by_label:  # no per-window errors stored: nothing to pair
+        return []
+    record = results[0].protocol
+    metric, joints = headline_key(record)
+    rows = pd.concat([r.frame for r in by_label.values()], ignore_index=True)
+    rows = rows[
+        (rows["metric"] == metric)
+        & (rows["joints"] == joints)
+        & (rows["averaging"] == "frame")
+        & (rows["action"] == "average")
+        & rows["horizon_ms"].isin(default_horizons(rows))
+    ]
+    total = rows.groupby("model")["value"].sum()
+    trained = [
+        m
+        for m in by_label
+        if m != "repeat_last" and "@" not in m and not is_floor(m) and m in total
+    ]
+    pairs = []
+    for m in trained:
+        if "repeat_last" in by_label:
+            pairs.append((m, "repeat_last"))
+        others = total[[o for o in trained if o != m]]
+        if len(others):
+            pairs.append((m, str(others.idxmin())))
+    return pairs
+
+
+def table_comparisons(results: list[EvalResult]) -> list[dict[str, Any]]:
+    """:func:`compare` of every :func:`reader_pairs` pair, as data (``summary.json``)."""
+    by_label = {_label(r): r for r in results}
+    out = []
+    for a, b in reader_pairs(results):
+        c = compare(by_label[a], by_label[b])
+        out.append(
+            {
+                "a": a,
+                "b": b,
+                "metric": c.metric,
+                "joints": c.joints,
+                "averaging": c.averaging,
+                "kind": c.kind,
+                "units": c.units,
+                "design": c.design,
+                "confidence": c.confidence,
+                "rows": [
+                    {k: _json_value(v) for k, v in row.items()}
+                    for row in c.table.to_dict("records")
+                ],
+                "sentences": c.sentences(),
+            }
+        )
+    return out
+
+
+def _json_value(v):
+    """A table cell as JSON: numbers to 7 significant digits (past them, CPU rounding)."""
+    v = v.item() if hasattr(v, "item") else v
+    return float(f"{v:.7g}") if isinstance(v, float) else v

@@ -27,7 +27,7 @@ from zoo.model_source import ModelSource
 from zoo.pipeline import Subject, compute_all
 from zoo.protocol import plan_protocol
 from zoo.report import plot_training_curves, training_curves, write_leaderboard
-from zoo.results import TABLE_FILE
+from zoo.results import TABLE_FILE, table_files
 from zoo.store import (
     RESULTS_DIR,
     StoreError,
@@ -189,7 +189,7 @@ class Leaderboard:
         check = self.plan.check
         if check is not None:
             produced = {p.name for p in written}
-            for table in sorted((self.root / bench.name).glob(f"*/{TABLE_FILE}")):
+            for table in table_files(self.root / bench.name):
                 if table.parent.name not in produced:
                     check.current = ""
                     check.problem(
@@ -667,7 +667,7 @@ def _verification(before: dict | None, after: dict, windows: int, seed: int | No
 
 MADE_BY = "zoo leaderboard"
 # The files of a table itself (the rows' folders are beside them).
-TABLE_FILES = (TABLE_FILE, "protocol.json", "efficiency.csv", "mpjpe.png")
+TABLE_FILES = (TABLE_FILE, "summary.json", "protocol.json", "efficiency.csv", "mpjpe.png")
 # What older zoo versions wrote beside them and a rebuild removes: a table-wide copy of every
 # row's results.csv (zoo.results.read_table reads the rows themselves).
 RETIRED_TABLE_FILES = ("results.csv",)

@@ -11,8 +11,16 @@ from pathlib import Path
 
 import pandas as pd
 
+from zoo.compare import table_comparisons
 from zoo.io import atomic_write_json, atomic_write_text, save_figure
-from zoo.tables import check_comparable, headline_table, markdown_tables, metric_unit
+from zoo.results import table_files
+from zoo.tables import (
+    check_comparable,
+    headline_table,
+    markdown_tables,
+    metric_unit,
+    table_summary,
+)
 
 
 def write_leaderboard(
@@ -22,11 +30,13 @@ def write_leaderboard(
     efficiency: dict[str, dict] | None = None,
 ) -> Path:
     """Combine :class:`zoo.results.EvalResult` objects of one protocol into ``out_dir``:
-    ``leaderboard.md``, ``protocol.json`` and ``mpjpe.png`` (each result's own folder, beside
-    them, holds its ``results.csv``); ``efficiency``
-    (per row label, the costs ``zoo costs`` stored: :class:`zoo.efficiency.Costs`) fills the
-    headline's cost columns and ``efficiency.csv`` (a dict without a row's label: its cost
-    cells stay empty, and the table says how to fill them)."""
+    ``leaderboard.md``, ``summary.json`` (the same table as data,
+    :func:`zoo.tables.table_summary`, and :func:`zoo.compare.table_comparisons`),
+    ``protocol.json`` and ``mpjpe.png`` (each result's own folder, beside them, holds its
+    ``results.csv``). ``efficiency`` (per row label, the costs
+    ``zoo costs`` stored: :class:`zoo.efficiency.Costs`) fills the headline's cost columns and
+    ``efficiency.csv`` (a dict without a row's label: its cost cells stay empty, and the table
+    says how to fill them)."""
     out_dir = Path(out_dir)
     # Rows and runs in model order, whichever models were evaluated now and which were stored:
     # regenerating then rewrites no unchanged table.
@@ -41,6 +51,9 @@ def write_leaderboard(
     protocol["provenance"] = {"runs": [r.protocol.get("provenance", {}) for r in results]}
     atomic_write_text(out_dir / "leaderboard.md", tables)
     atomic_write_json(out_dir / "protocol.json", protocol)
+    summary = table_summary(results, horizons_ms)
+    summary["comparisons"] = table_comparisons(results)
+    atomic_write_json(out_dir / "summary.json", summary)
     if efficiency:
         atomic_write_text(out_dir / "efficiency.csv", efficiency_csv(frame["model"], efficiency))
     plot_average(frame, out_dir / "mpjpe.png", title=tables.splitlines()[0].lstrip("# "))
@@ -201,7 +214,7 @@ def write_index(out_root: str | Path) -> Path:
     out_root = Path(out_root)
     lines = [INDEX_PREAMBLE]
     for bench_dir in sorted(p for p in out_root.iterdir() if p.is_dir()):
-        tables = sorted(bench_dir.glob("*/leaderboard.md"))
+        tables = table_files(bench_dir)
         if not tables:
             continue
         lines += [f"## {bench_dir.name}", ""]

@@ -183,6 +183,18 @@ class EvalResult:
         return cls(frame=pd.read_csv(out_dir / "results.csv"), protocol=protocol, windows=windows)
 
 
+def table_files(root: str | Path, depth: int = 1) -> list[Path]:
+    """Every ``leaderboard.md`` ``depth`` folders below ``root`` (1: a benchmark's tables, 2:
+    every benchmark's), sorted; a table being written (a hidden folder,
+    :func:`zoo.io.replace_folder`) is none of them."""
+    pattern = "/".join(["*"] * depth + [TABLE_FILE])
+    return sorted(
+        p
+        for p in Path(root).glob(pattern)
+        if not any(part.startswith(".") for part in p.parts[-1 - depth : -1])
+    )
+
+
 def table_labels(folder: str | Path) -> list[str]:
     """The labels of a leaderboard table's rows (``<folder>/<label>/``), in the table's order,
     as its ``protocol.json`` lists them."""

@@ -158,11 +158,11 @@ def protocol_sensitivity(benchmark_dir: str | Path, horizons_ms=HORIZONS_MS) -> 
     """The protocol-sensitivity table of one benchmark's results folder (``results/<name>``),
     prediction tables only; None when its tables measure a single protocol."""
     from zoo.published import place
-    from zoo.results import TABLE_FILE, read_table
+    from zoo.results import read_table, table_files
 
     benchmark_dir = Path(benchmark_dir)
     frames, records = [], {}
-    for table in sorted(benchmark_dir.glob(f"*/{TABLE_FILE}")):
+    for table in table_files(benchmark_dir):
         result = read_table(table.parent)
         if result.protocol.get("task", "prediction") != "prediction":
             continue

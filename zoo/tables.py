@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import re
 from collections.abc import Iterable
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -310,6 +311,187 @@ def interval_words(windows, models: int = 0) -> str:
     return text
 
 
+@dataclass
+class TableView:
+    """One (metric, averaging, joints) of a table at chosen horizons, action average: the
+    value of each row (``values``, model x horizon), half its 95% interval where per-window
+    errors are stored (``half``), the best predictor per horizon (``best``) and which rows are
+    bold (``bold``: the best, or not distinguishable from it, :func:`zoo.intervals.best_set`)."""
+
+    metric: str
+    averaging: str
+    joints: str
+    horizons: list[int]
+    values: pd.DataFrame
+    half: dict[str, np.ndarray]
+    best: pd.Series
+    tied: dict[tuple[str, int], bool]
+    windows: Any  # the table's WindowErrors, None where no row stored them
+    contenders: int  # rows with per-window errors that are predictors (bold compares these)
+
+    def is_bold(self, model: str, horizon: int) -> bool:
+        return self.tied.get((model, horizon), model == self.best[horizon])
+
+
+def table_view(
+    results: list,
+    metric: str,
+    averaging: str,
+    joints: str,
+    horizons_ms: Iterable[int] | None = None,
+) -> TableView | None:
+    """The :class:`TableView` of ``results`` (one table's rows) for ``metric``, ``averaging``
+    and ``joints``; None where no row has that combination."""
+    from zoo.intervals import best_set, interval
+    from zoo.metrics import cumulative_mean
+
+    frame = pd.concat([r.frame for r in results], ignore_index=True)
+    rows = frame[
+        (frame["metric"] == metric)
+        & (frame["joints"] == joints)
+        & (frame["averaging"] == averaging)
+        & (frame["action"] == "average")
+    ]
+    if rows.empty:
+        return None
+    horizons = [h for h in (horizons_ms or default_horizons(frame)) if h in set(rows.horizon_ms)]
+    values = rows.pivot_table(index="model", columns="horizon_ms", values="value")[horizons]
+    frame_of = dict(zip(rows["horizon_ms"], rows["frame"]))
+    columns = [int(frame_of[h]) - 1 for h in horizons]  # 0-based predicted frame of each
+
+    def per_window(e: np.ndarray) -> np.ndarray:
+        e = e.astype(np.float64)
+        return (cumulative_mean(e, axis=1) if averaging == "cumulative" else e)[:, columns]
+
+    # every row of the table that has per-window errors (a model, its autoencoder floor)
+    errors = {
+        m: per_window(r.windows.get(m, metric, joints))
+        for r in results
+        if r.windows is not None
+        for (m, metric_, joints_) in r.windows.errors
+        if metric_ == metric and joints_ == joints and m in values.index
+    }
+    windows = next((r.windows for r in results if r.windows is not None), None)
+    half: dict[str, np.ndarray] = {}
+    # An autoencoder floor sees the future: a bound beside its model, never the best.
+    predictors = [m for m in values.index if not is_floor(m)]
+    best = values.loc[predictors].idxmin() if predictors else values.idxmin()
+    tied: dict[tuple[str, int], bool] = {}
+    contenders = {m: e for m, e in errors.items() if not is_floor(m)}
+    if windows is not None:
+        for m, e in errors.items():
+            half[m] = interval(e, windows).half
+        if best.isin(list(contenders)).all():
+            bold = best_set(contenders, windows)
+            tied = {(m, h): bool(bold[m][i]) for m in contenders for i, h in enumerate(horizons)}
+    return TableView(
+        metric, averaging, joints, horizons, values, half, best, tied, windows, len(contenders)
+    )
+
+
+def table_summary(results: list, horizons_ms: Iterable[int] | None = None) -> dict[str, Any]:
+    """A table as data (``summary.json`` beside ``leaderboard.md``), for readers other than
+    Markdown's: per (metric, averaging, joints), each row's action average at the table's
+    horizons with half its interval and whether it is bold, its value per action, its curve over
+    every predicted frame, and the published rows of that very protocol."""
+    from zoo.published import place
+
+    record = results[0].protocol
+    frame = pd.concat([r.frame for r in results], ignore_index=True)
+    metric_h, joints_h = headline_key(record)
+    order = _action_order(record)
+    views = []
+    for (metric, averaging, joints), group in frame.groupby(["metric", "averaging", "joints"]):
+        view = table_view(results, metric, averaging, joints, horizons_ms)
+        if view is None:
+            continue
+        horizons = view.horizons
+        unit, fmt = metric_unit(metric)
+        models = []
+        # each mesh row repeats the ground truth's own MELV: one copy of a (model, action, frame)
+        group = group.drop_duplicates(["model", "action", "horizon_ms"])
+        for m in view.values.index:
+            mine = group[group["model"] == m]
+            per_action = {
+                a: [_number(v) for v in rows.set_index("horizon_ms")["value"].reindex(horizons)]
+                for a, rows in sorted(mine.groupby("action"), key=lambda kv: order.get(kv[0], 0))
+                if a != "average"
+            }
+            curve = mine[mine["action"] == "average"].sort_values("horizon_ms")
+            models.append(
+                {
+                    "model": m,
+                    "floor": is_floor(m),
+                    "values": [_number(view.values.loc[m, h]) for h in horizons],
+                    "half": [_number(x) for x in view.half[m]] if m in view.half else None,
+                    "bold": [view.is_bold(m, h) for h in horizons],
+                    "per_action": per_action,
+                    "curve": [
+                        [int(h), _number(v)] for h, v in zip(curve["horizon_ms"], curve["value"])
+                    ],
+                }
+            )
+        placed = place(record, metric, averaging, joints)
+        views.append(
+            {
+                "metric": metric,
+                "averaging": averaging,
+                "joints": joints,
+                "headline": (metric, averaging, joints) == (metric_h, "frame", joints_h),
+                "unit": unit,
+                "format": fmt,
+                "horizons_ms": horizons,
+                "averaging_words": record.get("averaging", {}).get(averaging, ""),
+                "joints_words": record.get("joint_protocols", {}).get(joints, ""),
+                "interval_words": (
+                    "no per-window errors stored, so no intervals"
+                    if view.windows is None
+                    else interval_words(view.windows, models=view.contenders)
+                ),
+                "models": models,
+                "reported": [
+                    {
+                        "label": p.entry.label,
+                        "model": p.entry.model,
+                        "source": p.entry.source,
+                        "values": [p.values.get(h) for h in horizons],
+                        "per_action": {
+                            a: [p.entry.per_action[a].get(h) for h in horizons]
+                            for a in record.get("actions_present", [])
+                        }
+                        if p.entry.per_action
+                        else {},
+                    }
+                    for p in placed
+                    if not p.differences
+                ],
+                "other_protocols": [
+                    {
+                        "label": p.entry.label,
+                        "source": p.entry.source,
+                        "values": {str(h): v for h, v in sorted(p.values.items())},
+                        "differences": p.differences,
+                    }
+                    for p in placed
+                    if p.differences
+                ],
+            }
+        )
+    views.sort(key=lambda v: not v["headline"])
+    return {
+        "benchmark": record["benchmark"],
+        "protocol_id": record["protocol_id"],
+        "actions": list(record.get("actions_present", [])),
+        "views": views,
+    }
+
+
+def _number(x) -> float | None:
+    """A JSON number to 7 significant digits (what differs past them is CPU rounding, and a
+    rebuild on another CPU then rewrites no file); None for a missing or non-finite value."""
+    return float(f"{x:.7g}") if x is not None and np.isfinite(x) else None
+
+
 def headline_table(
     results: list,
     horizons_ms: Iterable[int] | None = None,
@@ -326,53 +508,22 @@ def headline_table(
     dict gets empty cost cells and the way to fill them (None: no costs at all). ``published``:
     :func:`zoo.published.place` of this table (default: from ``zoo/published.yaml``); matching
     figures become ``reported`` rows, the others are listed below with their differences."""
-    from zoo.intervals import best_set, interval
     from zoo.published import place
 
     record = results[0].protocol
     metric, joints = headline_key(record)
-    frame = pd.concat([r.frame for r in results], ignore_index=True)
-    rows = frame[
-        (frame["metric"] == metric)
-        & (frame["joints"] == joints)
-        & (frame["averaging"] == "frame")
-        & (frame["action"] == "average")
-    ]
-    if rows.empty:
+    view = table_view(results, metric, "frame", joints, horizons_ms)
+    if view is None:
         return ""
-    horizons = [h for h in (horizons_ms or default_horizons(frame)) if h in set(rows.horizon_ms)]
-    values = rows.pivot_table(index="model", columns="horizon_ms", values="value")[horizons]
-    frame_of = dict(zip(rows["horizon_ms"], rows["frame"]))
-    columns = [int(frame_of[h]) - 1 for h in horizons]  # 0-based predicted frame of each
-    # every row of the headline that has per-window errors (a model, its autoencoder floor)
-    errors = {
-        m: r.windows.get(m, metric, joints)[:, columns].astype(np.float64)
-        for r in results
-        if r.windows is not None
-        for (m, metric_, joints_) in r.windows.errors
-        if metric_ == metric and joints_ == joints and m in values.index
-    }
-    windows = next((r.windows for r in results if r.windows is not None), None)
-    half: dict[str, np.ndarray] = {}
+    horizons, values, half, windows = view.horizons, view.values, view.half, view.windows
     fmt = metric_unit(metric)[1]
-    # An autoencoder floor sees the future: a bound beside its model, never the best.
-    predictors = [m for m in values.index if not is_floor(m)]
-    best = values.loc[predictors].idxmin() if predictors else values.idxmin()
-    tied: dict[tuple[str, int], bool] = {}
-    if windows is not None:
-        for m, e in errors.items():
-            half[m] = interval(e, windows).half
-        contenders = {m: e for m, e in errors.items() if not is_floor(m)}
-        if best.isin(list(contenders)).all():
-            bold = best_set(contenders, windows)
-            tied = {(m, h): bool(bold[m][i]) for m in contenders for i, h in enumerate(horizons)}
     costs, efficiency = efficiency is not None, efficiency or {}
     table = []
     for m in values.index:
         cells = []
         for i, h in enumerate(horizons):
             text = f"{values.loc[m, h]:{fmt}}" + (f" ±{half[m][i]:{fmt}}" if m in half else "")
-            cells.append(f"**{text}**" if tied.get((m, h), m == best[h]) else text)
+            cells.append(f"**{text}**" if view.is_bold(m, h) else text)
         table.append([m, *cells, *_cost_cells(m, efficiency, costs)])
     placed = place(record, metric, "frame", joints) if published is None else published
     for p in placed:
@@ -388,7 +539,7 @@ def headline_table(
     if windows is None:
         how = "no per-window errors stored, so no intervals"
     else:
-        how = interval_words(windows, models=len([m for m in errors if not is_floor(m)]))
+        how = interval_words(windows, models=view.contenders)
     floors = [m for m in values.index if is_floor(m)]
     if floors:
         how += (
