@@ -276,10 +276,10 @@ def cmd_leaderboard(args) -> int:
             f"({', '.join(names)})"
         )
     if check:
-        from zoo.results import TABLE_FILE
+        from zoo.results import TABLE_FILE, table_files
 
         for name in names:
-            if not list((Path(args.out) / name).glob(f"*/{TABLE_FILE}")):
+            if not table_files(Path(args.out) / name):
                 raise UsageError(
                     f"--check: no committed table of {name} under {args.out} "
                     f"(expected {args.out}/{name}/<sampler>/{TABLE_FILE})"
@@ -383,13 +383,52 @@ def cmd_cards(args) -> int:
     return 0
 
 
+def cmd_site(args) -> int:
+    from zoo.site import build_site
+
+    results = Path(args.results)
+    if args.clips:
+        from zoo.clips import CLIPS_FILE, write_benchmark_clips
+
+        registry = _registry(args)
+        for name in args.benchmark or _mesh_benchmarks(results):
+            path = write_benchmark_clips(
+                name, registry, Path(args.weights), results / name / CLIPS_FILE, args.data_root
+            )
+            print(f"wrote {path}")
+    build = build_site(
+        Path(args.out),
+        results,
+        weights_root=Path(args.weights),
+        cards_dir=Path(args.cards),
+        registry=_registry(args),
+    )
+    for line in build.warnings:
+        print(f"warning: {line}", file=sys.stderr)
+    print(
+        f"wrote {len(build.pages)} pages to {build.out} ({build.bytes / 1e6:.1f} MB) in "
+        f"{build.seconds:.1f} s: open {build.out / 'index.html'} in a browser (file://, offline)"
+    )
+    return 0
+
+
+def _mesh_benchmarks(results: Path) -> list[str]:
+    from zoo.benchmark import get_benchmark
+
+    return [
+        name
+        for name in committed_benchmarks(results)
+        if get_benchmark(name).representation == "mesh"
+    ]
+
+
 def committed_benchmarks(results: Path) -> list[str]:
     """Every benchmark with a table under ``results`` (what ``--check`` checks by default)."""
     from zoo.benchmark import list_benchmarks
-    from zoo.results import TABLE_FILE
+    from zoo.results import table_files
 
     known = set(list_benchmarks())
-    found = sorted(p.parent.parent.name for p in results.glob(f"*/*/{TABLE_FILE}"))
+    found = sorted(p.parent.parent.name for p in table_files(results, depth=2))
     unknown = sorted({b for b in found if b not in known})
     if unknown:
         raise UsageError(
@@ -945,6 +984,35 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--weights", default=str(REPO_ROOT / "weights"), help="shipped weights folder")
     p.add_argument("--results", default=str(RESULTS_DIR), help="results root")
     p.set_defaults(func=cmd_cards)
+
+    p = sub.add_parser(
+        "site",
+        help="build the leaderboards as a static site (every table, curve, card and mesh clip; "
+        "opens from file://, offline)",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    p.add_argument("--out", default=str(REPO_ROOT / "site"), help="site folder (replaced whole)")
+    p.add_argument("--results", default=str(RESULTS_DIR), help="results root to read")
+    p.add_argument("--weights", default=str(REPO_ROOT / "weights"), help="shipped weights folder")
+    p.add_argument("--cards", default=str(REPO_ROOT / "docs" / "models"), help="model cards folder")
+    p.add_argument(
+        "--clips",
+        action="store_true",
+        help="first (re)write each mesh benchmark's clips.npz from its data and shipped weights "
+        "(minutes; the site itself needs neither)",
+    )
+    p.add_argument(
+        "--benchmark",
+        action="append",
+        default=[],
+        help="with --clips: only this mesh benchmark (repeatable; default: every mesh benchmark "
+        "with a table)",
+    )
+    p.add_argument("--data-root", help="with --clips: the benchmark's data folder")
+    p.add_argument(
+        "--registry", action="append", default=[], metavar="YAML", help="extra registry file"
+    )
+    p.set_defaults(func=cmd_site)
 
     p = sub.add_parser(
         "compare",

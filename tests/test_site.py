@@ -1,0 +1,197 @@
+"""zoo site without a browser: the table as data beside each leaderboard, the clips file, the
+pages built from committed results, and bad input shown on its page and warned about."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from zoo.clips import Clips, cluster_vertices
+from zoo.paths import REPO_ROOT
+from zoo.results import EvalResult, table_labels
+from zoo.site import build_site
+from zoo.tables import headline_key, table_summary
+
+RESULTS = REPO_ROOT / "results"
+TABLE = RESULTS / "cmu_anny_oi_low" / "stride5_strict"
+
+
+def _copy_results(tmp_path: Path, *benchmarks: str) -> Path:
+    root = tmp_path / "results"
+    for bench in benchmarks:
+        shutil.copytree(RESULTS / bench, root / bench, ignore=shutil.ignore_patterns("*.npz"))
+    return root
+
+
+def test_summary_matches_the_rows_and_the_markdown_headline():
+    rows = [EvalResult.read(TABLE / label) for label in table_labels(TABLE)]
+    summary = table_summary(rows)
+    stored = json.loads((TABLE / "summary.json").read_text())
+    metric, joints = headline_key(rows[0].protocol)
+    view = summary["views"][0]
+    assert (view["metric"], view["averaging"], view["joints"], view["headline"]) == (
+        metric,
+        "frame",
+        joints,
+        True,
+    )
+    # every value is the row's own results.csv value, to the 7 digits stored
+    frame = rows[1].frame
+    model = str(frame["model"].iloc[0])
+    mine = next(m for m in view["models"] if m["model"] == model)
+    for h, value in zip(view["horizons_ms"], mine["values"]):
+        csv_value = frame[
+            (frame.metric == metric)
+            & (frame.averaging == "frame")
+            & (frame.joints == joints)
+            & (frame.action == "average")
+            & (frame.model == model)
+            & (frame.horizon_ms == h)
+        ]["value"].item()
+        assert value == pytest.approx(csv_value, rel=1e-6)
+    stored_view = next(v for v in stored["views"] if v["headline"])
+    assert [m["model"] for m in stored_view["models"]] == [m["model"] for m in view["models"]]
+    # the bold cells are the Markdown headline's bold cells
+    markdown = (TABLE / "leaderboard.md").read_text().split("## Headline", 1)[1]
+    line = next(row for row in markdown.splitlines() if row.startswith(f"| {model} "))
+    cells = [c.strip() for c in line.strip("|").split("|")][1 : 1 + len(view["horizons_ms"])]
+    assert [c.startswith("**") for c in cells] == mine["bold"]
+
+
+def test_cumulative_view_is_the_running_mean_of_the_frame_view():
+    rows = [EvalResult.read(TABLE / label) for label in table_labels(TABLE)]
+    views = {(v["metric"], v["averaging"]): v for v in table_summary(rows)["views"]}
+    frame, cumulative = views[("rmse", "frame")], views[("rmse", "cumulative")]
+    model = frame["models"][0]
+    curve = np.array([v for _, v in model["curve"]])
+    running = np.cumsum(curve) / np.arange(1, len(curve) + 1)
+    other = next(m for m in cumulative["models"] if m["model"] == model["model"])
+    assert np.allclose([v for _, v in other["curve"]], running, rtol=1e-5)
+
+
+def test_clusters_keep_a_small_mesh_and_shrink_a_large_one():
+    grid = np.stack(np.meshgrid(np.arange(40.0), np.arange(40.0), [0.0]), -1).reshape(-1, 3)
+    quads = [(i * 40 + j, i * 40 + j + 1, (i + 1) * 40 + j) for i in range(39) for j in range(39)]
+    faces = np.array(quads)
+    kept, same = cluster_vertices(grid, faces, target=2000)
+    assert len(kept) == 1600 and same is faces
+    kept, fewer = cluster_vertices(grid, faces, target=300)
+    assert 150 <= len(kept) <= 300
+    assert fewer.max() < len(kept) and len(fewer) > 100
+    assert (fewer[:, 0] != fewer[:, 1]).all()
+
+
+def _clips(faces=None) -> Clips:
+    t = np.linspace(0, 1, 6)[None, :, None, None]
+    base = np.array([[0, 0, 0], [100, 0, 0], [0, 100, 0], [0, 0, 1700.0]])[None, None]
+    truth = np.repeat(base + 50 * t, 2, axis=0)
+    return Clips(
+        benchmark="cmu_anny_oi_low",
+        fps=25.0,
+        input_frames=3,
+        windows=np.array([3, 9]),
+        sequences=["walking_1", "running_1"],
+        faces=np.array([[0, 1, 2], [0, 1, 3], [0, 2, 3], [1, 2, 3]]) if faces is None else faces,
+        vertices=np.arange(4),
+        truth=truth,
+        predictions={"spectrhums": truth[:, 3:] + 7.0},
+    )
+
+
+def test_clips_round_trip_to_the_millimetre(tmp_path):
+    clips = _clips()
+    back = Clips.read(clips.write(tmp_path / "clips.npz"))
+    assert np.abs(back.truth - clips.truth).max() <= 0.5
+    assert np.abs(back.predictions["spectrhums"] - clips.predictions["spectrhums"]).max() <= 0.5
+    assert back.sequences == clips.sequences and back.input_frames == 3
+
+
+def test_site_from_committed_results(tmp_path):
+    results = _copy_results(tmp_path, "cmu_anny_oi_low")
+    _clips().write(results / "cmu_anny_oi_low" / "clips.npz")
+    build = build_site(tmp_path / "site", results)
+    assert build.warnings == []
+    pages = set(build.pages)
+    assert {
+        "index.html",
+        "bench-cmu_anny_oi_low.html",
+        "table-cmu_anny_oi_low-stride5_strict.html",
+        "table-cmu_anny_oi_low-stride5_strict-gt_spectral.html",
+        "compare-cmu_anny_oi_low.html",
+        "meshes-cmu_anny_oi_low.html",
+        "model-spectrhums.html",
+    } <= pages
+    bench = (tmp_path / "site" / "bench-cmu_anny_oi_low.html").read_text()
+    assert "Which number to quote" in bench and "stride5_strict</strong>" in bench
+    protocol = json.loads((TABLE / "protocol.json").read_text())
+    assert protocol["protocol_id"] in bench  # the quoted table's
+    table = (tmp_path / "site" / "table-cmu_anny_oi_low-stride5_strict.html").read_text()
+    assert "window.ZOO_TABLE" in table and "fetch(" not in table
+    for page in (tmp_path / "site").glob("*.html"):
+        html = page.read_text()
+        assert "http://" not in html.replace("http://www.w3.org", "")
+        assert "https://" not in html or page.name.startswith("model-")
+
+
+def test_bad_input_is_shown_on_its_page_and_warned(tmp_path):
+    results = _copy_results(tmp_path, "cmu_anny_oi_low", "cloth")
+    bench = results / "cmu_anny_oi_low"
+    shutil.rmtree(bench / "stride5_strict" / "spectrhums")  # a damaged row
+    (results / "cloth" / "all" / "summary.json").write_text("{not json")
+    empty = results / "cloth" / "all-gt_spectral" / "summary.json"
+    empty.write_text(json.dumps(dict(json.loads(empty.read_text()), views=[])))
+    (results / "nothing_here").mkdir()
+    cards = tmp_path / "cards"
+    shutil.copytree(REPO_ROOT / "docs" / "models", cards)
+    (cards / "spectrhums_residual.md").unlink()
+    build = build_site(tmp_path / "site", results, cards_dir=cards)
+    text = "\n".join(build.warnings)
+    assert "stride5_strict/spectrhums/results.csv: missing" in text
+    assert "cloth/all/summary.json: not readable JSON" in text
+    assert "all-gt_spectral/summary.json: the table has no rows" in text
+    assert "nothing_here: no table" in text
+    assert "spectrhums_residual.md: missing (the model's card)" in text
+    site = tmp_path / "site"
+    assert (
+        "results.csv: missing" in (site / "table-cmu_anny_oi_low-stride5_strict.html").read_text()
+    )
+    assert "not readable JSON" in (site / "table-cloth-all.html").read_text()
+    assert "no rows to show" in (site / "table-cloth-all-gt_spectral.html").read_text()
+    assert "no table" in (site / "bench-nothing_here.html").read_text()
+    assert "missing (the model" in (site / "model-spectrhums_residual.html").read_text()
+
+
+def test_zoo_site_cli_reports_and_refuses_a_foreign_folder(tmp_path):
+    results = _copy_results(tmp_path, "cmu_anny_oi_low")
+    foreign = tmp_path / "mine"
+    foreign.mkdir()
+    (foreign / "notes.txt").write_text("keep me")
+    zoo = [sys.executable, "-m", "zoo.cli"]
+    bad = subprocess.run(
+        [*zoo, "site", "--results", str(results), "--out", str(foreign)],
+        capture_output=True,
+        text=True,
+    )
+    assert bad.returncode != 0 and "Traceback" not in bad.stderr
+    assert "is not a site zoo site wrote" in bad.stderr
+    assert (foreign / "notes.txt").read_text() == "keep me"
+    good = subprocess.run(
+        [*zoo, "site", "--results", str(results), "--out", str(tmp_path / "site")],
+        capture_output=True,
+        text=True,
+    )
+    assert good.returncode == 0, good.stderr
+    assert "pages to" in good.stdout and "index.html" in good.stdout
+    # a second build replaces the first
+    again = subprocess.run(
+        [*zoo, "site", "--results", str(results), "--out", str(tmp_path / "site")],
+        capture_output=True,
+        text=True,
+    )
+    assert again.returncode == 0, again.stderr

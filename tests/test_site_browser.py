@@ -1,0 +1,206 @@
+"""The site in a real browser: Debian's chromium, headless, driven by chromium-driver through
+Selenium, over a site built from the committed results (and clips made here). Skips with one
+line where the browser or its driver is absent; .ci/run installs both.
+
+ZOO_SITE_SCREENSHOTS=folder keeps the screenshots there (docs/site/ holds the README's)."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from zoo.paths import REPO_ROOT
+from zoo.site import build_site
+
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+DRIVER = shutil.which("chromedriver")
+webdriver = pytest.importorskip("selenium.webdriver", reason="selenium is not installed")
+pytestmark = pytest.mark.skipif(
+    not (CHROMIUM and DRIVER),
+    reason="no chromium and chromium-driver here (apt-get install -y chromium chromium-driver)",
+)
+RESULTS = REPO_ROOT / "results"
+
+
+@pytest.fixture(scope="module")
+def site(tmp_path_factory) -> Path:
+    from zoo.clips import Clips
+
+    tmp = tmp_path_factory.mktemp("site")
+    results = tmp / "results"
+    for bench in ("cmu", "cmu_anny_oi_low"):
+        shutil.copytree(RESULTS / bench, results / bench, ignore=shutil.ignore_patterns("*.npz"))
+    clips = RESULTS / "cmu_anny_oi_low" / "clips.npz"
+    if clips.is_file():
+        shutil.copy(clips, results / "cmu_anny_oi_low" / "clips.npz")
+    else:  # a tetrahedron walking, where the committed clips are not there
+        t = np.linspace(0, 400, 35)[None, :, None, None]
+        body = np.array([[0, 0, 0], [300, 0, 0], [0, 300, 0], [0, 0, 1700.0]])[None, None]
+        truth = np.repeat(body + np.stack([t[..., 0], 0 * t[..., 0], 0 * t[..., 0]], -1), 2, 0)
+        Clips(
+            "cmu_anny_oi_low",
+            25.0,
+            10,
+            np.array([1, 2]),
+            ["a", "b"],
+            np.array([[0, 1, 2], [0, 1, 3], [0, 2, 3], [1, 2, 3]]),
+            np.arange(4),
+            truth,
+            {"spectrhums": truth[:, 10:] + 20.0},
+        ).write(results / "cmu_anny_oi_low" / "clips.npz")
+    build = build_site(tmp / "site", results)
+    assert build.warnings == []
+    return build.out
+
+
+@pytest.fixture(scope="module")
+def browser():
+    from selenium.webdriver.chrome.options import Options
+    from selenium.webdriver.chrome.service import Service
+
+    options = Options()
+    options.binary_location = CHROMIUM
+    for flag in ("--headless=new", "--no-sandbox", "--disable-gpu", "--window-size=1280,1400"):
+        options.add_argument(flag)
+    options.set_capability("goog:loggingPrefs", {"browser": "ALL"})
+    driver = webdriver.Chrome(service=Service(DRIVER), options=options)
+    yield driver
+    driver.quit()
+
+
+def _open(browser, page: Path):
+    browser.get(page.as_uri())
+    browser.get_log("browser")  # drop what an earlier page logged
+
+
+def _shot(browser, name: str, tmp_path: Path) -> Path:
+    folder = Path(os.environ.get("ZOO_SITE_SCREENSHOTS") or tmp_path)
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / name
+    browser.save_screenshot(str(path))
+    return path
+
+
+def _not_blank(path: Path) -> None:
+    from matplotlib.image import imread
+
+    pixels = imread(path)[..., :3].reshape(-1, 3)
+    colours = len(np.unique((pixels * 255).astype(np.uint8), axis=0))
+    assert colours > 50, f"{path}: {colours} colours, a blank page"
+    assert pixels.std() > 0.05
+
+
+def test_every_page_loads_without_console_errors_or_outside_requests(browser, site):
+    pages = sorted(site.glob("*.html"))
+    assert len(pages) >= 10
+    for page in pages:
+        browser.get(page.as_uri())
+        errors = [e for e in browser.get_log("browser") if e["level"] in ("SEVERE", "ERROR")]
+        assert errors == [], f"{page.name}: {errors}"
+        requested = browser.execute_script(
+            "return performance.getEntriesByType('resource').map(e => e.name)"
+        )
+        outside = [u for u in requested if not u.startswith(site.as_uri() + "/")]
+        assert outside == [], f"{page.name} requested {outside}"
+        assert browser.execute_script("return document.body.innerText.length") > 200
+
+
+def _column(browser, horizon: int) -> list[float]:
+    cells = browser.find_elements(
+        "css selector", f"#board tbody tr[data-model] td[data-horizon='{horizon}']"
+    )
+    return [float(c.get_attribute("data-value")) for c in cells]
+
+
+def test_sorting_a_column_orders_its_rows(browser, site):
+    _open(browser, site / "table-cmu-all.html")
+    header = browser.find_element("css selector", "#board th[data-key='3']")
+    horizon = int(header.text.split()[0])
+    header.click()
+    values = _column(browser, horizon)
+    assert values == sorted(values) and len(values) >= 4
+    browser.find_element("css selector", "#board th[data-key='3']").click()
+    assert _column(browser, horizon) == sorted(values, reverse=True)
+    browser.find_element("css selector", "#board th[data-key='model']").click()
+    names = [
+        r.get_attribute("data-model")
+        for r in browser.find_elements("css selector", "#board tbody tr[data-model]")
+    ]
+    assert names == sorted(names)
+
+
+def test_switching_the_view_shows_the_stored_values(browser, site):
+    import json
+
+    from selenium.webdriver.support.ui import Select
+
+    summary = json.loads(
+        (RESULTS / "cmu_anny_oi_low" / "stride5_strict" / "summary.json").read_text()
+    )
+    _open(browser, site / "table-cmu_anny_oi_low-stride5_strict.html")
+    Select(browser.find_element("id", "metric")).select_by_value("melv")
+    Select(browser.find_element("id", "averaging")).select_by_value("cumulative")
+    view = next(
+        v for v in summary["views"] if v["metric"] == "melv" and v["averaging"] == "cumulative"
+    )
+    h = view["horizons_ms"][2]
+    shown = {
+        r.get_attribute("data-model"): float(
+            r.find_element("css selector", f"td[data-horizon='{h}']").get_attribute("data-value")
+        )
+        for r in browser.find_elements("css selector", "#board tbody tr[data-model]")
+    }
+    stored = {m["model"]: m["values"][2] for m in view["models"] if "@" not in m["model"]}
+    assert shown == pytest.approx(stored) and len(shown) >= 3
+    # @last rows appear only when asked for
+    assert not any("@" in m for m in shown)
+    browser.find_element("id", "show-last").click()
+    rows = browser.find_elements("css selector", "#board tbody tr[data-model]")
+    assert any("@last" in r.get_attribute("data-model") for r in rows)
+    # per action: the stored per-action value
+    Select(browser.find_element("id", "action")).select_by_index(1)
+    action = Select(browser.find_element("id", "action")).first_selected_option.text
+    model = view["models"][0]
+    cell = browser.find_element(
+        "css selector", f"#board tr[data-model='{model['model']}'] td[data-horizon='{h}']"
+    )
+    assert float(cell.get_attribute("data-value")) == pytest.approx(model["per_action"][action][2])
+
+
+def test_the_mesh_viewer_advances_frames(browser, site):
+    _open(browser, site / "meshes-cmu_anny_oi_low.html")
+    viewer = browser.find_element("id", "viewer")
+    first = viewer.get_attribute("data-frame")
+    assert first is not None
+    browser.find_element("id", "play").click()
+    deadline = time.time() + 20
+    while viewer.get_attribute("data-frame") == first and time.time() < deadline:
+        time.sleep(0.2)
+    assert viewer.get_attribute("data-frame") != first
+    browser.find_element("id", "play").click()  # pause
+    browser.execute_script(
+        "var s = document.getElementById('frame'); s.value = s.max;"
+        "s.dispatchEvent(new Event('input'));"
+    )
+    last = int(browser.find_element("id", "frame").get_attribute("max"))
+    assert int(viewer.get_attribute("data-frame")) == last
+    captions = [c.text for c in browser.find_elements("css selector", "#viewer figcaption")]
+    assert any("mean vertex error" in c for c in captions)
+
+
+def test_screenshots_are_not_blank(browser, site, tmp_path):
+    _open(browser, site / "index.html")
+    _not_blank(_shot(browser, "index.png", tmp_path))
+    _open(browser, site / "table-cmu-all.html")
+    _not_blank(_shot(browser, "table-cmu.png", tmp_path))
+    _open(browser, site / "meshes-cmu_anny_oi_low.html")
+    browser.execute_script(
+        "var s = document.getElementById('frame'); s.value = s.max;"
+        "s.dispatchEvent(new Event('input'));"
+    )
+    _not_blank(_shot(browser, "meshes-cmu_anny_oi_low.png", tmp_path))

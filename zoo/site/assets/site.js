@@ -1,0 +1,248 @@
+/* motion-zoo site: tables (switches, sorting, per-action view), error curves and training
+   curves, drawn as SVG from the numbers inlined in each page. No network, no library. */
+"use strict";
+var ZooSite = (function () {
+  // 16 colours apart enough to tell: every model of the zoo has its own, on every page
+  var COLOURS = ["#1f77b4", "#d62728", "#2ca02c", "#ff7f0e", "#9467bd", "#8c564b",
+                 "#e377c2", "#17becf", "#7f7f7f", "#bcbd22", "#393b79", "#637939",
+                 "#8c6d31", "#843c39", "#7b4173", "#3182bd"];
+  var MARKERS = ["circle", "square", "triangle", "diamond", "cross", "down"];
+  var SVG = "http://www.w3.org/2000/svg";
+
+  function baseName(model) { return model.split("@")[0].replace(/:autoencoder$/, ""); }
+
+  function style(model) {
+    var names = window.ZOO_PALETTE_MODELS || [];
+    var i = names.indexOf(baseName(model));
+    if (i < 0) { i = names.length; }
+    return {colour: COLOURS[i % COLOURS.length],
+            marker: MARKERS[i % MARKERS.length],
+            dashed: model.indexOf("@") >= 0 || /:autoencoder$/.test(model)};
+  }
+
+  function el(tag, attrs, text) {
+    var e = document.createElement(tag);
+    for (var k in (attrs || {})) { e.setAttribute(k, attrs[k]); }
+    if (text !== undefined) { e.textContent = text; }
+    return e;
+  }
+
+  function svgEl(tag, attrs) {
+    var e = document.createElementNS(SVG, tag);
+    for (var k in attrs) { e.setAttribute(k, attrs[k]); }
+    return e;
+  }
+
+  // The interval and bold paragraphs are written with Markdown's ** and `: shown as such.
+  function richText(node, text) {
+    node.textContent = "";
+    var parts = String(text).split(/(\*\*[^*]+\*\*|`[^`]+`)/);
+    parts.forEach(function (p) {
+      if (/^\*\*.*\*\*$/.test(p)) { node.appendChild(el("strong", {}, p.slice(2, -2))); }
+      else if (/^`.*`$/.test(p)) { node.appendChild(el("code", {}, p.slice(1, -1))); }
+      else if (p) { node.appendChild(document.createTextNode(p)); }
+    });
+  }
+
+  function format(value, fmt) {
+    if (value === null || value === undefined) { return "–"; }
+    var m = /^\.(\d+)([fg])$/.exec(fmt || ".2f");
+    if (!m) { return String(value); }
+    return m[2] === "f" ? value.toFixed(+m[1]) : String(+value.toPrecision(+m[1]));
+  }
+
+  function niceTicks(lo, hi, count) {
+    var span = hi - lo || 1, step = Math.pow(10, Math.floor(Math.log10(span / count)));
+    [1, 2, 5, 10].some(function (f) { if (span / (step * f) <= count) { step *= f; return true; } return false; });
+    var ticks = [];
+    for (var t = Math.ceil(lo / step) * step; t <= hi + 1e-9 * span; t += step) { ticks.push(+t.toPrecision(12)); }
+    return ticks;
+  }
+
+  function marker(g, kind, x, y, colour) {
+    var s = 3.5, shape;
+    if (kind === "square") { shape = svgEl("rect", {x: x - s, y: y - s, width: 2 * s, height: 2 * s}); }
+    else if (kind === "triangle") { shape = svgEl("polygon", {points: [x, y - s, x - s, y + s, x + s, y + s].join(" ")}); }
+    else if (kind === "down") { shape = svgEl("polygon", {points: [x, y + s, x - s, y - s, x + s, y - s].join(" ")}); }
+    else if (kind === "diamond") { shape = svgEl("polygon", {points: [x, y - s, x + s, y, x, y + s, x - s, y].join(" ")}); }
+    else if (kind === "cross") { shape = svgEl("path", {d: "M" + (x - s) + " " + (y - s) + "L" + (x + s) + " " + (y + s) + "M" + (x - s) + " " + (y + s) + "L" + (x + s) + " " + (y - s), "stroke-width": 2}); }
+    else { shape = svgEl("circle", {cx: x, cy: y, r: s}); }
+    shape.setAttribute("fill", colour); shape.setAttribute("stroke", colour);
+    g.appendChild(shape);
+  }
+
+  /* series: [{label, points: [[x, y], ...], style}]; draws into container (replacing it). */
+  function lineChart(container, series, xLabel, yLabel, title) {
+    container.textContent = "";
+    var W = 760, H = 380, L = 64, R = 190, T = 30, B = 46;
+    var xs = [], ys = [];
+    series.forEach(function (s) { s.points.forEach(function (p) { if (p[1] !== null) { xs.push(p[0]); ys.push(p[1]); } }); });
+    if (!xs.length) { container.appendChild(el("p", {"class": "note"}, "No values to draw.")); return; }
+    var x0 = Math.min.apply(null, xs), x1 = Math.max.apply(null, xs);
+    var y0 = Math.min(0, Math.min.apply(null, ys)), y1 = Math.max.apply(null, ys) * 1.05;
+    var sx = function (x) { return L + (x - x0) / ((x1 - x0) || 1) * (W - L - R); };
+    var sy = function (y) { return H - B - (y - y0) / ((y1 - y0) || 1) * (H - T - B); };
+    var svg = svgEl("svg", {viewBox: "0 0 " + W + " " + H, width: "100%", role: "img", "aria-label": title});
+    var t = svgEl("text", {x: L, y: 18, "class": "title"}); t.textContent = title; svg.appendChild(t);
+    niceTicks(y0, y1, 6).forEach(function (v) {
+      svg.appendChild(svgEl("line", {x1: L, x2: W - R, y1: sy(v), y2: sy(v), "class": "grid"}));
+      var lab = svgEl("text", {x: L - 6, y: sy(v) + 4, "text-anchor": "end", "class": "tick"}); lab.textContent = String(v); svg.appendChild(lab);
+    });
+    niceTicks(x0, x1, 8).forEach(function (v) {
+      var lab = svgEl("text", {x: sx(v), y: H - B + 16, "text-anchor": "middle", "class": "tick"}); lab.textContent = String(v); svg.appendChild(lab);
+    });
+    svg.appendChild(svgEl("line", {x1: L, x2: W - R, y1: H - B, y2: H - B, "class": "axis"}));
+    svg.appendChild(svgEl("line", {x1: L, x2: L, y1: T, y2: H - B, "class": "axis"}));
+    var xl = svgEl("text", {x: (L + W - R) / 2, y: H - 8, "text-anchor": "middle", "class": "label"}); xl.textContent = xLabel; svg.appendChild(xl);
+    var yl = svgEl("text", {x: 14, y: (T + H - B) / 2, transform: "rotate(-90 14 " + (T + H - B) / 2 + ")", "text-anchor": "middle", "class": "label"}); yl.textContent = yLabel; svg.appendChild(yl);
+    series.forEach(function (s, i) {
+      var g = svgEl("g", {"class": "series", "data-series": s.label});
+      var pts = s.points.filter(function (p) { return p[1] !== null; });
+      var d = pts.map(function (p, j) { return (j ? "L" : "M") + sx(p[0]).toFixed(1) + " " + sy(p[1]).toFixed(1); }).join("");
+      g.appendChild(svgEl("path", {d: d, fill: "none", stroke: s.style.colour, "stroke-width": 1.8, "stroke-dasharray": s.style.dashed ? "5 3" : "none"}));
+      var every = Math.max(1, Math.round(pts.length / 10));
+      pts.forEach(function (p, j) { if (j % every === 0 || j === pts.length - 1) { marker(g, s.style.marker, sx(p[0]), sy(p[1]), s.style.colour); } });
+      var ly = T + 8 + i * 17;
+      g.appendChild(svgEl("line", {x1: W - R + 12, x2: W - R + 34, y1: ly, y2: ly, stroke: s.style.colour, "stroke-width": 1.8, "stroke-dasharray": s.style.dashed ? "5 3" : "none"}));
+      marker(g, s.style.marker, W - R + 23, ly, s.style.colour);
+      var lt = svgEl("text", {x: W - R + 40, y: ly + 4, "class": "legend"}); lt.textContent = s.label; g.appendChild(lt);
+      svg.appendChild(g);
+    });
+    container.appendChild(svg);
+  }
+
+  function table(data) {
+    var summary = data.summary;
+    if (!summary || !summary.views || !summary.views.length) { return; }
+    var views = summary.views, costs = data.costs || {};
+    var state = {view: views[0], action: "average", sort: null, descending: false, last: false};
+    var $ = function (id) { return document.getElementById(id); };
+    function unique(list) { return list.filter(function (v, i) { return list.indexOf(v) === i; }); }
+    function fill(select, values, chosen) {
+      select.textContent = "";
+      values.forEach(function (v) { var o = el("option", {value: v}, v); if (v === chosen) { o.selected = true; } select.appendChild(o); });
+    }
+    function pick(changed) {
+      var m = $("metric").value, a = $("averaging").value, j = $("joints").value;
+      var match = views.filter(function (v) { return v.metric === m && v.averaging === a && v.joints === j; });
+      if (!match.length) { // keep what was changed, take the first view that has it
+        match = views.filter(function (v) { return v[changed] === $(changed).value; });
+      }
+      state.view = match[0];
+      render();
+    }
+    function controls() {
+      var v = state.view;
+      fill($("metric"), unique(views.map(function (x) { return x.metric; })), v.metric);
+      fill($("averaging"), unique(views.filter(function (x) { return x.metric === v.metric; }).map(function (x) { return x.averaging; })), v.averaging);
+      fill($("joints"), unique(views.filter(function (x) { return x.metric === v.metric && x.averaging === v.averaging; }).map(function (x) { return x.joints; })), v.joints);
+      fill($("action"), ["average"].concat(summary.actions), state.action);
+    }
+    function cell(row, i) {
+      var average = state.action === "average";
+      var value = average ? row.values[i] : ((row.per_action || {})[state.action] || [])[i];
+      return {value: value === undefined ? null : value,
+              half: average && row.half ? row.half[i] : null,
+              bold: average && row.bold ? row.bold[i] : false};
+    }
+    function render() {
+      var v = state.view, fmt = v.format;
+      controls();
+      $("protocol-note").textContent = v.metric.toUpperCase() + " (" + v.unit + "), averaging " + v.averaging + ": " + v.averaging_words + (v.joints_words ? ". Joints " + v.joints + ": " + v.joints_words : "") + ". Every row below is this one protocol.";
+      richText($("bold-note"), state.action === "average" ? v.interval_words + "." : "Per action: the mean over that action's windows; intervals and bold are computed for the mean over actions only.");
+      var rows = v.models.filter(function (r) { return state.last || r.model.indexOf("@") < 0; });
+      if (state.sort !== null) {
+        rows = rows.slice().sort(function (a, b) {
+          var x = state.sort === "model" ? a.model : cell(a, state.sort).value;
+          var y = state.sort === "model" ? b.model : cell(b, state.sort).value;
+          if (x === null) { return 1; } if (y === null) { return -1; }
+          var c = x < y ? -1 : x > y ? 1 : 0;
+          return state.descending ? -c : c;
+        });
+      }
+      var board = $("board"); board.textContent = "";
+      var head = el("tr");
+      var th = el("th", {"data-key": "model", "class": "sortable"}, "model"); head.appendChild(th);
+      v.horizons_ms.forEach(function (h, i) { head.appendChild(el("th", {"data-key": String(i), "class": "sortable num"}, h + " ms")); });
+      ["parameters", "GFLOP / window", "latency (ms)", "training windows / s"].forEach(function (c) { head.appendChild(el("th", {"class": "num cost"}, c)); });
+      var thead = el("thead"); thead.appendChild(head); board.appendChild(thead);
+      Array.prototype.forEach.call(head.querySelectorAll("th.sortable"), function (t) {
+        var key = t.getAttribute("data-key");
+        var mine = String(state.sort) === key || (state.sort === "model" && key === "model");
+        if (mine) { t.classList.add(state.descending ? "desc" : "asc"); }
+        t.addEventListener("click", function () {
+          var k = key === "model" ? "model" : +key;
+          state.descending = state.sort === k ? !state.descending : false;
+          state.sort = k; render();
+        });
+      });
+      var body = el("tbody");
+      rows.forEach(function (r) {
+        var tr = el("tr", {"data-model": r.model});
+        if (r.floor) { tr.classList.add("floor"); }
+        var name = el("td", {"class": "model"});
+        var swatch = el("span", {"class": "swatch"}); swatch.style.background = style(r.model).colour; name.appendChild(swatch);
+        var base = baseName(r.model);
+        if ((data.pages || []).indexOf("model-" + base + ".html") >= 0) { var a = el("a", {href: "model-" + base + ".html"}, r.model); name.appendChild(a); }
+        else { name.appendChild(document.createTextNode(r.model)); }
+        tr.appendChild(name);
+        v.horizons_ms.forEach(function (h, i) {
+          var c = cell(r, i);
+          var td = el("td", {"class": "num", "data-horizon": String(h), "data-value": c.value === null ? "" : String(c.value)});
+          td.textContent = format(c.value, fmt) + (c.half !== null && c.half !== undefined ? " ±" + format(c.half, fmt) : "");
+          if (c.bold) { td.classList.add("bold"); }
+          tr.appendChild(td);
+        });
+        var k = costs[r.model] || {};
+        [k.parameters ? (k.parameters / 1e6).toFixed(3) + " M" : (k.parameters === "0" ? "0" : ""),
+         k.gflop ? (+k.gflop).toPrecision(3) : "", k.latency_ms ? (+k.latency_ms).toPrecision(3) : "",
+         k.train_per_s ? (+k.train_per_s).toPrecision(3) : ""].forEach(function (t) { tr.appendChild(el("td", {"class": "num cost"}, t)); });
+        body.appendChild(tr);
+      });
+      (v.reported || []).forEach(function (p) {
+        var values = state.action === "average" ? p.values : (p.per_action || {})[state.action];
+        if (!values) { return; }
+        var tr = el("tr", {"class": "reported", "data-reported": p.label});
+        tr.appendChild(el("td", {"class": "model"}, p.label + ": " + p.source));
+        v.horizons_ms.forEach(function (h, i) { tr.appendChild(el("td", {"class": "num"}, format(values[i], fmt))); });
+        for (var c = 0; c < 4; c++) { tr.appendChild(el("td", {"class": "num cost"}, "–")); }
+        body.appendChild(tr);
+      });
+      board.appendChild(body);
+      var machines = unique(Object.keys(costs).map(function (m) { return costs[m].device + " (" + costs[m].date + ")"; }));
+      $("cost-note").textContent = machines.length ? "Cost columns measured by zoo costs on " + machines.join("; ") + ": parameters, forward GFLOPs per window, median latency of one window, training windows per second." : "No costs stored for this table (zoo costs fills them).";
+      var series = rows.filter(function (r) { return !r.floor; }).map(function (r) {
+        var points = state.action === "average" ? r.curve : v.horizons_ms.map(function (h, i) { return [h, cell(r, i).value]; });
+        return {label: r.model, points: points, style: style(r.model)};
+      });
+      lineChart($("curves"), series, "horizon (ms)", v.metric.toUpperCase() + " (" + v.unit + ")",
+                v.metric.toUpperCase() + ", " + v.averaging + " averaging, joints " + v.joints + ", " + (state.action === "average" ? "mean over actions" : state.action));
+      var others = $("reported"); others.textContent = "";
+      if ((v.other_protocols || []).length) {
+        others.appendChild(el("h2", {}, "Published under other protocols (not comparable with the rows above)"));
+        var ul = el("ul");
+        v.other_protocols.forEach(function (p) {
+          var figures = Object.keys(p.values).map(function (h) { return h + " ms " + format(p.values[h], fmt); }).join(", ");
+          ul.appendChild(el("li", {}, p.label + ", " + p.source + ": " + (figures || "no average") + "; differs: " + p.differences.join("; ") + "."));
+        });
+        others.appendChild(ul);
+      }
+    }
+    ["metric", "averaging", "joints"].forEach(function (id) { $(id).addEventListener("change", function () { pick(id); }); });
+    $("action").addEventListener("change", function () { state.action = $("action").value; render(); });
+    $("show-last").addEventListener("change", function () { state.last = $("show-last").checked; render(); });
+    render();
+  }
+
+  function training(data) {
+    var node = document.getElementById("training");
+    var keys = Object.keys(data.curves || {});
+    if (!keys.length) { node.appendChild(el("p", {"class": "note"}, "No shipped weights record holds a training history.")); return; }
+    var series = keys.map(function (k, i) {
+      return {label: k, points: data.curves[k], style: {colour: COLOURS[i % COLOURS.length], marker: MARKERS[i % MARKERS.length], dashed: k.indexOf("@") >= 0}};
+    });
+    lineChart(node, series, "optimizer steps", "validation error (mm)", "validation error while training, per shipped weights file");
+  }
+
+  return {table: table, training: training, style: style, lineChart: lineChart};
+})();

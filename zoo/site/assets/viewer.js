@@ -1,0 +1,117 @@
+/* motion-zoo mesh viewer: the clips of a mesh benchmark (window.ZOO_CLIPS, int16 mm around each
+   window's centre) drawn on 2D canvases, flat shaded, painter's order; no WebGL, no library. */
+"use strict";
+var ZooViewer = (function () {
+  function int16(b64) {
+    var bytes = atob(b64), buf = new ArrayBuffer(bytes.length), u8 = new Uint8Array(buf);
+    for (var i = 0; i < bytes.length; i++) { u8[i] = bytes.charCodeAt(i); }
+    return new Int16Array(buf);
+  }
+  function int32(b64) {
+    var bytes = atob(b64), buf = new ArrayBuffer(bytes.length), u8 = new Uint8Array(buf);
+    for (var i = 0; i < bytes.length; i++) { u8[i] = bytes.charCodeAt(i); }
+    return new Int32Array(buf);
+  }
+  // error ramp: the ground truth's grey at 0, orange, then red at the top
+  var RAMP = [[200, 204, 214], [250, 190, 90], [240, 110, 40], [190, 20, 30]];
+  function ramp(t) {
+    t = Math.max(0, Math.min(1, t)) * (RAMP.length - 1);
+    var i = Math.min(RAMP.length - 2, Math.floor(t)), f = t - i, a = RAMP[i], b = RAMP[i + 1];
+    return [a[0] + f * (b[0] - a[0]), a[1] + f * (b[1] - a[1]), a[2] + f * (b[2] - a[2])];
+  }
+
+  function start(clips) {
+    var V = clips.vertices, T = clips.frames, Tin = clips.input_frames, Tout = T - Tin;
+    var faces = int32(clips.faces), F = clips.face_count;
+    var truth = int16(clips.truth), preds = {};
+    clips.models.forEach(function (m) { preds[m] = int16(clips.predictions[m]); });
+    var $ = function (id) { return document.getElementById(id); };
+    var state = {window: 0, frame: Tin, playing: false, turn: 30 * Math.PI / 180};
+    // the vertical axis: the one along which the first observed frame spreads most
+    var up = 2, ext = [0, 0, 0];
+    (function () {
+      var lo = [1e9, 1e9, 1e9], hi = [-1e9, -1e9, -1e9];
+      for (var v = 0; v < V; v++) { for (var k = 0; k < 3; k++) { var x = truth[v * 3 + k]; lo[k] = Math.min(lo[k], x); hi[k] = Math.max(hi[k], x); } }
+      for (k = 0; k < 3; k++) { ext[k] = hi[k] - lo[k]; }
+      up = ext.indexOf(Math.max.apply(null, ext));
+    })();
+    var panels = [{name: "ground truth", model: null}].concat(clips.models.map(function (m) { return {name: m, model: m}; }));
+    var viewer = $("viewer"); viewer.textContent = "";
+    panels.forEach(function (p) {
+      var fig = document.createElement("figure");
+      p.canvas = document.createElement("canvas"); p.canvas.width = 200; p.canvas.height = 280;
+      p.canvas.setAttribute("data-panel", p.name);
+      p.caption = document.createElement("figcaption");
+      fig.appendChild(p.canvas); fig.appendChild(p.caption); viewer.appendChild(fig);
+    });
+    var slider = $("frame"); slider.max = String(T - 1);
+
+    function frameOf(array, w, t, frames) { return array.subarray(((w * frames) + t) * V * 3, ((w * frames) + t + 1) * V * 3); }
+
+    function draw(p, pos, err, scale) {
+      var ctx = p.canvas.getContext("2d"), W = p.canvas.width, H = p.canvas.height;
+      ctx.fillStyle = "#f6f6f4"; ctx.fillRect(0, 0, W, H);
+      var h1 = (up + 1) % 3, h2 = (up + 2) % 3, c = Math.cos(state.turn), s = Math.sin(state.turn);
+      var px = new Float32Array(V), py = new Float32Array(V), pz = new Float32Array(V);
+      for (var v = 0; v < V; v++) {
+        var a = pos[v * 3 + h1], b = pos[v * 3 + h2], u = pos[v * 3 + up];
+        px[v] = W / 2 + (c * a - s * b) * scale; pz[v] = s * a + c * b; py[v] = H / 2 - u * scale;
+      }
+      var order = new Array(F), depth = new Float32Array(F);
+      for (var f = 0; f < F; f++) { order[f] = f; depth[f] = pz[faces[3 * f]] + pz[faces[3 * f + 1]] + pz[faces[3 * f + 2]]; }
+      order.sort(function (i, j) { return depth[j] - depth[i]; });
+      for (var n = 0; n < F; n++) {
+        f = order[n];
+        var i0 = faces[3 * f], i1 = faces[3 * f + 1], i2 = faces[3 * f + 2];
+        var ax = px[i1] - px[i0], ay = py[i1] - py[i0], az = pz[i1] - pz[i0];
+        var bx = px[i2] - px[i0], by = py[i2] - py[i0], bz = pz[i2] - pz[i0];
+        var nx = ay * bz - az * by, ny = az * bx - ax * bz, nz = ax * by - ay * bx;
+        var len = Math.sqrt(nx * nx + ny * ny + nz * nz) || 1;
+        var light = 0.5 + 0.5 * Math.abs((0.3 * nx - 0.5 * ny - 0.8 * nz) / len);
+        var rgb = err ? ramp((err[i0] + err[i1] + err[i2]) / 3) : [200, 204, 214];
+        ctx.fillStyle = "rgb(" + (rgb[0] * light | 0) + "," + (rgb[1] * light | 0) + "," + (rgb[2] * light | 0) + ")";
+        ctx.strokeStyle = ctx.fillStyle;  // the same colour round each edge hides the seams
+        ctx.beginPath(); ctx.moveTo(px[i0], py[i0]); ctx.lineTo(px[i1], py[i1]); ctx.lineTo(px[i2], py[i2]); ctx.closePath(); ctx.fill(); ctx.stroke();
+      }
+    }
+
+    function render() {
+      var w = state.window, t = state.frame, future = t >= Tin;
+      var gt = frameOf(truth, w, t, T);
+      var across = Math.max(ext[(up + 1) % 3], ext[(up + 2) % 3], 1);
+      var scale = 0.85 * Math.min(200 / across, 280 / Math.max(ext[up], 1));
+      var top = 0.05 * Math.max(ext[0], ext[1], ext[2]);  // error (mm) at the ramp's top: 5% of the body
+      panels.forEach(function (p) {
+        if (!p.model || !future) {
+          draw(p, gt, null, scale);
+          p.caption.textContent = p.name + (future ? "" : (p.model ? ": observed (input)" : ": observed"));
+          return;
+        }
+        var pred = frameOf(preds[p.model], w, t - Tin, Tout), err = new Float32Array(V), total = 0;
+        for (var v = 0; v < V; v++) {
+          var dx = pred[3 * v] - gt[3 * v], dy = pred[3 * v + 1] - gt[3 * v + 1], dz = pred[3 * v + 2] - gt[3 * v + 2];
+          var e = Math.sqrt(dx * dx + dy * dy + dz * dz); total += e; err[v] = e / top;
+        }
+        draw(p, pred, err, scale);
+        p.caption.textContent = p.name + ": mean vertex error " + (total / V).toFixed(1) + " mm";
+      });
+      $("ramp-note").textContent = "Prediction colour: its vertex error, from grey (0 mm) through orange to red (" + Math.round(top) + " mm or more, a twentieth of the mesh's extent).";
+      slider.value = String(t);
+      $("frame-label").textContent = "frame " + (t + 1) + " of " + T + (future ? " (+" + Math.round((t - Tin + 1) * 1000 / clips.fps) + " ms)" : " (observed)");
+      viewer.setAttribute("data-frame", String(t));
+    }
+
+    var timer = null;
+    function play(on) {
+      state.playing = on; $("play").textContent = on ? "pause" : "play";
+      if (timer) { clearInterval(timer); timer = null; }
+      if (on) { timer = setInterval(function () { state.frame = (state.frame + 1) % T; render(); }, 1000 / clips.fps); }
+    }
+    $("play").addEventListener("click", function () { play(!state.playing); });
+    slider.addEventListener("input", function () { play(false); state.frame = +slider.value; render(); });
+    $("turn").addEventListener("input", function () { state.turn = +$("turn").value * Math.PI / 180; render(); });
+    $("clip-window").addEventListener("change", function () { state.window = +$("clip-window").value; render(); });
+    render();
+  }
+  return {start: start};
+})();

@@ -1,0 +1,342 @@
+"""``zoo site``: the leaderboards as a static site that opens from ``file://``, offline.
+
+Every page is HTML written from Jinja2 templates (autoescaped); each page's data is inlined as
+JSON in a ``<script>`` element, and the mesh clips are a script file of their own, so no page
+fetches anything. Tables, switches, sorting and charts are one small hand-written script
+(``assets/site.js``, SVG drawn from the inlined numbers): one chart library would weigh more
+than the whole site's code and still need per-page data. Cards are Markdown rendered by
+markdown-it-py, the CommonMark parser of the Python ecosystem."""
+
+from __future__ import annotations
+
+import base64
+import json
+import re
+import shutil
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from zoo.errors import ZooError
+from zoo.io import replace_folder
+from zoo.metrics import FLOOR_SUFFIX
+from zoo.site.collect import Benchmark, Table, read_benchmarks, read_models
+
+HERE = Path(__file__).parent
+# In every built site: a folder that holds anything else is never replaced.
+MARKER = ".zoo-site"
+ASSETS = HERE / "assets"
+
+
+@dataclass
+class SiteBuild:
+    out: Path
+    pages: list[str] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+    seconds: float = 0.0
+
+    @property
+    def bytes(self) -> int:
+        return sum(p.stat().st_size for p in self.out.rglob("*") if p.is_file())
+
+
+def _environment():
+    import jinja2
+
+    env = jinja2.Environment(
+        loader=jinja2.FileSystemLoader(HERE / "templates"),
+        autoescape=True,
+        undefined=jinja2.StrictUndefined,
+        trim_blocks=True,
+        lstrip_blocks=True,
+    )
+    env.filters["data"] = _script_json
+    return env
+
+
+def _script_json(value: Any) -> str:
+    """JSON safe inside a ``<script>`` element (no ``</`` can close it)."""
+    from markupsafe import Markup
+
+    text = json.dumps(value, allow_nan=False, separators=(",", ":"))
+    return Markup(text.replace("</", "<\\/").replace("<!--", "<\\!--"))
+
+
+def _markdown(text: str, model_pages: set[str], images: dict[str, Path], cards_dir: Path) -> str:
+    """A card's Markdown as HTML: links to other cards point at their pages, pictures beside
+    the card are copied into the site, any other relative link is kept as text."""
+    from markdown_it import MarkdownIt
+
+    html = MarkdownIt("commonmark").enable("table").render(text)
+
+    def link(match: re.Match) -> str:
+        target = match.group(1)
+        if re.match(r"^[a-z]+:", target) or target.startswith("#"):
+            return match.group(0)
+        stem = Path(target.split("#")[0]).stem
+        if target.endswith(".md") and f"model-{stem}.html" in model_pages:
+            return f'href="model-{stem}.html"'
+        return 'data-offsite="' + target + '"'
+
+    def image(match: re.Match) -> str:
+        target = match.group(1)
+        source = cards_dir / target
+        if re.match(r"^[a-z]+:", target) or not source.is_file():
+            return 'alt="(picture not in the site)" data-src="' + target + '"'
+        images[f"cards/{source.name}"] = source
+        return f'src="cards/{source.name}"'
+
+    html = re.sub(r'href="([^"]*)"', link, html)
+    return re.sub(r'src="([^"]*)"', image, html)
+
+
+def _clips_script(path: Path) -> tuple[str, dict[str, Any]]:
+    """The mesh clips as a script (``window.ZOO_CLIPS = {...}``) and what the page says of
+    them; positions go as base64 little-endian int16 mm around each window's centre."""
+    from zoo.clips import Clips
+
+    clips = Clips.read(path)
+
+    def pack(a: np.ndarray, dtype: str = "<i2") -> str:
+        return base64.b64encode(np.ascontiguousarray(a, dtype=dtype).tobytes()).decode()
+
+    data = {
+        "benchmark": clips.benchmark,
+        "fps": clips.fps,
+        "input_frames": clips.input_frames,
+        "windows": [int(w) for w in clips.windows],
+        "sequences": clips.sequences,
+        "vertices": int(clips.truth.shape[2]),
+        "frames": int(clips.truth.shape[1]),
+        "faces": pack(clips.faces, "<i4"),
+        "face_count": int(len(clips.faces)),
+        "truth": pack(clips.steps(clips.truth)),
+        "models": sorted(clips.predictions),
+        "predictions": {k: pack(clips.steps(v)) for k, v in sorted(clips.predictions.items())},
+    }
+    script = "window.ZOO_CLIPS = " + json.dumps(data, separators=(",", ":")) + ";\n"
+    shown = ("windows", "sequences", "models", "vertices")
+    return script, {
+        **{k: data[k] for k in shown},
+        "faces": data["face_count"],
+        "mesh_vertices": clips.mesh_vertices,
+    }
+
+
+def _cost_rows(table: Table) -> dict[str, dict[str, str]]:
+    return {
+        m: {
+            "parameters": row.get("parameters", ""),
+            "gflop": row.get("gflop_per_sample", ""),
+            "latency_ms": row.get("latency_ms", ""),
+            "train_per_s": row.get("train_samples_per_s", ""),
+            "device": row.get("device", ""),
+            "date": row.get("date", ""),
+        }
+        for m, row in table.costs.items()
+    }
+
+
+def _readable_protocol(protocol: dict[str, Any] | None) -> list[tuple[str, Any]]:
+    """The protocol record's fields as (name, text) pairs, provenance and file lists left to
+    ``protocol.json`` itself."""
+    if not protocol:
+        return []
+    out = []
+    for key, value in protocol.items():
+        if key in ("provenance", "files"):
+            continue
+        if isinstance(value, dict):
+            value = "; ".join(f"{k}: {v}" for k, v in value.items())
+        elif isinstance(value, list):
+            value = ", ".join(map(str, value))
+        out.append((key.replace("_", " "), value))
+    files = protocol.get("files") or []
+    if files:
+        out.append(("files", f"{len(files)} recordings, each with its sha256 in protocol.json"))
+    return out
+
+
+def _citation(bench: Benchmark, table: Table, version: str) -> str:
+    view = table.headline or {}
+    return (
+        f"motion-zoo {version}, benchmark {bench.name}, table {table.name} "
+        f"(protocol {(table.protocol or {}).get('protocol_id', '?')}): "
+        f"{str(view.get('metric', '')).upper()} ({view.get('unit', '')}), "
+        f"{view.get('averaging', '')} averaging, joints {view.get('joints', '')}"
+    )
+
+
+def build_site(
+    out: str | Path,
+    results_root: str | Path,
+    weights_root: str | Path | None = None,
+    cards_dir: str | Path | None = None,
+    registry=None,
+) -> SiteBuild:
+    """Write the site into ``out`` (replaced as a whole): an index, a page per benchmark,
+    per table, per model, a comparison page per benchmark and a mesh page per mesh benchmark
+    with clips. Problems (a damaged row, a missing card, a table with no rows) are shown on
+    their page and returned as warnings."""
+    from zoo.cards import shipped_weights
+    from zoo.paths import REPO_ROOT
+    from zoo.registry import load_registry
+    from zoo.version import __version__
+    from zoo.weights import training_points
+
+    start = time.perf_counter()
+    results_root = Path(results_root)
+    cards_dir = Path(cards_dir) if cards_dir else REPO_ROOT / "docs" / "models"
+    registry = registry or load_registry()
+    benchmarks = read_benchmarks(results_root)
+    models = read_models(registry, cards_dir, shipped_weights(weights_root))
+    env = _environment()
+    build = SiteBuild(Path(out))
+    model_pages = {m.page for m in models}
+    model_names = sorted({m.name for m in models} | _row_models(benchmarks))
+    common = {
+        "version": __version__,
+        "benchmarks": benchmarks,
+        "models": models,
+        "palette_models": model_names,
+    }
+    images: dict[str, Path] = {}
+    pages: dict[str, str] = {}
+    extra: dict[str, str] = {}
+
+    for bench in benchmarks:
+        quoted = bench.quoted
+        for table in bench.tables:
+            pages[table.page] = env.get_template("table.html").render(
+                **common,
+                title=f"{bench.name} / {table.name}",
+                bench=bench,
+                table=table,
+                protocol_rows=_readable_protocol(table.protocol),
+                data={
+                    "summary": table.summary,
+                    "costs": _cost_rows(table),
+                    "models": model_names,
+                    "pages": sorted(model_pages),
+                },
+            )
+        clips = None
+        if bench.clips is not None:
+            try:
+                script, clips = _clips_script(bench.clips)
+            except ZooError as exc:
+                bench.problems.append(f"{exc} (zoo site --clips --benchmark {bench.name})")
+            else:
+                extra[f"clips-{bench.name}.js"] = script
+                pages[f"meshes-{bench.name}.html"] = env.get_template("meshes.html").render(
+                    **common,
+                    title=f"{bench.name}: meshes",
+                    bench=bench,
+                    clips=clips,
+                    data={"models": model_names},
+                )
+        comparisons = [
+            (t, t.summary.get("comparisons") or [])
+            for t in bench.tables
+            if t.summary is not None and t.summary.get("comparisons")
+        ]
+        if comparisons:
+            pages[f"compare-{bench.name}.html"] = env.get_template("compare.html").render(
+                **common, title=f"{bench.name}: comparisons", bench=bench, comparisons=comparisons
+            )
+        pages[bench.page] = env.get_template("benchmark.html").render(
+            **common,
+            title=bench.name,
+            bench=bench,
+            quoted=quoted,
+            citation=_citation(bench, quoted, __version__) if quoted else "",
+            clips=clips,
+            compare_page=f"compare-{bench.name}.html" if comparisons else None,
+        )
+
+    for model in models:
+        card = _markdown(model.card, model_pages, images, cards_dir) if model.card else ""
+        curves = {
+            f"{rec.get('benchmark', '?')}/{rec.get('label', model.name)}": [
+                [int(s), float(v)] for s, v in training_points(rec)
+            ]
+            for rec in model.shipped
+        }
+        pages[model.page] = env.get_template("model.html").render(
+            **common,
+            title=model.name,
+            model=model,
+            card=card,
+            rows=_model_rows(model.name, benchmarks),
+            data={"curves": {k: v for k, v in curves.items() if v}, "models": model_names},
+        )
+
+    pages["index.html"] = env.get_template("index.html").render(**common, title="motion-zoo")
+
+    for bench in benchmarks:
+        build.warnings += bench.problems + [p for t in bench.tables for p in t.problems]
+    build.warnings += [p for m in models for p in m.problems]
+
+    _check_out(build.out)
+    with replace_folder(build.out, checked=True) as tmp:
+        (tmp / MARKER).write_text("a site written by zoo site; the next build replaces it\n")
+        for name, html in pages.items():
+            (tmp / name).write_text(html)
+        for name, text in extra.items():
+            (tmp / name).write_text(text)
+        (tmp / "assets").mkdir()
+        for asset in sorted(ASSETS.iterdir()):
+            shutil.copy2(asset, tmp / "assets" / asset.name)
+        for name, source in images.items():
+            (tmp / name).parent.mkdir(exist_ok=True)
+            shutil.copy2(source, tmp / name)
+    build.pages = sorted(pages)
+    build.seconds = time.perf_counter() - start
+    return build
+
+
+def _check_out(out: Path) -> None:
+    if out.exists() and (not out.is_dir() or (any(out.iterdir()) and not (out / MARKER).is_file())):
+        raise ZooError(
+            f"--out {out}: exists and is not a site zoo site wrote (no {MARKER} in it); "
+            f"give a new or empty folder"
+        )
+
+
+def _row_models(benchmarks: list[Benchmark]) -> set[str]:
+    """Every row's model (without ``@last``), so each gets one colour site-wide."""
+    names = set()
+    for bench in benchmarks:
+        for table in bench.tables:
+            for view in (table.summary or {}).get("views") or []:
+                names |= {
+                    m["model"].split("@", 1)[0].removesuffix(FLOOR_SUFFIX)
+                    for m in view.get("models", [])
+                    if m["model"] != "ground_truth"
+                }
+    return names
+
+
+def _model_rows(name: str, benchmarks: list[Benchmark]) -> list[dict[str, Any]]:
+    """A model's rows (its own and ``@last``) in every table's headline view."""
+    out = []
+    for bench in benchmarks:
+        for table in bench.tables:
+            view = table.headline
+            if view is None:
+                continue
+            for row in view["models"]:
+                if row["model"].split("@", 1)[0] != name:
+                    continue
+                out.append(
+                    {
+                        "bench": bench.name,
+                        "table": table,
+                        "view": view,
+                        "row": row,
+                    }
+                )
+    return out

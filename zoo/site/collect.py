@@ -1,0 +1,158 @@
+"""What the site shows, read from the committed files: per benchmark its tables
+(``summary.json``, ``protocol.json``, ``efficiency.csv`` beside each ``leaderboard.md``), its
+mesh clips, and per model its card and the records of its shipped weights. Nothing here
+computes a number: every value is one a leaderboard rebuild stored. What cannot be read is
+kept as a problem, which the page it belongs to shows and ``zoo site`` warns about."""
+
+from __future__ import annotations
+
+import csv
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from zoo.results import TABLE_FILE, table_files, table_labels
+
+SUMMARY_FILE = "summary.json"
+
+
+@dataclass
+class Table:
+    benchmark: str
+    name: str
+    protocol: dict[str, Any] | None = None
+    summary: dict[str, Any] | None = None
+    costs: dict[str, dict[str, str]] = field(default_factory=dict)
+    problems: list[str] = field(default_factory=list)
+
+    @property
+    def page(self) -> str:
+        return f"table-{self.benchmark}-{self.name}.html"
+
+    @property
+    def quoted(self) -> bool:
+        """The table a paper quotes: the benchmark's own sampler, scored against the ground
+        truth as stored (not a reconstruction of it)."""
+        p = self.protocol or {}
+        return p.get("ground_truth", "raw") == "raw" and self.name == p.get("sampler")
+
+    @property
+    def headline(self) -> dict[str, Any] | None:
+        views = (self.summary or {}).get("views") or []
+        return next((v for v in views if v.get("headline")), None)
+
+
+@dataclass
+class Benchmark:
+    name: str
+    tables: list[Table]
+    clips: Path | None = None
+    problems: list[str] = field(default_factory=list)
+
+    @property
+    def page(self) -> str:
+        return f"bench-{self.name}.html"
+
+    @property
+    def quoted(self) -> Table | None:
+        readable = [t for t in self.tables if t.headline is not None]
+        return next((t for t in readable if t.quoted), readable[0] if readable else None)
+
+
+@dataclass
+class Model:
+    name: str
+    card: str | None  # Markdown
+    description: str
+    shipped: list[dict[str, Any]] = field(default_factory=list)  # weights records
+    problems: list[str] = field(default_factory=list)
+
+    @property
+    def page(self) -> str:
+        return f"model-{self.name}.html"
+
+
+def _read_json(path: Path, problems: list[str], what: str) -> dict[str, Any] | None:
+    try:
+        return json.loads(path.read_text())
+    except FileNotFoundError:
+        problems.append(f"{path}: missing ({what})")
+    except (OSError, ValueError) as exc:
+        problems.append(f"{path}: not readable JSON ({what}): {exc}")
+    return None
+
+
+def _costs(folder: Path, problems: list[str]) -> dict[str, dict[str, str]]:
+    path = folder / "efficiency.csv"
+    if not path.is_file():
+        return {}
+    try:
+        with open(path, newline="") as f:
+            return {row["model"]: row for row in csv.DictReader(f)}
+    except (OSError, KeyError, csv.Error) as exc:
+        problems.append(f"{path}: not a readable cost table: {exc}")
+        return {}
+
+
+def read_table(benchmark: str, folder: Path) -> Table:
+    table = Table(benchmark, folder.name)
+    table.protocol = _read_json(folder / "protocol.json", table.problems, "the table's protocol")
+    table.summary = _read_json(
+        folder / SUMMARY_FILE,
+        table.problems,
+        f"the table as data; zoo leaderboard --benchmark {benchmark} writes it",
+    )
+    if table.summary is not None and not (table.summary.get("views") or []):
+        table.problems.append(f"{folder / SUMMARY_FILE}: the table has no rows")
+    if table.protocol is not None:
+        try:
+            labels = table_labels(folder)
+        except Exception as exc:  # the table's own message names the file and the fix
+            table.problems.append(str(exc))
+        else:
+            for label in labels:
+                if not (folder / label / "results.csv").is_file():
+                    table.problems.append(
+                        f"{folder / label / 'results.csv'}: missing (a row the table lists)"
+                    )
+    table.costs = _costs(folder, table.problems)
+    return table
+
+
+def read_benchmarks(results_root: Path) -> list[Benchmark]:
+    out = []
+    for bench_dir in sorted(
+        p for p in results_root.iterdir() if p.is_dir() and not p.name.startswith(".")
+    ):
+        folders = [t.parent for t in table_files(bench_dir)]
+        bench = Benchmark(bench_dir.name, [read_table(bench_dir.name, f) for f in folders])
+        if not bench.tables:
+            bench.problems.append(f"{bench_dir}: no table ({TABLE_FILE}) in any folder")
+        clips = bench_dir / "clips.npz"
+        bench.clips = clips if clips.is_file() else None
+        out.append(bench)
+    return out
+
+
+def read_models(registry, cards_dir: Path, shipped: dict[str, list]) -> list[Model]:
+    """Every registered model with a card or shipped weights; a model with weights and no
+    card keeps a problem that says how to write it."""
+    out = []
+    for name in registry.list_models():
+        entry = registry.get(name)
+        files = shipped.get(entry.weights_of or name, [])
+        card_path = cards_dir / f"{name}.md"
+        card = card_path.read_text() if card_path.is_file() else None
+        if card is None and not files:
+            continue
+        model = Model(
+            name,
+            card,
+            " ".join(str(getattr(entry, "description", "") or "").split()),
+            [dict(s.record, benchmarks=list(s.benchmarks)) for s in files],
+        )
+        if card is None:
+            model.problems.append(f"{card_path}: missing (the model's card); zoo cards writes it")
+        out.append(model)
+    return out
