@@ -114,7 +114,7 @@ def test_out_never_replaces_what_is_not_a_zoo_result(capsys, root, tmp_path):
         "--out",
         str(mine),
     )
-    assert code == 2 and "not a zoo result folder" in last
+    assert code == 2 and "not one the zoo wrote" in last
     assert (mine / "thesis.tex").read_text() == "years of work"
 
 

@@ -4,6 +4,7 @@ pages built from committed results, and bad input shown on its page and warned a
 from __future__ import annotations
 
 import json
+import re
 import shutil
 import subprocess
 import sys
@@ -55,8 +56,13 @@ def test_summary_matches_the_rows_and_the_markdown_headline():
             & (frame.horizon_ms == h)
         ]["value"].item()
         assert value == pytest.approx(csv_value, rel=1e-6)
+    # the committed summary.json is this table's, number for number
     stored_view = next(v for v in stored["views"] if v["headline"])
     assert [m["model"] for m in stored_view["models"]] == [m["model"] for m in view["models"]]
+    for kept, fresh in zip(stored_view["models"], view["models"]):
+        assert kept["values"] == pytest.approx(fresh["values"], rel=1e-6)
+        assert kept["bold"] == fresh["bold"]
+    assert stored_view["best"] == view["best"]
     # the bold cells are the Markdown headline's bold cells
     markdown = (TABLE / "leaderboard.md").read_text().split("## Headline", 1)[1]
     line = next(row for row in markdown.splitlines() if row.startswith(f"| {model} "))
@@ -132,11 +138,15 @@ def test_site_from_committed_results(tmp_path):
     protocol = json.loads((TABLE / "protocol.json").read_text())
     assert protocol["protocol_id"] in bench  # the quoted table's
     table = (tmp_path / "site" / "table-cmu_anny_oi_low-stride5_strict.html").read_text()
-    assert "window.ZOO_TABLE" in table and "fetch(" not in table
+    assert "window.ZOO_TABLE" in table
+    # nothing is fetched: no script asks the network, no page loads from it
+    for script in (tmp_path / "site").rglob("*.js"):
+        text = script.read_text()
+        assert "fetch(" not in text and "XMLHttpRequest" not in text and "import(" not in text
     for page in (tmp_path / "site").glob("*.html"):
         html = page.read_text()
-        assert "http://" not in html.replace("http://www.w3.org", "")
-        assert "https://" not in html or page.name.startswith("model-")
+        loads = re.search(r"<(script|link|img|iframe)[^>]+(src|href)=\"(https?:)?//", html)
+        assert loads is None, f"{page.name}: {loads}"
 
 
 def test_bad_input_is_shown_on_its_page_and_warned(tmp_path):
@@ -167,6 +177,56 @@ def test_bad_input_is_shown_on_its_page_and_warned(tmp_path):
     assert "missing (the model" in (site / "model-spectrhums_residual.html").read_text()
 
 
+def test_malformed_files_are_problems_not_tracebacks(tmp_path):
+    results = _copy_results(tmp_path, "cmu_anny_oi_low", "cmu")
+    bench = results / "cmu_anny_oi_low"
+    summary = bench / "stride5_strict" / "summary.json"
+    (results / "cmu" / "all" / "summary.json").write_text("[]")
+    stored = json.loads(summary.read_text())
+    del stored["views"][0]["models"][0]["bold"]
+    summary.write_text(json.dumps(stored))
+    nan = bench / "stride5_strict-gt_spectral" / "summary.json"
+    nan.write_text(nan.read_text().replace("0.", 'NaN, "x": 0.', 1))
+    (results / "cmu" / "ltd8" / "protocol.json").unlink()
+    _clips().write(bench / "clips.npz")
+    data = (bench / "clips.npz").read_bytes()
+    (bench / "clips.npz").write_bytes(data[: len(data) // 2])
+    weights = tmp_path / "weights" / "cmu"
+    weights.mkdir(parents=True)
+    shutil.copy(REPO_ROOT / "weights" / "cmu" / "mlp.safetensors", weights)
+    (weights / "mlp.json").write_text(json.dumps({"label": "mlp"}))
+    build = build_site(tmp_path / "site", results, weights_root=tmp_path / "weights")
+    text = "\n".join(build.warnings)
+    assert "cmu/all/summary.json: not readable JSON" in text and "not an object" in text
+    assert "views[0].models[0] has no bold" in text
+    assert "NaN is no number JSON has" in text
+    assert "ltd8/protocol.json: missing" in text
+    assert "clips.npz: not a readable clips file" in text
+    assert "shipped weights' records cannot be read" in text
+    site = tmp_path / "site"
+    assert "has no bold" in (site / "table-cmu_anny_oi_low-stride5_strict.html").read_text()
+    assert "not a readable clips file" in (site / "bench-cmu_anny_oi_low.html").read_text()
+    assert not (site / "meshes-cmu_anny_oi_low.html").exists()
+
+
+def test_a_card_cannot_run_a_script_or_load_from_the_network(tmp_path):
+    results = _copy_results(tmp_path, "cmu_anny_oi_low")
+    cards = tmp_path / "cards"
+    shutil.copytree(REPO_ROOT / "docs" / "models", cards)
+    card = cards / "spectrhums.md"
+    card.write_text(
+        card.read_text()
+        + "\n<script>alert(1)</script>\n\n<img src='https://example.org/x.png'>\n\n"
+        "![far](https://example.org/y.png) ![up](../../README.md) [other](mlp.md#recipe)\n"
+    )
+    build_site(tmp_path / "site", results, cards_dir=cards)
+    html = (tmp_path / "site" / "model-spectrhums.html").read_text()
+    assert "<script>alert" not in html and "&lt;script&gt;alert(1)&lt;/script&gt;" in html
+    assert not re.search(r"<img[^>]* src=\"https?:", html)
+    assert 'href="model-mlp.html"' in html
+    assert not (tmp_path / "site" / "cards" / "README.md").exists()
+
+
 def test_zoo_site_cli_reports_and_refuses_a_foreign_folder(tmp_path):
     results = _copy_results(tmp_path, "cmu_anny_oi_low")
     foreign = tmp_path / "mine"
@@ -179,7 +239,7 @@ def test_zoo_site_cli_reports_and_refuses_a_foreign_folder(tmp_path):
         text=True,
     )
     assert bad.returncode != 0 and "Traceback" not in bad.stderr
-    assert "is not a site zoo site wrote" in bad.stderr
+    assert "not one the zoo wrote (no .zoo-site)" in bad.stderr
     assert (foreign / "notes.txt").read_text() == "keep me"
     good = subprocess.run(
         [*zoo, "site", "--results", str(results), "--out", str(tmp_path / "site")],

@@ -6,6 +6,7 @@ ZOO_SITE_SCREENSHOTS=folder keeps the screenshots there (docs/site/ holds the RE
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import time
@@ -35,6 +36,11 @@ def site(tmp_path_factory) -> Path:
     results = tmp / "results"
     for bench in ("cmu", "cmu_anny_oi_low"):
         shutil.copytree(RESULTS / bench, results / bench, ignore=shutil.ignore_patterns("*.npz"))
+    # one empty cell, where a sort must put it last either way
+    table = results / "cmu" / "all" / "summary.json"
+    summary = json.loads(table.read_text())
+    summary["views"][0]["models"][0]["values"][3] = None
+    table.write_text(json.dumps(summary))
     clips = RESULTS / "cmu_anny_oi_low" / "clips.npz"
     if clips.is_file():
         shutil.copy(clips, results / "cmu_anny_oi_low" / "clips.npz")
@@ -110,11 +116,11 @@ def test_every_page_loads_without_console_errors_or_outside_requests(browser, si
         assert browser.execute_script("return document.body.innerText.length") > 200
 
 
-def _column(browser, horizon: int) -> list[float]:
+def _column(browser, horizon: int) -> list[float | None]:
     cells = browser.find_elements(
         "css selector", f"#board tbody tr[data-model] td[data-horizon='{horizon}']"
     )
-    return [float(c.get_attribute("data-value")) for c in cells]
+    return [float(v) if (v := c.get_attribute("data-value")) else None for c in cells]
 
 
 def test_sorting_a_column_orders_its_rows(browser, site):
@@ -123,9 +129,10 @@ def test_sorting_a_column_orders_its_rows(browser, site):
     horizon = int(header.text.split()[0])
     header.click()
     values = _column(browser, horizon)
-    assert values == sorted(values) and len(values) >= 4
+    numbers = [v for v in values if v is not None]
+    assert values == sorted(numbers) + [None] and len(numbers) >= 4  # the empty cell last
     browser.find_element("css selector", "#board th[data-key='3']").click()
-    assert _column(browser, horizon) == sorted(values, reverse=True)
+    assert _column(browser, horizon) == sorted(numbers, reverse=True) + [None]
     browser.find_element("css selector", "#board th[data-key='model']").click()
     names = [
         r.get_attribute("data-model")
@@ -170,6 +177,21 @@ def test_switching_the_view_shows_the_stored_values(browser, site):
         "css selector", f"#board tr[data-model='{model['model']}'] td[data-horizon='{h}']"
     )
     assert float(cell.get_attribute("data-value")) == pytest.approx(model["per_action"][action][2])
+
+
+def test_switching_the_metric_keeps_the_averaging_where_it_can(browser, site):
+    from selenium.webdriver.support.ui import Select
+
+    _open(browser, site / "table-cmu_anny_oi_low-stride5_strict.html")
+    assert Select(browser.find_element("id", "averaging")).first_selected_option.text == "frame"
+    Select(browser.find_element("id", "metric")).select_by_value("mpjpe")
+    chosen = [
+        Select(browser.find_element("id", name)).first_selected_option.text
+        for name in ("metric", "averaging", "joints")
+    ]
+    assert chosen == ["mpjpe", "frame", "regressor31"]
+    note = browser.find_element("id", "protocol-note").text
+    assert note.startswith("MPJPE (mm), averaging frame")
 
 
 def test_the_mesh_viewer_advances_frames(browser, site):

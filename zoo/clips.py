@@ -80,6 +80,9 @@ class Clips:
 
     @classmethod
     def read(cls, path: str | Path) -> Clips:
+        import zipfile
+        import zlib
+
         try:
             with np.load(path, allow_pickle=False) as data:
                 centre = data["centre"][:, None, None]
@@ -87,7 +90,7 @@ class Clips:
                 def mm(key: str) -> np.ndarray:
                     return np.cumsum(data[key], axis=1, dtype=np.int32) * STEP_MM + centre
 
-                return cls(
+                clips = cls(
                     benchmark=str(data["benchmark"]),
                     fps=float(data["fps"]),
                     input_frames=int(data["input_frames"]),
@@ -101,10 +104,31 @@ class Clips:
                         k.split("/", 1)[1]: mm(k) for k in data.files if k.startswith("pred/")
                     },
                 )
-        except (OSError, ValueError, KeyError) as exc:
+        except (OSError, ValueError, KeyError, IndexError, zipfile.BadZipFile, zlib.error) as exc:
             raise ClipsError(
                 f"{path}: not a readable clips file ({exc}); zoo site --clips rewrites it"
             ) from exc
+        fault = clips.fault()
+        if fault:
+            raise ClipsError(f"{path}: {fault}; zoo site --clips rewrites it")
+        return clips
+
+    def fault(self) -> str | None:
+        """What makes these clips unplayable, in words (None where nothing does)."""
+        w, t, v = self.truth.shape[:3] if self.truth.ndim == 4 else (0, 0, 0)
+        if self.truth.ndim != 4 or self.truth.shape[3] != 3 or not 0 < self.input_frames < t:
+            return f"ground truth of shape {self.truth.shape} with {self.input_frames} observed"
+        if len(self.windows) != w or len(self.sequences) != w or len(self.vertices) != v:
+            return "windows, sequences or kept vertices do not match the ground truth"
+        if self.faces.ndim != 2 or self.faces.shape[1] != 3 or self.faces.size == 0:
+            return f"faces of shape {self.faces.shape}, not (F, 3)"
+        if self.faces.min() < 0 or self.faces.max() >= v:
+            return f"faces index vertices outside 0..{v - 1}"
+        expected = (w, t - self.input_frames, v, 3)
+        for label, pred in self.predictions.items():
+            if pred.shape != expected:
+                return f"prediction {label!r} of shape {pred.shape}, not {expected}"
+        return None
 
 
 def _changes(steps: np.ndarray) -> np.ndarray:

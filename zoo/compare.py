@@ -381,8 +381,9 @@ def reader_pairs(results: list[EvalResult]) -> list[tuple[str, str]]:
         if "repeat_last" in by_label:
             pairs.append((m, "repeat_last"))
         others = total[[o for o in trained if o != m]]
-        if len(others):
-            pairs.append((m, str(others.idxmin())))
+        best = str(others.idxmin()) if len(others) else None
+        if best is not None and (best, m) not in pairs:  # one of a pair and its mirror
+            pairs.append((m, best))
     return pairs
 
 
@@ -414,6 +415,8 @@ def table_comparisons(results: list[EvalResult]) -> list[dict[str, Any]]:
 
 
 def _json_value(v):
-    """A table cell as JSON: numbers to 7 significant digits (past them, CPU rounding)."""
+    """A table cell as JSON (:func:`zoo.tables.json_number` for a number)."""
+    from zoo.tables import json_number
+
     v = v.item() if hasattr(v, "item") else v
-    return float(f"{v:.7g}") if isinstance(v, float) else v
+    return json_number(v) if isinstance(v, float) else v

@@ -65,19 +65,20 @@ def folder_lock(path: str | Path) -> Iterator[None]:
 RESULT_MARKERS = ("results.csv", "protocol.json")
 
 
-def check_output_folder(path: str | Path) -> None:
+def check_output_folder(path: str | Path, markers: tuple[str, ...] = RESULT_MARKERS) -> None:
     """Refuse, before any work, an output folder that cannot be written or that is not the
-    zoo's to replace (a file, or a folder of other things: never deleted)."""
+    zoo's to replace (a file, or a folder of other things, holding none of ``markers``: never
+    deleted)."""
     path = Path(path)
     if path.exists():
         if not path.is_dir():
             raise OutputError(
                 f"--out {path}: exists and is not a folder; choose a new or empty folder"
             )
-        if any(path.iterdir()) and not any((path / m).is_file() for m in RESULT_MARKERS):
+        if any(path.iterdir()) and not any((path / m).is_file() for m in markers):
             raise OutputError(
-                f"--out {path}: a folder of other files, not a zoo result folder "
-                f"(no {' or '.join(RESULT_MARKERS)}); it would be replaced "
+                f"--out {path}: a folder of other files, not one the zoo wrote "
+                f"(no {' or '.join(markers)}); it would be replaced "
                 f"whole, so choose a new or empty folder"
             )
     check_writable(path.parent, what=f"--out {path}")
@@ -102,18 +103,24 @@ class OutputError(ZooError, ValueError):
 
 
 @contextmanager
-def replace_folder(path: str | Path, lock: bool = True, checked: bool = False) -> Iterator[Path]:
+def replace_folder(
+    path: str | Path,
+    lock: bool = True,
+    checked: bool = False,
+    markers: tuple[str, ...] = RESULT_MARKERS,
+) -> Iterator[Path]:
     """Yield an empty sibling folder to fill; on success it replaces ``path`` as a whole (the
     old folder is renamed away first, then removed), so readers see the old folder or the new
     one, never a mix; on failure or interruption it is removed and ``path`` is untouched.
     ``lock=False``: the caller already holds :func:`folder_lock` of ``path``; ``checked``: the
-    caller carries everything of ``path`` it keeps into the new folder itself (a table)."""
+    caller carries everything of ``path`` it keeps into the new folder itself (a table);
+    ``markers``: the files by which a folder of ours is known (:func:`check_output_folder`)."""
     import shutil
     from contextlib import nullcontext
 
     path = Path(path)
     if not checked:
-        check_output_folder(path)
+        check_output_folder(path, markers)
     path.parent.mkdir(parents=True, exist_ok=True)
     with folder_lock(path) if lock else nullcontext():
         tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))

@@ -389,6 +389,28 @@ def table_view(
     )
 
 
+def view_words(view: TableView, reported: bool) -> str:
+    """What a view's ± and bold mean (:func:`interval_words`), what its autoencoder-floor rows
+    are, and (``reported``) what its published rows are."""
+    if view.windows is None:
+        how = "no per-window errors stored, so no intervals"
+    else:
+        how = interval_words(view.windows, models=view.contenders)
+    floors = [m for m in view.values.index if is_floor(m)]
+    if floors:
+        how += (
+            f". {', '.join(f'`{m}`' for m in floors)}: the ground-truth future through the "
+            f"model's autoencoder alone (it sees the future): the error left with a perfect "
+            f"transformer, a bound, never bold"
+        )
+    if reported:
+        how += (
+            ". Rows marked (reported) are the papers' figures under this very protocol, "
+            "averaged over the actions present here"
+        )
+    return how
+
+
 def table_summary(results: list, horizons_ms: Iterable[int] | None = None) -> dict[str, Any]:
     """A table as data (``summary.json`` beside ``leaderboard.md``), for readers other than
     Markdown's: per (metric, averaging, joints), each row's action average at the table's
@@ -413,7 +435,7 @@ def table_summary(results: list, horizons_ms: Iterable[int] | None = None) -> di
         for m in view.values.index:
             mine = group[group["model"] == m]
             per_action = {
-                a: [_number(v) for v in rows.set_index("horizon_ms")["value"].reindex(horizons)]
+                a: [json_number(v) for v in rows.set_index("horizon_ms")["value"].reindex(horizons)]
                 for a, rows in sorted(mine.groupby("action"), key=lambda kv: order.get(kv[0], 0))
                 if a != "average"
             }
@@ -422,12 +444,13 @@ def table_summary(results: list, horizons_ms: Iterable[int] | None = None) -> di
                 {
                     "model": m,
                     "floor": is_floor(m),
-                    "values": [_number(view.values.loc[m, h]) for h in horizons],
-                    "half": [_number(x) for x in view.half[m]] if m in view.half else None,
+                    "values": [json_number(view.values.loc[m, h]) for h in horizons],
+                    "half": [json_number(x) for x in view.half[m]] if m in view.half else None,
                     "bold": [view.is_bold(m, h) for h in horizons],
                     "per_action": per_action,
                     "curve": [
-                        [int(h), _number(v)] for h, v in zip(curve["horizon_ms"], curve["value"])
+                        [int(h), json_number(v)]
+                        for h, v in zip(curve["horizon_ms"], curve["value"])
                     ],
                 }
             )
@@ -443,11 +466,8 @@ def table_summary(results: list, horizons_ms: Iterable[int] | None = None) -> di
                 "horizons_ms": horizons,
                 "averaging_words": record.get("averaging", {}).get(averaging, ""),
                 "joints_words": record.get("joint_protocols", {}).get(joints, ""),
-                "interval_words": (
-                    "no per-window errors stored, so no intervals"
-                    if view.windows is None
-                    else interval_words(view.windows, models=view.contenders)
-                ),
+                "interval_words": view_words(view, any(not p.differences for p in placed)),
+                "best": [str(view.best[h]) for h in horizons],
                 "models": models,
                 "reported": [
                     {
@@ -486,7 +506,7 @@ def table_summary(results: list, horizons_ms: Iterable[int] | None = None) -> di
     }
 
 
-def _number(x) -> float | None:
+def json_number(x) -> float | None:
     """A JSON number to 7 significant digits (what differs past them is CPU rounding, and a
     rebuild on another CPU then rewrites no file); None for a missing or non-finite value."""
     return float(f"{x:.7g}") if x is not None and np.isfinite(x) else None
@@ -515,7 +535,7 @@ def headline_table(
     view = table_view(results, metric, "frame", joints, horizons_ms)
     if view is None:
         return ""
-    horizons, values, half, windows = view.horizons, view.values, view.half, view.windows
+    horizons, values, half = view.horizons, view.values, view.half
     fmt = metric_unit(metric)[1]
     costs, efficiency = efficiency is not None, efficiency or {}
     table = []
@@ -536,22 +556,7 @@ def headline_table(
                 ]
             )
     unit = metric_unit(metric)[0]
-    if windows is None:
-        how = "no per-window errors stored, so no intervals"
-    else:
-        how = interval_words(windows, models=view.contenders)
-    floors = [m for m in values.index if is_floor(m)]
-    if floors:
-        how += (
-            f". {', '.join(f'`{m}`' for m in floors)}: the ground-truth future through the "
-            f"model's autoencoder alone (it sees the future): the error left with a perfect "
-            f"transformer, a bound, never bold"
-        )
-    if any(not p.differences for p in placed):
-        how += (
-            ". Rows marked (reported) are the papers' figures under this very protocol, "
-            "averaged over the actions present here"
-        )
+    how = view_words(view, any(not p.differences for p in placed))
     out = [
         f"## Headline: {metric.upper()} ({unit}), averaging `frame`, joints `{joints}`, mean "
         f"over actions",

@@ -70,22 +70,24 @@ def _markdown(text: str, model_pages: set[str], images: dict[str, Path], cards_d
     the card are copied into the site, any other relative link is kept as text."""
     from markdown_it import MarkdownIt
 
-    html = MarkdownIt("commonmark").enable("table").render(text)
+    # raw HTML in a card stays text: a card can neither run a script nor load from the network
+    html = MarkdownIt("commonmark", {"html": False}).enable("table").render(text)
 
     def link(match: re.Match) -> str:
         target = match.group(1)
         if re.match(r"^[a-z]+:", target) or target.startswith("#"):
             return match.group(0)
-        stem = Path(target.split("#")[0]).stem
-        if target.endswith(".md") and f"model-{stem}.html" in model_pages:
-            return f'href="model-{stem}.html"'
+        path = Path(target.split("#")[0])
+        if path.suffix == ".md" and f"model-{path.stem}.html" in model_pages:
+            return f'href="model-{path.stem}.html"'
         return 'data-offsite="' + target + '"'
 
     def image(match: re.Match) -> str:
         target = match.group(1)
-        source = cards_dir / target
-        if re.match(r"^[a-z]+:", target) or not source.is_file():
-            return 'alt="(picture not in the site)" data-src="' + target + '"'
+        source = (cards_dir / target).resolve()
+        inside = source.is_relative_to(cards_dir.resolve()) and source.is_file()
+        if re.match(r"^[a-z]+:", target) or not inside:
+            return 'data-src="' + target + '" title="(picture not in the site)"'
         images[f"cards/{source.name}"] = source
         return f'src="cards/{source.name}"'
 
@@ -124,6 +126,29 @@ def _clips_script(path: Path) -> tuple[str, dict[str, Any]]:
         "faces": data["face_count"],
         "mesh_vertices": clips.mesh_vertices,
     }
+
+
+def _for_script(summary: dict[str, Any] | None) -> dict[str, Any] | None:
+    """The summary as the page's script reads it: each row with its model's name (``base``:
+    no ``@last``, no floor suffix; one colour per model site-wide) and its ``variant``."""
+    if summary is None:
+        return None
+    views = []
+    for view in summary["views"]:
+        rows = [
+            dict(
+                row,
+                base=_base(row["model"]),
+                variant=row["model"].partition("@")[2],
+            )
+            for row in view["models"]
+        ]
+        views.append(dict(view, models=rows))
+    return dict(summary, views=views)
+
+
+def _base(model: str) -> str:
+    return model.partition("@")[0].removesuffix(FLOOR_SUFFIX)
 
 
 def _cost_rows(table: Table) -> dict[str, dict[str, str]]:
@@ -181,7 +206,6 @@ def build_site(
     per table, per model, a comparison page per benchmark and a mesh page per mesh benchmark
     with clips. Problems (a damaged row, a missing card, a table with no rows) are shown on
     their page and returned as warnings."""
-    from zoo.cards import shipped_weights
     from zoo.paths import REPO_ROOT
     from zoo.registry import load_registry
     from zoo.version import __version__
@@ -192,7 +216,8 @@ def build_site(
     cards_dir = Path(cards_dir) if cards_dir else REPO_ROOT / "docs" / "models"
     registry = registry or load_registry()
     benchmarks = read_benchmarks(results_root)
-    models = read_models(registry, cards_dir, shipped_weights(weights_root))
+    weight_problems: list[str] = []
+    models = read_models(registry, cards_dir, weights_root, weight_problems)
     env = _environment()
     build = SiteBuild(Path(out))
     model_pages = {m.page for m in models}
@@ -217,7 +242,7 @@ def build_site(
                 table=table,
                 protocol_rows=_readable_protocol(table.protocol),
                 data={
-                    "summary": table.summary,
+                    "summary": _for_script(table.summary),
                     "costs": _cost_rows(table),
                     "models": model_names,
                     "pages": sorted(model_pages),
@@ -259,12 +284,13 @@ def build_site(
 
     for model in models:
         card = _markdown(model.card, model_pages, images, cards_dir) if model.card else ""
-        curves = {
-            f"{rec.get('benchmark', '?')}/{rec.get('label', model.name)}": [
-                [int(s), float(v)] for s, v in training_points(rec)
-            ]
-            for rec in model.shipped
-        }
+        curves = {}
+        for rec in model.shipped:
+            name = f"{rec.get('benchmark', '?')}/{rec.get('label', model.name)}"
+            try:
+                curves[name] = [[int(s), float(v)] for s, v in training_points(rec)]
+            except (KeyError, TypeError, ValueError) as exc:
+                model.problems.append(f"{name}: its weights record's training history ({exc!r})")
         pages[model.page] = env.get_template("model.html").render(
             **common,
             title=model.name,
@@ -274,14 +300,15 @@ def build_site(
             data={"curves": {k: v for k, v in curves.items() if v}, "models": model_names},
         )
 
-    pages["index.html"] = env.get_template("index.html").render(**common, title="motion-zoo")
+    pages["index.html"] = env.get_template("index.html").render(
+        **common, title="motion-zoo", problems=weight_problems
+    )
 
     for bench in benchmarks:
         build.warnings += bench.problems + [p for t in bench.tables for p in t.problems]
-    build.warnings += [p for m in models for p in m.problems]
+    build.warnings += weight_problems + [p for m in models for p in m.problems]
 
-    _check_out(build.out)
-    with replace_folder(build.out, checked=True) as tmp:
+    with replace_folder(build.out, markers=(MARKER,)) as tmp:
         (tmp / MARKER).write_text("a site written by zoo site; the next build replaces it\n")
         for name, html in pages.items():
             (tmp / name).write_text(html)
@@ -298,25 +325,13 @@ def build_site(
     return build
 
 
-def _check_out(out: Path) -> None:
-    if out.exists() and (not out.is_dir() or (any(out.iterdir()) and not (out / MARKER).is_file())):
-        raise ZooError(
-            f"--out {out}: exists and is not a site zoo site wrote (no {MARKER} in it); "
-            f"give a new or empty folder"
-        )
-
-
 def _row_models(benchmarks: list[Benchmark]) -> set[str]:
     """Every row's model (without ``@last``), so each gets one colour site-wide."""
     names = set()
     for bench in benchmarks:
         for table in bench.tables:
             for view in (table.summary or {}).get("views") or []:
-                names |= {
-                    m["model"].split("@", 1)[0].removesuffix(FLOOR_SUFFIX)
-                    for m in view.get("models", [])
-                    if m["model"] != "ground_truth"
-                }
+                names |= {_base(m["model"]) for m in view["models"] if m["model"] != "ground_truth"}
     return names
 
 
@@ -329,7 +344,7 @@ def _model_rows(name: str, benchmarks: list[Benchmark]) -> list[dict[str, Any]]:
             if view is None:
                 continue
             for row in view["models"]:
-                if row["model"].split("@", 1)[0] != name:
+                if _base(row["model"]) != name or row["floor"]:
                     continue
                 out.append(
                     {

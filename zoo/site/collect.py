@@ -31,6 +31,10 @@ class Table:
         return f"table-{self.benchmark}-{self.name}.html"
 
     @property
+    def protocol_id(self) -> str:
+        return str((self.protocol or {}).get("protocol_id", "(unknown)"))
+
+    @property
     def quoted(self) -> bool:
         """The table a paper quotes: the benchmark's own sampler, scored against the ground
         truth as stored (not a reconstruction of it)."""
@@ -73,9 +77,16 @@ class Model:
         return f"model-{self.name}.html"
 
 
+def _no_nan(word: str):
+    raise ValueError(f"{word} is no number JSON has")
+
+
 def _read_json(path: Path, problems: list[str], what: str) -> dict[str, Any] | None:
     try:
-        return json.loads(path.read_text())
+        value = json.loads(path.read_text(), parse_constant=_no_nan)
+        if not isinstance(value, dict):
+            raise ValueError(f"a JSON {type(value).__name__}, not an object")
+        return value
     except FileNotFoundError:
         problems.append(f"{path}: missing ({what})")
     except (OSError, ValueError) as exc:
@@ -95,6 +106,76 @@ def _costs(folder: Path, problems: list[str]) -> dict[str, dict[str, str]]:
         return {}
 
 
+# What the pages read of a summary.json (zoo.tables.table_summary), level by level.
+_VIEW_KEYS = (
+    "metric",
+    "averaging",
+    "joints",
+    "headline",
+    "unit",
+    "format",
+    "horizons_ms",
+    "averaging_words",
+    "joints_words",
+    "interval_words",
+    "best",
+    "models",
+    "reported",
+    "other_protocols",
+)
+_ROW_KEYS = ("model", "floor", "values", "half", "bold", "per_action", "curve")
+_COMPARISON_KEYS = ("a", "b", "metric", "joints", "averaging", "kind", "units", "design", "rows")
+_COMPARISON_ROW_KEYS = (
+    "horizon_ms",
+    "a",
+    "b",
+    "difference",
+    "lo",
+    "hi",
+    "a_lower",
+    "units",
+    "sign_p",
+    "verdict",
+)
+
+
+def summary_fault(summary: dict[str, Any]) -> str | None:
+    """Where ``summary`` is not what :func:`zoo.tables.table_summary` writes, in words (None
+    where it is)."""
+
+    def missing(item, keys, where: str) -> str | None:
+        if not isinstance(item, dict):
+            return f"{where} is not an object"
+        absent = [k for k in keys if k not in item]
+        return f"{where} has no {', '.join(absent)}" if absent else None
+
+    views = summary.get("views")
+    if not isinstance(views, list):
+        return "no list of views"
+    for i, view in enumerate(views):
+        fault = missing(view, _VIEW_KEYS, f"views[{i}]")
+        if fault:
+            return fault
+        width = len(view["horizons_ms"])
+        if len(view["best"]) != width:
+            return f"views[{i}].best does not have one model per horizon"
+        for j, row in enumerate(view["models"]):
+            where = f"views[{i}].models[{j}]"
+            fault = missing(row, _ROW_KEYS, where)
+            if fault:
+                return fault
+            for key in ("values", "bold") + (("half",) if row["half"] is not None else ()):
+                if not isinstance(row[key], list) or len(row[key]) != width:
+                    return f"{where}.{key} does not have one entry per horizon"
+    for i, pair in enumerate(summary.get("comparisons") or []):
+        fault = missing(pair, _COMPARISON_KEYS, f"comparisons[{i}]")
+        for j, row in enumerate(pair.get("rows") or [] if not fault else []):
+            fault = fault or missing(row, _COMPARISON_ROW_KEYS, f"comparisons[{i}].rows[{j}]")
+        if fault:
+            return fault
+    return None
+
+
 def read_table(benchmark: str, folder: Path) -> Table:
     table = Table(benchmark, folder.name)
     table.protocol = _read_json(folder / "protocol.json", table.problems, "the table's protocol")
@@ -103,7 +184,14 @@ def read_table(benchmark: str, folder: Path) -> Table:
         table.problems,
         f"the table as data; zoo leaderboard --benchmark {benchmark} writes it",
     )
-    if table.summary is not None and not (table.summary.get("views") or []):
+    fault = summary_fault(table.summary) if table.summary is not None else None
+    if fault:
+        table.problems.append(
+            f"{folder / SUMMARY_FILE}: not the table as data that zoo leaderboard writes "
+            f"({fault}); zoo leaderboard --benchmark {benchmark} rewrites it"
+        )
+        table.summary = None
+    elif table.summary is not None and not table.summary["views"]:
         table.problems.append(f"{folder / SUMMARY_FILE}: the table has no rows")
     if table.protocol is not None:
         try:
@@ -135,9 +223,21 @@ def read_benchmarks(results_root: Path) -> list[Benchmark]:
     return out
 
 
-def read_models(registry, cards_dir: Path, shipped: dict[str, list]) -> list[Model]:
+def read_models(
+    registry, cards_dir: Path, weights_root: Path | None, problems: list[str]
+) -> list[Model]:
     """Every registered model with a card or shipped weights; a model with weights and no
-    card keeps a problem that says how to write it."""
+    card keeps a problem that says how to write it; weights records that cannot be read go to
+    ``problems``."""
+    from zoo.cards import shipped_weights
+    from zoo.errors import ZooError
+
+    try:
+        shipped = shipped_weights(weights_root)
+    except (ZooError, KeyError, TypeError, ValueError) as exc:
+        where = weights_root or "weights/"
+        problems.append(f"{where}: the shipped weights' records cannot be read ({exc})")
+        shipped = {}
     out = []
     for name in registry.list_models():
         entry = registry.get(name)

@@ -9,15 +9,15 @@ var ZooSite = (function () {
   var MARKERS = ["circle", "square", "triangle", "diamond", "cross", "down"];
   var SVG = "http://www.w3.org/2000/svg";
 
-  function baseName(model) { return model.split("@")[0].replace(/:autoencoder$/, ""); }
-
-  function style(model) {
+  // a row's model (row.base, named by the site builder) fixes its colour and marker on every
+  // page; its @last variant and autoencoder floor are dashed
+  function style(row) {
     var names = window.ZOO_PALETTE_MODELS || [];
-    var i = names.indexOf(baseName(model));
+    var i = names.indexOf(row.base);
     if (i < 0) { i = names.length; }
     return {colour: COLOURS[i % COLOURS.length],
             marker: MARKERS[i % MARKERS.length],
-            dashed: model.indexOf("@") >= 0 || /:autoencoder$/.test(model)};
+            dashed: !!row.variant || !!row.floor};
   }
 
   function el(tag, attrs, text) {
@@ -74,7 +74,8 @@ var ZooSite = (function () {
   /* series: [{label, points: [[x, y], ...], style}]; draws into container (replacing it). */
   function lineChart(container, series, xLabel, yLabel, title) {
     container.textContent = "";
-    var W = 760, H = 380, L = 64, R = 190, T = 30, B = 46;
+    var W = 760, L = 64, R = 230, T = 30, B = 46;
+    var H = Math.max(380, T + B + 17 * series.length);  // room for every legend entry
     var xs = [], ys = [];
     series.forEach(function (s) { s.points.forEach(function (p) { if (p[1] !== null) { xs.push(p[0]); ys.push(p[1]); } }); });
     if (!xs.length) { container.appendChild(el("p", {"class": "note"}, "No values to draw.")); return; }
@@ -123,12 +124,16 @@ var ZooSite = (function () {
       values.forEach(function (v) { var o = el("option", {value: v}, v); if (v === chosen) { o.selected = true; } select.appendChild(o); });
     }
     function pick(changed) {
-      var m = $("metric").value, a = $("averaging").value, j = $("joints").value;
-      var match = views.filter(function (v) { return v.metric === m && v.averaging === a && v.joints === j; });
-      if (!match.length) { // keep what was changed, take the first view that has it
-        match = views.filter(function (v) { return v[changed] === $(changed).value; });
-      }
-      state.view = match[0];
+      var want = {metric: $("metric").value, averaging: $("averaging").value, joints: $("joints").value};
+      // keep what was changed; among the views that have it, the one that keeps most of the
+      // other choices, the averaging before the joints
+      var best = null, score = -1;
+      views.forEach(function (v) {
+        if (v[changed] !== want[changed]) { return; }
+        var s = (v.metric === want.metric) * 4 + (v.averaging === want.averaging) * 2 + (v.joints === want.joints);
+        if (s > score) { best = v; score = s; }
+      });
+      state.view = best || views[0];
       render();
     }
     function controls() {
@@ -155,7 +160,7 @@ var ZooSite = (function () {
         rows = rows.slice().sort(function (a, b) {
           var x = state.sort === "model" ? a.model : cell(a, state.sort).value;
           var y = state.sort === "model" ? b.model : cell(b, state.sort).value;
-          if (x === null) { return 1; } if (y === null) { return -1; }
+          if (x === null || y === null) { return (x === null) - (y === null); }  // empty cells last
           var c = x < y ? -1 : x > y ? 1 : 0;
           return state.descending ? -c : c;
         });
@@ -181,9 +186,8 @@ var ZooSite = (function () {
         var tr = el("tr", {"data-model": r.model});
         if (r.floor) { tr.classList.add("floor"); }
         var name = el("td", {"class": "model"});
-        var swatch = el("span", {"class": "swatch"}); swatch.style.background = style(r.model).colour; name.appendChild(swatch);
-        var base = baseName(r.model);
-        if ((data.pages || []).indexOf("model-" + base + ".html") >= 0) { var a = el("a", {href: "model-" + base + ".html"}, r.model); name.appendChild(a); }
+        var swatch = el("span", {"class": "swatch"}); swatch.style.background = style(r).colour; name.appendChild(swatch);
+        if ((data.pages || []).indexOf("model-" + r.base + ".html") >= 0) { var a = el("a", {href: "model-" + r.base + ".html"}, r.model); name.appendChild(a); }
         else { name.appendChild(document.createTextNode(r.model)); }
         tr.appendChild(name);
         v.horizons_ms.forEach(function (h, i) {
@@ -194,7 +198,7 @@ var ZooSite = (function () {
           tr.appendChild(td);
         });
         var k = costs[r.model] || {};
-        [k.parameters ? (k.parameters / 1e6).toFixed(3) + " M" : (k.parameters === "0" ? "0" : ""),
+        [k.parameters === "0" ? "0" : k.parameters ? (k.parameters / 1e6).toFixed(3) + " M" : "",
          k.gflop ? (+k.gflop).toPrecision(3) : "", k.latency_ms ? (+k.latency_ms).toPrecision(3) : "",
          k.train_per_s ? (+k.train_per_s).toPrecision(3) : ""].forEach(function (t) { tr.appendChild(el("td", {"class": "num cost"}, t)); });
         body.appendChild(tr);
@@ -209,11 +213,13 @@ var ZooSite = (function () {
         body.appendChild(tr);
       });
       board.appendChild(body);
-      var machines = unique(Object.keys(costs).map(function (m) { return costs[m].device + " (" + costs[m].date + ")"; }));
+      var machines = unique(Object.keys(costs).map(function (m) {
+        return (costs[m].device || "a machine not recorded") + (costs[m].date ? " (" + costs[m].date + ")" : "");
+      }));
       $("cost-note").textContent = machines.length ? "Cost columns measured by zoo costs on " + machines.join("; ") + ": parameters, forward GFLOPs per window, median latency of one window, training windows per second." : "No costs stored for this table (zoo costs fills them).";
       var series = rows.filter(function (r) { return !r.floor; }).map(function (r) {
         var points = state.action === "average" ? r.curve : v.horizons_ms.map(function (h, i) { return [h, cell(r, i).value]; });
-        return {label: r.model, points: points, style: style(r.model)};
+        return {label: r.model, points: points, style: style(r)};
       });
       lineChart($("curves"), series, "horizon (ms)", v.metric.toUpperCase() + " (" + v.unit + ")",
                 v.metric.toUpperCase() + ", " + v.averaging + " averaging, joints " + v.joints + ", " + (state.action === "average" ? "mean over actions" : state.action));

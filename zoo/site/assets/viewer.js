@@ -27,14 +27,15 @@ var ZooViewer = (function () {
     clips.models.forEach(function (m) { preds[m] = int16(clips.predictions[m]); });
     var $ = function (id) { return document.getElementById(id); };
     var state = {window: 0, frame: Tin, playing: false, turn: 30 * Math.PI / 180};
-    // the vertical axis: the one along which the first observed frame spreads most
-    var up = 2, ext = [0, 0, 0];
-    (function () {
-      var lo = [1e9, 1e9, 1e9], hi = [-1e9, -1e9, -1e9];
-      for (var v = 0; v < V; v++) { for (var k = 0; k < 3; k++) { var x = truth[v * 3 + k]; lo[k] = Math.min(lo[k], x); hi[k] = Math.max(hi[k], x); } }
-      for (k = 0; k < 3; k++) { ext[k] = hi[k] - lo[k]; }
+    // per window, the vertical axis (the one its first frame spreads most along) and extents
+    var up = 2, ext = [1, 1, 1];
+    function measure(w) {
+      var lo = [1e9, 1e9, 1e9], hi = [-1e9, -1e9, -1e9], first = w * T * V * 3;
+      for (var v = 0; v < V; v++) { for (var k = 0; k < 3; k++) { var x = truth[first + v * 3 + k]; lo[k] = Math.min(lo[k], x); hi[k] = Math.max(hi[k], x); } }
+      for (k = 0; k < 3; k++) { ext[k] = Math.max(hi[k] - lo[k], 1); }
       up = ext.indexOf(Math.max.apply(null, ext));
-    })();
+    }
+    measure(0);
     var panels = [{name: "ground truth", model: null}].concat(clips.models.map(function (m) { return {name: m, model: m}; }));
     var viewer = $("viewer"); viewer.textContent = "";
     panels.forEach(function (p) {
@@ -110,7 +111,7 @@ var ZooViewer = (function () {
     $("play").addEventListener("click", function () { play(!state.playing); });
     slider.addEventListener("input", function () { play(false); state.frame = +slider.value; render(); });
     $("turn").addEventListener("input", function () { state.turn = +$("turn").value * Math.PI / 180; render(); });
-    $("clip-window").addEventListener("change", function () { state.window = +$("clip-window").value; render(); });
+    $("clip-window").addEventListener("change", function () { state.window = +$("clip-window").value; measure(state.window); render(); });
     render();
   }
   return {start: start};
