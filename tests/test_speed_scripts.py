@@ -19,6 +19,7 @@ SCRIPTS = [
     "speed_check",
     "speed_eval",
     "speed_pass",
+    "speed_public_cmu",
     "speed_spectral",
     "speed_spectrhums",
     "speed_spgsn",
@@ -66,6 +67,18 @@ def test_speed_baselines(capsys):
     load("speed_baselines").main(["--repeats", "1", "--tiny"])
     out = capsys.readouterr().out
     assert "ltd training step" in out and "pgbig training step" in out and "ratio" in out
+
+
+def test_speed_public_cmu_names_missing_checkouts_and_steps_the_zoo_models(tmp_path, capsys):
+    script = load("speed_public_cmu")
+    assert script.main(["--public", str(tmp_path), "--repeats", "1"]) == 0
+    out = capsys.readouterr().out
+    for name, folder in (("ltd", "LearnTrajDep"), ("pgbig", "PGBIG"), ("msrgcn", "MSRGCN")):
+        assert f"{name}: no public checkout at {tmp_path / folder}" in out
+        model, step = script.zoo_step(name, *script.batch())
+        before = [p.detach().clone() for p in model.parameters()]
+        step()
+        assert any(not torch.equal(a, b) for a, b in zip(before, model.parameters()))
 
 
 def test_speed_eval(swinging_cmu, capsys):
