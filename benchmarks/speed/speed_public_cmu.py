@@ -195,6 +195,80 @@ def public_msrgcn(folder: Path, history, future):
     return model, step
 
 
+def msrgcn_names() -> dict[str, str]:
+    """The zoo's MSR-GCN parameter and buffer name for each of the public code's."""
+    names: dict[str, str] = {}
+
+    def conv(public: str, zoo: str) -> None:
+        names.update({f"{public}.weight": f"{zoo}.weight", f"{public}.bias": f"{zoo}.bias"})
+        names[f"{public}.att"] = f"{zoo}.adjacency"
+
+    def norm(public: str, zoo: str) -> None:
+        for key in ("weight", "bias", "running_mean", "running_var", "num_batches_tracked"):
+            names[f"{public}.{key}"] = f"{zoo}.{key}"
+
+    def block(public: str, zoo: str) -> None:
+        conv(f"{public}.gc1", f"{zoo}.first.conv")
+        norm(f"{public}.bn1", f"{zoo}.first.act.norm")
+        conv(f"{public}.gc2", f"{zoo}.second.conv")
+        norm(f"{public}.bn2", f"{zoo}.second.act.norm")
+
+    def linear(public: str, zoo: str) -> None:
+        names[f"{public}.linear.weight"] = f"{zoo}.linear.weight"
+        names[f"{public}.linear.bias"] = f"{zoo}.linear.bias"
+        norm(f"{public}.bn", f"{zoo}.act.norm")
+
+    scale = ("first", "second", "third", "fourth")
+    for s, n in enumerate(scale):
+        conv(f"{n}_enhance.gcn", f"enter.{s}.conv")
+        norm(f"{n}_enhance.bn1d", f"enter.{s}.act.norm")
+        conv(f"{n}_out.gcn", f"readout.{s}")
+        for i in range(3):
+            block(f"{n}_left.{i}", f"encode.{s}.blocks.{i}")
+            block(f"{n}_right.{i}", f"decode.{s}.blocks.{i}")
+        for i in range(6 if s == 0 else 1):
+            block(f"{n}_extra.{i}", f"heads.{s}.blocks.{i}")
+        if s < 3:
+            linear(f"{n}_down.0", f"down.{s}")
+            linear(f"{n}_right_crop.0", f"merge.{s}")
+            linear(f"{scale[s + 1]}_up.0", f"up.{s}.0")
+            linear(f"{scale[s + 1]}_up.1", f"up.{s}.1")
+    return names
+
+
+def msrgcn_difference(public_model, history) -> float:
+    """The largest difference (mm) between the public model and the zoo's carrying its weights,
+    in eval mode, over every scale's 35 frames: the two compute the same function."""
+    from zoo.models.msrgcn import MSRGCN
+
+    groups = load_registry().get("msrgcn").hparams["groups"]
+    ours = MSRGCN(T_IN, T_OUT, POINTS, groups).eval()
+    names = msrgcn_names()
+    state = ours.state_dict()
+    state.update({names[k]: v for k, v in public_model.state_dict().items()})
+    ours.load_state_dict(state)
+    ours.low.fill_(-7840.2)
+    ours.high.fill_(5227.3)
+    public_model.eval()
+    padded = torch.cat([history, history[:, -1:].expand(-1, T_OUT, -1, -1)], dim=1)
+    dct = dct_matrix(FRAMES)
+    span = float(ours.high - ours.low)
+    keys = ("p22", "p12", "p7", "p4")
+    inputs = {
+        k: ((dct @ s.reshape(BATCH, FRAMES, -1)).transpose(1, 2) - ours.low) / span * 2 - 1
+        for k, s in zip(keys, ours.scales(padded))
+    }
+    with torch.no_grad():
+        public_out, zoo_out = public_model(inputs), ours.reconstruct(history)
+    public_model.train()
+    worst = 0.0
+    for k, frames in zip(keys, zoo_out):
+        coefficients = (public_out[k] + 1) / 2 * span + float(ours.low)
+        public_frames = (dct.T @ coefficients.transpose(1, 2)).reshape(frames.shape)
+        worst = max(worst, float((public_frames - frames).abs().max()))
+    return worst
+
+
 def zoo_step(name: str, history, future):
     registry = load_registry()
     entry = registry.get(name)
@@ -261,6 +335,11 @@ def main(argv=None) -> int:
             f"{name}: public {a:.1f} ms/step ({counts[0]:,} parameters), zoo {b:.1f} ms/step "
             f"({counts[1]:,}): the zoo's step takes {b / a:.2f}x the public code's"
         )
+        if name == "msrgcn":
+            print(
+                f"msrgcn: the public model and the zoo's carrying its weights (eval mode) differ "
+                f"by at most {msrgcn_difference(public_model, history):.3g} mm over every scale"
+            )
         if args.profile:
             from torch.profiler import ProfilerActivity, profile
 
