@@ -56,29 +56,33 @@ def _registry(args):
 
 
 def cmd_list(args) -> int:
-    from tabulate import tabulate
+    """Each model as a short block (as ``pip show`` does): name, representation, whether it
+    trains, its description and its full reference, wrapped to the terminal."""
+    import shutil
+    import textwrap
 
     registry = _registry(args)
-    rows = []
+    width = min(100, shutil.get_terminal_size((100, 24)).columns)
+    blocks = []
     for name in registry.list_models(args.representation):
         e = registry.get(name)
-        hp = ", ".join(f"{k}={v}" for k, v in e.hparams.items())
-        rows.append(
-            [
-                name,
-                "/".join(e.representation),
-                "yes" if e.trainable else f"runs {e.weights_of}'s" if e.weights_of else "no",
-                hp if len(hp) < 70 else hp[:67] + "...",
-                e.reference.split(".")[0],
-            ]
+        trains = (
+            "trainable"
+            if e.trainable
+            else (f"runs {e.weights_of}'s weights" if e.weights_of else "not trained")
         )
-    print(
-        tabulate(
-            rows,
-            headers=["model", "representation", "trainable", "hparams", "reference"],
-            tablefmt="github",
-        )
-    )
+        lines = [f"{name}  ({'/'.join(e.representation)}; {trains})"]
+        for label, text in (("", e.description), ("Reference: ", e.reference)):
+            if text:
+                lines += textwrap.wrap(
+                    " ".join(str(text).split()),
+                    width,
+                    initial_indent="    " + label,
+                    subsequent_indent="    ",
+                )
+        blocks.append("\n".join(lines))
+    print("\n\n".join(blocks))
+    print(f"\n{len(blocks)} model(s); hyper-parameters and recipes: docs/models/<model>.md")
     return 0
 
 
@@ -790,7 +794,10 @@ def _positive_int(text: str) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from zoo.version import __version__
+
     parser = argparse.ArgumentParser(prog="zoo", description=__doc__)
+    parser.add_argument("--version", action="version", version=f"motion-zoo {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
 
     def common(p, model_required=False):

@@ -36,7 +36,7 @@ from zoo.benchmark import Benchmark, get_benchmark
 from zoo.data.windows import gather_windows
 from zoo.distributed import DistInfo, gather_shares, init_distributed
 from zoo.errors import EvaluationError
-from zoo.io import code_version
+from zoo.io import code_version, progress_bar
 from zoo.metrics import FLOOR_SUFFIX, FrameErrorMean, cumulative_mean, skeleton_errors
 from zoo.protocol import Protocol, plan_protocol
 from zoo.results import RESULT_COLUMNS, EvalResult, WindowErrors
@@ -257,10 +257,9 @@ def frame_from_windows(windows: WindowErrors, record: dict[str, Any]) -> pd.Data
 def _progress(protocol: Protocol, models: list[Scored], dist_info: DistInfo):
     """Windows scored so far, on stderr, for an evaluation that takes more than a few seconds
     (nothing for a short one; the first process only under torchrun)."""
-    from tqdm import tqdm
 
     names = ", ".join(m.name for m in models) if len(models) <= 3 else f"{len(models)} rows"
-    return tqdm(
+    return progress_bar(
         total=len(protocol.index),
         desc=f"{names} on {protocol.benchmark.name}/{protocol.sampler}",
         unit="window",

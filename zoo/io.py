@@ -200,3 +200,11 @@ def save_figure(fig, path: str | Path) -> None:
     with atomic_path(path) as tmp:
         fig.savefig(tmp, format="png", dpi=110)
     plt.close(fig)
+
+
+def progress_bar(iterable=None, **options):
+    """A tqdm progress bar on stderr, shown only to a person watching: where stderr is no
+    terminal (a log file, a pipe, CI) it stays off, as it does with ``disable=True``."""
+    from tqdm import tqdm
+
+    return tqdm(iterable, **{**options, "disable": True if options.get("disable") else None})

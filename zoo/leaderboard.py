@@ -546,7 +546,7 @@ class Leaderboard:
             # everything in the folder that this run does not produce again is carried over:
             # result folders reused or kept, and whatever else a user put there
             for entry in sorted(path.iterdir()) if path.is_dir() else ():
-                if entry.name in produced or entry.name in TABLE_FILES + RETIRED_TABLE_FILES:
+                if entry.name in produced or _table_owned(entry.name):
                     continue
                 if entry.is_dir() and not entry.is_symlink():
                     shutil.copytree(entry, tmp / entry.name, copy_function=os.link, symlinks=True)
@@ -667,7 +667,7 @@ def _verification(before: dict | None, after: dict, windows: int, seed: int | No
 
 MADE_BY = "zoo leaderboard"
 # The files of a table itself (the rows' folders are beside them).
-TABLE_FILES = (TABLE_FILE, "summary.json", "protocol.json", "efficiency.csv", "mpjpe.png")
+TABLE_FILES = (TABLE_FILE, "summary.json", "protocol.json", "efficiency.csv")
 # What older zoo versions wrote beside them and a rebuild removes: a table-wide copy of every
 # row's results.csv (zoo.results.read_table reads the rows themselves).
 RETIRED_TABLE_FILES = ("results.csv",)
@@ -677,13 +677,20 @@ class _Unchanged(Exception):
     """A table rebuilt to the same bytes: the old folder stays."""
 
 
+def _table_owned(name: str) -> bool:
+    """A file a table rebuild writes (or retires), never carried over: its own files and its
+    plots (``<metric>.png``, :func:`zoo.report.plot_files`)."""
+    return name in TABLE_FILES + RETIRED_TABLE_FILES or name.endswith(".png")
+
+
 def _same_files(old: Path, new: Path) -> bool:
     """Whether a rebuilt table's own files equal the stored ones, byte for byte (and the stored
     table holds no file a rebuild removes)."""
+    names = set(TABLE_FILES) | {p.name for folder in (old, new) for p in folder.glob("*.png")}
     return not any((old / name).exists() for name in RETIRED_TABLE_FILES) and all(
         (old / name).is_file() == (new / name).is_file()
         and (not (new / name).is_file() or (old / name).read_bytes() == (new / name).read_bytes())
-        for name in TABLE_FILES
+        for name in sorted(names)
     )
 
 

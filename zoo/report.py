@@ -1,8 +1,8 @@
 """What a leaderboard writes and draws: a table's ``leaderboard.md`` (tables from
 :mod:`zoo.tables`), ``protocol.json`` (listing its rows, whose folders beside it hold their
-numbers: :func:`zoo.results.read_table`), ``efficiency.csv`` and ``mpjpe.png``; the shipped
-models' training curves; ``results/README.md``, the index of every table. Nothing here
-evaluates."""
+numbers: :func:`zoo.results.read_table`), ``efficiency.csv`` and a ``<metric>.png`` per
+metric; the shipped models' training curves; ``results/README.md``, the index of every table.
+Nothing here evaluates."""
 
 from __future__ import annotations
 
@@ -32,8 +32,8 @@ def write_leaderboard(
     """Combine :class:`zoo.results.EvalResult` objects of one protocol into ``out_dir``:
     ``leaderboard.md``, ``summary.json`` (the same table as data,
     :func:`zoo.tables.table_summary`, and :func:`zoo.compare.table_comparisons`),
-    ``protocol.json`` and ``mpjpe.png`` (each result's own folder, beside them, holds its
-    ``results.csv``). ``efficiency`` (per row label, the costs
+    ``protocol.json`` and a ``<metric>.png`` per metric (each result's own folder, beside
+    them, holds its ``results.csv``). ``efficiency`` (per row label, the costs
     ``zoo costs`` stored: :class:`zoo.efficiency.Costs`) fills the headline's cost columns and
     ``efficiency.csv`` (a dict without a row's label: its cost cells stay empty, and the table
     says how to fill them)."""
@@ -56,7 +56,7 @@ def write_leaderboard(
     atomic_write_json(out_dir / "summary.json", summary)
     if efficiency:
         atomic_write_text(out_dir / "efficiency.csv", efficiency_csv(frame["model"], efficiency))
-    plot_average(frame, out_dir / "mpjpe.png", title=tables.splitlines()[0].lstrip("# "))
+    plot_average(frame, out_dir, title=tables.splitlines()[0].lstrip("# "))
     return out_dir
 
 
@@ -68,31 +68,70 @@ def efficiency_csv(models: Iterable[str], efficiency: dict[str, dict]) -> str:
     return costs.astype(counts).to_csv(index=False)
 
 
-def plot_average(frame: pd.DataFrame, path: str | Path, title: str = "") -> None:
-    """Error against horizon for the action average: one panel per (averaging, joints)."""
+# One colour and marker per model, in registry order, the same in every table's plot (16
+# colours far enough apart to tell; the site's script uses the same list).
+PALETTE = (
+    "#1f77b4", "#d62728", "#2ca02c", "#ff7f0e", "#9467bd", "#8c564b", "#e377c2", "#17becf",
+    "#7f7f7f", "#bcbd22", "#000080", "#00a087", "#f0027f", "#000000", "#6a3d9a", "#e6ab02",
+)  # fmt: skip
+MARKERS = ("o", "s", "^", "D", "x", "v")
+
+
+def model_style(model: str, order: list[str]) -> dict:
+    """Matplotlib style of a row: its model's colour and marker (``order``: the models in
+    palette order), dashed for an ``@last`` variant or an autoencoder floor."""
+    from zoo.metrics import FLOOR_SUFFIX
+
+    base = model.partition("@")[0].removesuffix(FLOOR_SUFFIX)
+    i = order.index(base) if base in order else len(order) + sum(map(ord, base))
+    variant = "@" in model or model.endswith(FLOOR_SUFFIX)
+    return {
+        "color": PALETTE[i % len(PALETTE)],
+        "marker": MARKERS[i % len(MARKERS)],
+        "markevery": 3,
+        "markersize": 4,
+        "linestyle": "--" if variant else "-",
+        "linewidth": 1.0 if variant else 1.6,
+    }
+
+
+def plot_files(frame: pd.DataFrame) -> list[str]:
+    """The plots a table draws: ``<metric>.png`` for each metric its rows hold."""
+    return [f"{m}.png" for m in sorted(set(frame["metric"]))]
+
+
+def plot_average(frame: pd.DataFrame, out_dir: str | Path, title: str = "") -> list[Path]:
+    """Error against horizon for the action average, one file per metric (:func:`plot_files`),
+    one panel per averaging and joint set in it."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    from zoo.registry import load_registry
+
+    order = load_registry().list_models()
     avg = frame[frame["action"] == "average"]
-    panels = sorted(avg.groupby(["metric", "averaging", "joints"]).groups)
-    fig, axes = plt.subplots(1, len(panels), figsize=(4.5 * len(panels), 3.8), squeeze=False)
-    for ax, key in zip(axes[0], panels):
-        metric, averaging, joints = key
-        sub = avg[
-            (avg["metric"] == metric) & (avg["averaging"] == averaging) & (avg["joints"] == joints)
-        ]
-        for model, rows in sub.groupby("model"):
-            rows = rows.sort_values("horizon_ms")
-            ax.plot(rows["horizon_ms"], rows["value"], marker=".", label=model)
-        ax.set_title(f"{metric} ({averaging}, {joints})", fontsize=9)
-        ax.set_xlabel("horizon (ms)")
-        ax.set_ylabel(metric_unit(metric)[0])
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=8)
-    fig.suptitle(title, fontsize=9)
-    save_figure(fig, path)
+    written = []
+    for metric, name in zip(sorted(set(frame["metric"])), plot_files(frame)):
+        mine = avg[avg["metric"] == metric]
+        unit = metric_unit(metric)[0]
+        panels = sorted(mine.groupby(["averaging", "joints"]).groups)
+        fig, axes = plt.subplots(1, len(panels), figsize=(5 * len(panels), 4.0), squeeze=False)
+        for ax, (averaging, joints) in zip(axes[0], panels):
+            sub = mine[(mine["averaging"] == averaging) & (mine["joints"] == joints)]
+            for model, rows in sub.groupby("model"):
+                rows = rows.sort_values("horizon_ms")
+                ax.plot(rows["horizon_ms"], rows["value"], label=model, **model_style(model, order))
+            ax.set_title(f"{metric.upper()}, {averaging} averaging, joints {joints}", fontsize=9)
+            ax.set_xlabel("horizon (ms)")
+            ax.set_ylabel(metric.upper() + (f" ({unit})" if len(unit) < 16 else ""))
+            ax.grid(alpha=0.3)
+            ax.legend(fontsize=7)
+        fig.suptitle(f"{metric.upper()} ({unit}) against horizon: {title}", fontsize=9)
+        save_figure(fig, Path(out_dir) / name)
+        written.append(Path(out_dir) / name)
+    return written
 
 
 def training_curves(weights_root: str | Path | None, benchmark: str) -> dict[str, dict]:
@@ -242,7 +281,10 @@ def write_index(out_root: str | Path) -> Path:
                 f"### {folder}",
                 "",
                 f"[leaderboard]({folder}/leaderboard.md) · [rows]({folder}) (each row's "
-                f"`results.csv` in its folder) · [plot]({folder}/mpjpe.png)",
+                f"`results.csv` in its folder) · plots: "
+                + ", ".join(
+                    f"[{p.stem}]({folder}/{p.name})" for p in sorted(table.parent.glob("*.png"))
+                ),
                 "",
             ]
             if headline:  # its heading and table; the leaderboard explains them

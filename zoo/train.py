@@ -69,7 +69,7 @@ from zoo.data.windows import frame_counts, gather_windows, window_sampler
 from zoo.distributed import DistInfo, init_distributed
 from zoo.errors import EvaluationError, ZooError
 from zoo.evaluate import EVAL_BATCH, checked_prediction, predict
-from zoo.io import code_version, repo_relative, sha256_file
+from zoo.io import code_version, progress_bar, repo_relative, sha256_file
 from zoo.metrics import mpjpe, vertex_rmse
 from zoo.paths import REPO_ROOT
 from zoo.registry import Registry, load_registry
@@ -1339,6 +1339,4 @@ def _write_rank_digest(out_dir: Path, model: nn.Module, dist_info: DistInfo) -> 
 def _progress(enabled: bool, total: int, desc: str):
     if not enabled:
         return None
-    from tqdm import tqdm
-
-    return tqdm(total=total, desc=desc, unit="batch", leave=False, dynamic_ncols=True)
+    return progress_bar(total=total, desc=desc, unit="batch", leave=False, dynamic_ncols=True)

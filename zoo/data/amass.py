@@ -31,7 +31,7 @@ import torch
 from zoo.data.expmap import DataFormatError
 from zoo.data.mesh import MeshDataset, MeshSequence, MeshTopology
 from zoo.data.skeleton import kinematic_chain, rodrigues
-from zoo.io import sha256_file
+from zoo.io import progress_bar, sha256_file
 
 AMASS_KEYS = ("poses", "betas", "trans", "gender", "mocap_framerate")
 MODEL_KEYS = ("v_template", "shapedirs", "posedirs", "J_regressor", "weights", "kintree_table", "f")
@@ -343,7 +343,6 @@ def build_amass(
     joint regressor is the model's first 22 rows (the body joints, root included). Cached in
     ``<cache>/datasets/<name>-<split>-<recipe_hash>`` like the other mesh datasets.
     """
-    from tqdm.auto import tqdm
 
     from zoo.data.mesh import cache_root
 
@@ -401,7 +400,8 @@ def build_amass(
     topology = MeshTopology(first.faces, first.num_vertices, name=f"{name}-smplh")
     sequences = []
     for path, entry in zip(
-        tqdm(paths, desc=f"{name}-{split}", unit="file", disable=not progress), recipe["files"]
+        progress_bar(paths, desc=f"{name}-{split}", unit="file", disable=not progress),
+        recipe["files"],
     ):
         motion = read_amass(path, first.num_joints)
         body = loaded.get("any") or loaded.get(motion.gender)

@@ -80,7 +80,7 @@ from zoo.data.mesh import (
 )
 from zoo.data.motion import found_entries
 from zoo.errors import DataNotFoundError
-from zoo.io import atomic_path, sha256_file
+from zoo.io import atomic_path, progress_bar, sha256_file
 from zoo.paths import REPO_ROOT
 
 # BVH name -> Anny ``cmu_mb`` bone name where they differ (all others are the same).
@@ -1045,9 +1045,8 @@ def build_cmu_anny(
     )
     to_bvh = [model.bone_labels.index(BVH_TO_ANNY.get(n, n)) for n in CMU_BVH_JOINTS]
     sequences, rig_joints = [], []
-    from tqdm.auto import tqdm
 
-    bar = tqdm(chosen, desc=name, unit="trial", disable=not progress)
+    bar = progress_bar(chosen, desc=name, unit="trial", disable=not progress)
     frames_done = 0
     for trial, entry in zip(bar, recipe["trials"]):
         bvh = read_bvh(trial.path, CMU_BVH_JOINTS)

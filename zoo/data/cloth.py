@@ -58,6 +58,7 @@ from zoo.data.mesh import (
     cache_root,
     quantise_vertices,
 )
+from zoo.io import progress_bar
 
 SPLITS = {"train": 0, "test": 1, "val": 2}
 ACTION = "fall"
@@ -279,9 +280,7 @@ def simulate_cloth(
     out[0] = x * 1000.0
     frames = range(1, config.frames)
     if progress:
-        from tqdm import tqdm
-
-        frames = tqdm(frames, desc=f"cloth {split} x{n_seq}", unit="frame")
+        frames = progress_bar(frames, desc=f"cloth {split} x{n_seq}", unit="frame")
     for frame in frames:
         pairs = _collision_candidates(x, cons.exclude, 2 * thickness) if thickness > 0 else None
         for _ in range(config.substeps):
@@ -407,9 +406,7 @@ def generate_cloth(
     ]
     bar = None
     if progress:
-        from tqdm import tqdm
-
-        bar = tqdm(total=count, desc=f"cloth {split}", unit="seq")
+        bar = progress_bar(total=count, desc=f"cloth {split}", unit="seq")
     sequences = []
     with ProcessPoolExecutor(workers) if workers > 1 else nullcontext() as pool:
         done = pool.map(_simulate_chunk, chunks) if pool else map(_simulate_chunk, chunks)

@@ -23,6 +23,7 @@ import numpy as np
 from zoo.errors import ZooError
 from zoo.io import replace_folder
 from zoo.metrics import FLOOR_SUFFIX
+from zoo.report import PALETTE
 from zoo.site.collect import Benchmark, Table, read_benchmarks, read_models
 
 HERE = Path(__file__).parent
@@ -221,12 +222,15 @@ def build_site(
     env = _environment()
     build = SiteBuild(Path(out))
     model_pages = {m.page for m in models}
-    model_names = sorted({m.name for m in models} | _row_models(benchmarks))
+    # registry order, as the leaderboards' PNG plots colour them (zoo.report.model_style)
+    known = registry.list_models()
+    model_names = known + sorted(_row_models(benchmarks) - set(known))
     common = {
         "version": __version__,
         "benchmarks": benchmarks,
         "models": models,
         "palette_models": model_names,
+        "palette_colours": list(PALETTE),
     }
     images: dict[str, Path] = {}
     pages: dict[str, str] = {}

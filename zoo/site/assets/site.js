@@ -2,10 +2,8 @@
    curves, drawn as SVG from the numbers inlined in each page. No network, no library. */
 "use strict";
 var ZooSite = (function () {
-  // 16 colours apart enough to tell: every model of the zoo has its own, on every page
-  var COLOURS = ["#1f77b4", "#d62728", "#2ca02c", "#ff7f0e", "#9467bd", "#8c564b",
-                 "#e377c2", "#17becf", "#7f7f7f", "#bcbd22", "#393b79", "#637939",
-                 "#8c6d31", "#843c39", "#7b4173", "#3182bd"];
+  // zoo.report.PALETTE, passed by the page: every model has its own colour, on every page and plot
+  var COLOURS = window.ZOO_PALETTE_COLOURS || ["#1f77b4"];
   var MARKERS = ["circle", "square", "triangle", "diamond", "cross", "down"];
   var SVG = "http://www.w3.org/2000/svg";
 

@@ -1,0 +1,46 @@
+"""Command-line conventions users know: ``zoo --version``, and no progress bars where nobody
+watches (stderr not a terminal: a log file, a pipe, CI)."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+from zoo.version import __version__
+
+
+def test_version():
+    out = subprocess.run(
+        [sys.executable, "-m", "zoo.cli", "--version"], capture_output=True, text=True
+    )
+    assert out.returncode == 0 and out.stdout.strip() == f"motion-zoo {__version__}"
+
+
+def test_no_progress_bars_when_stderr_is_not_a_terminal(capsys):
+    from zoo.io import progress_bar
+
+    # pytest captures stderr: no terminal, so no bar, whether or not one was asked for
+    assert progress_bar(range(2)).disable and progress_bar(range(2), disable=False).disable
+    assert progress_bar(range(2), disable=True).disable
+    # every bar of the zoo comes from that one helper
+    from pathlib import Path
+
+    import zoo
+
+    users = [
+        p.name
+        for p in Path(zoo.__file__).parent.rglob("*.py")
+        if "from tqdm" in p.read_text() and p.name != "io.py"
+    ]
+    assert users == []
+
+
+def test_list_shows_each_models_description_and_full_reference(capsys):
+    from zoo.cli import main
+    from zoo.registry import load_registry
+
+    assert main(["list"]) == 0
+    out = " ".join(capsys.readouterr().out.split())
+    mlp = load_registry().get("mlp")
+    assert "siMLPe" in out and " ".join(mlp.reference.split()) in out
+    assert " ".join(mlp.description.split()) in out
