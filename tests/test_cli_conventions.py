@@ -44,3 +44,22 @@ def test_list_shows_each_models_description_and_full_reference(capsys):
     mlp = load_registry().get("mlp")
     assert "siMLPe" in out and " ".join(mlp.reference.split()) in out
     assert " ".join(mlp.description.split()) in out
+
+
+def test_every_option_of_every_command_has_help():
+    import argparse
+
+    from zoo.cli import build_parser
+
+    missing = []
+
+    def walk(parser, path):
+        for action in parser._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                for name, child in action.choices.items():
+                    walk(child, [*path, name])
+            elif action.option_strings and not action.help:
+                missing.append(f"{' '.join(path)} {action.option_strings[0]}")
+
+    walk(build_parser(), ["zoo"])
+    assert missing == []

@@ -811,8 +811,10 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--device", default="cpu", help="torch device (default cpu)")
 
     p = sub.add_parser("list", help="list registered models")
-    p.add_argument("--registry", action="append", metavar="YAML")
-    p.add_argument("--representation", choices=["joints", "mesh"])
+    p.add_argument("--registry", action="append", metavar="YAML", help="extra registry file")
+    p.add_argument(
+        "--representation", choices=["joints", "mesh"], help="only models of this representation"
+    )
     p.set_defaults(func=cmd_list)
 
     p = sub.add_parser("eval", help="evaluate one model on one benchmark")
@@ -851,7 +853,12 @@ def build_parser() -> argparse.ArgumentParser:
         default=EVAL_BATCH,
         help=f"windows per forward pass (default {EVAL_BATCH})",
     )
-    p.add_argument("--task", default="prediction", choices=["prediction", "completion", "longterm"])
+    p.add_argument(
+        "--task",
+        default="prediction",
+        choices=["prediction", "completion", "longterm"],
+        help="what the model is asked: the next frames, the frames between, or a long rollout",
+    )
     p.add_argument("--horizon-frames", type=int, help="frames to predict for --task longterm")
     p.add_argument(
         "--ground-truth",
@@ -1037,30 +1044,42 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--results", default=str(RESULTS_DIR), help="results root (default results/)")
     p.add_argument("--metric", help="default: the benchmark's headline (mpjpe; rmse on meshes)")
     p.add_argument("--joints", help="joint protocol (default: the official one, e.g. all38)")
-    p.add_argument("--averaging", default="frame", choices=["frame", "cumulative"])
+    p.add_argument(
+        "--averaging",
+        default="frame",
+        choices=["frame", "cumulative"],
+        help="error at each frame, or the mean up to it",
+    )
     p.add_argument(
         "--block-frames",
         type=_positive_int,
         help="bootstrap block length in frames (default: eight window lengths)",
     )
-    p.add_argument("--confidence", type=float, default=0.95)
-    p.add_argument("--replicates", type=_positive_int, default=2000)
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--confidence", type=float, default=0.95, help="level of the intervals")
+    p.add_argument("--replicates", type=_positive_int, default=2000, help="bootstrap replicates")
+    p.add_argument("--seed", type=int, default=0, help="seed of the bootstrap")
     p.add_argument("--out", help="also write comparison.md and comparison.png here")
     p.set_defaults(func=cmd_compare)
 
     p = sub.add_parser("render", help="ground truth and prediction side by side (PNG, .glb)")
     common(p)
-    p.add_argument("--model")
-    p.add_argument("--checkpoint")
+    p.add_argument("--model", help="registered model name")
+    p.add_argument("--checkpoint", help="trained checkpoint (from zoo train)")
     p.add_argument("--weights", help="shipped weights (weights/<benchmark>/<label>.safetensors)")
     p.add_argument(
         "--benchmark", help="mesh benchmark (default: the checkpoint's or weights', else cloth)"
     )
-    p.add_argument("--windows", type=int, nargs="+", default=[0, 1, 2])
-    p.add_argument("--set", action="append", metavar="KEY=VALUE")
-    p.add_argument("--task", default="prediction", choices=["prediction", "completion", "longterm"])
-    p.add_argument("--horizon-frames", type=int)
+    p.add_argument(
+        "--windows", type=int, nargs="+", default=[0, 1, 2], help="test windows to draw, by number"
+    )
+    p.add_argument("--set", action="append", metavar="KEY=VALUE", help="model hyper-parameter")
+    p.add_argument(
+        "--task",
+        default="prediction",
+        choices=["prediction", "completion", "longterm"],
+        help="what the model is asked: the next frames, the frames between, or a long rollout",
+    )
+    p.add_argument("--horizon-frames", type=int, help="frames to predict for --task longterm")
     p.add_argument("--out", help="folder (default results/<benchmark>/renders)")
     p.set_defaults(func=cmd_render)
 
@@ -1101,8 +1120,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("train", help="train a model on a benchmark's training split")
     common(p)
-    p.add_argument("--model", required=True)
-    p.add_argument("--benchmark", default="cmu")
+    p.add_argument("--model", required=True, help="registered model name")
+    p.add_argument("--benchmark", default="cmu", help="benchmark whose training split to learn")
     p.add_argument("--epochs", type=int, help="default: the registry recipe's")
     p.add_argument("--out", help="run folder (default checkpoints/<benchmark>/<model>)")
     p.add_argument("--set", action="append", metavar="KEY=VALUE", help="model hyper-parameter")
@@ -1120,9 +1139,13 @@ def build_parser() -> argparse.ArgumentParser:
         "(.safetensors) of the same model and benchmark, with a fresh optimiser "
         "and schedule: a new stage of training, recorded with the source's budget",
     )
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=int, default=0, help="seed of weights, order and dropout")
     p.add_argument("--max-batches", type=int, help="cap batches per epoch (quick runs)")
-    p.add_argument("--no-progress", action="store_true")
+    p.add_argument(
+        "--no-progress",
+        action="store_true",
+        help="no progress bar even on a terminal (a log or pipe never gets one)",
+    )
     p.add_argument(
         "--cuda-graph",
         action="store_true",
