@@ -222,6 +222,7 @@ def test_a_card_cannot_run_a_script_or_load_from_the_network(tmp_path):
     build_site(tmp_path / "site", results, cards_dir=cards)
     html = (tmp_path / "site" / "model-spectrhums.html").read_text()
     assert "<script>alert" not in html and "&lt;script&gt;alert(1)&lt;/script&gt;" in html
+    assert "&lt;!--" not in html  # the card's comments are not shown
     assert not re.search(r"<img[^>]* src=\"https?:", html)
     assert 'href="model-mlp.html"' in html
     assert not (tmp_path / "site" / "cards" / "README.md").exists()

@@ -71,7 +71,9 @@ def _markdown(text: str, model_pages: set[str], images: dict[str, Path], cards_d
     the card are copied into the site, any other relative link is kept as text."""
     from markdown_it import MarkdownIt
 
-    # raw HTML in a card stays text: a card can neither run a script nor load from the network
+    # raw HTML in a card stays text: a card can neither run a script nor load from the network;
+    # its comments (the generated part's markers) are for its editors, not its readers
+    text = re.sub(r"<!--.*?-->", "", text, flags=re.S)
     html = MarkdownIt("commonmark", {"html": False}).enable("table").render(text)
 
     def link(match: re.Match) -> str:
