@@ -793,6 +793,19 @@ def _positive_int(text: str) -> int:
     return value
 
 
+def task_options(p) -> None:
+    """``--task`` (one of the evaluator's tasks, ``zoo.protocol.TASKS``) and its horizon."""
+    from zoo.protocol import TASKS
+
+    p.add_argument(
+        "--task",
+        default="prediction",
+        choices=list(TASKS),
+        help="what the model is asked: the next frames, the frames between, or a long rollout",
+    )
+    p.add_argument("--horizon-frames", type=int, help="frames to predict for --task longterm")
+
+
 def build_parser() -> argparse.ArgumentParser:
     from zoo.version import __version__
 
@@ -853,13 +866,7 @@ def build_parser() -> argparse.ArgumentParser:
         default=EVAL_BATCH,
         help=f"windows per forward pass (default {EVAL_BATCH})",
     )
-    p.add_argument(
-        "--task",
-        default="prediction",
-        choices=["prediction", "completion", "longterm"],
-        help="what the model is asked: the next frames, the frames between, or a long rollout",
-    )
-    p.add_argument("--horizon-frames", type=int, help="frames to predict for --task longterm")
+    task_options(p)
     p.add_argument(
         "--ground-truth",
         choices=["raw", "spectral"],
@@ -1073,13 +1080,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--windows", type=int, nargs="+", default=[0, 1, 2], help="test windows to draw, by number"
     )
     p.add_argument("--set", action="append", metavar="KEY=VALUE", help="model hyper-parameter")
-    p.add_argument(
-        "--task",
-        default="prediction",
-        choices=["prediction", "completion", "longterm"],
-        help="what the model is asked: the next frames, the frames between, or a long rollout",
-    )
-    p.add_argument("--horizon-frames", type=int, help="frames to predict for --task longterm")
+    task_options(p)
     p.add_argument("--out", help="folder (default results/<benchmark>/renders)")
     p.set_defaults(func=cmd_render)
 

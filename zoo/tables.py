@@ -339,13 +339,16 @@ def table_view(
     averaging: str,
     joints: str,
     horizons_ms: Iterable[int] | None = None,
+    frame: pd.DataFrame | None = None,
 ) -> TableView | None:
     """The :class:`TableView` of ``results`` (one table's rows) for ``metric``, ``averaging``
-    and ``joints``; None where no row has that combination."""
+    and ``joints``; None where no row has that combination. ``frame``: the rows' frames
+    concatenated, where the caller has it already."""
     from zoo.intervals import best_set, interval
     from zoo.metrics import cumulative_mean
 
-    frame = pd.concat([r.frame for r in results], ignore_index=True)
+    if frame is None:
+        frame = pd.concat([r.frame for r in results], ignore_index=True)
     rows = frame[
         (frame["metric"] == metric)
         & (frame["joints"] == joints)
@@ -416,15 +419,16 @@ def table_summary(results: list, horizons_ms: Iterable[int] | None = None) -> di
     Markdown's: per (metric, averaging, joints), each row's action average at the table's
     horizons with half its interval and whether it is bold, its value per action, its curve over
     every predicted frame, and the published rows of that very protocol."""
-    from zoo.published import place
+    from zoo.published import load_published, place
 
     record = results[0].protocol
     frame = pd.concat([r.frame for r in results], ignore_index=True)
+    entries = load_published()  # read once for every view
     metric_h, joints_h = headline_key(record)
     order = _action_order(record)
     views = []
     for (metric, averaging, joints), group in frame.groupby(["metric", "averaging", "joints"]):
-        view = table_view(results, metric, averaging, joints, horizons_ms)
+        view = table_view(results, metric, averaging, joints, horizons_ms, frame)
         if view is None:
             continue
         horizons = view.horizons
@@ -454,7 +458,7 @@ def table_summary(results: list, horizons_ms: Iterable[int] | None = None) -> di
                     ],
                 }
             )
-        placed = place(record, metric, averaging, joints)
+        placed = place(record, metric, averaging, joints, entries)
         views.append(
             {
                 "metric": metric,

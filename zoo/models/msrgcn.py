@@ -92,28 +92,29 @@ class Blocks(nn.Module):
         return self.blocks(x) + x
 
 
-class NodeMap(nn.Module):
-    """A linear map over the nodes ``(B, N_in, F) -> (B, N_out, F)``, then the activation."""
+class AxisMap(nn.Module):
+    """A linear map over one axis of ``(B, N, F)``, then the activation: over the nodes
+    (``(B, N_in, F) -> (B, N_out, F)``, ``other`` = F) or over the features
+    (``(B, N, F_in) -> (B, N, F_out)``, ``other`` = N)."""
 
-    def __init__(self, nodes_in: int, nodes_out: int, features: int, slope, dropout) -> None:
+    def __init__(self, size_in: int, size_out: int, other: int, slope, dropout, nodes: bool):
         super().__init__()
-        self.linear = nn.Linear(nodes_in, nodes_out)
-        self.act = _Activation(nodes_out * features, slope, dropout)
+        self.nodes = nodes
+        self.linear = nn.Linear(size_in, size_out)
+        self.act = _Activation(size_out * other, slope, dropout)
 
     def forward(self, x: Tensor) -> Tensor:
-        return self.act(self.linear(x.transpose(1, 2))).transpose(1, 2)
-
-
-class FeatureMap(nn.Module):
-    """A linear map over the features ``(B, N, F_in) -> (B, N, F_out)``, then the activation."""
-
-    def __init__(self, nodes: int, features_in: int, features_out: int, slope, dropout) -> None:
-        super().__init__()
-        self.linear = nn.Linear(features_in, features_out)
-        self.act = _Activation(nodes * features_out, slope, dropout)
-
-    def forward(self, x: Tensor) -> Tensor:
+        if self.nodes:
+            return self.act(self.linear(x.transpose(1, 2))).transpose(1, 2)
         return self.act(self.linear(x))
+
+
+def NodeMap(nodes_in: int, nodes_out: int, features: int, slope, dropout) -> AxisMap:
+    return AxisMap(nodes_in, nodes_out, features, slope, dropout, nodes=True)
+
+
+def FeatureMap(nodes: int, features_in: int, features_out: int, slope, dropout) -> AxisMap:
+    return AxisMap(features_in, features_out, nodes, slope, dropout, nodes=False)
 
 
 class MSRGCN(nn.Module):
