@@ -16,6 +16,27 @@ def test_version():
     assert out.returncode == 0 and out.stdout.strip() == f"motion-zoo {__version__}"
 
 
+def test_help_and_import_zoo_load_no_torch():
+    """``zoo --help``, a command's help and ``import zoo`` answer without loading torch or pandas
+    (they take seconds to import); the API loads them when first called."""
+    probe = (
+        "import sys\n"
+        "from zoo.cli import main\n"
+        "for argv in (['--help'], ['eval', '--help'], ['leaderboard', '--help']):\n"
+        "    try:\n"
+        "        main(argv)\n"
+        "    except SystemExit:\n"
+        "        pass\n"
+        "import zoo\n"
+        "assert callable(zoo.evaluate) and callable(zoo.compare), 'API not exported'\n"
+        "heavy = sorted({'torch', 'pandas'} & set(sys.modules))\n"
+        "print('HEAVY', heavy)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip().splitlines()[-1] == "HEAVY []"
+
+
 def test_no_progress_bars_when_stderr_is_not_a_terminal(capsys):
     from zoo.io import progress_bar
 

@@ -5,6 +5,7 @@ import json
 import numpy as np
 import pytest
 
+import zoo
 from zoo.data import cloth
 from zoo.data.cloth import ClothConfig, cloth_dir, cloth_mesh, load_cloth, simulate_cloth
 from zoo.data.mesh import MeshError
@@ -120,17 +121,16 @@ def test_bad_arguments_are_named():
 
 
 def test_cloth_benchmark_on_a_small_cloth(tmp_path):
-    from zoo.evaluate import evaluate
     from zoo.models.repeat_last import RepeatLast
 
     small = ClothConfig(grid=(10, 10), substeps=5, test_sequences=2)  # 50 frames, like the default
     dataset = load_cloth("test", small, cache_dir=tmp_path)
     # MELV on the raw frames: this 100-vertex cloth has no room for the benchmark's k = 256
-    result = evaluate(
+    result = zoo.evaluate(
         RepeatLast(25, 25, 100),
         "cloth",
         dataset=dataset,
-        model_name="repeat_last",
+        label="repeat_last",
         melv_frames="raw",
     )
     frame = result.frame[(result.frame.action == "average") & (result.frame.averaging == "frame")]
@@ -154,11 +154,10 @@ def test_cloth_benchmark_on_a_small_cloth(tmp_path):
 def test_default_cloth_benchmark_end_to_end(tmp_path, monkeypatch):
     """Builds the default test split (100 sequences) and evaluates repeat_last on it."""
     from zoo import create_model
-    from zoo.evaluate import evaluate
 
     monkeypatch.setenv("ZOO_CACHE_DIR", str(tmp_path))
     model = create_model("repeat_last", benchmark="cloth")
-    result = evaluate(model, "cloth", model_name="repeat_last")
+    result = zoo.evaluate(model, "cloth", label="repeat_last")
     assert result.protocol["windows_per_action"] == {"fall": 100}
     assert result.protocol["num_vertices"] == 484
     assert (tmp_path / "datasets" / f"cloth-{result.protocol['recipe_hash']}").is_dir()

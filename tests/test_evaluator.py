@@ -7,10 +7,11 @@ import pandas as pd
 import pytest
 from conftest import LEAF_OFFSET, write_cmu_file
 
+import zoo
 from zoo import create_model
 from zoo.benchmark import get_benchmark
 from zoo.cli import main
-from zoo.evaluate import EvaluationError, evaluate
+from zoo.evaluation import EvaluationError
 from zoo.metrics import cumulative_mean
 from zoo.tables import ProtocolMismatchError, markdown_tables
 
@@ -25,10 +26,10 @@ def expected_repeat_last(omega, t):
 def test_repeat_last_by_hand(swinging_cmu, sampler):
     root, omega = swinging_cmu
     bench = get_benchmark("cmu")
-    df = evaluate(
+    df = zoo.evaluate(
         create_model("repeat_last", benchmark=bench),
         bench,
-        model_name="repeat_last",
+        label="repeat_last",
         sampler=sampler,
         data_root=root,
     ).frame
@@ -67,10 +68,10 @@ def test_action_average_is_unweighted_over_actions(tmp_path):
     write_cmu_file(root / "test" / "walking" / "walking_1.txt", 0.01 * np.arange(200))
     write_cmu_file(root / "test" / "running" / "running_1.txt", 0.03 * np.arange(400))
     bench = get_benchmark("cmu")
-    result = evaluate(
+    result = zoo.evaluate(
         create_model("repeat_last", benchmark=bench),
         bench,
-        model_name="rl",
+        label="rl",
         sampler="all",
         data_root=root,
     )
@@ -91,8 +92,8 @@ def test_rows_of_different_protocols_refuse_to_share_a_table(swinging_cmu):
     root, _ = swinging_cmu
     bench = get_benchmark("cmu")
     model = create_model("repeat_last", benchmark=bench)
-    a = evaluate(model, bench, model_name="a", sampler="ltd8", data_root=root)
-    b = evaluate(model, bench, model_name="b", sampler="all", data_root=root)
+    a = zoo.evaluate(model, bench, label="a", sampler="ltd8", data_root=root)
+    b = zoo.evaluate(model, bench, label="b", sampler="all", data_root=root)
     frame = pd.concat([a.frame, b.frame])
     records = {r.protocol["protocol_id"]: r.protocol for r in (a, b)}
     with pytest.raises(
@@ -100,7 +101,7 @@ def test_rows_of_different_protocols_refuse_to_share_a_table(swinging_cmu):
     ):
         markdown_tables(frame, records)
     # Same protocol, different models: one table.
-    c = evaluate(model, bench, model_name="c", sampler="ltd8", data_root=root)
+    c = zoo.evaluate(model, bench, label="c", sampler="ltd8", data_root=root)
     text = markdown_tables(
         pd.concat([a.frame, c.frame]), {r.protocol["protocol_id"]: r.protocol for r in (a, c)}
     )
@@ -116,7 +117,7 @@ def test_model_breaking_the_contract_is_named(swinging_cmu):
 
     root, _ = swinging_cmu
     with pytest.raises(EvaluationError, match=r"model 'wrong' returned \(.*10, 25, 3\).*25, 25, 3"):
-        evaluate(Wrong(), "cmu", model_name="wrong", data_root=root)
+        zoo.evaluate(Wrong(), "cmu", label="wrong", data_root=root)
 
 
 def test_cli_contract_writes_results_and_protocol(swinging_cmu, tmp_path):
@@ -219,7 +220,7 @@ def test_two_process_evaluation_equals_one_to_the_last_digit(tmp_path):
 
 def test_processes_score_disjoint_batches_that_cover_every_window():
     from zoo.distributed import DistInfo
-    from zoo.evaluate import _my_batches
+    from zoo.evaluation import _my_batches
 
     shares = [list(_my_batches(100, 16, DistInfo(rank, 3))) for rank in range(3)]
     assert shares == [[0, 48, 96], [16, 64], [32, 80]]
@@ -234,10 +235,10 @@ def test_result_folders_are_replaced_whole_and_refuse_a_second_writer(
 
     root, _ = swinging_cmu
     bench = get_benchmark("cmu")
-    result = evaluate(
+    result = zoo.evaluate(
         create_model("repeat_last", benchmark=bench),
         bench,
-        model_name="repeat_last",
+        label="repeat_last",
         sampler="ltd8",
         data_root=root,
     )

@@ -3,13 +3,13 @@
 import numpy as np
 import pytest
 
+import zoo
 from zoo import create_model
 from zoo.benchmark import get_benchmark
 from zoo.data.expmap import DataFormatError
 from zoo.data.motion import load_h36m
 from zoo.data.windows import window_sampler
 from zoo.errors import DataNotFoundError
-from zoo.evaluate import evaluate
 
 ACTIONS = ("walking", "eating")
 
@@ -56,8 +56,8 @@ def test_repeat_last_runs_on_h36m_with_32_joint_scoring(tmp_path):
     root = write_h36m(tmp_path)
     bench = get_benchmark("h36m")
     dataset = load_h36m(root, "test", actions=ACTIONS)
-    result = evaluate(
-        create_model("repeat_last", benchmark=bench), bench, model_name="rl", dataset=dataset
+    result = zoo.evaluate(
+        create_model("repeat_last", benchmark=bench), bench, label="rl", dataset=dataset
     )
     assert set(result.frame.joints) == {"all32", "used22"}
     assert result.protocol["windows_per_action"] == {"walking": 8, "eating": 8}

@@ -9,11 +9,12 @@ import pytest
 import torch
 from conftest import write_cmu_file
 
+import zoo
 from zoo import create_model
 from zoo.benchmark import get_benchmark
 from zoo.cli import main
-from zoo.compare import ComparisonError, compare
-from zoo.evaluate import EvaluationError, evaluate
+from zoo.comparison import ComparisonError, compare
+from zoo.evaluation import EvaluationError
 from zoo.intervals import (
     block_replicates,
     coverage_record,
@@ -209,7 +210,7 @@ class Offset(torch.nn.Module):
 
 def evaluated(root, model, label, sampler="all"):
     bench = get_benchmark("cmu")
-    return evaluate(model, bench, model_name=label, sampler=sampler, data_root=root)
+    return zoo.evaluate(model, bench, label=label, sampler=sampler, data_root=root)
 
 
 def test_per_window_errors_are_written_and_average_to_the_table(cmu_root, tmp_path):

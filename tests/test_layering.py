@@ -62,7 +62,7 @@ def circles(graph: dict[str, set[str]]) -> list[list[str]]:
 
 def test_no_import_circles():
     graph = import_graph()
-    assert "zoo.protocol" in graph["zoo.evaluate"] and "zoo.paths" in graph["zoo.registry"]
+    assert "zoo.protocol" in graph["zoo.evaluation"] and "zoo.paths" in graph["zoo.registry"]
     assert circles(graph) == []
 
 

@@ -9,12 +9,13 @@ import scipy.sparse as sp
 import torch
 import yaml
 
+import zoo
 from zoo import benchmark as benchmark_module
 from zoo import create_model
 from zoo.benchmark import BenchmarkError, get_benchmark
 from zoo.data.mesh import MeshDataset, MeshError, MeshSequence, MeshTopology, regress_joints
 from zoo.data.spectral import SpectralBasis, SpectralError
-from zoo.evaluate import EvaluationError, evaluate
+from zoo.evaluation import EvaluationError
 from zoo.metrics import melv, mpjpe, vertex_rmse
 from zoo.models.repeat_last import RepeatLast
 from zoo.tables import markdown_tables
@@ -134,7 +135,7 @@ def test_mesh_evaluation_by_hand(toy_bench, tmp_path):
     bench = toy_bench(spectral_k=2, ground_truths=["raw", "spectral"], melv_frames="raw")
     model = create_model("repeat_last", benchmark=bench)
     assert model.num_points == 4
-    result = evaluate(model, bench, model_name="repeat_last")
+    result = zoo.evaluate(model, bench, label="repeat_last")
     frame, k = result.frame, np.arange(1, 4)
     # Reference = frame 1 (last observed), predicted frame k is frame 1 + k; the square scales.
     expected = {}
@@ -180,10 +181,8 @@ def test_mesh_evaluation_by_hand(toy_bench, tmp_path):
 
 def test_spectral_ground_truth(toy_bench):
     full = toy_bench(spectral_k=4, ground_truths=["raw", "spectral"], melv_frames="raw")
-    raw = evaluate(RepeatLast(2, 3, 4), full, model_name="repeat_last")
-    spectral = evaluate(
-        RepeatLast(2, 3, 4), full, model_name="repeat_last", ground_truth="spectral"
-    )
+    raw = zoo.evaluate(RepeatLast(2, 3, 4), full, label="repeat_last")
+    spectral = zoo.evaluate(RepeatLast(2, 3, 4), full, label="repeat_last", ground_truth="spectral")
     basis = SpectralBasis.load_or_compute(toy_dataset().topology, 4)
     assert spectral.protocol["ground_truth"] == "spectral4"
     assert spectral.protocol["spectral_basis"]["hash"] == basis.hash
@@ -191,12 +190,12 @@ def test_spectral_ground_truth(toy_bench):
     # k = V: the reconstruction is the data itself, so the numbers agree.
     np.testing.assert_allclose(spectral.frame.value, raw.frame.value, rtol=1e-4, atol=1e-5)
     # k = 1 keeps only the mean of each coordinate: nothing moves but the centroid.
-    low = evaluate(
+    low = zoo.evaluate(
         RepeatLast(2, 3, 4),
         toy_bench(
             spectral_k=1, ground_truth="spectral", ground_truths=["spectral"], melv_frames="raw"
         ),
-        model_name="repeat_last",
+        label="repeat_last",
     )
     np.testing.assert_allclose(rows(low.frame, "ground_truth", "melv")["a"], 0, atol=1e-5)
     np.testing.assert_allclose(
@@ -205,10 +204,10 @@ def test_spectral_ground_truth(toy_bench):
         rtol=1e-5,
     )
     with pytest.raises(SpectralError, match=r"k must be an integer in \[1, 4\]"):
-        evaluate(
+        zoo.evaluate(
             RepeatLast(2, 3, 4),
             toy_bench(spectral_k=5, ground_truth="spectral", ground_truths=["spectral"]),
-            model_name="x",
+            label="x",
         )
 
 
@@ -225,7 +224,7 @@ def test_basis_context_and_model_contract(toy_bench):
             super().__init__(**kwargs)
             self.basis = basis
 
-    result = evaluate(WithBasis(**inputs), bench, model_name="with_basis")
+    result = zoo.evaluate(WithBasis(**inputs), bench, label="with_basis")
     assert result.protocol["provenance"]["model_basis"]["hash"] == inputs["basis"].hash
 
     class Wrong(RepeatLast):
@@ -233,9 +232,9 @@ def test_basis_context_and_model_contract(toy_bench):
             return history[:, -1:]
 
     with pytest.raises(EvaluationError, match=r"returned \(3, 1, 4, 3\).*expects \(3, 3, 4, 3\)"):
-        evaluate(Wrong(2, 3, 4), bench, model_name="wrong")
+        zoo.evaluate(Wrong(2, 3, 4), bench, label="wrong")
     with pytest.raises(EvaluationError, match="found no window of 6 frames"):
-        evaluate(RepeatLast(3, 3, 4), toy_bench(input_frames=3), model_name="x")
+        zoo.evaluate(RepeatLast(3, 3, 4), toy_bench(input_frames=3), label="x")
 
 
 def test_mesh_benchmark_files_are_checked(toy_bench, tmp_path):
@@ -253,7 +252,7 @@ def test_mesh_benchmark_files_are_checked(toy_bench, tmp_path):
     assert cloth.representation == "mesh" and cloth.spectral_k == 256
     assert (cloth.input_frames, cloth.output_frames) == (25, 25)
     with pytest.raises(EvaluationError, match="mesh benchmarks only"):
-        evaluate(RepeatLast(10, 25, 25), "cmu", model_name="x", ground_truth="raw")
+        zoo.evaluate(RepeatLast(10, 25, 25), "cmu", label="x", ground_truth="raw")
 
 
 def test_skeleton_models_see_the_regressed_joints_of_the_same_windows(toy_bench):
@@ -262,7 +261,7 @@ def test_skeleton_models_see_the_regressed_joints_of_the_same_windows(toy_bench)
     assert bench.view_for(("joints",)) == "joints" and bench.view_for(("joints", "mesh")) == "mesh"
     inputs = bench.model_inputs((), dataset=dataset, view="joints")
     assert inputs["num_points"] == 1  # one regressed joint, the centroid
-    mesh = evaluate(RepeatLast(2, 3, 4), bench, model_name="repeat_last", dataset=dataset)
+    mesh = zoo.evaluate(RepeatLast(2, 3, 4), bench, label="repeat_last", dataset=dataset)
     seen = []
 
     class JointsRepeatLast(RepeatLast):
@@ -270,8 +269,8 @@ def test_skeleton_models_see_the_regressed_joints_of_the_same_windows(toy_bench)
             seen.append(history.clone())
             return super().forward(history)
 
-    joints = evaluate(
-        JointsRepeatLast(**inputs), bench, model_name="joints_model", dataset=dataset, view="joints"
+    joints = zoo.evaluate(
+        JointsRepeatLast(**inputs), bench, label="joints_model", dataset=dataset, view="joints"
     )
     # The model got the centroids of the observed frames: (5, 5, 0) scaled by 1 + rate * t.
     first = seen[0][0, :, 0]
@@ -289,7 +288,7 @@ def test_skeleton_models_see_the_regressed_joints_of_the_same_windows(toy_bench)
 
     bare = MeshDataset("bare", "test", dataset.topology, dataset.sequences, recipe={})
     with pytest.raises(EvaluationError, match="bare has no joint regressor"):
-        evaluate(JointsRepeatLast(**inputs), bench, model_name="x", dataset=bare, view="joints")
+        zoo.evaluate(JointsRepeatLast(**inputs), bench, label="x", dataset=bare, view="joints")
     with pytest.raises(MeshError, match="no joint regressor"):
         bench.model_inputs((), dataset=bare, view="joints")
     with pytest.raises(MeshError, match="cannot tell upper from lower body"):
@@ -312,7 +311,7 @@ def test_joints_view_body_parts_from_bvh_names():
 def test_linear_interpolation_completes_a_uniform_scaling_exactly(toy_bench):
     bench = toy_bench()
     model = create_model("interpolate", benchmark=bench)
-    result = evaluate(model, bench, model_name="interpolate", task="completion")
+    result = zoo.evaluate(model, bench, label="interpolate", task="completion")
     frame = result.frame
     # The square scales linearly in time, so the straight line to the final frame is the truth.
     for metric in ("rmse", "mpjpe"):
@@ -332,8 +331,8 @@ def test_melv_on_spectral_frames_by_default(toy_bench):
     as SpecTrHuMS does, wherever the benchmark has a basis; raw stays an option."""
     assert toy_bench().melv_on == "raw" and toy_bench(spectral_k=2).melv_on == "spectral"
     full = toy_bench(spectral_k=4)
-    spectral = evaluate(RepeatLast(2, 3, 4), full, model_name="repeat_last")
-    raw = evaluate(RepeatLast(2, 3, 4), full, model_name="repeat_last", melv_frames="raw")
+    spectral = zoo.evaluate(RepeatLast(2, 3, 4), full, label="repeat_last")
+    raw = zoo.evaluate(RepeatLast(2, 3, 4), full, label="repeat_last", melv_frames="raw")
     assert spectral.protocol["melv_frames"].startswith("spectral4")
     assert raw.protocol["melv_frames"].startswith("raw")
     assert spectral.protocol["protocol_id"] != raw.protocol["protocol_id"]
@@ -341,7 +340,7 @@ def test_melv_on_spectral_frames_by_default(toy_bench):
     np.testing.assert_allclose(spectral.frame.value, raw.frame.value, rtol=1e-4, atol=1e-5)
     # k = 1 keeps only each coordinate's mean: every edge collapses, the ground truth's MELV is
     # 0, while RMSE (scored against the raw ground truth) does not change.
-    low = evaluate(RepeatLast(2, 3, 4), toy_bench(spectral_k=1), model_name="repeat_last")
+    low = zoo.evaluate(RepeatLast(2, 3, 4), toy_bench(spectral_k=1), label="repeat_last")
     np.testing.assert_allclose(rows(low.frame, "ground_truth", "melv")["a"], 0, atol=1e-5)
     assert (rows(raw.frame, "ground_truth", "melv")["a"] > 0.5).all()
     np.testing.assert_allclose(
@@ -354,11 +353,11 @@ def test_melv_on_spectral_frames_by_default(toy_bench):
     with pytest.raises(BenchmarkError, match="field 'melv_frames' must be one of raw, spectral"):
         toy_bench(spectral_k=2, melv_frames="smooth")
     with pytest.raises(EvaluationError, match="melv_frames must be one of raw, spectral"):
-        evaluate(RepeatLast(2, 3, 4), full, model_name="x", melv_frames="smooth")
+        zoo.evaluate(RepeatLast(2, 3, 4), full, label="x", melv_frames="smooth")
 
 
 def test_every_row_carries_its_standard_deviation_over_windows(toy_bench):
-    result = evaluate(RepeatLast(2, 3, 4), toy_bench(melv_frames="raw"), model_name="repeat_last")
+    result = zoo.evaluate(RepeatLast(2, 3, 4), toy_bench(melv_frames="raw"), label="repeat_last")
     frame = result.frame
     rmse = frame[(frame.model == "repeat_last") & (frame.metric == "rmse")]
     by = {(r.action, r.averaging, r.frame): r for r in rmse.itertuples()}
@@ -395,7 +394,7 @@ def test_autoencoder_floor_rows_beside_the_model(toy_bench, tmp_path):
             return frames + 1.0  # every vertex 1 mm off along x, y and z
 
     bench = toy_bench(melv_frames="raw")
-    result = evaluate(Blurred(2, 3, 4), bench, model_name="blurred")
+    result = zoo.evaluate(Blurred(2, 3, 4), bench, label="blurred")
     frame = result.frame
     assert set(frame.model) == {"blurred", "blurred:autoencoder", "ground_truth"}
     assert frame.model.iloc[0] == "blurred"  # the result folder is named after the model
@@ -419,7 +418,7 @@ def test_autoencoder_floor_rows_beside_the_model(toy_bench, tmp_path):
     assert (
         "`blurred:autoencoder`: the ground-truth future through the model's autoencoder" in headline
     )
-    plain = evaluate(RepeatLast(2, 3, 4), bench, model_name="repeat_last")
+    plain = zoo.evaluate(RepeatLast(2, 3, 4), bench, label="repeat_last")
     assert not any(m.endswith(":autoencoder") for m in plain.frame.model)
 
 
@@ -443,7 +442,7 @@ def test_one_pass_scores_every_model_as_alone_and_a_failure_leaves_only_its_mode
     """zoo leaderboard scores a table's rows in one pass (the ground truth prepared once): each
     model's result equals its evaluation alone, to the last bit, and a model that fails mid-way
     leaves the pass with its error while the others are scored to the end."""
-    from zoo.evaluate import Scored, evaluate_models
+    from zoo.evaluation import Scored, evaluate_models
     from zoo.protocol import plan_protocol
 
     bench = toy_bench(spectral_k=2, ground_truths=["raw", "spectral"])
@@ -474,26 +473,21 @@ def test_one_pass_scores_every_model_as_alone_and_a_failure_leaves_only_its_mode
         for scored, result in zip(models, together):
             if isinstance(result, Exception):
                 continue
-            alone = evaluate(
-                scored.model,
-                bench,
-                model_name=scored.name,
-                protocol=protocol,
-                view=scored.view,
-                batch_size=1,
-            )
+            (alone,) = evaluate_models([scored], protocol, batch_size=1, keep_going=False)
             assert result.windows.errors.keys() == alone.windows.errors.keys()
             for key, errors in alone.windows.errors.items():
                 np.testing.assert_array_equal(result.windows.errors[key], errors)
             pd.testing.assert_frame_equal(result.frame, alone.frame)
         with pytest.raises(EvaluationError, match="non-finite"):
-            evaluate(FailsLast(2, 3, 4), bench, model_name="fails", protocol=protocol, batch_size=1)
+            evaluate_models(
+                [Scored(FailsLast(2, 3, 4), "fails")], protocol, batch_size=1, keep_going=False
+            )
 
 
 def test_a_model_failing_on_another_process_fails_on_every_process(toy_bench, monkeypatch):
     """Under torchrun each process scores its share of the batches; a model that failed on
     another process must not give this one a result missing that process's windows."""
-    import zoo.evaluate as evaluator
+    import zoo.evaluation as evaluator
     from zoo.distributed import DistInfo
     from zoo.protocol import plan_protocol
 

@@ -8,7 +8,6 @@ import scipy.fft
 import torch
 
 import zoo
-from zoo.evaluate import evaluate
 from zoo.models.dct import dct_matrix, idct_matrix
 from zoo.models.mlp import SiMLPe
 from zoo.models.spgsn import SPGSN
@@ -447,10 +446,10 @@ def cmu_test_data():
 
 @pytest.fixture(scope="module")
 def repeat_last_result(cmu_test_data):
-    return evaluate(
+    return zoo.evaluate(
         zoo.create_model("repeat_last", benchmark="cmu"),
         "cmu",
-        model_name="repeat_last",
+        label="repeat_last",
         dataset=cmu_test_data,
     )
 
@@ -459,7 +458,7 @@ def repeat_last_result(cmu_test_data):
 def test_models_evaluate_on_real_cmu_test_data(name, cmu_test_data, repeat_last_result):
     torch.manual_seed(0)
     model = zoo.create_model(name, benchmark="cmu", **SMALL[name])
-    result = evaluate(model, "cmu", model_name=name, dataset=cmu_test_data)
+    result = zoo.evaluate(model, "cmu", label=name, dataset=cmu_test_data)
     frame, reference = result.frame, repeat_last_result.frame
     assert len(frame) == len(reference) > 0
     assert np.isfinite(frame["value"]).all() and (frame["value"] > 0).all()

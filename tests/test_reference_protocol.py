@@ -13,10 +13,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import zoo
 from zoo import create_model
 from zoo.benchmark import get_benchmark
 from zoo.data.skeleton import CMU
-from zoo.evaluate import evaluate
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "cmu_mocap"
 needs_cmu = pytest.mark.skipif(not DATA.is_dir(), reason=f"CMU data not found at {DATA}")
@@ -101,10 +101,10 @@ def oracle_repeat_last(sampler, t_in=10, t_out=25):
 def test_repeat_last_reproduces_official_test_code(sampler):
     expected = oracle_repeat_last(sampler)
     bench = get_benchmark("cmu")
-    result = evaluate(
+    result = zoo.evaluate(
         create_model("repeat_last", benchmark=bench),
         bench,
-        model_name="repeat_last",
+        label="repeat_last",
         sampler=sampler,
         data_root=DATA,
     )
@@ -143,10 +143,10 @@ def test_repeat_last_reproduces_official_test_code(sampler):
 @needs_cmu
 def test_official_scoring_is_about_1_3_times_smaller_than_the_25_joint_mean():
     bench = get_benchmark("cmu")
-    df = evaluate(
+    df = zoo.evaluate(
         create_model("repeat_last", benchmark=bench),
         bench,
-        model_name="repeat_last",
+        label="repeat_last",
         sampler="ltd8",
         data_root=DATA,
     ).frame

@@ -5,10 +5,11 @@ import pytest
 import torch
 from test_evaluator import expected_repeat_last
 
+import zoo
 from zoo import create_model
 from zoo.benchmark import get_benchmark
 from zoo.cli import main
-from zoo.evaluate import EvaluationError, evaluate, predict
+from zoo.evaluation import EvaluationError, predict
 
 
 class LastTwoFramesModel(torch.nn.Module):
@@ -28,10 +29,10 @@ def test_generic_longterm_loop_feeds_predictions_back():
 def test_longterm_repeat_last_by_hand(swinging_cmu):
     root, omega = swinging_cmu
     bench = get_benchmark("cmu")
-    result = evaluate(
+    result = zoo.evaluate(
         create_model("repeat_last", benchmark=bench),
         bench,
-        model_name="rl",
+        label="rl",
         sampler="all",
         data_root=root,
         task="longterm",
@@ -47,10 +48,10 @@ def test_longterm_repeat_last_by_hand(swinging_cmu):
         df.value, expected_repeat_last(omega, np.arange(1, 41)) / 38, rtol=1e-5
     )
     assert result.protocol["predicted_frames"] == 40
-    short = evaluate(
+    short = zoo.evaluate(
         create_model("repeat_last", benchmark=bench),
         bench,
-        model_name="rl",
+        label="rl",
         sampler="all",
         data_root=root,
     )
@@ -62,9 +63,9 @@ def test_task_errors_are_named(swinging_cmu, capsys):
     bench = get_benchmark("cmu")
     model = create_model("repeat_last", benchmark=bench)
     with pytest.raises(EvaluationError, match="RepeatLast does no completion"):
-        evaluate(model, bench, model_name="rl", data_root=root, task="completion")
+        zoo.evaluate(model, bench, label="rl", data_root=root, task="completion")
     with pytest.raises(EvaluationError, match="longterm needs a horizon of more than"):
-        evaluate(model, bench, model_name="rl", data_root=root, task="longterm")
+        zoo.evaluate(model, bench, label="rl", data_root=root, task="longterm")
     assert (
         main(
             [

@@ -8,12 +8,12 @@ import pickle
 import numpy as np
 import pytest
 
+import zoo
 from zoo import create_model
 from zoo.benchmark import get_benchmark
 from zoo.data.expmap import DataFormatError
 from zoo.data.threedpw import load_3dpw, read_3dpw_file
 from zoo.data.windows import window_sampler
-from zoo.evaluate import evaluate
 
 
 def track(frames, speed_m=0.0, offset_m=(1.0, 2.0, 3.0)):
@@ -77,10 +77,10 @@ def test_windows_are_cut_as_if_50_frames_were_observed():
 
 def test_repeat_last_by_hand(root):
     bench = get_benchmark("3dpw")
-    result = evaluate(
+    result = zoo.evaluate(
         create_model("repeat_last", benchmark=bench),
         bench,
-        model_name="repeat_last",
+        label="repeat_last",
         data_root=root,
     )
     frame = result.frame

@@ -11,6 +11,7 @@ import pytest
 import torch
 from tiny_models import MESH_REGISTRY
 
+import zoo
 from zoo import benchmark as benchmark_module
 from zoo.checkpoints import CheckpointError, load_checkpoint, read_checkpoint
 from zoo.data.mesh import MeshDataset, MeshSequence, MeshTopology
@@ -98,8 +99,6 @@ def test_skeleton_model_trains_on_a_mesh_benchmarks_regressed_joints(
 ):
     import scipy.sparse as sp
 
-    from zoo.evaluate import evaluate
-
     bench, registry, _ = toy_mesh
 
     def with_joints(root, split):
@@ -126,7 +125,7 @@ def test_skeleton_model_trains_on_a_mesh_benchmarks_regressed_joints(
     assert ckpt["hparams"]["num_points"] == 3
     assert ckpt["training_data"]["points"] == "regressor3"
     model, _ = load_checkpoint(best, registry=registry, benchmark=bench)
-    result = evaluate(model, bench, model_name="mlp", view="joints")
+    result = zoo.evaluate(model, bench, label="mlp", view="joints")
     assert set(result.frame.metric) == {"mpjpe"} and set(result.frame.joints) == {"regressor3"}
 
 

@@ -78,6 +78,7 @@ def evaluate(
     label: str | None = None,
     sampler: str | None = None,
     data_root: str | Path | None = None,
+    dataset: Any = None,
     registry: Registry | None = None,
     out: str | Path | None = None,
     store: bool = False,
@@ -93,20 +94,25 @@ def evaluate(
     model's name, or the path of a checkpoint (``.pt``) or shipped weights (``.safetensors``).
     Nothing is written unless asked: ``out=FOLDER``, or ``store=True`` for
     ``results/<benchmark>/<table>/<label>/``, which refuses a stored result of another identity
-    unless ``replace=True``. ``options``: ``task``, ``horizon``, ``ground_truth``,
-    ``melv_frames``, ``batch_size`` as :func:`zoo.evaluate.evaluate` takes them."""
+    unless ``replace=True``. ``dataset``: the benchmark's test data already loaded
+    (``get_benchmark(b).load(root)``), instead of loading it from ``data_root``.
+    ``options``: ``task`` (``prediction``, ``completion`` or ``longterm`` with ``horizon``
+    frames), ``ground_truth`` and ``melv_frames`` (mesh benchmarks: ``raw`` or ``spectral``),
+    ``view`` (``joints`` for a skeleton module on a mesh benchmark), ``batch_size``."""
     import torch
 
     from zoo.benchmark import get_benchmark
-    from zoo.evaluate import EVAL_BATCH
     from zoo.model_source import ModelSource
+    from zoo.options import EVAL_BATCH
     from zoo.pipeline import Subject, compute, place
     from zoo.pipeline import store as store_result
     from zoo.protocol import plan_protocol
     from zoo.store import check_label, result_path, table_folder
 
     bench = get_benchmark(benchmark) if isinstance(benchmark, (str, Path)) else benchmark
-    dataset = bench.load(data_root)
+    if dataset is not None and data_root is not None:
+        raise RegistryError("zoo.evaluate: give dataset (loaded data) or data_root, not both")
+    dataset = dataset if dataset is not None else bench.load(data_root)
     registry = registry or load_registry()
     if isinstance(model, torch.nn.Module):
         default_view = "mesh" if bench.representation == "mesh" else "joints"
@@ -175,9 +181,9 @@ def compare(
 ):
     """Is A better than B? ``a`` and ``b``: results (from :func:`evaluate` or
     :func:`load_results`), result folders, or labels of stored results of ``benchmark``;
-    ``options`` as :func:`zoo.compare.compare` takes them. Returns a
-    :class:`zoo.compare.Comparison` (``.markdown()``, ``.table``)."""
-    from zoo.compare import compare as paired
+    ``options`` as :func:`zoo.comparison.compare` takes them. Returns a
+    :class:`zoo.comparison.Comparison` (``.markdown()``, ``.table``)."""
+    from zoo.comparison import compare as paired
 
     def resolve(x):
         if isinstance(x, str) and not Path(x).is_dir():

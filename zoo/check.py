@@ -17,13 +17,10 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from zoo.options import CHECK_WINDOWS
 from zoo.tolerance import KEY_COLUMNS, tolerance_by_metric, window_gaps
 from zoo.tolerance import Incomparable as _Incomparable
 from zoo.tolerance import allowed as tolerated
-
-# Windows a table's sampled check scores: a fault in 5% of a row's windows escapes it with
-# probability 0.95**n (docs/reproducibility.md gives the sizes and times).
-DEFAULT_WINDOWS = 32
 
 
 def draw_sample(actions: np.ndarray, n: int, seed: int) -> np.ndarray:
@@ -104,7 +101,7 @@ class CheckReport:
     outside its tolerance, a row or table missing on either side, a row that cannot be
     recomputed, weights that are not the recorded ones)."""
 
-    windows: int | None = DEFAULT_WINDOWS
+    windows: int | None = CHECK_WINDOWS
     seed: int = field(default_factory=fresh_seed)
     largest: tuple = (0.0, 0.0, 0.0, "")  # (share of its tolerance, relative, absolute, where)
     problems: list = field(default_factory=list)
@@ -298,7 +295,7 @@ def _read(row: Path, check: CheckReport):
 def _consistent(stored, row: Path, check: CheckReport) -> None:
     """A committed row's ``results.csv`` against what its own ``windows.npz`` gives, as the
     evaluator sums them (a value edited in one file and not the other is named)."""
-    from zoo.evaluate import frame_from_windows
+    from zoo.evaluation import frame_from_windows
     from zoo.results import WINDOWS_FILE
 
     again = frame_from_windows(stored.windows, stored.protocol)

@@ -10,9 +10,8 @@ from typing import Any
 
 import yaml
 
-from zoo.check import DEFAULT_WINDOWS
 from zoo.errors import ZooError
-from zoo.evaluate import EVAL_BATCH
+from zoo.options import CHECK_WINDOWS, EVAL_BATCH
 from zoo.paths import REPO_ROOT
 from zoo.registry import load_registry
 from zoo.store import RESULTS_DIR
@@ -249,7 +248,7 @@ def cmd_leaderboard(args) -> int:
         raise UsageError(f"--seed {args.seed}: expected an integer in 0..2**32-1")
     if args.windows is not None and args.full:
         raise UsageError("--windows samples; --full checks every window: give one of them")
-    windows = None if args.full else (args.windows or DEFAULT_WINDOWS)
+    windows = None if args.full else (args.windows or CHECK_WINDOWS)
     seed = args.seed if args.seed is not None else fresh_seed()
     check = CheckReport(windows=windows, seed=seed) if args.check else None
     if check and (args.recompute is not None or args.model or args.drop):
@@ -443,7 +442,7 @@ def committed_benchmarks(results: Path) -> list[str]:
 
 
 def cmd_compare(args) -> int:
-    from zoo.compare import compare
+    from zoo.comparison import compare
 
     folders = []
     for name in (args.a, args.b):
@@ -794,8 +793,8 @@ def _positive_int(text: str) -> int:
 
 
 def task_options(p) -> None:
-    """``--task`` (one of the evaluator's tasks, ``zoo.protocol.TASKS``) and its horizon."""
-    from zoo.protocol import TASKS
+    """``--task`` (one of the evaluator's tasks, ``zoo.options.TASKS``) and its horizon."""
+    from zoo.options import TASKS
 
     p.add_argument(
         "--task",
@@ -914,7 +913,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--windows",
         type=int,
         metavar="N",
-        help=f"windows a table's sample has (default {DEFAULT_WINDOWS}, every action among "
+        help=f"windows a table's sample has (default {CHECK_WINDOWS}, every action among "
         "them): what --check recomputes, and what verifies a row stale only because code "
         "changed before it is re-stamped",
     )
@@ -952,7 +951,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.set_defaults(func=cmd_leaderboard)
 
-    from zoo.costs import DEFAULT_SECONDS
+    from zoo.options import COST_SECONDS
 
     p = sub.add_parser(
         "costs",
@@ -975,8 +974,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--seconds",
         type=float,
-        default=DEFAULT_SECONDS,
-        help=f"time budget per model (default {DEFAULT_SECONDS:g}); a slow model gets fewer "
+        default=COST_SECONDS,
+        help=f"time budget per model (default {COST_SECONDS:g}); a slow model gets fewer "
         f"latency calls and training steps, and says so",
     )
     p.add_argument("--out", default=str(RESULTS_DIR), help="results root (default results/)")

@@ -17,14 +17,12 @@ from zoo.efficiency import architecture, cost_key, measure
 from zoo.errors import ZooError
 from zoo.io import atomic_write_text, folder_lock
 from zoo.leaderboard import Leaderboard, Plan
+from zoo.options import COST_SECONDS
 from zoo.report import efficiency_csv
 from zoo.results import TABLE_FILE, read_table, table_labels
 from zoo.store import RESULTS_DIR, table_folder
 from zoo.tables import with_costs
 
-# Per model, so that the few architectures of a benchmark take a few minutes on two cores; a
-# model slower than its budget goes over it by one warm-up and one timed call (or step).
-DEFAULT_SECONDS = 30.0
 RENDERED = ("leaderboard.md", "efficiency.csv")  # the files of a table that show costs
 
 
@@ -42,7 +40,7 @@ def measure_costs(
     checkpoints: str | Path | None = None,
     device: str = "cpu",
     models: Iterable[str] = (),
-    seconds: float = DEFAULT_SECONDS,
+    seconds: float = COST_SECONDS,
 ) -> list[Path]:
     """Measure the costs of every row (``models``: of these registry models' rows only; the
     other stored costs are kept) of ``benchmark``'s tables under ``out_root``, write its

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from zoo.check import (
-    DEFAULT_WINDOWS,
+    CHECK_WINDOWS,
     CheckReport,
     check_identity,
     check_table,
@@ -55,7 +55,7 @@ class Plan:
     models: frozenset = frozenset()
     drop: frozenset = frozenset()
     check: CheckReport | None = None
-    windows: int | None = DEFAULT_WINDOWS
+    windows: int | None = CHECK_WINDOWS
     seed: int = field(default_factory=fresh_seed)
 
 
@@ -633,8 +633,8 @@ class Leaderboard:
 
 def _self_consistent(stored, folder: Path):
     """None where a stored row's ``results.csv`` is what its own ``windows.npz`` gives (the
-    evaluator's sums, :func:`zoo.evaluate.frame_from_windows`), else the disagreement."""
-    from zoo.evaluate import frame_from_windows
+    evaluator's sums, :func:`zoo.evaluation.frame_from_windows`), else the disagreement."""
+    from zoo.evaluation import frame_from_windows
     from zoo.results import EvalResult
 
     frame = frame_from_windows(stored.windows, stored.protocol)

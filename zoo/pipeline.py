@@ -25,8 +25,9 @@ from typing import Any
 
 from torch import nn
 
-from zoo.evaluate import EVAL_BATCH, Scored, evaluate_models
+from zoo.evaluation import Scored, evaluate_models
 from zoo.io import check_output_folder
+from zoo.options import EVAL_BATCH
 from zoo.protocol import Protocol
 from zoo.results import EvalResult
 from zoo.store import check_replace, stamp
@@ -137,7 +138,7 @@ def compute_all(
     keep_going: bool = True,
 ) -> list[EvalResult | Exception]:
     """Subjects (each with its identity) evaluated in one pass over the protocol's windows
-    (:func:`zoo.evaluate.evaluate_models`: the ground truth prepared once for all), each result
+    (:func:`zoo.evaluation.evaluate_models`: the ground truth prepared once for all), each result
     stamped as :func:`compute` stamps it; a subject that failed gets its error instead (or, with
     ``keep_going=False``, the first failure is raised at once)."""
     results = evaluate_models(

@@ -30,14 +30,7 @@ from zoo.metrics import (
     STD_DESCRIPTION,
     joint_protocols,
 )
-
-TASKS = {
-    "prediction": "the T_out frames after the observed ones",
-    "completion": "in-betweening: the T_out frames after the observed ones, the last of them "
-    "given to the model (final_frame)",
-    "longterm": "long-term prediction: horizon frames, the model's predictions fed back as its "
-    "next observed frames (autoregressive)",
-}
+from zoo.options import TASKS
 
 
 @dataclass(frozen=True, eq=False)

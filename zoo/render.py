@@ -15,7 +15,7 @@ import torch
 
 from zoo.data.catalog import mesh_windows
 from zoo.data.mesh import MeshDataset
-from zoo.evaluate import predict
+from zoo.evaluation import predict
 from zoo.io import atomic_path
 from zoo.protocol import check_task
 

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from zoo.compare import table_comparisons
+from zoo.comparison import table_comparisons
 from zoo.io import atomic_write_json, atomic_write_text, save_figure
 from zoo.results import table_files
 from zoo.tables import (
@@ -31,7 +31,7 @@ def write_leaderboard(
 ) -> Path:
     """Combine :class:`zoo.results.EvalResult` objects of one protocol into ``out_dir``:
     ``leaderboard.md``, ``summary.json`` (the same table as data,
-    :func:`zoo.tables.table_summary`, and :func:`zoo.compare.table_comparisons`),
+    :func:`zoo.tables.table_summary`, and :func:`zoo.comparison.table_comparisons`),
     ``protocol.json`` and a ``<metric>.png`` per metric (each result's own folder, beside
     them, holds its ``results.csv``). ``efficiency`` (per row label, the costs
     ``zoo costs`` stored: :class:`zoo.efficiency.Costs`) fills the headline's cost columns and

@@ -2,7 +2,7 @@
 (``protocol.json``), the per-window errors (``windows.npz``) and the tables (``tables.md``) of
 one model under one protocol, read and written atomically; and a leaderboard's table read as
 one result (:func:`read_table`: its rows' folders, listed by the table's ``protocol.json``).
-Nothing here computes a number (the evaluator, :mod:`zoo.evaluate`, does)."""
+Nothing here computes a number (the evaluator, :mod:`zoo.evaluation`, does)."""
 
 from __future__ import annotations
 

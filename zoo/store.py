@@ -36,12 +36,12 @@ from zoo.paths import REPO_ROOT
 
 RESULTS_DIR = REPO_ROOT / "results"
 IDENTITY_VERSION = 1
-# The evaluator's code is zoo/evaluate.py and every zoo module it imports, directly or through
+# The evaluator's code is zoo/evaluation.py and every zoo module it imports, directly or through
 # others (metrics, windows, benchmarks, data loaders and forward kinematics, spectral bases);
 # a model's code is its file and the zoo modules it imports. Left out: modules that only
 # present, store or move results and cannot change a number (tables, the result files,
 # intervals, files and locks, paths, errors, the process group).
-EVALUATOR = "zoo/evaluate.py"
+EVALUATOR = "zoo/evaluation.py"
 NOT_COMPUTING = frozenset(
     {
         "zoo/tables.py",

@@ -68,9 +68,10 @@ from zoo.checkpoints import (
 from zoo.data.windows import frame_counts, gather_windows, window_sampler
 from zoo.distributed import DistInfo, init_distributed
 from zoo.errors import EvaluationError, ZooError
-from zoo.evaluate import EVAL_BATCH, checked_prediction, predict
+from zoo.evaluation import checked_prediction, predict
 from zoo.io import code_version, progress_bar, repo_relative, sha256_file
 from zoo.metrics import mpjpe, vertex_rmse
+from zoo.options import EVAL_BATCH
 from zoo.paths import REPO_ROOT
 from zoo.registry import Registry, load_registry
 from zoo.weights import read_weights

@@ -154,9 +154,11 @@ def _test_rmse(model, bench, protocol, name: str) -> dict:
     """RMSE at :data:`TEST_HORIZONS_MS` on the test windows (frame averaging, mean over
     actions), and MELV at 1000 ms as a multiple of the ground truth's: the model's
     (``melv``) and its autoencoder floor's (``floor``, a SpecTrHuMS model's)."""
-    from zoo.evaluate import evaluate
 
-    frame = evaluate(model, bench, model_name=name, protocol=protocol).frame
+    from zoo.evaluation import Scored, evaluate_models
+
+    (result,) = evaluate_models([Scored(model, name)], protocol, keep_going=False)
+    frame = result.frame
     frame = frame[(frame.averaging == "frame") & (frame.action == "average")]
     rmse = frame[(frame.metric == "rmse") & (frame.model == name)].set_index("horizon_ms").value
     out = {ms: float(rmse[ms]) for ms in TEST_HORIZONS_MS if ms in rmse.index}

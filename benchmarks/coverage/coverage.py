@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 from scipy.signal import lfilter
 
+import zoo
 from zoo.intervals import (
     BLOCK_WINDOWS,
     best_set,
@@ -181,7 +182,6 @@ def cmu_training_errors(data_root: Path):
     ``all``), actions with at least three recordings: per-window MPJPE at ``HORIZONS_MS``."""
     from zoo import create_model
     from zoo.benchmark import get_benchmark
-    from zoo.evaluate import evaluate
 
     bench = get_benchmark("cmu")
     dataset = bench.load(data_root, split="train")
@@ -190,7 +190,7 @@ def cmu_training_errors(data_root: Path):
         model = create_model(
             name, input_frames=bench.input_frames, output_frames=bench.output_frames, num_points=38
         )
-        result = evaluate(model, bench, model_name=name, sampler="all", dataset=dataset)
+        result = zoo.evaluate(model, bench, label=name, sampler="all", dataset=dataset)
         metric, joints = "mpjpe", "used25"
         errors[name] = result.windows.get(name, metric, joints).astype(np.float64)
         windows = result.windows

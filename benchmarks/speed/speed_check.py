@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from zoo.check import DEFAULT_WINDOWS, fresh_seed
+from zoo.check import CHECK_WINDOWS, fresh_seed
 from zoo.cli import committed_benchmarks
 from zoo.cli import main as zoo_main
 from zoo.results import WINDOWS_FILE, WindowErrors
@@ -79,7 +79,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--data-root", help="dataset folder (default: each benchmark's)")
     parser.add_argument("--weights", help="shipped weights folder (default weights/)")
     parser.add_argument("--checkpoints", help="checkpoints folder (default checkpoints/)")
-    parser.add_argument("--windows", type=int, help=f"sample a table (default {DEFAULT_WINDOWS})")
+    parser.add_argument("--windows", type=int, help=f"sample a table (default {CHECK_WINDOWS})")
     parser.add_argument("--full", action="store_true", help="every window of every table")
     parser.add_argument("--seed", type=int, help="the samples' seed (default: drawn, printed)")
     parser.add_argument(
@@ -87,7 +87,7 @@ def main(argv: list[str] | None = None) -> None:
     )
     args = parser.parse_args(argv)
     seed = args.seed if args.seed is not None else fresh_seed()
-    windows = None if args.full else (args.windows or DEFAULT_WINDOWS)
+    windows = None if args.full else (args.windows or CHECK_WINDOWS)
     sample = ["--full"] if windows is None else ["--windows", str(windows), "--seed", str(seed)]
     passed = [*(["--data-root", args.data_root] if args.data_root else [])]
     passed += ["--weights", args.weights] if args.weights else []

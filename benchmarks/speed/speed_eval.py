@@ -14,7 +14,6 @@ import torch
 import zoo
 from zoo.benchmark import get_benchmark
 from zoo.data.windows import gather_windows, window_sampler
-from zoo.evaluate import evaluate
 from zoo.metrics import skeleton_errors
 
 
@@ -59,7 +58,7 @@ def main(argv: list[str] | None = None) -> None:
     zoo_times, loop_times = [], []
     for _ in range(args.repeats):
         t0 = time.perf_counter()
-        result = evaluate(model, bench, model_name="repeat_last", sampler="all", dataset=dataset)
+        result = zoo.evaluate(model, bench, label="repeat_last", sampler="all", dataset=dataset)
         zoo_times.append(time.perf_counter() - t0)
         t0 = time.perf_counter()
         n_loop = per_window_loop(dataset, bench, model)

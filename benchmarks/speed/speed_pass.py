@@ -1,7 +1,7 @@
 """One evaluation pass for all of a table's rows against one pass per row, side by side.
 
 ``zoo leaderboard`` (and its ``--check``) scores every row of a table in one pass over the
-windows (:func:`zoo.evaluate.evaluate_models`): each batch of ground truth, with what it alone
+windows (:func:`zoo.evaluation.evaluate_models`): each batch of ground truth, with what it alone
 gives (on a mesh benchmark its spectral reconstruction, the reference frame's edge lengths, its
 own MELV, its regressed joints), is made once for all the models. Here the same rows are timed
 both ways in one run, on the first ``--windows`` windows of a table, each way in turn and
@@ -24,7 +24,7 @@ import numpy as np
 import torch
 
 from zoo.benchmark import get_benchmark
-from zoo.evaluate import Scored, evaluate_models
+from zoo.evaluation import Scored, evaluate_models
 from zoo.protocol import plan_protocol
 
 

@@ -1,19 +1,9 @@
-"""The one evaluator: any model on any benchmark under a planned protocol, every row carrying
-its protocol.
+"""The one evaluator: models scored in one pass over a planned protocol's windows
+(:func:`evaluate_models`), every row carrying its protocol.
 
-(Called, ``zoo.evaluate(model, benchmark, label=..., sampler=..., store=False, out=None)`` runs
-:func:`zoo.api.evaluate`: a model object, registered name or trained file in, an
-:class:`zoo.results.EvalResult` carrying its identity out. Below, the evaluator itself.)
-
-``evaluate`` scores a model on the windows of a :class:`zoo.protocol.Protocol` (planned by
-:func:`zoo.protocol.plan_protocol`, here when not given) and returns an
-:class:`zoo.results.EvalResult`: a long-format DataFrame (one row per model, action, metric,
-averaging, joint protocol and horizon), the protocol record that produced it and every window's
-errors.
-
-Mesh benchmarks go through the same entry point: windows of the mesh sequences, metrics ``melv``
-(with the ground-truth future's own MELV as model ``ground_truth``), ``rmse`` and, with a joint
-regressor, ``mpjpe``, in the same long format.
+Skeleton and mesh benchmarks share the long format of :class:`zoo.results.EvalResult` (one row
+per model, action, metric, averaging, joint protocol and horizon). Users call
+:func:`zoo.evaluate` (:mod:`zoo.api`), which plans the protocol and stamps the identity.
 """
 
 from __future__ import annotations
@@ -25,96 +15,22 @@ import sys
 import traceback
 from dataclasses import dataclass
 from functools import partial
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pandas as pd
 import torch
 
-from zoo.benchmark import Benchmark, get_benchmark
 from zoo.data.windows import gather_windows
 from zoo.distributed import DistInfo, gather_shares, init_distributed
 from zoo.errors import EvaluationError
 from zoo.io import code_version, progress_bar
 from zoo.metrics import FLOOR_SUFFIX, FrameErrorMean, cumulative_mean, skeleton_errors
-from zoo.protocol import Protocol, plan_protocol
+from zoo.options import EVAL_BATCH
+from zoo.protocol import Protocol
 from zoo.results import RESULT_COLUMNS, EvalResult, WindowErrors
 
-# Windows per forward pass. Small batches keep a model's intermediate tensors in the CPU's
-# caches: SPGSN evaluates 3.4 times faster per window at 64 than at 1024 (77 against 262 ms a
-# window, one thread).
-EVAL_BATCH = 64
 MESH_BATCH_VALUES = 2**24  # float32 values of ground-truth windows held at once (64 MiB)
-
-
-def evaluate(
-    model: torch.nn.Module,
-    benchmark: str | Benchmark,
-    *,
-    model_name: str,
-    protocol: Protocol | None = None,
-    sampler: str | None = None,
-    data_root: str | Path | None = None,
-    dataset=None,
-    batch_size: int = EVAL_BATCH,
-    device: str | torch.device = "cpu",
-    provenance: dict[str, Any] | None = None,
-    ground_truth: str | None = None,
-    task: str = "prediction",
-    horizon: int | None = None,
-    view: str = "mesh",
-    melv_frames: str | None = None,
-) -> EvalResult:
-    """Evaluate ``model`` on ``benchmark`` under ``protocol`` (planned once by the caller), or
-    under the protocol that ``sampler`` (default: the benchmark's), ``task`` (``prediction``,
-    ``completion`` or ``longterm`` with ``horizon`` frames), ``ground_truth`` and
-    ``melv_frames`` (mesh benchmarks: ``raw`` or ``spectral``, default the benchmark's) define.
-
-    ``view`` (mesh benchmarks only): ``mesh``, or ``joints`` for a skeleton model fed the
-    regressed joints (``Benchmark.view_for`` says which a registry entry needs).
-    """
-    bench = get_benchmark(benchmark) if isinstance(benchmark, (str, Path)) else benchmark
-    if protocol is None:
-        dataset = dataset if dataset is not None else bench.load(data_root)
-        protocol = plan_protocol(
-            bench,
-            dataset,
-            sampler=sampler,
-            task=task,
-            horizon=horizon,
-            ground_truth=ground_truth,
-            melv_frames=melv_frames,
-        )
-    else:
-        given = {
-            "sampler": sampler,
-            "horizon": horizon,
-            "ground_truth": ground_truth,
-            "melv_frames": melv_frames,
-            "task": None if task == "prediction" else task,
-            "dataset": dataset,
-            "data_root": data_root,
-        }
-        clash = [name for name, value in given.items() if value is not None]
-        if clash:
-            raise EvaluationError(
-                f"evaluate(protocol=...): the protocol fixes its data and windows; "
-                f"{', '.join(clash)} cannot be given beside it"
-            )
-        if protocol.benchmark.name != bench.name:
-            raise EvaluationError(
-                f"evaluate: protocol of benchmark {protocol.benchmark.name}, "
-                f"model asked on {bench.name}"
-            )
-    (result,) = evaluate_models(
-        [Scored(model, model_name, view, provenance)],
-        protocol,
-        batch_size=batch_size,
-        device=device,
-        keep_going=False,
-    )
-    return result
 
 
 @dataclass
@@ -139,7 +55,7 @@ def evaluate_models(
     """Every model of ``models`` on the windows of ``protocol`` in one pass: each batch of
     windows, and all that the ground truth alone gives (its spectral reconstruction, regressed
     joints, edge lengths and MELV), is made once and every model scored on it. A model's result
-    is the one :func:`evaluate` gives it alone (for models deterministic in eval mode, as every
+    is the one it gets evaluated alone (for models deterministic in eval mode, as every
     registered one is: models that draw random numbers share the stream).
 
     A model that fails (a broken contract, non-finite values, an error of its own, on any

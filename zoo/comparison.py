@@ -8,7 +8,7 @@ Both results must come from one protocol record (the same windows): the differen
 taken window by window, so the variance the two models share (hard windows are hard for both)
 cancels, and the interval is that of the difference itself.
 
-    from zoo.compare import compare
+    from zoo.comparison import compare
     c = compare("results/cmu/all/spgsn", "results/cmu/all/mlp")
     print("\\n".join(c.sentences()))
     c.write("some/folder")      # comparison.md and comparison.png
