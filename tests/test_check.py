@@ -16,7 +16,7 @@ from zoo.check import draw_sample, escape_sentence
 from zoo.cli import main
 from zoo.registry import Registry
 from zoo.results import WindowErrors
-from zoo.train import train
+from zoo.train.loop import train
 
 HERE = Path(__file__).resolve().parent
 

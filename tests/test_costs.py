@@ -17,7 +17,9 @@ import zoo.efficiency
 from zoo.cli import main
 from zoo.efficiency import LATENCY_REPEATS, TRAINING_STEPS, measure
 from zoo.leaderboard import Plan, regenerate
-from zoo.train import DEFAULT_RECIPE, forward_precision, train
+from zoo.train.loop import train
+from zoo.train.recipe import DEFAULT_RECIPE
+from zoo.train.step import forward_precision
 
 
 def files(folder: Path) -> dict[Path, bytes]:

@@ -15,7 +15,7 @@ from zoo.leaderboard import Plan, regenerate
 from zoo.registry import Registry
 from zoo.report import write_leaderboard
 from zoo.results import EvalResult, read_table
-from zoo.train import train
+from zoo.train.loop import train
 
 HERE = Path(__file__).resolve().parent
 

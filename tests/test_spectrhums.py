@@ -22,7 +22,7 @@ from zoo.models.spectrhums import (
     Welford,
 )
 from zoo.registry import load_registry
-from zoo.train import learning_rate, training_recipe
+from zoo.train.recipe import learning_rate, training_recipe
 
 T_IN, T_OUT = 6, 4
 W = T_IN + T_OUT

@@ -18,7 +18,7 @@ from tiny_models import REGISTRY
 from zoo.cli import main
 from zoo.registry import Registry
 from zoo.results import read_table
-from zoo.train import train
+from zoo.train.loop import train
 
 HERE = Path(__file__).resolve().parent
 

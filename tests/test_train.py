@@ -14,10 +14,12 @@ from conftest import write_cmu_file
 from tiny_models import REGISTRY
 
 import zoo.train as train_module
+import zoo.train.loop as train_loop
 from zoo.checkpoints import CheckpointError, load_checkpoint, read_checkpoint, weights_digest
 from zoo.cli import main
+from zoo.errors import TrainingError
 from zoo.registry import Registry
-from zoo.train import TrainingError, train
+from zoo.train.loop import train
 
 HERE = Path(__file__).resolve().parent
 
@@ -74,7 +76,7 @@ def test_seeded_runs_match_and_checkpoint_carries_its_record(setup, tmp_path):
 def test_bfloat16_precision_trains_under_autocast_with_float32_weights(
     setup, tmp_path, monkeypatch
 ):
-    monkeypatch.setattr(train_module, "cpu_has_native_bfloat16", lambda: True)
+    monkeypatch.setattr(train_loop, "cpu_has_native_bfloat16", lambda: True)
     plain = run(setup, tmp_path / "fp32")
     mixed = run(setup, tmp_path / "bf16", train_overrides={"precision": "bfloat16"})
     ckpt = read_checkpoint(mixed)
@@ -88,7 +90,7 @@ def test_bfloat16_precision_trains_under_autocast_with_float32_weights(
 def test_bfloat16_on_a_cpu_without_native_bfloat16_warns_that_float32_is_faster(
     setup, tmp_path, monkeypatch
 ):
-    monkeypatch.setattr(train_module, "cpu_has_native_bfloat16", lambda: False)
+    monkeypatch.setattr(train_loop, "cpu_has_native_bfloat16", lambda: False)
     with pytest.warns(
         RuntimeWarning,
         match=r"precision bfloat16 on a CPU without native "
@@ -98,7 +100,7 @@ def test_bfloat16_on_a_cpu_without_native_bfloat16_warns_that_float32_is_faster(
 
 
 def test_native_bfloat16_is_read_from_the_cpu_flags(tmp_path):
-    from zoo.train import cpu_has_native_bfloat16
+    from zoo.train.host import cpu_has_native_bfloat16
 
     info = tmp_path / "cpuinfo"
     info.write_text("processor\t: 0\nflags\t\t: fpu sse avx2 fma\n")
@@ -109,7 +111,7 @@ def test_native_bfloat16_is_read_from_the_cpu_flags(tmp_path):
 
 
 def test_the_training_device_names_the_cpu_model_and_its_kernels():
-    from zoo.train import device_name
+    from zoo.train.host import device_name
 
     name = device_name("cpu")
     assert name.startswith("CPU ") and torch.backends.cpu.get_cpu_capability() in name
@@ -282,7 +284,7 @@ def test_two_process_ddp_ends_with_identical_weights(setup, tmp_path):
 
 
 def test_learning_rate_schedules():
-    from zoo.train import learning_rate
+    from zoo.train.recipe import learning_rate
 
     step = {"type": "step", "every_epochs": 2, "gamma": 0.96}
     assert [round(learning_rate(step, 1e-3, e, 50), 10) for e in range(5)] == [
@@ -510,7 +512,7 @@ def test_validation_by_recordings_holds_out_whole_recordings_and_records_them(tm
 
 def test_validation_by_tails_takes_the_end_of_long_recordings_and_trains_on_short_ones(tmp_path):
     from zoo.benchmark import get_benchmark
-    from zoo.train import held_out_frames, split_train_val
+    from zoo.train.split import held_out_frames, split_train_val
 
     root = tmp_path / "cmu"
     # frames after halving the rate: 400 (a 10% tail of 40 frames holds a 35-frame window)
@@ -551,7 +553,7 @@ def test_validation_by_actions_gives_every_action_windows_and_holds_none_out_who
     (walking here, as on CMU) gives the last 10% of its frames, at least one window, from the
     end of its longest recording."""
     from zoo.benchmark import get_benchmark
-    from zoo.train import held_out_frames
+    from zoo.train.split import held_out_frames
 
     root = tmp_path / "cmu"
     write_cmu_file(root / "train" / "basketball" / "basketball_1.txt", 0.01 * np.arange(800))
@@ -594,7 +596,7 @@ def run_default(registry, root, out, **recipe):
 
 
 def test_a_model_with_part_of_a_hook_group_is_refused_naming_the_rest(setup, tmp_path):
-    from zoo.train import check_hooks
+    from zoo.models.hooks import ModelContractError, model_hooks
 
     (tmp_path / "half.py").write_text(
         "import torch\n"
@@ -614,12 +616,14 @@ def test_a_model_with_part_of_a_hook_group_is_refused_naming_the_rest(setup, tmp
     )
     root, registry, _ = setup
     registry.add_file(tmp_path / "half.yaml")
-    with pytest.raises(TrainingError, match="defines training_view but not training_view_identity"):
+    with pytest.raises(
+        ModelContractError, match="defines training_view but not training_view_identity"
+    ):
         train(
             "half", "cmu", registry=registry, data_root=root, out_dir=tmp_path / "h", progress=False
         )
     assert not (tmp_path / "h" / "last.pt").exists()  # refused before any training
-    check_hooks(torch.nn.Linear(2, 2), "plain")  # no hooks at all: the engine's defaults
+    assert model_hooks(torch.nn.Linear(2, 2), "plain") == model_hooks(object())  # none at all
 
 
 def test_a_run_written_with_a_capturable_optimizer_resumes_on_the_cpu(setup, tmp_path):

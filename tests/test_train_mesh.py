@@ -18,7 +18,7 @@ from zoo.data.mesh import MeshDataset, MeshSequence, MeshTopology
 from zoo.io import sha256_file
 from zoo.registry import Registry
 from zoo.results import read_table
-from zoo.train import train
+from zoo.train.loop import train
 
 HERE = Path(__file__).resolve().parent
 
@@ -130,7 +130,7 @@ def test_skeleton_model_trains_on_a_mesh_benchmarks_regressed_joints(
 
 
 def test_a_training_sampler_that_finds_no_window_is_named(toy_mesh, tmp_path):
-    from zoo.train import TrainingError
+    from zoo.errors import TrainingError
 
     bench, registry, _ = toy_mesh
     whole = tmp_path / "whole.yaml"  # the window is the whole 12-frame sequence, as on cloth
@@ -156,7 +156,7 @@ def test_start_epoch_gets_every_training_frame_once_with_its_window_count(
 ):
     """Statistics over the counted frames equal those over every frame of every window."""
     from zoo.data.windows import gather_windows
-    from zoo.train import _windows, split_train_val
+    from zoo.train.split import split_train_val, usable_windows
 
     bench, registry, _ = toy_mesh
     monkeypatch.setitem(
@@ -186,7 +186,7 @@ def test_start_epoch_gets_every_training_frame_once_with_its_window_count(
     assert len(seen) == 1 and bool((counts > 0).all())
 
     train_seqs, _ = split_train_val(waving(grid(4), "train", frames=30), 0.25, 8)
-    positions, index = _windows(train_seqs, 8, "all", 4, 4)
+    positions, index = usable_windows(train_seqs, 8, "all", 4, 4)
     windows = torch.from_numpy(gather_windows(positions, index, 8)).double().flatten(0, 1)
     assert int(counts.sum()) == len(windows) > 2 * len(frames)  # each frame in several windows
     weights = counts.double()[:, None, None]
@@ -199,7 +199,7 @@ def test_start_epoch_gets_every_training_frame_once_with_its_window_count(
 def test_a_training_view_is_computed_once_and_never_read_for_another_basis(toy_mesh, tmp_path):
     """Models with a training view (SpecTrHuMS: coefficients) train on it; it is stored under
     <cache>/views, read back while dataset and view identity hold, recomputed otherwise."""
-    from zoo.train import training_view_arrays
+    from zoo.train.split import training_view_arrays
 
     class Coefficients(torch.nn.Module):
         def __init__(self, basis, checksum):
@@ -258,7 +258,7 @@ def test_validation_logs_each_horizon_beside_repeat_last_on_the_same_windows(toy
     from zoo.data.windows import window_sampler
     from zoo.metrics import vertex_rmse
     from zoo.models.repeat_last import RepeatLast
-    from zoo.train import validate, validation_frames
+    from zoo.train.validate import validate, validation_frames
 
     # 25 fps: frame t at 40 t ms; 80 ms is the 2nd predicted frame, 400 ms the 10th, 1000 ms
     # beyond a 4-frame future

@@ -90,7 +90,7 @@ def test_foreign_weights_are_refused_naming_what_differs(trained, tmp_path, setu
     record["sha256"] = sha256_file(path)
     path.with_suffix(".json").write_text(json.dumps(record))
     with pytest.raises(
-        zoo.train.CheckpointError,
+        zoo.checkpoints.CheckpointError,
         match=r"tiny\.safetensors: weights do not fit model 'tiny' "
         r"\(Error\(s\) in loading state_dict",
     ):
@@ -108,7 +108,7 @@ def test_weights_for_another_protocol_are_refused(trained, tmp_path, setup):  # 
     record["protocol"]["output_frames"] = 10
     path.with_suffix(".json").write_text(json.dumps(record))
     with pytest.raises(
-        zoo.train.CheckpointError, match="weights .* another protocol.*output_frames"
+        zoo.checkpoints.CheckpointError, match="weights .* another protocol.*output_frames"
     ):
         load_weights(path, registry=setup[1], benchmark="cmu")
 

@@ -530,7 +530,7 @@ def default_benchmarks():
 
 
 def cmd_train(args) -> int:
-    from zoo.train import train
+    from zoo.train.loop import train
 
     if args.out:  # a file there, or an unwritable place, is refused before training
         from zoo.io import check_writable

@@ -51,13 +51,10 @@ from typing import Any
 
 import torch
 
-from zoo.train import (
-    DEFAULT_RECIPE,
-    TrainingObjective,
-    device_name,
-    prepare_epoch,
-    training_step,
-)
+from zoo.models.hooks import model_hooks
+from zoo.train.host import device_name
+from zoo.train.recipe import DEFAULT_RECIPE
+from zoo.train.step import TrainingObjective, prepare_epoch, training_step
 
 LATENCY_REPEATS = 20
 TRAINING_STEPS = 3
@@ -115,7 +112,7 @@ def latency_ms(
 def timed_epoch(model: torch.nn.Module, recipe: dict[str, Any]) -> int | None:
     """The epoch whose training step is timed for a model with a ``start_epoch`` hook (None
     without one): the recipe's last (the engine's default epochs where it gives none)."""
-    if not hasattr(model, "start_epoch"):
+    if not model_hooks(model).start_epoch:
         return None
     return max(int({**DEFAULT_RECIPE, **recipe}["epochs"]) - 1, 0)
 

@@ -13,3 +13,7 @@ class DataNotFoundError(ZooError, FileNotFoundError):
 class EvaluationError(ZooError, RuntimeError):
     """A protocol that cannot be planned, a model that breaks the contract, a result folder that
     cannot be read."""
+
+
+class TrainingError(ZooError, RuntimeError):
+    """A recipe, data split or run that cannot train, or a training that went wrong."""

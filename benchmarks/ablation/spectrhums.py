@@ -179,7 +179,8 @@ def score(cfg: dict) -> str:
     from zoo.models.repeat_last import RepeatLast
     from zoo.protocol import plan_protocol
     from zoo.registry import load_registry
-    from zoo.train import _windows, split_train_val, validate
+    from zoo.train.split import split_train_val, usable_windows
+    from zoo.train.validate import validate
 
     torch.set_grad_enabled(False)
     bench = get_benchmark(cfg["benchmark"])
@@ -202,7 +203,7 @@ def score(cfg: dict) -> str:
             _, held_out = split_train_val(
                 training, recipe["val_fraction"], t_in + t_out, rule=recipe["val_split"]
             )
-            positions, index = _windows(held_out, t_in + t_out, "all", t_in, t_out)
+            positions, index = usable_windows(held_out, t_in + t_out, "all", t_in, t_out)
             stages = [summary, *([ckpt["init_from"]["training"]] if ckpt.get("init_from") else [])]
             samples = sum(t["samples_seen"] for t in stages)
             first = stages[1]["samples_seen"] // recipe["batch_size"] if len(stages) > 1 else 0

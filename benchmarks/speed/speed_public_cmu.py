@@ -16,7 +16,7 @@ mean joint distance over 35 frames, clip 1, Adam), PGBIG's ``main_cmu_3d.run_mod
 accumulated-average smoothings of the targets, four stages, the mean of their losses, clip
 10,000, Adam) and MSR-GCN's ``CMURunner.train`` (forward on the four scales, un-normalised, the
 inverse DCT, the sum of the scales' losses, Adam, no clip); ``.cuda()`` calls left out. The
-zoo's step is :func:`zoo.train.training_step` with the registry recipe. Same batch (16 CMU
+zoo's step is :func:`zoo.train.step.training_step` with the registry recipe. Same batch (16 CMU
 windows, 10 + 25 frames, 25 joints, in mm), same threads, float32; each step timed ``--repeats``
 times, the two in turn so they share the machine's load; medians.
 
@@ -42,7 +42,8 @@ from torch import nn
 from zoo.models.dct import dct_matrix
 from zoo.paths import REPO_ROOT
 from zoo.registry import load_registry
-from zoo.train import make_optimizer, training_recipe, training_step
+from zoo.train.recipe import training_recipe
+from zoo.train.step import make_optimizer, training_step
 
 BATCH, T_IN, T_OUT, POINTS = 16, 10, 25, 25
 FRAMES = T_IN + T_OUT

@@ -1,0 +1,51 @@
+"""The one training engine, shared by every trainable model.
+
+A recipe (:mod:`.recipe`) says how to train; the split (:mod:`.split`) which frames train and
+which validate; a step (:mod:`.step`) is what the cost columns time too; validation
+(:mod:`.validate`) picks the best epoch; the state (:mod:`.state`) is what ``best.pt`` and
+``last.pt`` hold; the loop (:mod:`.loop`) runs them, seeded, so that a resumed run ends with
+the weights of an uninterrupted one. The model hooks it calls: :mod:`zoo.models.hooks`.
+docs/training.md says how to train and what each recipe ran.
+"""
+
+from __future__ import annotations
+
+import importlib
+
+# name -> the module of this package that defines it, loaded on first use (so that importing
+# zoo.train.step, as the cost columns do, does not load the loop)
+_EXPORTS = {
+    "train": "loop",
+    "DEFAULT_RECIPE": "recipe",
+    "PRECISIONS": "recipe",
+    "VAL_SPLITS": "recipe",
+    "learning_rate": "recipe",
+    "training_recipe": "recipe",
+    "held_out_frames": "split",
+    "held_out_recordings": "split",
+    "split_train_val": "split",
+    "training_view_arrays": "split",
+    "cpu_has_native_bfloat16": "host",
+    "cpu_info": "host",
+    "device_name": "host",
+    "CudaGraphStep": "step",
+    "TrainingObjective": "step",
+    "make_optimizer": "step",
+    "prepare_epoch": "step",
+    "set_learning_rate": "step",
+    "training_step": "step",
+    "validate": "validate",
+    "save_epoch": "state",
+}
+
+__all__ = sorted([*_EXPORTS, "TrainingError"])
+
+
+def __getattr__(name: str):
+    if name == "TrainingError":
+        from zoo.errors import TrainingError
+
+        return TrainingError
+    if name in _EXPORTS:
+        return getattr(importlib.import_module(f"{__name__}.{_EXPORTS[name]}"), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

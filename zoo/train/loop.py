@@ -1,0 +1,507 @@
+"""The training loop: a run set up from its recipe, data and model, resumed or started, then its
+epochs, each validated and saved."""
+
+from __future__ import annotations
+
+import math
+import time
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+
+from zoo.benchmark import Benchmark, get_benchmark
+from zoo.checkpoints import CheckpointError, read_checkpoint, stored_hparams
+from zoo.data.windows import frame_counts, gather_windows
+from zoo.distributed import DistInfo, init_distributed
+from zoo.errors import TrainingError
+from zoo.io import progress_bar
+from zoo.models.hooks import Hooks, model_hooks
+from zoo.paths import REPO_ROOT
+from zoo.registry import ModelEntry, Registry, load_registry
+from zoo.train.host import cpu_has_native_bfloat16, device_name
+from zoo.train.recipe import learning_rate, training_recipe
+from zoo.train.split import (
+    split_train_val,
+    training_view_arrays,
+    usable_windows,
+    validation_record,
+)
+from zoo.train.state import (
+    initial_weights,
+    resume_changes,
+    run_metadata,
+    save_epoch,
+    write_rank_digest,
+)
+from zoo.train.step import (
+    CudaGraphStep,
+    TrainingObjective,
+    make_optimizer,
+    optimizer_for_device,
+    prepare_epoch,
+    set_learning_rate,
+    training_step,
+)
+from zoo.train.validate import check_output, horizons_text, validate
+
+
+def train(
+    model_name: str,
+    benchmark: str | Benchmark,
+    *,
+    registry: Registry | None = None,
+    epochs: int | None = None,
+    out_dir: str | Path | None = None,
+    data_root: str | Path | None = None,
+    overrides: dict[str, Any] | None = None,
+    train_overrides: dict[str, Any] | None = None,
+    resume: bool = False,
+    seed: int = 0,
+    device: str = "cpu",
+    max_batches: int | None = None,
+    progress: bool = True,
+    stop_after_epoch: int | None = None,
+    init_from: str | Path | None = None,
+    cuda_graph: bool = False,
+) -> Path:
+    """Train ``model_name`` on ``benchmark``'s training split; returns the best checkpoint path.
+
+    With ``cuda_graph`` on one CUDA device (one process), each epoch's optimizer step is
+    captured once as a CUDA graph and replayed (:class:`zoo.train.step.CudaGraphStep`).
+
+    ``init_from`` (a checkpoint of the same model and protocol) starts from
+    those weights with a fresh optimiser and schedule: a further stage of training (e.g. a longer
+    autoencoder phase, then the joint one), recorded with the source's own budget.
+
+    ``stop_after_epoch`` ends the run early as if interrupted (tests of ``resume``).
+    """
+    registry = registry or load_registry()
+    bench = get_benchmark(benchmark) if isinstance(benchmark, (str, Path)) else benchmark
+    entry = registry.get(model_name)
+    _check_arguments(entry, seed, max_batches, init_from, resume)
+    recipe = training_recipe(
+        {**({"val_split": bench.val_split} if bench.val_split else {}), **entry.train},
+        {**(train_overrides or {}), **({"epochs": epochs} if epochs is not None else {})},
+    )
+    dist_info = init_distributed(device)
+    _warn_slow_bfloat16(model_name, recipe, device)
+    view = bench.view_for(entry.representation)
+    dataset = bench.load(data_root, split=bench.train_split)
+    if bench.representation == "mesh" and view == "joints":
+        dataset = dataset.joints_view()  # a skeleton model on a mesh benchmark's joints
+    hparams = registry.model_args(
+        model_name,
+        **{**bench.model_inputs(entry.context, data_root, dataset, view), **(overrides or {})},
+    )
+    out_dir = Path(out_dir) if out_dir else REPO_ROOT / "checkpoints" / bench.name / model_name
+    if init_from is not None and Path(init_from).resolve() in {
+        (out_dir / f).resolve() for f in ("best.pt", "last.pt")
+    }:
+        raise TrainingError(
+            f"--init-from {init_from}: this run would overwrite it; give the new stage its "
+            f"own --out"
+        )
+    initial = (
+        initial_weights(init_from, model_name, bench, registry, data_root, dataset)
+        if init_from is not None
+        else None
+    )
+
+    model = _new_model(registry, model_name, hparams, seed, device, initial, init_from)
+    hooks = model_hooks(model, model_name)  # refuses a model defining half a group of hooks
+    graphed = cuda_graph and torch.device(device).type == "cuda" and not dist_info.active
+    optimizer = make_optimizer(model, recipe, device, graphed)
+    data = _training_windows(model, model_name, bench, dataset, recipe, hooks, progress)
+
+    run = _Run(first_epoch=0, best={"val_mpjpe": math.inf, "epoch": -1}, history=[])
+    run.init_record = initial[1] if initial is not None else None
+    if resume:
+        run = _resumed(out_dir / "last.pt", model_name, hparams, model, optimizer, recipe, seed)
+        run.recipe_changes += resume_changes(
+            out_dir / "last.pt", run.state, recipe, seed, max_batches
+        )
+        optimizer_for_device(optimizer, device, graphed)
+        if "cuda_rng" in run.state and torch.device(device).type == "cuda":
+            torch.cuda.set_rng_state(run.state["cuda_rng"], torch.device(device))
+
+    epochs = _Epochs(
+        model_name, model, optimizer, recipe, data, seed, device, dist_info, progress, graphed,
+        task=entry.task, max_batches=max_batches,
+        fps=getattr(dataset, "mesh", dataset).fps,  # a JointsView: its mesh's rate
+        mesh=bench.representation == "mesh" and view == "mesh",
+    )  # fmt: skip
+    meta = {
+        **run_metadata(entry, hparams, bench, dataset, recipe, seed, device, dist_info, view),
+        "max_batches": max_batches,
+        "recipe_changes": run.recipe_changes,
+        "init_from": run.init_record,
+        "validation": validation_record(dataset, recipe, data.length, len(data.val_index)),
+    }
+    if not data.view and not hooks.training_loss:
+        check_output(
+            model, model_name, data.val_pos, data.val_index, data.used,
+            bench.input_frames, bench.output_frames, entry.task, device,
+        )  # fmt: skip
+    if dist_info.rank == 0:
+        _print_plan(model_name, bench, data, recipe, epochs.steps, run.first_epoch, seed, out_dir)
+    for epoch in range(run.first_epoch, recipe["epochs"]):
+        record = epochs.run(epoch)
+        run.history.append(record)
+        if dist_info.rank == 0:
+            _finish_epoch(out_dir, meta, model, optimizer, epoch, run, recipe, device, record)
+        if stop_after_epoch is not None and epoch + 1 >= stop_after_epoch:
+            break
+    if dist_info.active:
+        write_rank_digest(out_dir, model, dist_info)
+    return out_dir / "best.pt"
+
+
+def _check_arguments(entry: ModelEntry, seed, max_batches, init_from, resume) -> None:
+    """Refuse what cannot train before any data is read."""
+    if not entry.trainable:
+        raise TrainingError(
+            f"model {entry.name!r} runs the weights of {entry.weights_of!r} (registry: "
+            f"weights_of): train that one (zoo train --model {entry.weights_of})"
+            if entry.weights_of
+            else f"model {entry.name!r} has nothing to train (registry: trainable: false)"
+        )
+    if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed < 2**32:
+        raise TrainingError(f"seed must be an integer in 0..2**32-1, got {seed!r}")
+    if max_batches is not None and (
+        isinstance(max_batches, bool) or not isinstance(max_batches, int) or max_batches < 1
+    ):
+        raise TrainingError(
+            f"max_batches (--max-batches) must be a positive integer, got {max_batches!r}"
+        )
+    if init_from is not None and resume:
+        raise TrainingError(
+            "give --init-from (a new stage from other weights) or --resume (this run's last "
+            "state), not both"
+        )
+
+
+def _new_model(registry, model_name, hparams, seed, device, initial, init_from) -> nn.Module:
+    """The model, seeded (its initial weights, then the run's, derive from ``seed``), with the
+    weights a new stage starts from where ``initial`` gives them."""
+    torch.manual_seed(seed)
+    np.random.seed(seed)
+    torch.use_deterministic_algorithms(True, warn_only=True)
+    model = registry.create_model(model_name, **hparams).to(device)
+    if initial is not None:
+        try:
+            model.load_state_dict(initial[0])
+        except RuntimeError as e:
+            raise TrainingError(
+                f"--init-from {init_from}: its weights do not fit {model_name} "
+                f"with these hyper-parameters: {e}"
+            ) from None
+    return model
+
+
+def _warn_slow_bfloat16(model_name: str, recipe: dict[str, Any], device) -> None:
+    if (
+        recipe["precision"] == "bfloat16"
+        and torch.device(device).type == "cpu"
+        and cpu_has_native_bfloat16() is False
+    ):
+        warnings.warn(
+            f"training {model_name} with precision bfloat16 on a CPU without native "
+            f"bfloat16 products (no avx512_bf16 or amx_bf16 flag): torch falls back to a slow "
+            f"path (docs/training.md); --train-set precision=float32 is faster here",
+            RuntimeWarning,
+            stacklevel=3,
+        )
+
+
+@dataclass
+class _Data:
+    """A run's windows: training ones (``train_src``: the frames, or the model's training view
+    of them, ``src_points`` the points taken from each) and validation ones (always frames)."""
+
+    train_src: list
+    train_pos: list
+    train_index: np.ndarray
+    val_pos: list
+    val_index: np.ndarray
+    used: Any
+    src_points: Any
+    t_in: int
+    length: int
+
+    @property
+    def view(self) -> bool:
+        return self.train_src is not self.train_pos
+
+
+def _point_index(bench: Benchmark):
+    """Which points of a frame models see: the predicted joints, or every vertex."""
+    return slice(None) if bench.representation == "mesh" else list(bench.skeleton.used)
+
+
+def _training_windows(model, model_name, bench, dataset, recipe, hooks: Hooks, progress) -> _Data:
+    t_in, t_out = bench.input_frames, bench.output_frames
+    length = t_in + t_out
+    train_seqs, val_seqs = split_train_val(
+        dataset, recipe["val_fraction"], length, rule=recipe["val_split"]
+    )
+    train_pos, train_index = usable_windows(
+        train_seqs, length, recipe["train_sampler"], t_in, t_out
+    )
+    val_pos, val_index = usable_windows(val_seqs, length, recipe["val_sampler"], t_in, t_out)
+    if len(train_index) == 0:
+        raise TrainingError(
+            f"{dataset.name}/{dataset.split}: training sampler "
+            f"{recipe['train_sampler']!r} finds no window of {length} frames in "
+            f"the training sequences (longest: "
+            f"{max((len(a) for a in train_seqs), default=0)} frames); choose "
+            f"another with --train-set train_sampler=NAME (e.g. all)"
+        )
+    if len(val_index) == 0:
+        raise TrainingError(
+            f"{dataset.name}/{dataset.split}: validation sampler "
+            f"{recipe['val_sampler']!r} finds no window of {length} frames in the held-out "
+            f"sequences; choose another with --train-set val_sampler=NAME (e.g. all)"
+        )
+    used = _point_index(bench)
+    # A model with a training view trains on windows of that view of every frame, computed once
+    # (cached): train_src and src_points say where training windows come from.
+    train_src, src_points = train_pos, used
+    if hooks.training_view:
+        views = training_view_arrays(model, dataset, used, progress=progress)
+        view_train, _ = split_train_val(
+            dataset, recipe["val_fraction"], length, arrays=views, rule=recipe["val_split"]
+        )
+        train_src, view_index = usable_windows(
+            view_train, length, recipe["train_sampler"], t_in, t_out
+        )
+        src_points = slice(None)
+        if not np.array_equal(view_index, train_index):
+            raise TrainingError(
+                f"{model_name}: its training view changes the sequences' lengths "
+                f"(training_view must map every frame to one)"
+            )
+    return _Data(
+        train_src, train_pos, train_index, val_pos, val_index, used, src_points, t_in, length
+    )
+
+
+@dataclass
+class _Run:
+    """Where a run stands: its next epoch, best epoch, history and recorded recipe changes."""
+
+    first_epoch: int
+    best: dict[str, Any]
+    history: list[dict[str, Any]]
+    recipe_changes: list[dict[str, Any]] | None = None
+    init_record: dict[str, Any] | None = None
+    state: dict[str, Any] | None = None
+
+    def __post_init__(self) -> None:
+        self.recipe_changes = self.recipe_changes or []
+
+
+def _resumed(path: Path, model_name, hparams, model, optimizer, recipe, seed) -> _Run:
+    """The run ``last.pt`` holds, its weights, optimiser and RNG state loaded."""
+    state = read_checkpoint(path)
+    if state["model"] != model_name or state["hparams"] != stored_hparams(hparams)[0]:
+        raise CheckpointError(
+            f"{path}: cannot resume: it holds {state['model']!r} with other hyper-parameters"
+        )
+    model.load_state_dict(state["state_dict"])
+    optimizer.load_state_dict(state["optimizer"])
+    torch.set_rng_state(state["rng"])
+    history = state["history"]
+    for record in history:  # epochs written before they named their device
+        record.setdefault("device", (state.get("training") or {}).get("device_name"))
+    return _Run(
+        first_epoch=state["epoch"] + 1,
+        best=state["best"],
+        history=history,
+        init_record=state.get("init_from"),
+        state=state,
+    )
+
+
+def _print_plan(model_name, bench, data: _Data, recipe, steps, first_epoch, seed, out_dir) -> None:
+    schedule = recipe["schedule"] or {"type": "constant"}
+    print(
+        f"training {model_name} on {bench.name}: {len(data.train_index)} training windows "
+        f"({recipe['train_sampler']}), {len(data.val_index)} validation windows; "
+        f"{steps} steps of batch {recipe['batch_size']} an epoch, epochs "
+        f"{first_epoch + 1}..{recipe['epochs']}; adam lr {recipe['lr']:g}, schedule "
+        f"{schedule}, weight decay {recipe['weight_decay']:g}, gradient clip "
+        f"{recipe['grad_clip']}, {recipe['precision']}; seed {seed}; checkpoints in {out_dir}",
+        flush=True,
+    )
+
+
+class _Epochs:
+    """Every epoch's work: the model's epoch hook, the epoch's data order (from seed and epoch
+    alone, so a resumed run sees what an uninterrupted one would), its steps, its validation."""
+
+    def __init__(
+        self, model_name, model, optimizer, recipe, data: _Data, seed: int, device,
+        dist_info: DistInfo, progress: bool, graphed: bool, *, task: str,
+        max_batches: int | None, fps: float, mesh: bool,
+    ) -> None:  # fmt: skip
+        self.model_name, self.model, self.optimizer = model_name, model, optimizer
+        self.recipe, self.data, self.seed, self.device = recipe, data, seed, device
+        self.dist_info, self.graphed = dist_info, graphed
+        self.progress = progress and dist_info.rank == 0
+        self.task, self.fps, self.mesh = task, fps, mesh
+        objective = TrainingObjective(model, task, view=data.view)
+        # Some phases leave parameters without gradients (SpecTrHuMS's transformer while the
+        # autoencoder trains alone), which DDP must be told to expect.
+        self.net = (
+            torch.nn.parallel.DistributedDataParallel(objective, find_unused_parameters=True)
+            if dist_info.active
+            else objective
+        )
+        batch_size = recipe["batch_size"]
+        if batch_size % dist_info.world:
+            raise TrainingError(
+                f"batch_size {batch_size} must divide evenly over {dist_info.world} processes"
+            )
+        # Incomplete last batches are dropped, so every process always gets an equal share.
+        steps = max(1, len(data.train_index) // batch_size)
+        self.steps = min(steps, max_batches) if max_batches else steps
+
+    def run(self, epoch: int) -> dict[str, Any]:
+        """0-based ``epoch`` trained and validated: its record in the run's history."""
+        lr, train_loss, started, seen = self.train_epoch(epoch)
+        data = self.data
+        validation = validate(
+            self.model,
+            data.val_pos,
+            data.val_index,
+            data.t_in,
+            data.length - data.t_in,
+            data.used,
+            self.device,
+            task=self.task,
+            fps=self.fps,
+            mesh=self.mesh,
+        )
+        return {
+            "epoch": epoch + 1,
+            "lr": lr,
+            "train_loss": train_loss,
+            **validation,
+            "seconds": time.perf_counter() - started,
+            "samples": seen,
+            "device": device_name(self.device),  # a resumed run may move between machines
+        }
+
+    def frames(self):
+        """``(frames (N, P, 3), counts (N,))``: every distinct frame of the training windows
+        once, in a fixed order, with how many training windows hold it (statistics over every
+        frame of every window at a fraction of the cost: sampler all puts each frame in
+        ``length`` windows), in batches of at most 2**24 values (64 MiB) so big meshes fit."""
+        data = self.data
+        counts = frame_counts(data.train_index, [len(a) for a in data.train_pos], data.length)
+        flat = np.concatenate(counts)
+        held = flat > 0
+        # each held frame as a one-frame window (sequence, frame) for gather_windows
+        frame_index = np.stack(
+            [
+                np.repeat(np.arange(len(counts)), [len(c) for c in counts]),
+                np.concatenate([np.arange(len(c)) for c in counts]),
+            ],
+            1,
+        )[held]
+        weights = torch.from_numpy(flat[held])
+        src = data.train_src
+        batch = max(1, 2**24 // int(np.prod(src[0][:1, data.src_points].shape)))
+        for start in range(0, len(frame_index), batch):
+            frames = gather_windows(src, frame_index[start : start + batch], 1)[
+                :, 0, data.src_points
+            ]
+            yield (
+                torch.from_numpy(np.ascontiguousarray(frames)).to(self.device),
+                weights[start : start + batch].to(self.device),
+            )
+
+    def train_epoch(self, epoch: int) -> tuple[float, float, float, int]:
+        """Runs 0-based ``epoch``'s steps: its last learning rate, mean loss, start time
+        (``time.perf_counter``) and the windows seen by all processes."""
+        recipe, data, model = self.recipe, self.data, self.model
+        # captured anew every epoch: start_epoch may change what a step does (SpecTrHuMS's
+        # autoencoder-only phase, then the joint one)
+        step_graph = (
+            CudaGraphStep(self.net, model, self.optimizer, recipe, self.device)
+            if self.graphed
+            else None
+        )
+        # e.g. warm-up phases, statistics over the data; frames in the model's training view
+        # where it trains on one
+        prepare_epoch(model, epoch, self.frames, view=data.view)
+        order = torch.randperm(
+            len(data.train_index),
+            generator=torch.Generator().manual_seed(self.seed * 100003 + epoch),
+        )
+        augment_rng = np.random.default_rng([self.seed, epoch])
+        model.train()
+        bar = progress_bar(
+            total=self.steps,
+            desc=f"{self.model_name} epoch {epoch + 1}/{recipe['epochs']}",
+            unit="batch",
+            leave=False,
+            dynamic_ncols=True,
+            disable=not self.progress,
+        )
+        started, seen, loss_sum = time.perf_counter(), 0, 0.0
+        batch_size, rank, world = recipe["batch_size"], self.dist_info.rank, self.dist_info.world
+        for step in range(self.steps):
+            lr = learning_rate(
+                recipe["schedule"], recipe["lr"], epoch, recipe["epochs"], epoch * self.steps + step
+            )
+            set_learning_rate(self.optimizer, lr)
+            rows = order[step * batch_size : (step + 1) * batch_size].numpy()
+            rows = rows[rank::world]  # this process's share of the batch
+            windows = gather_windows(data.train_src, data.train_index[rows], data.length)[
+                :, :, data.src_points
+            ]
+            if "time_reversal" in (recipe["augment"] or ()):
+                flip = augment_rng.random(len(windows)) < 0.5
+                windows[flip] = windows[flip, ::-1]
+            windows = torch.from_numpy(np.ascontiguousarray(windows)).to(self.device)
+            where = f"{self.model_name}: {{loss}} at epoch {epoch + 1}, batch {step + 1}"
+            history, future = windows[:, : data.t_in], windows[:, data.t_in :]
+            if step_graph is not None:
+                loss = step_graph(history, future, where)
+            else:
+                loss = training_step(
+                    self.net, model, self.optimizer, history, future, recipe, self.device, where
+                )
+            seen += len(rows) * world
+            loss_sum += loss.item()
+            bar.update(1)
+            bar.set_postfix(
+                loss=f"{loss.item():.3f}",
+                samples_per_s=f"{seen / (time.perf_counter() - started):.0f}",
+            )
+        bar.close()
+        return lr, loss_sum / self.steps, started, seen
+
+
+def _finish_epoch(out_dir, meta, model, optimizer, epoch, run: _Run, recipe, device, record):
+    """Rank 0: the best epoch so far, both checkpoints, and the epoch's log line."""
+    val = record["val_mpjpe"]
+    if val < run.best["val_mpjpe"]:
+        run.best = {"val_mpjpe": val, "epoch": epoch + 1}
+    save_epoch(out_dir, meta, model, optimizer, epoch, run.best, run.history, recipe, device)
+    best = run.best
+    print(
+        f"{meta['model']} epoch {epoch + 1}: train loss {record['train_loss']:.4f}, "
+        f"val MPJPE {val:.2f} mm (best {best['val_mpjpe']:.2f} at epoch {best['epoch']}), "
+        f"{record['seconds']:.1f} s; " + horizons_text(record["val_horizons"]),
+        flush=True,
+    )
+
+
+__all__ = ["train"]

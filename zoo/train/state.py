@@ -1,0 +1,237 @@
+"""What a run writes and reads back: the checkpoint's contents (``best.pt``, ``last.pt``), the
+checks of a resume, and the weights a new stage starts from."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import torch
+from torch import nn
+
+from zoo.benchmark import Benchmark
+from zoo.checkpoints import (
+    CHECKPOINT_FORMAT,
+    CheckpointError,
+    model_origin,
+    model_protocol,
+    plain,
+    read_checkpoint,
+    save_checkpoint,
+    stored_hparams,
+    trained_model,
+    weights_digest,
+)
+from zoo.distributed import DistInfo
+from zoo.errors import TrainingError
+from zoo.io import code_version, repo_relative, sha256_file
+from zoo.registry import Registry
+from zoo.train.host import device_name, devices_text
+from zoo.train.recipe import DEFAULT_RECIPE
+from zoo.weights import read_weights
+
+
+def save_epoch(
+    out_dir: Path,
+    meta: dict[str, Any],
+    model: nn.Module,
+    optimizer: torch.optim.Optimizer,
+    epoch: int,
+    best: dict[str, Any],
+    history: list[dict[str, Any]],
+    recipe: dict[str, Any],
+    device,
+) -> None:
+    """The checkpoints of a finished epoch (0-based ``epoch``): ``best.pt`` when it is the best
+    so far, and ``last.pt``, the full state ``--resume`` continues from (optimiser, RNG)."""
+    summary = _training_summary(recipe, history, best, device)
+    if best["epoch"] == epoch + 1:
+        # the curve up to this epoch travels too: a run whose best is its last epoch ships
+        # one file, and its training plot with it
+        save_checkpoint(
+            out_dir / "best.pt",
+            {
+                **meta,
+                "state_dict": model.state_dict(),
+                "history": list(history),
+                "training": summary,
+            },
+        )
+    save_checkpoint(
+        out_dir / "last.pt",
+        {
+            **meta,
+            "state_dict": model.state_dict(),
+            "optimizer": optimizer.state_dict(),
+            "rng": torch.get_rng_state(),
+            # dropout on a GPU draws from the device's generator
+            **(
+                {"cuda_rng": torch.cuda.get_rng_state(torch.device(device))}
+                if torch.device(device).type == "cuda"
+                else {}
+            ),
+            "epoch": epoch,
+            "best": best,
+            "history": history,
+            "training": summary,
+        },
+    )
+
+
+# The run's budget may grow when it is resumed (each change is recorded with the epoch it took
+# effect); every other field of the recipe must stay what the checkpoint says was run.
+BUDGET_FIELDS = ("epochs", "max_batches")
+
+
+def resume_changes(
+    path: Path, state: dict[str, Any], recipe: dict[str, Any], seed: int, max_batches: int | None
+) -> list[dict[str, Any]]:
+    """The checkpoint's recorded recipe changes plus this resume's; refuses any change that is
+    not the budget, naming the fields."""
+    stored = state.get("recipe") or {}
+    given = plain(recipe)
+    differ = [
+        f"{key}: {stored.get(key, DEFAULT_RECIPE.get(key))!r} in the checkpoint, "
+        f"{given.get(key)!r} now"
+        for key in sorted(set(stored) | set(given))
+        # a key the checkpoint predates held its default then
+        if key not in BUDGET_FIELDS and stored.get(key, DEFAULT_RECIPE.get(key)) != given.get(key)
+    ]
+    if state.get("seed") != seed:
+        differ.append(f"seed: {state.get('seed')!r} in the checkpoint, {seed!r} now")
+    if differ:
+        raise CheckpointError(
+            f"{path}: cannot resume with another recipe ({'; '.join(differ)}); "
+            f"only the budget (--epochs, --max-batches) may change on "
+            f"resume. Resume with the checkpoint's values, or start a new "
+            f"run with another --out"
+        )
+    done = state["epoch"] + 1
+    if recipe["epochs"] < done:
+        raise CheckpointError(
+            f"{path}: cannot resume with --epochs {recipe['epochs']}: the run "
+            f"has already trained {done} epochs"
+        )
+    changes = list(state.get("recipe_changes") or [])
+    now = {"epochs": recipe["epochs"], "max_batches": max_batches}
+    before = {"epochs": stored.get("epochs"), "max_batches": state.get("max_batches")}
+    for field in BUDGET_FIELDS:
+        # Checkpoints written before max_batches was recorded cannot say what it was.
+        if field in stored or field in state:
+            if before[field] != now[field]:
+                changes.append(
+                    {
+                        "field": field,
+                        "from": before[field],
+                        "to": now[field],
+                        "from_epoch": done + 1,
+                    }
+                )
+    return changes
+
+
+def initial_weights(
+    path: str | Path, model_name: str, bench: Benchmark, registry: Registry, data_root, dataset
+) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
+    """The state dict a new training stage starts from, and what the run records about it: the
+    file, its kind and sha256, and the source's own recipe, budget and origin (so a chain of
+    stages keeps every budget). The source is a training checkpoint (``.pt``) or shipped weights
+    (``.safetensors``, checked against their record's sha256), so anyone can extend a published
+    row's training from the repository alone; shipped weights may be float16, and the record
+    says so. Refused, naming the file, if it holds another model or was trained for another
+    protocol or data (the checks of ``trained_model``)."""
+    path = Path(path)
+    if path.suffix not in (".pt", ".safetensors"):
+        raise TrainingError(
+            f"--init-from {path}: expected a training checkpoint (best.pt or "
+            f"last.pt) or shipped weights (.safetensors with their .json record)"
+        )
+    if not path.is_file():
+        raise TrainingError(f"--init-from {path}: no such file")
+    if path.suffix == ".safetensors":
+        state_dict, meta = read_weights(path)
+        kind, digest = "weights", meta["sha256"]
+    else:
+        meta = read_checkpoint(path)
+        state_dict, kind, digest = meta["state_dict"], "checkpoint", sha256_file(path)
+    if meta["model"] != model_name:
+        raise TrainingError(f"--init-from {path}: it holds {meta['model']!r}, not {model_name!r}")
+    source = trained_model(
+        meta,
+        state_dict,
+        kind,
+        path,
+        registry=registry,
+        benchmark=bench,
+        data_root=data_root,
+        dataset=dataset,
+    )
+    record = {
+        "path": repo_relative(path),
+        "kind": kind,
+        "sha256": digest,
+        **({"dtype": meta["dtype"]} if kind == "weights" else {}),
+        "hparams": meta["hparams"],
+        **{
+            k: meta.get(k)
+            for k in ("recipe", "max_batches", "recipe_changes", "training", "init_from")
+        },
+    }
+    return source.state_dict(), record
+
+
+def run_metadata(entry, hparams, bench, dataset, recipe, seed, device, dist_info, view):
+    stored, context_hashes = stored_hparams(hparams)
+    return {
+        "format": CHECKPOINT_FORMAT,
+        "model": entry.name,
+        "origin": model_origin(entry),
+        "hparams": stored,
+        "context_hashes": context_hashes,
+        "protocol": model_protocol(bench, view),
+        "training_data": _training_data(dataset),
+        "recipe": plain(recipe),
+        "seed": seed,
+        "code_version": code_version(),
+        "torch": str(torch.__version__),
+        "world_size": dist_info.world,
+    }
+
+
+def _training_data(dataset) -> dict[str, Any]:
+    if hasattr(dataset, "files"):
+        return {
+            "dataset": dataset.name,
+            "split": dataset.split,
+            "files": [{"file": f["file"], "sha256": f["sha256"]} for f in dataset.files()],
+        }
+    mesh = getattr(dataset, "mesh", dataset)  # a JointsView trains on its mesh's regressed joints
+    return {
+        "dataset": mesh.name,
+        "split": mesh.split,
+        "recipe_hash": mesh.recipe_hash,
+        "content_hash": mesh.content_hash(),
+        "topology_hash": mesh.topology.hash,
+        **({"points": f"regressor{dataset.num_joints}"} if mesh is not dataset else {}),
+    }
+
+
+def _training_summary(recipe, history, best, device) -> dict[str, Any]:
+    return {
+        "epochs_run": len(history),
+        "epochs_planned": recipe["epochs"],
+        "samples_seen": int(sum(h["samples"] for h in history)),
+        "seconds": float(sum(h["seconds"] for h in history)),
+        "device": str(device),
+        "device_name": devices_text(history, device_name(device)),
+        "best": best,
+        "final_val_mpjpe": history[-1]["val_mpjpe"] if history else None,
+    }
+
+
+def write_rank_digest(out_dir: Path, model: nn.Module, dist_info: DistInfo) -> None:
+    from zoo.io import atomic_write_text
+
+    atomic_write_text(
+        out_dir / "ranks" / f"rank{dist_info.rank}.sha256", weights_digest(model) + "\n"
+    )
