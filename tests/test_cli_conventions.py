@@ -6,6 +6,8 @@ from __future__ import annotations
 import subprocess
 import sys
 
+import pytest
+
 from zoo.version import __version__
 
 
@@ -84,3 +86,43 @@ def test_every_option_of_every_command_has_help():
 
     walk(build_parser(), ["zoo"])
     assert missing == []
+
+
+def test_nested_actions_take_only_their_own_options(capsys):
+    """``zoo data basis`` offers --ship, not export's --window; ``zoo weights list`` no --dtype."""
+    from zoo.cli import main
+
+    for argv, own, foreign in (
+        (["data", "basis", "--help"], "--ship", "--window"),
+        (["data", "export", "--help"], "--window", "--ship"),
+        (["weights", "list", "--help"], "--weights-dir", "--dtype"),
+    ):
+        with pytest.raises(SystemExit):
+            main(argv)
+        text = capsys.readouterr().out
+        assert own in text and foreign not in text, argv
+
+
+def test_defaults_are_shown_by_the_formatter(capsys):
+    from zoo.cli import main
+    from zoo.options import EVAL_BATCH
+
+    with pytest.raises(SystemExit):
+        main(["eval", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert f"windows per forward pass (default: {EVAL_BATCH})" in text
+    assert "results root (default: results/)" in text
+    assert "(default: None)" not in text and "(default: False)" not in text
+
+
+def test_an_old_spelling_works_with_a_deprecation_line(tmp_path, capsys):
+    """``--root`` (weights folder) became ``--weights-dir``: both list the same folder, the old
+    one saying which replaces it."""
+    from zoo.cli import main
+
+    assert main(["weights", "list", "--weights-dir", str(tmp_path)]) == 0
+    new = capsys.readouterr()
+    assert main(["weights", "list", "--root", str(tmp_path)]) == 0
+    old = capsys.readouterr()
+    assert old.out == new.out
+    assert "--root is deprecated, use --weights-dir" in old.err and "deprecated" not in new.err

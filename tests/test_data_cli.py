@@ -56,8 +56,10 @@ def test_data_list_and_missing_benchmark(capsys):
     assert main(["data", "list"]) == 0
     out = capsys.readouterr().out
     assert "cmu_anny_oi" in out and "cloth" in out
-    assert main(["data", "describe"]) == 2
-    assert "needs a benchmark name" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exit_:
+        main(["data", "describe"])
+    assert exit_.value.code == 2
+    assert "required: benchmark" in capsys.readouterr().err
 
 
 def test_render_writes_picture_and_meshes(tmp_path):

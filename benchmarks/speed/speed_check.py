@@ -32,8 +32,8 @@ import numpy as np
 import torch
 
 from zoo.check import CHECK_WINDOWS, fresh_seed
-from zoo.cli import committed_benchmarks
 from zoo.cli import main as zoo_main
+from zoo.cli.common import committed_benchmarks
 from zoo.results import WINDOWS_FILE, WindowErrors
 
 

@@ -1,0 +1,81 @@
+"""The ``zoo`` command: list models, evaluate, regenerate leaderboards, train, build data.
+
+One module per command (``zoo/cli/<command>.py``: its options in ``add``, its work in ``run``);
+what they share is in :mod:`zoo.cli.common`. Nothing here imports torch until a command runs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+
+from zoo.cli import (
+    cards,
+    compare,
+    costs,
+    data,
+    evaluate,
+    leaderboard,
+    list_models,
+    render,
+    site,
+    train,
+    weights,
+)
+from zoo.cli.common import HelpFormatter, UsageError, check_device, parse_overrides, shape_overrides
+from zoo.errors import ZooError
+
+COMMANDS = (
+    list_models,
+    evaluate,
+    leaderboard,
+    costs,
+    cards,
+    site,
+    compare,
+    render,
+    data,
+    weights,
+    train,
+)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from zoo.version import __version__
+
+    parser = argparse.ArgumentParser(
+        prog="zoo",
+        description="motion-zoo: list models, evaluate, regenerate leaderboards, train, "
+        "build data.",
+        formatter_class=HelpFormatter,
+    )
+    parser.add_argument("--version", action="version", version=f"motion-zoo {__version__}")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for command in COMMANDS:
+        command.add(sub)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        if getattr(args, "device", None) is not None:
+            check_device(args.device)
+        if getattr(args, "set", None):
+            shape_overrides(parse_overrides(args.set), getattr(args, "benchmark", None))
+        return args.func(args)
+    except ZooError as e:
+        print(f"zoo {args.command}: error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(
+            f"zoo {args.command}: interrupted (nothing half-written is left; a training run "
+            f"continues with --resume)",
+            file=sys.stderr,
+        )
+        return 130
+
+
+__all__ = ["UsageError", "build_parser", "main", "parse_overrides"]

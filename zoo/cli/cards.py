@@ -1,0 +1,55 @@
+"""``zoo cards``: the model cards from the registry, weights records and results."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from zoo.cli.common import (
+    Deprecated,
+    add_command,
+    registry_of,
+    registry_option,
+    results_option,
+    weights_dir_option,
+)
+from zoo.paths import REPO_ROOT
+
+
+def add(sub) -> None:
+    p = add_command(
+        sub,
+        "cards",
+        "write the model cards (docs/models/<model>.md) from the registry, the shipped "
+        "weights' records and results/; --check names the stale ones",
+        run,
+    )
+    registry_option(p)
+    p.add_argument("--check", action="store_true", help="write nothing; exit 1 if a card is stale")
+    p.add_argument("--out", default=str(REPO_ROOT / "docs" / "models"), help="cards folder")
+    weights_dir_option(p, "shipped weights folder")
+    p.add_argument("--weights", dest="weights_dir", action=Deprecated, new="--weights-dir")
+    results_option(p)
+
+
+def run(args) -> int:
+    from zoo.cards import build_cards
+
+    statuses = build_cards(
+        Path(args.out),
+        registry=registry_of(args),
+        weights_root=Path(args.weights_dir),
+        results_root=Path(args.results),
+        write=not args.check,
+    )
+    stale = [s for s in statuses if not s.fresh]
+    for s in statuses:
+        state = "up to date" if s.fresh else s.reason
+        verb = "" if s.fresh or args.check else " (rewritten)"
+        print(f"{s.path}: {state}{verb}")
+        if args.check:
+            for line in s.diff[:6]:
+                print(f"    {line}")
+    if args.check and stale:
+        print(f"{len(stale)} of {len(statuses)} card(s) stale: run `zoo cards` to rewrite them")
+        return 1
+    return 0

@@ -1,0 +1,89 @@
+"""``zoo compare``: is A better than B?"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from zoo.cli.common import UsageError, add_command, positive_int, results_option
+
+
+def add(sub) -> None:
+    p = add_command(
+        sub,
+        "compare",
+        "is A better than B? paired differences per horizon, intervals, sign test",
+        run,
+    )
+    p.add_argument("a", help="model label (with --benchmark) or result folder")
+    p.add_argument("b", help="model label (with --benchmark) or result folder")
+    p.add_argument("--benchmark", help="benchmark whose results/<benchmark>/<sampler>/ to read")
+    p.add_argument("--sampler", help="window sampler (default: the benchmark's)")
+    p.add_argument(
+        "--ground-truth",
+        choices=["raw", "spectral"],
+        help="mesh benchmarks: the results scored against this ground truth",
+    )
+    results_option(p)
+    p.add_argument("--metric", help="default: the benchmark's headline (mpjpe; rmse on meshes)")
+    p.add_argument("--joints", help="joint protocol (default: the official one, e.g. all38)")
+    p.add_argument(
+        "--averaging",
+        default="frame",
+        choices=["frame", "cumulative"],
+        help="error at each frame, or the mean up to it",
+    )
+    p.add_argument(
+        "--block-frames",
+        type=positive_int,
+        help="bootstrap block length in frames (default: eight window lengths)",
+    )
+    p.add_argument("--confidence", type=float, default=0.95, help="level of the intervals")
+    p.add_argument("--replicates", type=positive_int, default=2000, help="bootstrap replicates")
+    p.add_argument("--seed", type=int, default=0, help="seed of the bootstrap")
+    p.add_argument("--out", help="also write comparison.md and comparison.png in this folder")
+
+
+def run(args) -> int:
+    from zoo.comparison import compare
+
+    folders = []
+    for name in (args.a, args.b):
+        if Path(name).is_dir():
+            folders.append(Path(name))
+            continue
+        if not args.benchmark:
+            raise UsageError(
+                f"{name!r} is not a result folder; give --benchmark to find "
+                f"results/<benchmark>/<sampler>/{name}"
+            )
+        from zoo.benchmark import get_benchmark
+        from zoo.store import result_path, table_folder
+
+        bench = get_benchmark(args.benchmark)
+        folder = result_path(
+            args.results,
+            bench.name,
+            table_folder(args.sampler or bench.sampler, truth=args.ground_truth),
+            name,
+        )
+        if not (folder / "results.csv").is_file():
+            raise UsageError(
+                f"{folder}: no result of {name!r} there (zoo eval or zoo leaderboard writes it)"
+            )
+        folders.append(folder)
+    comparison = compare(
+        folders[0],
+        folders[1],
+        metric=args.metric,
+        joints=args.joints,
+        averaging=args.averaging,
+        block_frames=args.block_frames,
+        confidence=args.confidence,
+        replicates=args.replicates,
+        seed=args.seed,
+    )
+    print(comparison.markdown())
+    if args.out:
+        comparison.write(args.out)
+        print(f"wrote {args.out}/comparison.md, comparison.png")
+    return 0

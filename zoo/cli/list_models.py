@@ -1,0 +1,44 @@
+"""``zoo list``: the registered models."""
+
+from __future__ import annotations
+
+from zoo.cli.common import add_command, registry_of, registry_option
+
+
+def add(sub) -> None:
+    p = add_command(sub, "list", "list registered models", run)
+    registry_option(p)
+    p.add_argument(
+        "--representation", choices=["joints", "mesh"], help="only models of this representation"
+    )
+
+
+def run(args) -> int:
+    """Each model as a short block (as ``pip show`` does): name, representation, whether it
+    trains, its description and its full reference, wrapped to the terminal."""
+    import shutil
+    import textwrap
+
+    registry = registry_of(args)
+    width = min(100, shutil.get_terminal_size((100, 24)).columns)
+    blocks = []
+    for name in registry.list_models(args.representation):
+        e = registry.get(name)
+        trains = (
+            "trainable"
+            if e.trainable
+            else (f"runs {e.weights_of}'s weights" if e.weights_of else "not trained")
+        )
+        lines = [f"{name}  ({'/'.join(e.representation)}; {trains})"]
+        for label, text in (("", e.description), ("Reference: ", e.reference)):
+            if text:
+                lines += textwrap.wrap(
+                    " ".join(str(text).split()),
+                    width,
+                    initial_indent="    " + label,
+                    subsequent_indent="    ",
+                )
+        blocks.append("\n".join(lines))
+    print("\n\n".join(blocks))
+    print(f"\n{len(blocks)} model(s); hyper-parameters and recipes: docs/models/<model>.md")
+    return 0

@@ -1,0 +1,76 @@
+"""``zoo train``: a model on a benchmark's training split."""
+
+from __future__ import annotations
+
+from zoo.cli.common import add_command, common_options, parse_overrides, registry_of
+
+
+def add(sub) -> None:
+    p = add_command(sub, "train", "train a model on a benchmark's training split", run)
+    common_options(p)
+    p.add_argument("--model", required=True, help="registered model name")
+    p.add_argument("--benchmark", default="cmu", help="benchmark whose training split to learn")
+    p.add_argument("--epochs", type=int, help="default: the registry recipe's")
+    p.add_argument("--out", help="run folder (default: checkpoints/<benchmark>/<model>)")
+    p.add_argument("--set", action="append", metavar="KEY=VALUE", help="model hyper-parameter")
+    p.add_argument(
+        "--train-set",
+        action="append",
+        metavar="KEY=VALUE",
+        help="training-recipe override (lr, batch_size, ...)",
+    )
+    p.add_argument("--resume", action="store_true", help="continue from the run's last state")
+    p.add_argument(
+        "--init-from",
+        metavar="PATH",
+        help="start from this checkpoint (best.pt or last.pt) or shipped weights "
+        "(.safetensors) of the same model and benchmark, with a fresh optimiser "
+        "and schedule: a new stage of training, recorded with the source's budget",
+    )
+    p.add_argument("--seed", type=int, default=0, help="seed of weights, order and dropout")
+    p.add_argument("--max-batches", type=int, help="cap batches per epoch (quick runs)")
+    p.add_argument(
+        "--no-progress",
+        action="store_true",
+        help="no progress bar even on a terminal (a log or pipe never gets one)",
+    )
+    p.add_argument(
+        "--cuda-graph",
+        action="store_true",
+        help="on one CUDA device, capture each epoch's step once as a CUDA graph and replay it "
+        "(small models train several times faster; a step that reads values back to decide "
+        "what to do cannot be captured and is refused)",
+    )
+
+
+def run(args) -> int:
+    from zoo.train.loop import train
+
+    if args.out:  # a file there, or an unwritable place, is refused before training
+        from zoo.io import check_writable
+
+        check_writable(args.out, what=f"--out {args.out}")
+    registry = registry_of(args)
+    best = train(
+        args.model,
+        args.benchmark,
+        registry=registry,
+        epochs=args.epochs,
+        out_dir=args.out,
+        data_root=args.data_root,
+        overrides=parse_overrides(args.set),
+        train_overrides=parse_overrides(args.train_set),
+        resume=args.resume,
+        seed=args.seed,
+        device=args.device,
+        max_batches=args.max_batches,
+        progress=not args.no_progress,
+        init_from=args.init_from,
+        cuda_graph=args.cuda_graph,
+    )
+    print(
+        f"wrote {best} (best validation epoch) and {best.parent / 'last.pt'} (last epoch): "
+        f"zoo eval --checkpoint {best} scores it, zoo leaderboard picks up "
+        f"checkpoints/<benchmark>/<model>/, zoo weights export {best} ships it"
+    )
+    return 0
