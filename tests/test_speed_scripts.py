@@ -13,6 +13,7 @@ REPO = Path(__file__).resolve().parents[1]
 SPEED = REPO / "benchmarks" / "speed"
 CMU_BVH = REPO.parent / "shared" / "data" / "cmu_bvh"
 SCRIPTS = [
+    "public_msrgcn_training",
     "public_spgsn",
     "speed_anny",
     "speed_baselines",
@@ -67,6 +68,11 @@ def test_speed_baselines(capsys):
     load("speed_baselines").main(["--repeats", "1", "--tiny"])
     out = capsys.readouterr().out
     assert "ltd training step" in out and "pgbig training step" in out and "ratio" in out
+
+
+def test_public_msrgcn_training_names_a_missing_checkout(tmp_path, capsys):
+    assert load("public_msrgcn_training").main(["--public", str(tmp_path), "--steps", "1"]) == 0
+    assert f"no public checkout at {tmp_path / 'MSRGCN'}" in capsys.readouterr().out
 
 
 def test_speed_public_cmu_names_missing_checkouts_and_steps_the_zoo_models(tmp_path, capsys):
