@@ -126,3 +126,11 @@ def test_an_old_spelling_works_with_a_deprecation_line(tmp_path, capsys):
     old = capsys.readouterr()
     assert old.out == new.out
     assert "--root is deprecated, use --weights-dir" in old.err and "deprecated" not in new.err
+
+
+def test_compare_refuses_an_unknown_sampler_by_name(capsys):
+    from zoo.cli import main
+
+    assert main(["compare", "a", "b", "--benchmark", "cmu", "--sampler", "ltd9"]) == 2
+    err = capsys.readouterr().err
+    assert "--sampler: unknown sampler 'ltd9'; valid samplers: ltd8" in err

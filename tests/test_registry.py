@@ -46,6 +46,29 @@ def test_bad_registry_entry_names_file_and_field(tmp_path):
         Registry.from_files(path)
 
 
+def test_a_misspelt_field_gets_a_did_you_mean(tmp_path):
+    path = tmp_path / "typo.yaml"
+    path.write_text("models:\n  x:\n    class: a.B\n    representation: joints\n    hparam: {}\n")
+    with pytest.raises(
+        RegistryError, match=r"unknown field\(s\) hparam \(did you mean hparams\?\)"
+    ):
+        Registry.from_files(path)
+
+
+def test_a_class_the_file_lacks_is_named_with_the_file_and_its_classes(tmp_path):
+    (tmp_path / "mine.py").write_text(BASELINE)
+    path = tmp_path / "mine.yaml"
+    path.write_text(
+        "models:\n  mine:\n    class: mine.py:DampedVelocty\n    representation: joints\n"
+    )
+    registry = Registry.from_files(path)
+    with pytest.raises(RegistryError) as error:
+        registry.get("mine").load_class()
+    text = str(error.value)
+    assert f"{tmp_path / 'mine.py'} defines no class 'DampedVelocty'" in text
+    assert "it defines DampedVelocity" in text and "zoo_user_" not in text
+
+
 BASELINE = '''
 import torch
 
@@ -237,7 +260,7 @@ def test_a_known_name_needs_an_explicit_override_that_results_record(
     assert main(args) == 0
     provenance = json.loads((tmp_path / "out" / "protocol.json").read_text())["provenance"]
     assert provenance["class"] == "my_baselines.py:DampedVelocity"
-    assert provenance["registry"] == str(registry) and provenance["replaces"].endswith(
+    assert provenance["registry"] == f"outside:{registry.name}" and provenance["replaces"].endswith(
         "registry.yaml"
     )
     # the zoo's own entries record theirs too

@@ -722,3 +722,22 @@ def test_a_model_whose_output_has_the_wrong_shape_is_refused_before_the_first_st
     assert not (out / "last.pt").exists()
     assert main(["eval", "--model", "wrong_shape", "--out", str(tmp_path / "e"), *common]) == 2
     assert "model 'wrong_shape' returned (8, 24, 25, 3); the contract" in capsys.readouterr().err
+
+
+def test_a_best_epoch_that_predicts_no_motion_is_warned_about(setup, tmp_path):
+    """The MLP starts as repeat-last; with its weights frozen (lr 0) its best epoch is
+    repeat-last at every horizon, which the engine says."""
+    root, registry, _ = setup
+    with pytest.warns(RuntimeWarning, match=r"mlp: its best epoch \(1\) cannot be told apart"):
+        train("mlp", "cmu", registry=registry, data_root=root, out_dir=tmp_path / "m",
+              progress=False, epochs=1, max_batches=1,
+              train_overrides={"lr": 0, "schedule": {"type": "constant"}})  # fmt: skip
+
+
+def test_like_repeat_last_needs_every_horizon_within_one_percent():
+    from zoo.train.validate import like_repeat_last
+
+    horizons = {"horizons": ["a", "b"], "repeat_last": [10.0, 100.0]}
+    assert like_repeat_last({**horizons, "model": [10.05, 100.9]})
+    assert not like_repeat_last({**horizons, "model": [10.05, 98.0]})
+    assert not like_repeat_last(None)

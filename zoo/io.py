@@ -148,6 +148,18 @@ def repo_relative(path: str | Path) -> str:
     return str(path.relative_to(REPO_ROOT) if path.is_relative_to(REPO_ROOT) else path)
 
 
+def registry_record(path: str | Path) -> str:
+    """How a result names the registry file of its model: relative to the repository inside
+    it; outside, ``outside:<file name>``, so a result shared from one machine names none of its
+    folders (and a registry moved between folders keeps its results)."""
+    path = Path(path).resolve()
+    return (
+        str(path.relative_to(REPO_ROOT))
+        if path.is_relative_to(REPO_ROOT)
+        else f"outside:{path.name}"
+    )
+
+
 def sha256_file(path: str | Path) -> str:
     digest = hashlib.sha256()
     with open(path, "rb") as f:

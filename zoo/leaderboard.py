@@ -709,28 +709,28 @@ def _recorded_registry(folder: Path) -> str | None:
 def _refuse_foreign_registry(folder: Path, loaded, label: str) -> None:
     """A stored row of this label made with another registry's model is the user's: never
     replaced by a rebuild that does not load that registry."""
-    from zoo.io import repo_relative
+    from zoo.io import registry_record
 
     recorded = _recorded_registry(folder)
-    if recorded is not None and recorded != repo_relative(loaded.entry.source):
+    if recorded is not None and recorded != registry_record(loaded.entry.source):
         raise StoreError(
             f"{folder}: row {label!r} was evaluated with registry {recorded}, which "
             f"this run does not load (its {label!r} comes from "
-            f"{repo_relative(loaded.entry.source)}); nothing was changed: pass "
-            f"--registry {recorded}, or remove the row deliberately with --drop "
+            f"{registry_record(loaded.entry.source)}); nothing was changed: pass "
+            f"--registry with that file, or remove the row deliberately with --drop "
             f"{label}"
         )
 
 
 def _why_not_planned(folder: Path, board: Leaderboard) -> str:
-    from zoo.io import repo_relative
+    from zoo.io import registry_record
 
     recorded = _recorded_registry(folder)
-    loaded = {repo_relative(e.source) for e in board.registry.entries.values()}
+    loaded = {registry_record(e.source) for e in board.registry.entries.values()}
     if recorded is not None and recorded not in loaded:
         return (
-            f"registry {recorded} not loaded: --registry {recorded} recomputes it, --drop "
-            f"{folder.name} removes it"
+            f"registry {recorded} not loaded: --registry with that file recomputes it, "
+            f"--drop {folder.name} removes it"
         )
     provenance = _provenance(folder)
     if provenance.get("made_by", MADE_BY) != MADE_BY:

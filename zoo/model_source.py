@@ -205,12 +205,12 @@ class LoadedModel:
     trained: dict[str, Any] | None
 
     def model_identity(self) -> dict[str, Any]:
-        from zoo.io import repo_relative
+        from zoo.io import registry_record
 
         return {
             "name": self.entry.name,
             "class": self.entry.class_path,
-            "registry": repo_relative(self.entry.source),
+            "registry": registry_record(self.entry.source),
             **({"replaces": self.entry.replaces} if self.entry.replaces else {}),
             "hparams": self.hparams,
         }

@@ -83,11 +83,11 @@ class ModelEntry:
 
     def provenance(self) -> dict[str, str]:
         """What every result of this model records about where it came from."""
-        from zoo.io import repo_relative
+        from zoo.io import registry_record
 
         return {
             "class": self.class_path,
-            "registry": repo_relative(self.source),
+            "registry": registry_record(self.source),
             **({"replaces": self.replaces} if self.replaces else {}),
         }
 
@@ -113,10 +113,22 @@ class ModelEntry:
                     sys.modules[module_name] = module
                     spec.loader.exec_module(module)
             else:
+                file = None
                 module_name, cls_name = path.rsplit(".", 1)
                 module = importlib.import_module(module_name)
+            if not hasattr(module, cls_name):
+                where = file if file is not None else f"module {module_name}"
+                defined = sorted(
+                    name
+                    for name, value in vars(module).items()
+                    if isinstance(value, type) and value.__module__ == module.__name__
+                )
+                raise RegistryError(
+                    f"{self.source}: model {self.name!r}: {where} defines no class "
+                    f"{cls_name!r}; it defines {', '.join(defined) or 'no class'}"
+                )
             return getattr(module, cls_name)
-        except (ImportError, AttributeError, ValueError) as e:
+        except (ImportError, ValueError) as e:
             raise RegistryError(
                 f"{self.source}: model {self.name!r}: cannot load class {path!r} ({e})"
             ) from e
@@ -260,8 +272,16 @@ def _parse_entry(path: Path, name: str, raw: Any) -> ModelEntry:
         raise RegistryError(f"{where}: entry must be a mapping")
     unknown = sorted(set(raw) - _ENTRY_KEYS)
     if unknown:
+        import difflib
+
+        named = [
+            f"{field} (did you mean {close[0]}?)"
+            if (close := difflib.get_close_matches(str(field), _ENTRY_KEYS, n=1, cutoff=0.6))
+            else str(field)
+            for field in unknown
+        ]
         raise RegistryError(
-            f"{where}: unknown field(s) {', '.join(unknown)}; valid fields: "
+            f"{where}: unknown field(s) {', '.join(named)}; valid fields: "
             f"{', '.join(sorted(_ENTRY_KEYS))}"
         )
     if not isinstance(raw.get("class"), str):

@@ -45,7 +45,13 @@ def add(sub) -> None:
 
 def run(args) -> int:
     from zoo.comparison import compare
+    from zoo.data.windows import SamplerError, check_sampler
 
+    if args.sampler is not None:
+        try:
+            check_sampler(args.sampler)
+        except SamplerError as e:
+            raise UsageError(f"--sampler: {e}") from None
     folders = []
     for name in (args.a, args.b):
         if Path(name).is_dir():

@@ -47,7 +47,13 @@ from zoo.train.step import (
     set_learning_rate,
     training_step,
 )
-from zoo.train.validate import check_output, horizons_text, validate
+from zoo.train.validate import (
+    LIKE_REPEAT_LAST,
+    check_output,
+    horizons_text,
+    like_repeat_last,
+    validate,
+)
 
 
 def train(
@@ -158,7 +164,30 @@ def train(
             break
     if dist_info.active:
         write_rank_digest(out_dir, model, dist_info)
+    if dist_info.rank == 0:
+        _warn_if_repeat_last(model_name, run)
     return out_dir / "best.pt"
+
+
+def _warn_if_repeat_last(model_name: str, run: _Run) -> None:
+    """A best epoch whose validation errors are repeat-last's at every horizon: the model has
+    learnt to predict no motion, and its rows would say nothing more than repeat-last's."""
+    best = next((h for h in run.history if h["epoch"] == run.best["epoch"]), None)
+    if best is None or not like_repeat_last(best.get("val_horizons")):
+        return
+    horizons = best["val_horizons"]
+    pairs = ", ".join(
+        f"{h} {m:.1f} (repeat-last {r:.1f})"
+        for h, m, r in zip(horizons["horizons"], horizons["model"], horizons["repeat_last"])
+    )
+    warnings.warn(
+        f"{model_name}: its best epoch ({run.best['epoch']}) cannot be told apart from "
+        f"repeat-last (validation within {LIKE_REPEAT_LAST:.0%} of it at every horizon: "
+        f"{pairs}); it predicts no motion yet: train longer before scoring it (a model such as "
+        f"siMLPe needs about 5 epochs to leave repeat-last)",
+        RuntimeWarning,
+        stacklevel=3,
+    )
 
 
 def _check_arguments(entry: ModelEntry, seed, max_batches, init_from, resume) -> None:

@@ -109,3 +109,19 @@ def horizons_text(horizons: dict[str, Any]) -> str:
         f"{h} {m:.{digits}f} (repeat-last {r:.{digits}f})"
         for h, m, r in zip(horizons["horizons"], horizons["model"], horizons["repeat_last"])
     )
+
+
+# How close to repeat-last's validation error, at every logged horizon, an epoch must be for
+# the engine to say it cannot be told apart from predicting no motion.
+LIKE_REPEAT_LAST = 0.01
+
+
+def like_repeat_last(horizons: dict[str, Any] | None) -> bool:
+    """Whether :func:`validate`'s ``val_horizons`` are repeat-last's at every horizon, within
+    :data:`LIKE_REPEAT_LAST` of it: a model that has learnt to predict no motion."""
+    if not horizons:
+        return False
+    return all(
+        abs(m - r) <= LIKE_REPEAT_LAST * r
+        for m, r in zip(horizons["model"], horizons["repeat_last"])
+    )
