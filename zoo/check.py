@@ -11,14 +11,15 @@ nothing."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
 from zoo.options import CHECK_WINDOWS
-from zoo.tolerance import KEY_COLUMNS, tolerance_by_metric, window_gaps
+from zoo.store import identity_differences, only_code_changed
+from zoo.tolerance import KEY_COLUMNS, agreement, tolerance_by_metric, window_gaps
 from zoo.tolerance import Incomparable as _Incomparable
 from zoo.tolerance import allowed as tolerated
 
@@ -382,3 +383,40 @@ def check_identity(label: str, stored: dict | None, fresh: dict, check: CheckRep
             else "recorded identity differs"
         )
         check.problem(f"{check.current}: {label}: {what}: {d}")
+
+
+# ---- verifying a stale row on a sample (re-stamping) ----------------------------------------
+
+
+def self_consistent(stored, folder: Path):
+    """None where a stored row's ``results.csv`` is what its own ``windows.npz`` gives (the
+    evaluator's sums, :func:`zoo.evaluation.frame_from_windows`), else the disagreement."""
+    from zoo.evaluation import frame_from_windows
+    from zoo.results import EvalResult
+
+    frame = frame_from_windows(stored.windows, stored.protocol)
+    agreed = agreement(EvalResult(frame, stored.protocol, stored.windows), folder)
+    if agreed.same:
+        return None
+    return replace(agreed, why=f"its results.csv is not what its windows.npz gives: {agreed.why}")
+
+
+def verification_record(before: dict | None, after: dict, windows: int, seed: int | None, agreed):
+    """How a row's stored numbers were verified under its new identity: why it was stale (a
+    code change, or the identity differences), on ``windows`` windows (``seed``: of a sample;
+    None: every window), the code identities before and after, the largest difference."""
+    import datetime
+
+    from zoo.io import code_version
+
+    differences = identity_differences(before, after)
+    return {
+        "after": "code change" if only_code_changed(differences) else "; ".join(differences),
+        "windows": windows,
+        **({"seed": seed} if seed is not None else {"every_window": True}),
+        "largest_difference": f"{agreed.share:.3f} of the tolerance",
+        "code_before": (before or {}).get("code"),
+        "code_after": after.get("code"),
+        "zoo": code_version(),
+        "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+    }

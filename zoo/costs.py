@@ -20,7 +20,6 @@ from zoo.leaderboard import Leaderboard, Plan
 from zoo.options import COST_SECONDS
 from zoo.report import efficiency_csv
 from zoo.results import TABLE_FILE, read_table, table_labels
-from zoo.store import RESULTS_DIR, table_folder
 from zoo.tables import with_costs
 
 RENDERED = ("leaderboard.md", "efficiency.csv")  # the files of a table that show costs
@@ -45,19 +44,16 @@ def measure_costs(
     """Measure the costs of every row (``models``: of these registry models' rows only; the
     other stored costs are kept) of ``benchmark``'s tables under ``out_root``, write its
     ``costs.json`` and re-render the tables' cost columns; the tables rewritten."""
-    from zoo.benchmark import get_benchmark
-    from zoo.registry import load_registry
-
     models = frozenset(models)
-    board = Leaderboard(
-        bench=get_benchmark(benchmark) if isinstance(benchmark, (str, Path)) else benchmark,
-        registry=registry or load_registry(),
-        root=Path(out_root or RESULTS_DIR),
-        weights=Path(weights) if weights else None,
-        checkpoints=Path(checkpoints) if checkpoints else None,
+    board = Leaderboard.of(
+        benchmark,
+        registry=registry,
+        data_root=data_root,
+        out_root=out_root,
+        weights=weights,
+        checkpoints=checkpoints,
         device=device,
         plan=Plan(models=models),
-        data_root=data_root,
     )
     bench, store = board.bench, board.costs
     tables = committed_tables(board)
@@ -68,7 +64,7 @@ def measure_costs(
         )
     rows: dict[str, tuple] = {}  # label: (row, task), the leaderboard's own rows
     for path, task, labels in tables:
-        planned = {r.label: r for r in board._rows(task)}
+        planned = {r.label: r for r in board.rows(task)}
         for label in sorted(labels - set(planned)):
             print(
                 f"{bench.name}/{path.name}: {label}: not a row the leaderboard makes (here), "
@@ -81,7 +77,7 @@ def measure_costs(
     for label, (row, task) in rows.items():
         if models and row.name not in models:
             continue
-        loaded = board._load(row)
+        loaded = board.load(row)
         key = cost_key(loaded, bench, board.dataset, task)
         groups.setdefault(architecture(key), []).append((label, loaded, key, task))
     if not groups:
@@ -134,21 +130,11 @@ def measure_costs(
 def committed_tables(board: Leaderboard) -> list[tuple[Path, str, set[str]]]:
     """``(folder, task, row labels)`` of each committed table the leaderboard makes for the
     board's benchmark (every sampler, task and ground truth)."""
-    bench, registry = board.bench, board.registry
-    truths = (
-        (bench.ground_truths or (bench.ground_truth,))
-        if bench.representation == "mesh"
-        else (None,)
-    )
-    tasks = dict.fromkeys(["prediction", *(registry.get(n).task for n in registry.list_models())])
     tables = []
-    for sampler in bench.samplers:
-        for task in tasks:
-            for truth in truths:
-                path = board.root / bench.name / table_folder(sampler, task, truth)
-                if not (path / TABLE_FILE).is_file():
-                    continue
-                tables.append((path, task, set(table_labels(path))))
+    for _, task, _, folder in board.tables():
+        path = board.root / board.bench.name / folder
+        if (path / TABLE_FILE).is_file():
+            tables.append((path, task, set(table_labels(path))))
     return tables
 
 
@@ -157,9 +143,9 @@ def render_costs(board: Leaderboard, path: Path, task: str, labels: set[str]) ->
     with the costs now stored, and its ``efficiency.csv``: nothing else of the table, and
     nothing of its rows. Whether a file changed."""
     efficiency: dict = {}
-    for row in board._rows(task):
+    for row in board.rows(task):
         if row.label in labels:
-            board._cost(efficiency, row.label, board._load(row), task)
+            board.stored_cost(efficiency, row.label, board.load(row), task)
     models = set(read_table(path, columns=["model"]).frame["model"])
     board_md = path / "leaderboard.md"
     new = {

@@ -11,7 +11,9 @@ import shutil
 import sys
 import time
 from dataclasses import dataclass, field, replace
+from functools import partial
 from pathlib import Path
+from typing import Any
 
 from zoo.check import (
     CHECK_WINDOWS,
@@ -20,6 +22,8 @@ from zoo.check import (
     check_table,
     draw_sample,
     fresh_seed,
+    self_consistent,
+    verification_record,
 )
 from zoo.efficiency import COSTS_FILE, Costs, architecture, cost_key
 from zoo.io import atomic_write_json, replace_folder
@@ -33,8 +37,11 @@ from zoo.store import (
     StoreError,
     identity_differences,
     only_code_changed,
+    recorded_registry,
+    refuse_foreign_registry,
     restamp_record,
     stored_identity,
+    stored_provenance,
     table_folder,
 )
 from zoo.tables import protocol_differences
@@ -68,6 +75,39 @@ class Row:
     source: ModelSource
 
 
+@dataclass
+class RowPlan:
+    """What a run does with one row of a table, decided before anything is computed:
+    ``reuse`` (its stored identity holds), ``keep`` (stored, other models asked for), ``skip``
+    (not stored, other models asked for), ``verify`` (stale only because code changed: a sample
+    decides), ``compute`` (new, stale, asked for, or any row of a check) or ``failed`` (its
+    model cannot be loaded: a check reports it)."""
+
+    row: Row
+    action: str
+    loaded: Any = None
+    identity: dict | None = None
+    stored: Path | None = None
+    why: str | None = None
+    error: Exception | None = None
+
+
+@dataclass
+class TablePlan:
+    """One table's plan: its folder, protocol, the check's sample (None: every window), each
+    planned row's :class:`RowPlan`, the stored rows this run does not plan (kept as stored)
+    and those it drops."""
+
+    where: str
+    path: Path
+    task: str
+    protocol: Any
+    sample: Any
+    rows: list[RowPlan]
+    foreign: list[Path]
+    dropped: list[Path]
+
+
 def regenerate(
     benchmark,
     *,
@@ -90,18 +130,15 @@ def regenerate(
     from the published weights), else from its checkpoint ``<checkpoints>/<benchmark>/<model>/
     best.pt`` (and ``last.pt`` as ``<model>@last`` when it trained past its best epoch).
     """
-    from zoo.benchmark import get_benchmark
-    from zoo.registry import load_registry
-
-    board = Leaderboard(
-        bench=get_benchmark(benchmark) if isinstance(benchmark, (str, Path)) else benchmark,
-        registry=registry or load_registry(),
-        root=Path(out_root or RESULTS_DIR),
-        weights=Path(weights) if weights else None,
-        checkpoints=Path(checkpoints) if checkpoints else None,
+    board = Leaderboard.of(
+        benchmark,
+        registry=registry,
+        data_root=data_root,
+        out_root=out_root,
+        checkpoints=checkpoints,
+        weights=weights,
         device=device,
         plan=plan or Plan(),
-        data_root=data_root,
     )
     return board.run()
 
@@ -149,7 +186,37 @@ class Leaderboard:
                 f"{', '.join(registry.list_models())}"
             )
 
-    def run(self) -> list[Path]:
+    @classmethod
+    def of(
+        cls,
+        benchmark,
+        *,
+        registry=None,
+        data_root=None,
+        out_root: str | Path | None = None,
+        checkpoints: str | Path | None = None,
+        weights: str | Path | None = None,
+        device: str = "cpu",
+        plan: Plan,
+    ) -> Leaderboard:
+        """The tables of ``benchmark`` (a name, a YAML path or a Benchmark), its data loaded."""
+        from zoo.benchmark import get_benchmark
+        from zoo.registry import load_registry
+
+        return cls(
+            bench=get_benchmark(benchmark) if isinstance(benchmark, (str, Path)) else benchmark,
+            registry=registry or load_registry(),
+            root=Path(out_root or RESULTS_DIR),
+            weights=Path(weights) if weights else None,
+            checkpoints=Path(checkpoints) if checkpoints else None,
+            device=device,
+            plan=plan,
+            data_root=data_root,
+        )
+
+    def tables(self):
+        """``(sampler, task, ground truth, folder)`` of every table the benchmark can have:
+        each sampler, each task a registered model has, each ground truth of a mesh."""
         bench = self.bench
         truths = (
             (bench.ground_truths or (bench.ground_truth,))
@@ -159,33 +226,36 @@ class Leaderboard:
         tasks = dict.fromkeys(
             ["prediction", *(self.registry.get(n).task for n in self.registry.list_models())]
         )
-        written, changed = [], False
-        if self.plan.check is None:
-            self._preflight(truths, tasks)
         for sampler in bench.samplers:
             for task in tasks:
                 for truth in truths:
-                    folder = table_folder(sampler, task, truth)
-                    started = time.perf_counter()
-                    if self.plan.check is not None:
-                        try:  # a check goes on to the next table whatever fails in this one
-                            outcome = self._table(sampler, task, truth, folder)
-                        except Exception as e:  # noqa: BLE001
-                            self.plan.check.start_table(f"{bench.name}/{folder}")
-                            self.plan.check.problem(f"{bench.name}/{folder}: not checked: {e}")
-                            outcome = True
-                    else:
-                        outcome = self._table(sampler, task, truth, folder)
-                    seconds = time.perf_counter() - started
-                    if outcome and self.plan.check is not None:
-                        # each table's verdict as soon as it is known, not only at the end
-                        name = self.plan.check.current
-                        print(f"{self.plan.check.table_line(name)} ({seconds:.0f} s)")
-                    elif outcome:
-                        print(f"{bench.name}/{folder}: {seconds:.0f} s", file=sys.stderr)
-                    if outcome is not None:
-                        written.append(self.root / bench.name / folder)
-                        changed |= outcome
+                    yield sampler, task, truth, table_folder(sampler, task, truth)
+
+    def run(self) -> list[Path]:
+        bench, check = self.bench, self.plan.check
+        written, changed = [], False
+        if check is None:
+            self._preflight()
+        for sampler, task, truth, folder in self.tables():
+            started = time.perf_counter()
+            if check is not None:
+                try:  # a check goes on to the next table whatever fails in this one
+                    outcome = self._table(sampler, task, truth, folder)
+                except Exception as e:  # noqa: BLE001
+                    check.start_table(f"{bench.name}/{folder}")
+                    check.problem(f"{bench.name}/{folder}: not checked: {e}")
+                    outcome = True
+            else:
+                outcome = self._table(sampler, task, truth, folder)
+            seconds = time.perf_counter() - started
+            if outcome and check is not None:
+                # each table's verdict as soon as it is known, not only at the end
+                print(f"{check.table_line(check.current)} ({seconds:.0f} s)")
+            elif outcome:
+                print(f"{bench.name}/{folder}: {seconds:.0f} s", file=sys.stderr)
+            if outcome is not None:
+                written.append(self.root / bench.name / folder)
+                changed |= outcome
         check = self.plan.check
         if check is not None:
             produced = {p.name for p in written}
@@ -218,43 +288,41 @@ class Leaderboard:
         )
         return written
 
-    def _preflight(self, truths, tasks) -> None:
+    def _preflight(self) -> None:
         """Before anything is evaluated or written: a stored row that this run would replace
         must be the leaderboard's own (same registry, made by a rebuild); a user's row stops
         the run, naming it and how to keep or drop it."""
         found_drops = set()
-        for sampler in self.bench.samplers:
-            for task in tasks:
-                for truth in truths:
-                    folder = self.root / self.bench.name / table_folder(sampler, task, truth)
-                    if not folder.is_dir():
-                        continue
-                    found_drops |= {p.name for p in folder.iterdir()} & set(self.plan.drop)
-                    rows = [
-                        r
-                        for r in self._rows(task)
-                        if r.label not in self.plan.drop
-                        and (folder / r.label / "protocol.json").is_file()
-                        and (not self.plan.models or r.name in self.plan.models)
-                    ]
-                    for row in rows:
-                        loaded = self._load(row)
-                        _refuse_foreign_registry(folder / row.label, loaded, row.label)
-                        made_by = _provenance(folder / row.label).get("made_by", MADE_BY)
-                        if made_by == MADE_BY:
-                            continue
-                        differences = identity_differences(
-                            stored_identity(folder / row.label),
-                            loaded.identity(self.bench, self._protocol(sampler, task, truth).id),
-                        )
-                        if differences:
-                            raise StoreError(
-                                f"{folder / row.label}: row {row.label!r} was made by "
-                                f"{made_by}, and the leaderboard's own {row.label!r} differs "
-                                f"({'; '.join(differences[:3])}); nothing was changed: keep "
-                                f"yours under another label (zoo eval --label NAME), or remove "
-                                f"it deliberately with --drop {row.label}"
-                            )
+        for sampler, task, truth, name in self.tables():
+            folder = self.root / self.bench.name / name
+            if not folder.is_dir():
+                continue
+            found_drops |= {p.name for p in folder.iterdir()} & set(self.plan.drop)
+            rows = [
+                r
+                for r in self.rows(task)
+                if r.label not in self.plan.drop
+                and (folder / r.label / "protocol.json").is_file()
+                and (not self.plan.models or r.name in self.plan.models)
+            ]
+            for row in rows:
+                loaded = self.load(row)
+                refuse_foreign_registry(folder / row.label, loaded, row.label)
+                made_by = stored_provenance(folder / row.label).get("made_by", MADE_BY)
+                if made_by == MADE_BY:
+                    continue
+                differences = identity_differences(
+                    stored_identity(folder / row.label),
+                    loaded.identity(self.bench, self._protocol(sampler, task, truth).id),
+                )
+                if differences:
+                    raise StoreError(
+                        f"{folder / row.label}: row {row.label!r} was made by {made_by}, and "
+                        f"the leaderboard's own {row.label!r} differs "
+                        f"({'; '.join(differences[:3])}); nothing was changed: keep yours "
+                        f"under another label (zoo eval --label NAME), or remove it "
+                        f"deliberately with --drop {row.label}"
+                    )
         missing = sorted(set(self.plan.drop) - found_drops)
         if missing:
             print(
@@ -271,7 +339,7 @@ class Leaderboard:
             )
         return self.protocols[key]
 
-    def _load(self, row: Row):
+    def load(self, row: Row):
         """A row's model, built once and used by every table."""
         if row.label not in self.loaded:
             self.loaded[row.label] = row.source.load(self.registry, self.bench, self.dataset)
@@ -279,7 +347,7 @@ class Leaderboard:
 
     # ---- rows -----------------------------------------------------------------------------
 
-    def _rows(self, task: str) -> list[Row]:
+    def rows(self, task: str) -> list[Row]:
         bench, registry = self.bench, self.registry
         # Skeleton models join a mesh benchmark with a joint regressor, fed its regressed joints.
         names = registry.list_models(bench.representation)
@@ -345,12 +413,19 @@ class Leaderboard:
 
     def _table(self, sampler: str, task: str, truth: str | None, folder: str) -> bool | None:
         """Check or bring one table up to date; None when there is no table to make, else
-        whether it was (re)written."""
-        from zoo.results import EvalResult
+        whether it was (re)written (a check: whether it was checked)."""
+        plan = self.plan_table(sampler, task, truth, folder)
+        if plan is None:
+            return None
+        return self._check_table(plan) if self.plan.check is not None else self._rebuild(plan)
 
+    def plan_table(
+        self, sampler: str, task: str, truth: str | None, folder: str
+    ) -> TablePlan | None:
+        """What a run does with each row of one table, decided before anything is computed or
+        written (None: no table to make). Loads the rows' models (once per run)."""
         bench, plan, check = self.bench, self.plan, self.plan.check
         path = self.root / bench.name / folder
-        where = f"{bench.name}/{folder}"
         stored = (
             {
                 p.name: p
@@ -360,7 +435,7 @@ class Leaderboard:
             if path.is_dir()
             else {}
         )
-        rows = [r for r in self._rows(task) if r.label not in plan.drop]
+        rows = [r for r in self.rows(task) if r.label not in plan.drop]
         if (
             task != "prediction"
             and not any(
@@ -370,120 +445,151 @@ class Leaderboard:
             and not any(label not in {r.label for r in rows} for label in stored)
         ):
             return None  # a table of baselines alone says nothing about this task
-        planned = self._protocol(sampler, task, truth)
-        protocol = planned.record
+        protocol = self._protocol(sampler, task, truth)
+        where = f"{bench.name}/{folder}"
         sample = None  # the windows a check scores (positions; None: every one)
         if check is not None:
             check.start_table(where)
-            sample = check.sample(planned.actions)
-        fresh, reused, efficiency, reasons = [], [], {}, []
+            sample = check.sample(protocol.actions)
+        planned = {r.label for r in rows}
+        return TablePlan(
+            where=where,
+            path=path,
+            task=task,
+            protocol=protocol,
+            sample=sample,
+            rows=[self._row_plan(row, stored.get(row.label), protocol) for row in rows],
+            foreign=[p for label, p in stored.items() if label not in planned | plan.drop],
+            dropped=[p for label, p in stored.items() if label in plan.drop],
+        )
+
+    def _row_plan(self, row: Row, old: Path | None, protocol) -> RowPlan:
+        plan = self.plan
+        if plan.check is not None:  # every row recomputed; one that cannot load is reported
+            try:
+                loaded = self.load(row)
+                return RowPlan(
+                    row, "compute", loaded, loaded.identity(self.bench, protocol.id), old
+                )
+            except Exception as e:  # noqa: BLE001 - every failure is reported, none stops
+                return RowPlan(row, "failed", stored=old, error=e)
+        loaded = self.load(row)
+        identity = loaded.identity(self.bench, protocol.id)
+        step = partial(RowPlan, row, loaded=loaded, identity=identity, stored=old)
+        if plan.recompute:
+            return step("compute", why="asked (--recompute)")
+        if plan.models and row.name not in plan.models:
+            return step("keep") if old is not None else step("skip")
+        if plan.models:
+            return step("compute", why="asked (--model)")
+        if old is None:
+            return step("compute", why="new")
+        differences = identity_differences(stored_identity(old), identity)
+        if not differences:
+            return step("reuse")
+        why = "; ".join(differences[:3]) + (" ..." if len(differences) > 3 else "")
+        if plan.windows is not None and only_code_changed(differences):
+            return step("verify", why=why)
+        return step("compute", why=why)
+
+    def _check_table(self, table: TablePlan) -> bool | None:
+        """Recompute every planned row on the check's sample and compare with the committed
+        table; nothing written."""
+        check, where = self.plan.check, table.where
+        failed = set()
+        for r in table.rows:
+            check.tables[where].rows.append(r.row.label)
+            if r.action == "failed":
+                check.problem(f"{where}: {r.row.label}: not recomputed: {r.error}")
+                failed.add(r.row.label)
+            elif r.stored is not None:
+                check_identity(r.row.label, stored_identity(r.stored), r.identity, check)
+        pending = [r for r in table.rows if r.action == "compute"]
+        fresh = []
+        for r, result in zip(pending, self._compute(table, pending, "checking")):
+            if isinstance(result, Exception):
+                check.problem(f"{where}: {r.row.label}: not recomputed: {result}")
+                failed.add(r.row.label)
+            else:
+                fresh.append(result)
+        for p in table.foreign:
+            check.problem(f"{p}: cannot be recomputed ({_why_not_planned(p, self)})")
+        if fresh:
+            # a row not recomputed is named once, above, not once per committed value
+            unplanned = {p.name for p in table.foreign} | failed
+            check_table(fresh, table.path, check, unplanned=unplanned, rows=table.sample)
+        return True if fresh or table.foreign or table.rows else None
+
+    def _compute(self, table: TablePlan, pending: list[RowPlan], verb: str) -> list:
+        """The pending rows computed in one pass (on the check's sample, where it has one)."""
+        if not pending:
+            return []
+        labels = ", ".join(r.row.label for r in pending)
+        print(
+            f"{verb} {table.where}: {labels} ({len(pending)} of {len(table.rows)} rows, one pass)",
+            file=sys.stderr,
+        )
+        return compute_all(
+            [(Subject.of_loaded(r.loaded), r.identity) for r in pending],
+            table.protocol if table.sample is None else table.protocol.subset(table.sample),
+            made_by=MADE_BY,
+            device=self.device,
+            keep_going=self.plan.check is not None,  # a rebuild stops at its first failure
+        )
+
+    def _rebuild(self, table: TablePlan) -> bool | None:
+        """Carry out a table's plan: stored rows reused or re-stamped, the others computed,
+        the table rewritten if any of its rows changed."""
+        where, task = table.where, table.task
+        reused, fresh, efficiency, reasons = [], [], {}, []
         # rows whose numbers stand and whose stored identity is updated: label -> (identity,
         # how the numbers were verified under it)
         refreshed: dict[str, tuple[dict, dict]] = {}
-        failed = set()  # rows of a check that could not be recomputed
-        pending = []  # rows to evaluate: (row, loaded, identity, stored folder, why)
-        verify = []  # rows stale only because code changed: (row, loaded, identity, folder, why)
-        for row in rows:
-            if check is not None:
-                check.tables[where].rows.append(row.label)
-                try:  # a refusal (weights for another basis, a missing file) ends one row only
-                    loaded = self._load(row)
-                    identity = loaded.identity(bench, planned.id)
-                except Exception as e:  # noqa: BLE001 - every failure is reported, none stops
-                    check.problem(f"{where}: {row.label}: not recomputed: {e}")
-                    failed.add(row.label)
-                    continue
-                if row.label in stored:
-                    check_identity(row.label, stored_identity(stored[row.label]), identity, check)
-                pending.append((row, loaded, identity, None, None))
-                continue
-            loaded = self._load(row)
-            identity = loaded.identity(bench, protocol["protocol_id"])
-            old = stored.get(row.label)
-            if plan.recompute:
-                why = "asked (--recompute)"
-            elif plan.models and row.name not in plan.models:
-                if old is not None:
-                    reused.append(old)
-                    self.counts["reused"] += 1
-                    self._cost(efficiency, row.label, loaded, task)
-                    if identity_differences(stored_identity(old), identity):
-                        print(
-                            f"{where}: {row.label}: kept as stored although stale (only "
-                            f"{', '.join(sorted(plan.models))} asked)",
-                            file=sys.stderr,
-                        )
-                continue
-            elif plan.models:
-                why = "asked (--model)"
-            elif old is None:
-                why = "new"
-            else:
-                differences = identity_differences(stored_identity(old), identity)
-                why = "; ".join(differences[:3]) + (" ..." if len(differences) > 3 else "")
-                if not differences:
-                    reused.append(old)
-                    self.counts["reused"] += 1
-                    self._cost(efficiency, row.label, loaded, task)
-                    continue
-                if plan.windows is not None and only_code_changed(differences):
-                    verify.append((row, loaded, identity, old, why))
-                    continue
-            pending.append((row, loaded, identity, old, why))
-        for row, loaded, identity, old, verification in self._verify(verify, planned, where):
+        for r in table.rows:
+            if r.action in ("reuse", "keep"):
+                reused.append(r.stored)
+                self.counts["reused"] += 1
+                self.stored_cost(efficiency, r.row.label, r.loaded, task)
+                if r.action == "keep" and identity_differences(
+                    stored_identity(r.stored), r.identity
+                ):
+                    print(
+                        f"{where}: {r.row.label}: kept as stored although stale (only "
+                        f"{', '.join(sorted(self.plan.models))} asked)",
+                        file=sys.stderr,
+                    )
+        pending = [r for r in table.rows if r.action == "compute"]
+        for r, verification in self._verify([r for r in table.rows if r.action == "verify"], table):
             if verification is None:  # the sample disagreed: recomputed on every window
-                pending.append((row, loaded, identity, old, "code changed; a sample disagreed"))
+                pending.append(replace(r, action="compute", why="code changed; a sample disagreed"))
                 continue
-            refreshed[row.label] = (identity, verification)
-            reused.append(old)
+            refreshed[r.row.label] = (r.identity, verification)
+            reused.append(r.stored)
             self.counts["restamped"] += 1
-            self._cost(efficiency, row.label, loaded, task)
-        if pending:
-            labels = ", ".join(row.label for row, *_ in pending)
-            verb = "checking" if check is not None else "evaluating"
-            print(
-                f"{verb} {where}: {labels} ({len(pending)} of {len(rows)} rows, one pass)",
-                file=sys.stderr,
-            )
-        computed = (
-            compute_all(
-                [(Subject.of_loaded(loaded), identity) for _, loaded, identity, _, _ in pending],
-                planned if sample is None else planned.subset(sample),
-                made_by=MADE_BY,
-                device=self.device,
-                keep_going=check is not None,  # a rebuild stops at its first failure
-            )
-            if pending
-            else []
-        )
-        for (row, loaded, identity, old, why), result in zip(pending, computed):
-            if isinstance(result, Exception):
-                check.problem(f"{where}: {row.label}: not recomputed: {result}")
-                failed.add(row.label)
-                continue
-            if check is not None:
-                fresh.append(result)
-                continue
-            reasons.append(f"{row.label}: {why}")
-            if old is not None:
+            self.stored_cost(efficiency, r.row.label, r.loaded, task)
+        for r, result in zip(pending, self._compute(table, pending, "evaluating")):
+            reasons.append(f"{r.row.label}: {r.why}")
+            if r.stored is not None:
                 # A recomputation within the tolerance of the stored row leaves its files as
                 # they are (only a stale identity is brought up to date): a rebuild on another
                 # CPU rewrites nothing that merely rounded differently.
-                agreed = agreement(result, old)
+                agreed = agreement(result, r.stored)
                 if agreed.same:
-                    before = stored_identity(old)
-                    stale = bool(identity_differences(before, identity))
+                    before = stored_identity(r.stored)
+                    stale = bool(identity_differences(before, r.identity))
                     if stale:
-                        refreshed[row.label] = (
-                            identity,
-                            _verification(before, identity, len(planned.index), None, agreed),
+                        refreshed[r.row.label] = (
+                            r.identity,
+                            verification_record(
+                                before, r.identity, len(table.protocol.index), None, agreed
+                            ),
                         )
-                    reused.append(old)
+                    reused.append(r.stored)
                     self.counts["agreed"] += 1
-                    self._cost(efficiency, row.label, loaded, task)
+                    self.stored_cost(efficiency, r.row.label, r.loaded, task)
                     print(
-                        f"{where}: {row.label}: recomputed ({why}); agrees with the stored row "
-                        f"(largest difference {agreed.share:.2f} of the tolerance): "
+                        f"{where}: {r.row.label}: recomputed ({r.why}); agrees with the stored "
+                        f"row (largest difference {agreed.share:.2f} of the tolerance): "
                         + ("its files kept, its identity updated" if stale else "kept as stored"),
                         file=sys.stderr,
                     )
@@ -492,52 +598,48 @@ class Leaderboard:
                 reasons[-1] = f"{reasons[-1]}; rewritten: {agreed.why}"
             fresh.append(result)
             self.counts["recomputed"] += 1
-            self._cost(efficiency, row.label, loaded, task)
-        planned = {r.label for r in rows}
-        foreign = [
-            p for label, p in stored.items() if label not in planned and label not in plan.drop
-        ]
-        dropped = [p for label, p in stored.items() if label in plan.drop]
-        if check is not None:
-            for p in foreign:
-                check.problem(f"{p}: cannot be recomputed ({_why_not_planned(p, self)})")
-            if fresh:
-                # a row not recomputed is named once, above, not once per committed value
-                check_table(
-                    fresh, path, check, unplanned={p.name for p in foreign} | failed, rows=sample
-                )
-            return True if fresh or foreign or rows else None
-        kept = []
-        for p in [*reused, *foreign]:
-            result = EvalResult.read(p)
-            if p.name in refreshed:  # the table records the identity its row now has
-                restamp_record(result.protocol, *refreshed[p.name])
-            differences = protocol_differences(protocol, result.protocol)
-            if differences:
-                print(
-                    f"{where}: {p.name}: its stored result was measured under another "
-                    f"protocol ({'; '.join(differences)}); left out of the leaderboard (kept "
-                    f"on disk)",
-                    file=sys.stderr,
-                )
-                continue
-            if p in foreign:
-                print(
-                    f"{where}: {p.name}: kept as stored ({_why_not_planned(p, self)})",
-                    file=sys.stderr,
-                )
-            kept.append(result)
-        self.counts["kept"] += len(foreign)
-        self.counts["dropped"] += len(dropped)
+            self.stored_cost(efficiency, r.row.label, r.loaded, task)
+        kept = self._kept(table, reused, refreshed)
         results = fresh + kept
         if not results:
             return None
         for reason in reasons:
             print(f"{where}: recomputing {reason}", file=sys.stderr)
         try:
-            return self._write(path, fresh, reused, dropped, results, efficiency, refreshed)
+            return self._write(
+                table.path, fresh, reused, table.dropped, results, efficiency, refreshed
+            )
         except _Unchanged:
             return False
+
+    def _kept(self, table: TablePlan, reused: list[Path], refreshed) -> list:
+        """The stored results a rebuild keeps (reused rows and rows it did not plan), each
+        with the identity it now has; a row of another protocol is left out (kept on disk)."""
+        from zoo.results import EvalResult
+
+        kept = []
+        for p in [*reused, *table.foreign]:
+            result = EvalResult.read(p)
+            if p.name in refreshed:  # the table records the identity its row now has
+                restamp_record(result.protocol, *refreshed[p.name])
+            differences = protocol_differences(table.protocol.record, result.protocol)
+            if differences:
+                print(
+                    f"{table.where}: {p.name}: its stored result was measured under another "
+                    f"protocol ({'; '.join(differences)}); left out of the leaderboard (kept "
+                    f"on disk)",
+                    file=sys.stderr,
+                )
+                continue
+            if p in table.foreign:
+                print(
+                    f"{table.where}: {p.name}: kept as stored ({_why_not_planned(p, self)})",
+                    file=sys.stderr,
+                )
+            kept.append(result)
+        self.counts["kept"] += len(table.foreign)
+        self.counts["dropped"] += len(table.dropped)
+        return kept
 
     def _write(self, path, fresh, reused, dropped, results, efficiency, refreshed=None) -> bool:
         bench = self.bench
@@ -569,7 +671,7 @@ class Leaderboard:
         )
         return True
 
-    def _verify(self, rows: list, planned, where: str):
+    def _verify(self, rows: list[RowPlan], table: TablePlan):
         """Rows stale only because code changed, verified in one pass over a sample of the
         table's windows: each with its verification record if the sample agrees with its
         stored per-window errors, else with None (to be recomputed on every window)."""
@@ -578,91 +680,59 @@ class Leaderboard:
         from zoo.errors import EvaluationError
         from zoo.results import EvalResult
 
+        where, planned = table.where, table.protocol
         sample = draw_sample(planned.actions, self.plan.windows, self.plan.seed)
         print(
-            f"verifying {where} after a code change: {', '.join(r.label for r, *_ in rows)} on "
+            f"verifying {where} after a code change: {', '.join(r.row.label for r in rows)} on "
             f"{len(sample)} of {len(planned.index)} windows (seed {self.plan.seed})",
             file=sys.stderr,
         )
         computed = compute_all(
-            [(Subject.of_loaded(loaded), identity) for _, loaded, identity, _, _ in rows],
+            [(Subject.of_loaded(r.loaded), r.identity) for r in rows],
             planned.subset(sample),
             made_by=MADE_BY,
             device=self.device,
             keep_going=True,  # a row that fails here is recomputed in full, and fails there
         )
         out = []
-        for (row, loaded, identity, old, why), result in zip(rows, computed):
+        for r, result in zip(rows, computed):
             agreed = None  # not verifiable: no result, or a stored row that cannot be read
             if not isinstance(result, Exception):
                 try:
-                    stored = EvalResult.read(old)
+                    stored = EvalResult.read(r.stored)
                 except EvaluationError:
                     stored = None
                 if stored is not None and stored.windows is not None:
                     agreed = sample_agreement(result.windows, stored.windows, sample)
                     if agreed.same:  # and its averages are its windows' own
-                        agreed = _self_consistent(stored, old) or agreed
+                        agreed = self_consistent(stored, r.stored) or agreed
             if agreed is None or not agreed.same:
                 print(
-                    f"{where}: {row.label}: {why}; "
+                    f"{where}: {r.row.label}: {r.why}; "
                     + (f"the sample disagrees ({agreed.why})" if agreed else "not verifiable")
                     + ": recomputed on every window",
                     file=sys.stderr,
                 )
-                out.append((row, loaded, identity, old, None))
+                out.append((r, None))
                 continue
-            before = stored_identity(old)
+            before = stored_identity(r.stored)
             print(
-                f"{where}: {row.label}: {why}; verified on {len(sample)} windows (largest "
+                f"{where}: {r.row.label}: {r.why}; verified on {len(sample)} windows (largest "
                 f"difference {agreed.share:.2f} of the tolerance): numbers kept, re-stamped",
                 file=sys.stderr,
             )
-            verification = _verification(before, identity, len(sample), self.plan.seed, agreed)
-            out.append((row, loaded, identity, old, verification))
+            out.append(
+                (r, verification_record(before, r.identity, len(sample), self.plan.seed, agreed))
+            )
         return out
 
-    def _cost(self, efficiency: dict, label: str, loaded, task: str) -> None:
+    def stored_cost(self, efficiency: dict, label: str, loaded, task: str) -> None:
         """A row's cost columns as ``zoo costs`` stored them (this measures nothing), while
         they are those of its model (:func:`zoo.efficiency.cost_key`); else none."""
         key = cost_key(loaded, self.bench, self.dataset, task)
         stored = self.costs.get(label, architecture(key))
         if stored is not None:
             efficiency[label] = stored
-
-
-def _self_consistent(stored, folder: Path):
-    """None where a stored row's ``results.csv`` is what its own ``windows.npz`` gives (the
-    evaluator's sums, :func:`zoo.evaluation.frame_from_windows`), else the disagreement."""
-    from zoo.evaluation import frame_from_windows
-    from zoo.results import EvalResult
-
-    frame = frame_from_windows(stored.windows, stored.protocol)
-    agreed = agreement(EvalResult(frame, stored.protocol, stored.windows), folder)
-    if agreed.same:
-        return None
-    return replace(agreed, why=f"its results.csv is not what its windows.npz gives: {agreed.why}")
-
-
-def _verification(before: dict | None, after: dict, windows: int, seed: int | None, agreed):
-    """How a row's stored numbers were verified under its new identity: why it was stale (a
-    code change, or the identity differences), on ``windows`` windows (``seed``: of a sample;
-    None: every window), the code identities before and after, the largest difference."""
-    import datetime
-
-    from zoo.io import code_version
-
-    differences = identity_differences(before, after)
-    return {
-        "after": "code change" if only_code_changed(differences) else "; ".join(differences),
-        "windows": windows,
-        **({"seed": seed} if seed is not None else {"every_window": True}),
-        "largest_difference": f"{agreed.share:.3f} of the tolerance",
-        "code_before": (before or {}).get("code"),
-        "code_after": after.get("code"),
-        "zoo": code_version(),
-        "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
-    }
 
 
 MADE_BY = "zoo leaderboard"
@@ -694,45 +764,17 @@ def _same_files(old: Path, new: Path) -> bool:
     )
 
 
-def _provenance(folder: Path) -> dict:
-    import json
-
-    return json.loads((folder / "protocol.json").read_text()).get("provenance", {})
-
-
-def _recorded_registry(folder: Path) -> str | None:
-    provenance = _provenance(folder)
-    identity = provenance.get("identity") or {}
-    return (identity.get("model") or {}).get("registry") or provenance.get("registry")
-
-
-def _refuse_foreign_registry(folder: Path, loaded, label: str) -> None:
-    """A stored row of this label made with another registry's model is the user's: never
-    replaced by a rebuild that does not load that registry."""
-    from zoo.io import registry_record
-
-    recorded = _recorded_registry(folder)
-    if recorded is not None and recorded != registry_record(loaded.entry.source):
-        raise StoreError(
-            f"{folder}: row {label!r} was evaluated with registry {recorded}, which "
-            f"this run does not load (its {label!r} comes from "
-            f"{registry_record(loaded.entry.source)}); nothing was changed: pass "
-            f"--registry with that file, or remove the row deliberately with --drop "
-            f"{label}"
-        )
-
-
 def _why_not_planned(folder: Path, board: Leaderboard) -> str:
     from zoo.io import registry_record
 
-    recorded = _recorded_registry(folder)
+    recorded = recorded_registry(folder)
     loaded = {registry_record(e.source) for e in board.registry.entries.values()}
     if recorded is not None and recorded not in loaded:
         return (
             f"registry {recorded} not loaded: --registry with that file recomputes it, "
             f"--drop {folder.name} removes it"
         )
-    provenance = _provenance(folder)
+    provenance = stored_provenance(folder)
     if provenance.get("made_by", MADE_BY) != MADE_BY:
         return (
             f"made by {provenance['made_by']}, not a row the leaderboard plans: zoo eval "

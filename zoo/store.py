@@ -570,3 +570,34 @@ def check_replace(
         f"beside it under its own --label, write elsewhere with --out, or replace "
         f"it with --replace"
     )
+
+
+# ---- a stored row's provenance ----------------------------------------------------------------
+
+
+def stored_provenance(folder: Path) -> dict:
+    import json
+
+    return json.loads((folder / "protocol.json").read_text()).get("provenance", {})
+
+
+def recorded_registry(folder: Path) -> str | None:
+    provenance = stored_provenance(folder)
+    identity = provenance.get("identity") or {}
+    return (identity.get("model") or {}).get("registry") or provenance.get("registry")
+
+
+def refuse_foreign_registry(folder: Path, loaded, label: str) -> None:
+    """A stored row of this label made with another registry's model is the user's: never
+    replaced by a rebuild that does not load that registry."""
+    from zoo.io import registry_record
+
+    recorded = recorded_registry(folder)
+    if recorded is not None and recorded != registry_record(loaded.entry.source):
+        raise StoreError(
+            f"{folder}: row {label!r} was evaluated with registry {recorded}, which "
+            f"this run does not load (its {label!r} comes from "
+            f"{registry_record(loaded.entry.source)}); nothing was changed: pass "
+            f"--registry with that file, or remove the row deliberately with --drop "
+            f"{label}"
+        )

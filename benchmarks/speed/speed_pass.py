@@ -47,8 +47,8 @@ def table_models(bench, data_root=None, weights=None) -> tuple[object, list[Scor
         data_root=data_root,
     )
     models = []
-    for row in board._rows("prediction"):
-        models.append(Subject.of_loaded(board._load(row)).scored())
+    for row in board.rows("prediction"):
+        models.append(Subject.of_loaded(board.load(row)).scored())
     return board.dataset, models
 
 
