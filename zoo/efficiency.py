@@ -1,40 +1,7 @@
-"""What a model costs, and where those costs are kept.
-
-Measured by :func:`measure`, and only by ``zoo costs`` (:mod:`zoo.costs`): parameters, forward
-GFLOPs per window (torch's FLOP counter), latency of one window (batch 1) and training
-throughput (forward, backward, gradient clip and Adam at the recipe's batch size, a step of the
-recipe's last epoch: SpecTrHuMS's joint phase where its recipe reaches it). Every model
-is timed in float32, whatever precision its recipe trains in, so that the columns compare
-across models; within a time budget per model (``seconds``): a slow model gets fewer latency
-repeats or training steps (at least one of each after a warm-up), and the counts are recorded
-beside the numbers.
-
-``zoo leaderboard`` and ``zoo eval`` measure nothing: a table shows the costs stored in
-``results/<benchmark>/costs.json`` (:class:`Costs`) for its rows, naming the machine that
-measured them under it. Timings depend on that machine and its load; they are never in
-``results.csv`` (which ``zoo leaderboard --check`` compares). ``costs.json``::
-
-    {"version": 2,
-     "rows": {"<row label>": {"architecture": "<16 hex digits>",
-                              "parameters": 23880, "gflop_per_sample": 0.0029,
-                              "latency_ms": 3.37, "train_samples_per_s": 3603.3,
-                              "precision": "float32",
-                              "latency_repeats": 20, "training_steps": 3,
-                              "device": "CPU <model> (x86_64, AVX512), 2 cores, 2 threads",
-                              "threads": 2, "date": "2025-01-31"}}}
-
-``architecture`` digests what the numbers depend on besides the machine (:func:`cost_key`:
-model class, hyper-parameters and code, view, task, points, frames, batch size, gradient
-clip, and for a model whose step changes with the epoch the epoch timed); a table shows a
-row's stored costs only while it matches the row's model (else empty cells, until ``zoo
-costs`` measures it again). A value is null where it does not apply (no FLOPs or latency
-for a task whose model takes more than the history; no training
-throughput for a model that does not train).
-
-An older ``costs.json`` (no ``version``: ``{"entries": {digest: {"key": {..., "machine"},
-"costs"}}}``) holds timings in each recipe's own precision (bfloat16 for some), which do not
-compare: it is not read (its tables' rows show empty cost cells) and ``zoo costs`` replaces it
-whole.
+"""What a model costs (parameters, forward GFLOPs per window, latency of one window, training
+throughput; :func:`measure`, run only by ``zoo costs``), and where those costs are kept
+(``results/<benchmark>/costs.json``, :class:`Costs`, keyed by :func:`cost_key`). The format and
+what a cost depends on: docs/results.md ("Cost columns").
 """
 
 from __future__ import annotations

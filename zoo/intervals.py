@@ -1,31 +1,8 @@
-"""How sure a number is, and what it is sure about: intervals over recordings and over windows.
-
-What an interval can mean depends on the design (:func:`design`):
-
-- Where every action has ``MIN_RECORDINGS`` or more independent recordings (cloth: 100 test
-  sequences), a t interval over recordings (:func:`recording_interval`) is a **confidence
-  interval of the benchmark mean**: where the number would lie on other recordings of the same
-  kind.
-- Where an action has fewer (CMU and CMU-on-Anny: one recording per action), nothing in the data
-  shows how the number would move on another recording of the action. What can be said is how
-  it would move had other windows of **these** recordings been drawn: a **window-sampling
-  interval** (:func:`window_sampling_interval`), conditional on the recordings.
-
-Windows of one recording overlap (CMU's ``all`` sampler: neighbouring windows share 34 of their
-35 frames), so their errors are strongly correlated and a standard error over windows is far too
-small. The circular block bootstrap keeps that dependence: it resamples runs of consecutive
-windows of one recording (a block: the windows starting within ``block_frames``, two window
-lengths, of the block's first, but never shorter than one window: :func:`block_length`), never
-pieces of two recordings, a run past a recording's end continuing at its start. Each action's
-windows are rebuilt from blocks drawn among all its recordings' blocks, to as many windows as
-the action has; the protocol averages as always (mean over an action's windows, unweighted mean
-over the actions, which are never resampled away). The interval is studentised: the replicates'
-standard deviation times a t quantile whose degrees of freedom count the blocks, since a
-recording holding two or three blocks gives a percentile interval far too narrow.
-
-A paired comparison of two models scored on the same windows bootstraps the per-window
-differences with the same blocks, which removes the variance the two models share;
-:func:`best_set` compares every model of a table at once, and :func:`sign_test` counts actions.
+"""How sure a number is, and what it is sure about: a confidence interval over recordings where
+every action has ``MIN_RECORDINGS`` of them (:func:`recording_interval`), else a
+window-sampling interval from a studentised circular block bootstrap within recordings
+(:func:`window_sampling_interval`); paired comparisons, the bold set (:func:`best_set`) and a
+sign test over actions. docs/protocols.md ("How sure a number is") says what each means.
 """
 
 from __future__ import annotations
@@ -57,15 +34,9 @@ def block_windows(starts: np.ndarray, block_frames: int) -> int:
 
 
 MIN_RECORDINGS = 3  # independent recordings per action for a recording-level interval
-# Blocks of two window lengths, widened by a t quantile on the blocks (Replicates.widened).
-# Longer blocks see more of real errors' memory (autocorrelation 0.45-0.96 at 35-70 frames on
-# CMU) but leave CMU's shorter recordings two blocks and one degree of freedom: blocks of four or
-# eight window lengths made CMU's 1000 ms interval of repeat_last +-174-177 mm on 211 mm, two
-# +-61 mm, and two already covered the held-out recordings' mean in every pseudo test set
-# (zoo/coverage.yaml). One recording alone, 300 repetitions (benchmarks/coverage/coverage.py
-# --lengths): memoryless frame noise 0.91-0.99 at every length; frame noise remembering about 50
-# frames (AR(1) at 0.98, Student-t(3) shocks) 0.78-0.83 from 255 windows on, 0.89-0.94 at
-# 70-146 windows; averaged with CMU's other actions (zoo/coverage.yaml) it covered 0.93.
+# Blocks of two window lengths, widened by a t quantile on the blocks (Replicates.widened):
+# longer blocks leave CMU's shorter recordings too few degrees of freedom (docs/protocols.md,
+# "Why blocks of two window lengths").
 BLOCK_WINDOWS = 2
 # A recording whose windows' starts span fewer than this many window lengths holds too little of
 # its own variance for any block to show: one of 48 windows (CMU's running) covered 0.68 with

@@ -1,51 +1,6 @@
-"""CMU BVH motion on the Anny body: retargeting, resampling and mesh datasets.
-
-The mapping, for a BVH frame and one Anny identity (``anny.Anny(rig="cmu_mb")``, default
-``local-ref`` pose parameterization, where each bone's delta is a rotation about its head in
-world-aligned axes and deltas compose down the chain like BVH local rotations):
-
-1. local rotation ``R = Rz Ry Rx`` from the channels (intrinsic Z-Y-X, ``zoo.data.bvh``);
-2. change of axes ``M: (x, y, z) -> (x, -z, y)`` (BVH is Y up, Anny Z up and facing -Y):
-   ``R' = M R M^T``;
-3. a rest correction ``C`` per bone, computed top-down once per file and identity:
-   ``C = rot(C_parent a -> M b) C_parent`` where ``a`` is Anny's rest direction of the bone
-   (head to tail), ``b`` the BVH's zero-pose direction (joint to child or End Site) and
-   ``rot(u -> v)`` the smallest rotation taking direction u onto v; bones with no usable
-   direction (``NO_DIRECTION_BONES``: hips, hip joints, Spine1, shoulders, thumbs, fingers, and
-   any bone whose BVH tail offset is zero) take ``C_parent``; the root's ``C`` is the identity;
-4. pose parameter of the bone ``[[C_parent^T R' C, 0], [0, 1]]``; the root's is the identity
-   (``root="identity"``, the motion-prediction protocol: no global rotation, no translation) or,
-   with ``root="no_heading"``, ``M S M^T`` where ``S`` is the root's BVH rotation with its
-   heading removed (swing-twist about the vertical: ``Q_root = H_y S``, ``S`` about a horizontal
-   axis), which keeps the body's tilt. Root translation is always zero.
-
-Then each posed bone's world rotation is ``G = M Q M^T C`` (``Q`` its BVH world rotation, root
-as above), so every bone with a direction points exactly where the BVH's own forward kinematics
-puts it. Anny's skinning puts the root (Hips) head at the origin.
-
-Frame rate: the T-pose frame 0 is dropped, then local rotations are resampled from the source
-rate (120 fps, snapped to the integer rate when within 0.1 %) to exactly 25 Hz by quaternion
-slerp between the two nearest source frames (``scipy.spatial.transform.Slerp``); output frame k
-is at time ``k / 25`` s after the first kept frame, for every k with ``k / 25 <= (N - 1) / fps``.
-
-Joints: the ``cmu_mb`` rig's bone heads are means of MakeHuman's joint-helper vertices, which are
-not part of the body mesh, so the rig's joints are not a linear function of the mesh's vertices
-and no exact vertex regressor exists. Two things are kept, so MPJPE is defined:
-- ``joint_regressor`` (the dataset's, rows in BVH joint order, ``joint_names`` the BVH names):
-  per bone, non-negative weights summing to 1 over the 40 (low) or 100 (full) rest vertices
-  nearest its head, fitted by least squares so that the weighted skinned vertices reproduce
-  Anny's posed bone heads over frames of ``REGRESSOR_TRIALS`` (training trials) for 8
-  identities (``fit_joint_regressor``). The fitted regressors ship as data
-  (``SHIPPED_REGRESSORS``, one file per topology and recipe, checksummed): an active-set
-  non-negative least squares fit on float32 skinned vertices keeps other weights on another
-  CPU, and a joint is a weighted sum of a few vertices, so a fit per machine would move MPJPE
-  beyond the rounding tolerance. ``check_joint_regressor`` (``zoo data regressor NAME``) fits
-  one here and compares. This is how SpecTrHuMS defines joints on SMPL meshes:
-  the same regressor applied to ground-truth and predicted meshes; it is the MPJPE of the
-  benchmark. It follows the rig's heads to a few mm, worse at knees in deep flexion, where linear
-  blend skinning collapses the surface (``regressor_error``);
-- the rig's exact posed bone heads per frame, beside the dataset (``load_rig_joints``), for
-  skeleton models trained on the same motion and for checking the regressor.
+"""CMU BVH motion on the Anny body: retargeting, resampling, the joint regressor and the mesh
+datasets (``cmu_anny_*``). docs/datasets.md ("CMU motion on the Anny body") gives the mapping
+step by step, the resampling and why the joint regressor ships as data.
 """
 
 from __future__ import annotations
@@ -511,11 +466,7 @@ REGRESSOR_STATS = ("fit_mean_mm", "fit_p99_mm", "fit_frames")
 # Every topology's fitted regressor ships here, one file per recipe (module docstring).
 SHIPPED_REGRESSORS = REPO_ROOT / "benchmarks" / "regressors"
 # Largest distance (mm) between a joint regressed by a fresh fit and by the shipped regressor,
-# on the fit's own frames, that counts as the same regressor. Measured: refits from vertices
-# moved by one float32 unit in the last place (another CPU's skinning) move those joints by at
-# most 0.001 mm (full body; 1.2e-5 mm low); the fit's own residual is 4.7-6.5 mm on average.
-# Off the fit's frames the weights' differences (up to 0.011 per weight on the full body, where
-# nearby vertices are nearly collinear) weigh a prediction's error: hence the shipped weights.
+# on the fit's own frames, that counts as the same regressor (docs/reproducibility.md says why).
 REGRESSOR_TOLERANCE_MM = 0.05
 
 

@@ -1,47 +1,8 @@
-"""Spectral basis of a mesh: eigenvectors of its combinatorial Graph Laplacian.
-
-``Phi (V, k)`` holds the ``k`` eigenvectors of ``L = D - A`` with the smallest eigenvalues, ordered
-by frequency. Spectral coefficients are ``C = Phi^T X`` and the reconstruction is ``X = Phi C``.
-
-Eigenvector signs, and the basis inside an eigenspace of a repeated eigenvalue, are arbitrary: a
-different solver, BLAS or machine may return a different (equally valid) basis. Signs are fixed by
-a convention (the largest-magnitude entry of every vector is positive) so that recomputes agree
-wherever the eigenvalues are simple, and a basis is computed once and cached on disk next to its
-topology hash; a cached file whose bytes do not match its ``checksum`` is an error, never a silent
-recompute.
-
-Identity and numbers are kept apart. The last bits of a basis follow the machine's LAPACK and
-ARPACK kernels (measured: the cloth's dense solve and CMU-on-Anny's Lanczos solve give other bytes
-on an AVX-512 EPYC than on the machine that trained the shipped models, equal to about 1e-12). So
-``hash``, which protocol records and trained models carry, names what was computed (topology,
-``k``, method), the same on every machine; and ``probe_projections`` gives a few numbers of the
-vectors themselves that a trained model stores and compares within a tolerance when it is loaded,
-so weights are never applied through a basis with other signs or another rotation of an
-eigenspace, while a recompute equal to rounding is accepted.
-
-Two rules make a basis the same on every machine:
-
-- **A benchmark's basis is aligned to a shipped reference**: ``benchmarks/bases/`` holds, for
-  every benchmark mesh, a :class:`BasisReference` of a few kilobytes: the basis's identity,
-  eigenvalues and the projections of its vectors onto ``FRAME_PROBES`` fixed probes.
-  :meth:`SpectralBasis.load_or_compute` computes the basis on this machine and rotates each
-  group of close eigenvalues (``ALIGN_GAP``) into the reference's frame by orthogonal
-  Procrustes on those projections, refusing a basis whose subspaces or eigenvalues differ
-  (``zoo data basis NAME`` reports the misfit). Why a frame and not a recompute alone: the
-  shipped SpecTrHuMS weights were trained on one machine's vectors, and another machine's
-  solver rotates the full Anny body's near-degenerate eigenspaces (and its four-fold zero
-  eigenvalue) differently; aligned, every machine gets those vectors to about 1e-13.
-- **A computed basis is canonical** inside clusters of (nearly) repeated eigenvalues:
-  consecutive eigenvalues closer than ``CLUSTER_GAP`` (relative to ``max(1, lambda_k)``) form
-  one cluster, whose vectors the solver returns in an arbitrary rotation; they are rotated to
-  the frame in which their projections onto fixed probe vectors are upper triangular with a
-  positive diagonal (:func:`canonical_clusters`), a frame that depends on the cluster's
-  subspace only, not on what the solver returned. Then every vector's largest-magnitude entry
-  is made positive. Dense and Lanczos solvers, start vectors and thread counts then give one
-  basis to within ``BASIS_TOLERANCE`` (tested on a torus, whose eigenvalues repeat 2, 4 and 8
-  times). Error model: the solver's residual is about machine epsilon times ``||L||``, so a
-  vector outside a cluster is off by about that over its gap to the next eigenvalue (at least
-  the cluster gap: ``1e-16 * 16 / 1e-7 ~ 2e-8``), far below float32 storage's 6e-8.
+"""Spectral basis of a mesh: the eigenvectors of its combinatorial Graph Laplacian ``L = D - A``
+with the ``k`` smallest eigenvalues (``Phi (V, k)``: coefficients ``C = Phi^T X``, reconstruction
+``X = Phi C``), computed canonically, cached, and aligned to a benchmark's shipped reference
+(:class:`BasisReference`) so that every machine gets the vectors the shipped weights were
+trained on. docs/reproducibility.md ("Spectral bases") says why and how well.
 """
 
 from __future__ import annotations
