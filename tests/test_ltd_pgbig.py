@@ -272,12 +272,12 @@ def test_recipes_decay_the_rate_as_the_public_codes_do():
 
     registry = load_registry()
     ltd = training_recipe(registry.get("ltd").train)
-    rates = [learning_rate(ltd["schedule"], ltd["lr"], e, 50) for e in range(4)]
+    rates = [learning_rate(ltd.schedule, ltd.lr, e, 50) for e in range(4)]
     np.testing.assert_allclose(rates, [5e-4, 5e-4 * 0.96, 5e-4 * 0.96, 5e-4 * 0.96**2])
     pgbig = training_recipe(registry.get("pgbig").train)
-    rates = [learning_rate(pgbig["schedule"], pgbig["lr"], e, 50) for e in (0, 49)]
+    rates = [learning_rate(pgbig.schedule, pgbig.lr, e, 50) for e in (0, 49)]
     np.testing.assert_allclose(rates, [5e-3 * 0.1 ** (1 / 50), 5e-3 * 0.1])
-    assert (ltd["batch_size"], ltd["epochs"], pgbig["batch_size"], pgbig["epochs"]) == (
+    assert (ltd.batch_size, ltd.epochs, pgbig.batch_size, pgbig.epochs) == (
         16,
         50,
         16,

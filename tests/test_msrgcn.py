@@ -107,7 +107,7 @@ def test_recipe_decays_as_the_code_does():
     from zoo.train.recipe import learning_rate, training_recipe
 
     recipe = training_recipe(load_registry().get("msrgcn").train)
-    rates = [learning_rate(recipe["schedule"], recipe["lr"], e, 50) for e in range(6)]
+    rates = [learning_rate(recipe.schedule, recipe.lr, e, 50) for e in range(6)]
     expected = [2e-4 * 0.98 ** ((e + 1) // 2) for e in range(6)]
     assert rates == pytest.approx(expected)
-    assert (recipe["batch_size"], recipe["epochs"], recipe["grad_clip"]) == (16, 50, None)
+    assert (recipe.batch_size, recipe.epochs, recipe.grad_clip) == (16, 50, None)

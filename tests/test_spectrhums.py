@@ -601,9 +601,9 @@ def test_registry_entries_and_recipe():
         assert entry.context == ("basis",) and entry.representation == ("mesh",)
         assert entry.hparams["autoencoder_epochs"] == 2 and entry.hparams["layers"] == 6
         recipe = training_recipe(entry.train)
-        assert (recipe["lr"], recipe["batch_size"], recipe["epochs"]) == (1e-4, 32, 100)
-        assert learning_rate(recipe["schedule"], recipe["lr"], 0, 100) == pytest.approx(1e-4)
-        assert learning_rate(recipe["schedule"], recipe["lr"], 100, 100) == pytest.approx(1e-6)
+        assert (recipe.lr, recipe.batch_size, recipe.epochs) == (1e-4, 32, 100)
+        assert learning_rate(recipe.schedule, recipe.lr, 0, 100) == pytest.approx(1e-4)
+        assert learning_rate(recipe.schedule, recipe.lr, 100, 100) == pytest.approx(1e-6)
 
 
 def test_position_dropout_as_in_the_public_code():

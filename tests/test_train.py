@@ -644,7 +644,9 @@ def test_a_run_written_with_a_capturable_optimizer_resumes_on_the_cpu(setup, tmp
 
 def test_learning_rate_is_set_in_place_where_it_is_a_tensor():
     model = torch.nn.Linear(2, 2)
-    recipe = {"lr": 0.01, "weight_decay": 0.0}
+    from zoo.train.recipe import Recipe
+
+    recipe = Recipe(lr=0.01)
     graphed = train_module.make_optimizer(model, recipe, "cpu", graphed=True)
     lr = graphed.param_groups[0]["lr"]
     train_module.set_learning_rate(graphed, 0.5)

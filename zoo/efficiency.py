@@ -12,6 +12,7 @@ import json
 import statistics
 import time
 from collections.abc import Callable
+from dataclasses import replace
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
@@ -20,7 +21,7 @@ import torch
 
 from zoo.models.hooks import model_hooks
 from zoo.train.host import device_name
-from zoo.train.recipe import DEFAULT_RECIPE
+from zoo.train.recipe import DEFAULT_RECIPE, Recipe
 from zoo.train.step import TrainingObjective, prepare_epoch, training_step
 
 LATENCY_REPEATS = 20
@@ -101,7 +102,7 @@ def training_samples_per_s(
     with a training view steps on windows of it, and one with a ``start_epoch`` hook in the
     recipe's last epoch, as the engine trains it."""
     trainee = copy.deepcopy(model).to(device).train()
-    view = hasattr(trainee, "training_view")  # trained on its view, computed once (zoo.train)
+    view = model_hooks(trainee).training_view  # trained on its view, computed once (zoo.train)
     objective = TrainingObjective(trainee, task, view=view)
     optimizer = torch.optim.Adam(trainee.parameters(), lr=1e-6)
     batch = recipe["batch_size"]
@@ -121,7 +122,8 @@ def training_samples_per_s(
         prepare_epoch(trainee, last, lambda: iter(every), view=view)
     history, future = windows[:, :input_frames], windows[:, input_frames:]
 
-    in_float32 = {**recipe, "precision": "float32"}  # every model's column in one precision
+    # every model's column in one precision
+    in_float32 = replace(Recipe.of(recipe), precision="float32")
 
     def step():
         training_step(

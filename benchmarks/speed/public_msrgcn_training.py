@@ -46,7 +46,7 @@ def windows(bench, recipe, data_root, probe: int):
     ``(B, T, 25, 3)``, spread evenly over them."""
     dataset = bench.load(data_root, split=bench.train_split)
     length = bench.input_frames + bench.output_frames
-    train, val = split_train_val(dataset, recipe["val_fraction"], length, rule=recipe["val_split"])
+    train, val = split_train_val(dataset, recipe.val_fraction, length, rule=recipe.val_split)
     t_in, t_out = bench.input_frames, bench.output_frames
     train_pos, train_index = usable_windows(train, length, "all", t_in, t_out)
     val_pos, val_index = usable_windows(val, length, "all", t_in, t_out)
@@ -169,11 +169,11 @@ def main(argv=None) -> int:
     zoo_model.low.fill_(args.low)
     zoo_model.high.fill_(args.high)
     optimizer = make_optimizer(zoo_model, recipe, "cpu")
-    public = PublicSide(folder, zoo_model, recipe["lr"])
+    public = PublicSide(folder, zoo_model, recipe.lr)
     order = torch.randperm(len(train_index), generator=torch.Generator().manual_seed(0))
-    batch, length = recipe["batch_size"], bench.input_frames + bench.output_frames
+    batch, length = recipe.batch_size, bench.input_frames + bench.output_frames
     print(
-        f"msrgcn: {len(train_index)} training windows, batch {batch}, lr {recipe['lr']:g}, "
+        f"msrgcn: {len(train_index)} training windows, batch {batch}, lr {recipe.lr:g}, "
         f"probe {args.probe} validation windows; repeat-last there: mean {float(repeat.mean()):.1f}"
         f" mm, 1000 ms {float(repeat[-1]):.1f} mm"
     )

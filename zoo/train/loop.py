@@ -24,7 +24,7 @@ from zoo.models.hooks import Hooks, model_hooks
 from zoo.paths import REPO_ROOT
 from zoo.registry import ModelEntry, Registry, load_registry
 from zoo.train.host import cpu_has_native_bfloat16, device_name
-from zoo.train.recipe import learning_rate, training_recipe
+from zoo.train.recipe import Recipe, learning_rate, training_recipe
 from zoo.train.split import (
     split_train_val,
     training_view_arrays,
@@ -155,7 +155,7 @@ def train(
         )  # fmt: skip
     if dist_info.rank == 0:
         _print_plan(model_name, bench, data, recipe, epochs.steps, run.first_epoch, seed, out_dir)
-    for epoch in range(run.first_epoch, recipe["epochs"]):
+    for epoch in range(run.first_epoch, recipe.epochs):
         record = epochs.run(epoch)
         run.history.append(record)
         if dist_info.rank == 0:
@@ -232,9 +232,9 @@ def _new_model(registry, model_name, hparams, seed, device, initial, init_from) 
     return model
 
 
-def _warn_slow_bfloat16(model_name: str, recipe: dict[str, Any], device) -> None:
+def _warn_slow_bfloat16(model_name: str, recipe: Recipe, device) -> None:
     if (
-        recipe["precision"] == "bfloat16"
+        recipe.precision == "bfloat16"
         and torch.device(device).type == "cpu"
         and cpu_has_native_bfloat16() is False
     ):
@@ -276,16 +276,14 @@ def _training_windows(model, model_name, bench, dataset, recipe, hooks: Hooks, p
     t_in, t_out = bench.input_frames, bench.output_frames
     length = t_in + t_out
     train_seqs, val_seqs = split_train_val(
-        dataset, recipe["val_fraction"], length, rule=recipe["val_split"]
+        dataset, recipe.val_fraction, length, rule=recipe.val_split
     )
-    train_pos, train_index = usable_windows(
-        train_seqs, length, recipe["train_sampler"], t_in, t_out
-    )
-    val_pos, val_index = usable_windows(val_seqs, length, recipe["val_sampler"], t_in, t_out)
+    train_pos, train_index = usable_windows(train_seqs, length, recipe.train_sampler, t_in, t_out)
+    val_pos, val_index = usable_windows(val_seqs, length, recipe.val_sampler, t_in, t_out)
     if len(train_index) == 0:
         raise TrainingError(
             f"{dataset.name}/{dataset.split}: training sampler "
-            f"{recipe['train_sampler']!r} finds no window of {length} frames in "
+            f"{recipe.train_sampler!r} finds no window of {length} frames in "
             f"the training sequences (longest: "
             f"{max((len(a) for a in train_seqs), default=0)} frames); choose "
             f"another with --train-set train_sampler=NAME (e.g. all)"
@@ -293,7 +291,7 @@ def _training_windows(model, model_name, bench, dataset, recipe, hooks: Hooks, p
     if len(val_index) == 0:
         raise TrainingError(
             f"{dataset.name}/{dataset.split}: validation sampler "
-            f"{recipe['val_sampler']!r} finds no window of {length} frames in the held-out "
+            f"{recipe.val_sampler!r} finds no window of {length} frames in the held-out "
             f"sequences; choose another with --train-set val_sampler=NAME (e.g. all)"
         )
     used = _point_index(bench)
@@ -303,10 +301,10 @@ def _training_windows(model, model_name, bench, dataset, recipe, hooks: Hooks, p
     if hooks.training_view:
         views = training_view_arrays(model, dataset, used, progress=progress)
         view_train, _ = split_train_val(
-            dataset, recipe["val_fraction"], length, arrays=views, rule=recipe["val_split"]
+            dataset, recipe.val_fraction, length, arrays=views, rule=recipe.val_split
         )
         train_src, view_index = usable_windows(
-            view_train, length, recipe["train_sampler"], t_in, t_out
+            view_train, length, recipe.train_sampler, t_in, t_out
         )
         src_points = slice(None)
         if not np.array_equal(view_index, train_index):
@@ -357,14 +355,14 @@ def _resumed(path: Path, model_name, hparams, model, optimizer, recipe, seed) ->
 
 
 def _print_plan(model_name, bench, data: _Data, recipe, steps, first_epoch, seed, out_dir) -> None:
-    schedule = recipe["schedule"] or {"type": "constant"}
+    schedule = recipe.schedule or {"type": "constant"}
     print(
         f"training {model_name} on {bench.name}: {len(data.train_index)} training windows "
-        f"({recipe['train_sampler']}), {len(data.val_index)} validation windows; "
-        f"{steps} steps of batch {recipe['batch_size']} an epoch, epochs "
-        f"{first_epoch + 1}..{recipe['epochs']}; adam lr {recipe['lr']:g}, schedule "
-        f"{schedule}, weight decay {recipe['weight_decay']:g}, gradient clip "
-        f"{recipe['grad_clip']}, {recipe['precision']}; seed {seed}; checkpoints in {out_dir}",
+        f"({recipe.train_sampler}), {len(data.val_index)} validation windows; "
+        f"{steps} steps of batch {recipe.batch_size} an epoch, epochs "
+        f"{first_epoch + 1}..{recipe.epochs}; adam lr {recipe.lr:g}, schedule "
+        f"{schedule}, weight decay {recipe.weight_decay:g}, gradient clip "
+        f"{recipe.grad_clip}, {recipe.precision}; seed {seed}; checkpoints in {out_dir}",
         flush=True,
     )
 
@@ -391,7 +389,7 @@ class _Epochs:
             if dist_info.active
             else objective
         )
-        batch_size = recipe["batch_size"]
+        batch_size = recipe.batch_size
         if batch_size % dist_info.world:
             raise TrainingError(
                 f"batch_size {batch_size} must divide evenly over {dist_info.world} processes"
@@ -477,17 +475,17 @@ class _Epochs:
         model.train()
         bar = progress_bar(
             total=self.steps,
-            desc=f"{self.model_name} epoch {epoch + 1}/{recipe['epochs']}",
+            desc=f"{self.model_name} epoch {epoch + 1}/{recipe.epochs}",
             unit="batch",
             leave=False,
             dynamic_ncols=True,
             disable=not self.progress,
         )
         started, seen, loss_sum = time.perf_counter(), 0, 0.0
-        batch_size, rank, world = recipe["batch_size"], self.dist_info.rank, self.dist_info.world
+        batch_size, rank, world = recipe.batch_size, self.dist_info.rank, self.dist_info.world
         for step in range(self.steps):
             lr = learning_rate(
-                recipe["schedule"], recipe["lr"], epoch, recipe["epochs"], epoch * self.steps + step
+                recipe.schedule, recipe.lr, epoch, recipe.epochs, epoch * self.steps + step
             )
             set_learning_rate(self.optimizer, lr)
             rows = order[step * batch_size : (step + 1) * batch_size].numpy()
@@ -495,7 +493,7 @@ class _Epochs:
             windows = gather_windows(data.train_src, data.train_index[rows], data.length)[
                 :, :, data.src_points
             ]
-            if "time_reversal" in (recipe["augment"] or ()):
+            if "time_reversal" in (recipe.augment or ()):
                 flip = augment_rng.random(len(windows)) < 0.5
                 windows[flip] = windows[flip, ::-1]
             windows = torch.from_numpy(np.ascontiguousarray(windows)).to(self.device)

@@ -4,50 +4,65 @@ schedule."""
 from __future__ import annotations
 
 import math
+from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import torch
 
 from zoo.errors import TrainingError
 
-DEFAULT_RECIPE: dict[str, Any] = {
-    "optimizer": "adam",
-    "lr": 1e-3,
-    "weight_decay": 0.0,
-    "batch_size": 32,
-    "epochs": 10,
-    "grad_clip": None,
-    "schedule": {"type": "constant"},
-    "augment": [],
-    "val_fraction": 0.1,
-    # Which frames validate (see held_out_frames): "auto", the last val_fraction of every
-    # sequence where all are long enough (H3.6M), else the last val_fraction of the sequences
-    # (cloth; on CMU the last 3 recordings, all of them walking); "tails", the last
-    # val_fraction of every recording long enough to spare a window, the shorter ones trained
-    # on whole (CMU: every action keeps its recordings); "actions", "tails" and, for an action
-    # none of whose recordings can spare a tail, the end of its longest recording, so that every
-    # action validates and none is held out whole; "recordings", whole recordings spread over
-    # the data (every k-th by name, k = 1 / val_fraction), so that validation sees many
-    # recordings and subjects.
-    "val_split": "auto",
-    "train_sampler": "all",
-    # Validation windows of the held-out frames: every window by default; a sparser sampler
-    # (e.g. stride5_strict) cuts the cost of validating large meshes every epoch.
-    "val_sampler": "all",
+
+@dataclass(frozen=True)
+class Recipe:
+    """How a model trains: a registry entry's ``train`` mapping over these defaults, checked by
+    :func:`training_recipe`. Checkpoints and weights records keep it as :meth:`as_dict`."""
+
+    optimizer: str = "adam"
+    lr: float = 1e-3
+    weight_decay: float = 0.0
+    batch_size: int = 32
+    epochs: int = 10
+    grad_clip: float | None = None
+    schedule: dict[str, Any] = field(default_factory=lambda: {"type": "constant"})
+    augment: list[str] = field(default_factory=list)
+    val_fraction: float = 0.1
+    # Which frames validate (held_out_frames): "auto", the last val_fraction of every sequence
+    # where all are long enough (H3.6M), else the last val_fraction of the sequences (cloth; on
+    # CMU the last 3 recordings, all of them walking); "tails", the last val_fraction of every
+    # recording long enough to spare a window, the shorter ones trained on whole; "actions",
+    # "tails" and, for an action none of whose recordings can spare a tail, the end of its
+    # longest recording, so that every action validates and none is held out whole;
+    # "recordings", whole recordings spread over the data (every k-th by name).
+    val_split: str = "auto"
+    train_sampler: str = "all"
+    # Validation windows of the held-out frames: a sparser sampler (e.g. stride5_strict) cuts
+    # the cost of validating large meshes every epoch.
+    val_sampler: str = "all"
     # "bfloat16": the training loss (forward) under torch.autocast; weights, optimiser,
-    # validation and evaluation stay float32. Models keep their precision-critical sums (mm
-    # positions, spectral products) in float32 themselves.
-    "precision": "float32",
-}
+    # validation and evaluation stay float32.
+    precision: str = "float32"
+
+    def as_dict(self) -> dict[str, Any]:
+        """The recipe as records keep it (plain data, every field)."""
+        return asdict(self)
+
+    @classmethod
+    def of(cls, recorded: dict[str, Any]) -> Recipe:
+        """A recorded recipe (a checkpoint's or weights record's), fields it predates at their
+        defaults; not checked (it ran)."""
+        return cls(**{k: v for k, v in recorded.items() if k in _FIELDS})
+
+
+DEFAULT_RECIPE: dict[str, Any] = Recipe().as_dict()
+_FIELDS = frozenset(DEFAULT_RECIPE)
 PRECISIONS = {"float32": None, "bfloat16": torch.bfloat16}
 VAL_SPLITS = ("auto", "tails", "actions", "recordings")
 SCHEDULES = ("constant", "step", "cosine", "multistep")
 AUGMENTATIONS = ("time_reversal",)
 
 
-def training_recipe(
-    entry_train: dict[str, Any], overrides: dict[str, Any] | None = None
-) -> dict[str, Any]:
+def training_recipe(entry_train: dict[str, Any], overrides: dict[str, Any] | None = None) -> Recipe:
+    """A registry entry's recipe (``train``) with ``overrides``, over the defaults, checked."""
     recipe = {**DEFAULT_RECIPE, **entry_train, **(overrides or {})}
     unknown = sorted(set(recipe) - set(DEFAULT_RECIPE))
     if unknown:
@@ -143,7 +158,7 @@ def training_recipe(
             f"training recipe: val_split {recipe['val_split']!r} unknown; valid: "
             f"{', '.join(VAL_SPLITS)}"
         )
-    return recipe
+    return Recipe(**recipe)
 
 
 def _positive_number(value, allow_zero: bool = False) -> bool:

@@ -13,6 +13,7 @@ import torch
 from zoo.data.windows import window_sampler
 from zoo.errors import TrainingError
 from zoo.io import progress_bar
+from zoo.train.recipe import Recipe
 
 
 def sequence_frames(sequence) -> np.ndarray:
@@ -113,20 +114,20 @@ def split_train_val(
     return kept, [arrays[i][plan[i] :] for i in sorted(plan)]
 
 
-def validation_record(dataset, recipe: dict[str, Any], window: int, windows: int) -> dict[str, Any]:
+def validation_record(dataset, recipe: Recipe, window: int, windows: int) -> dict[str, Any]:
     """What a run validated on, as its checkpoint and shipped record say: the rule, the
     recordings held out whole and those whose last frames validate, and the number of
     windows."""
     names = [s.name for s in dataset.sequences]
     lengths = [len(sequence_frames(s)) for s in dataset.sequences]
-    plan = held_out_frames(dataset, lengths, recipe["val_fraction"], window, recipe["val_split"])
+    plan = held_out_frames(dataset, lengths, recipe.val_fraction, window, recipe.val_split)
     what: dict[str, Any] = {}
     if whole := [names[i] for i in sorted(plan) if plan[i] == 0]:
         what["recordings"] = whole
     if tails := [names[i] for i in sorted(plan) if plan[i] > 0]:
-        what["tails"] = {"fraction": recipe["val_fraction"], "of": tails}
+        what["tails"] = {"fraction": recipe.val_fraction, "of": tails}
     return {
-        "split": recipe["val_split"],
+        "split": recipe.val_split,
         "of": f"{dataset.name}/{dataset.split} ({len(names)} recordings)",
         **what,
         "windows": int(windows),

@@ -15,7 +15,6 @@ from zoo.checkpoints import (
     CheckpointError,
     model_origin,
     model_protocol,
-    plain,
     read_checkpoint,
     save_checkpoint,
     stored_hparams,
@@ -27,7 +26,7 @@ from zoo.errors import TrainingError
 from zoo.io import code_version, repo_relative, sha256_file
 from zoo.registry import Registry
 from zoo.train.host import device_name, devices_text
-from zoo.train.recipe import DEFAULT_RECIPE
+from zoo.train.recipe import DEFAULT_RECIPE, Recipe
 from zoo.weights import read_weights
 
 
@@ -39,7 +38,7 @@ def save_epoch(
     epoch: int,
     best: dict[str, Any],
     history: list[dict[str, Any]],
-    recipe: dict[str, Any],
+    recipe: Recipe,
     device,
 ) -> None:
     """The checkpoints of a finished epoch (0-based ``epoch``): ``best.pt`` when it is the best
@@ -84,12 +83,12 @@ BUDGET_FIELDS = ("epochs", "max_batches")
 
 
 def resume_changes(
-    path: Path, state: dict[str, Any], recipe: dict[str, Any], seed: int, max_batches: int | None
+    path: Path, state: dict[str, Any], recipe: Recipe, seed: int, max_batches: int | None
 ) -> list[dict[str, Any]]:
     """The checkpoint's recorded recipe changes plus this resume's; refuses any change that is
     not the budget, naming the fields."""
     stored = state.get("recipe") or {}
-    given = plain(recipe)
+    given = recipe.as_dict()
     differ = [
         f"{key}: {stored.get(key, DEFAULT_RECIPE.get(key))!r} in the checkpoint, "
         f"{given.get(key)!r} now"
@@ -107,13 +106,13 @@ def resume_changes(
             f"run with another --out"
         )
     done = state["epoch"] + 1
-    if recipe["epochs"] < done:
+    if recipe.epochs < done:
         raise CheckpointError(
-            f"{path}: cannot resume with --epochs {recipe['epochs']}: the run "
+            f"{path}: cannot resume with --epochs {recipe.epochs}: the run "
             f"has already trained {done} epochs"
         )
     changes = list(state.get("recipe_changes") or [])
-    now = {"epochs": recipe["epochs"], "max_batches": max_batches}
+    now = {"epochs": recipe.epochs, "max_batches": max_batches}
     before = {"epochs": stored.get("epochs"), "max_batches": state.get("max_batches")}
     for field in BUDGET_FIELDS:
         # Checkpoints written before max_batches was recorded cannot say what it was.
@@ -190,7 +189,7 @@ def run_metadata(entry, hparams, bench, dataset, recipe, seed, device, dist_info
         "context_hashes": context_hashes,
         "protocol": model_protocol(bench, view),
         "training_data": _training_data(dataset),
-        "recipe": plain(recipe),
+        "recipe": recipe.as_dict(),
         "seed": seed,
         "code_version": code_version(),
         "torch": str(torch.__version__),
@@ -219,7 +218,7 @@ def _training_data(dataset) -> dict[str, Any]:
 def _training_summary(recipe, history, best, device) -> dict[str, Any]:
     return {
         "epochs_run": len(history),
-        "epochs_planned": recipe["epochs"],
+        "epochs_planned": recipe.epochs,
         "samples_seen": int(sum(h["samples"] for h in history)),
         "seconds": float(sum(h["seconds"] for h in history)),
         "device": str(device),

@@ -4,8 +4,6 @@ captured as a CUDA graph."""
 
 from __future__ import annotations
 
-from typing import Any
-
 import torch
 from torch import nn
 
@@ -13,7 +11,7 @@ from zoo.errors import TrainingError
 from zoo.evaluation import predict
 from zoo.metrics import mpjpe
 from zoo.models.hooks import model_hooks
-from zoo.train.recipe import PRECISIONS
+from zoo.train.recipe import PRECISIONS, Recipe
 
 
 def forward_precision(precision: str, device) -> torch.autocast:
@@ -62,7 +60,7 @@ def training_step(
     optimizer: torch.optim.Optimizer,
     history: torch.Tensor,
     future: torch.Tensor,
-    recipe: dict[str, Any],
+    recipe: Recipe,
     device,
     where: str = "{loss}",
     check_finite: bool = True,
@@ -72,14 +70,14 @@ def training_step(
     the recipe's gradient clip on ``model``'s parameters, and the step. Returns the loss.
     ``where`` says where a non-finite loss happened, ``{loss}`` standing for "loss is <value>".
     ``check_finite=False`` leaves that check to the caller (a CUDA graph cannot stop to look)."""
-    with forward_precision(recipe["precision"], device):
+    with forward_precision(recipe.precision, device):
         loss = objective(history, future)
     if check_finite:
         refuse_non_finite(loss, where)
     optimizer.zero_grad(set_to_none=True)
     loss.backward()
-    if recipe.get("grad_clip"):
-        nn.utils.clip_grad_norm_(model.parameters(), recipe["grad_clip"])
+    if recipe.grad_clip:
+        nn.utils.clip_grad_norm_(model.parameters(), recipe.grad_clip)
     optimizer.step()
     return loss
 
@@ -93,13 +91,13 @@ def refuse_non_finite(loss: torch.Tensor, where: str) -> None:
 
 
 def make_optimizer(
-    model: nn.Module, recipe: dict[str, Any], device, graphed: bool = False
+    model: nn.Module, recipe: Recipe, device, graphed: bool = False
 ) -> torch.optim.Optimizer:
     """The recipe's Adam; for a CUDA graph, capturable, its learning rate a device tensor that
     :func:`set_learning_rate` changes in place (a float would be frozen into the graph)."""
-    lr = torch.tensor(recipe["lr"], device=device) if graphed else recipe["lr"]
+    lr = torch.tensor(recipe.lr, device=device) if graphed else recipe.lr
     return torch.optim.Adam(
-        model.parameters(), lr=lr, weight_decay=recipe["weight_decay"], capturable=graphed
+        model.parameters(), lr=lr, weight_decay=recipe.weight_decay, capturable=graphed
     )
 
 
