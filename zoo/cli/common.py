@@ -81,6 +81,17 @@ def common_options(p) -> None:
     p.add_argument("--device", default="cpu", help="torch device")
 
 
+def model_source_options(p, benchmark_help: str) -> None:
+    """Where the model comes from (``--model``, ``--checkpoint`` or ``--weights``) and the
+    benchmark, for the commands that run one model."""
+    p.add_argument("--model", help="registered model name")
+    p.add_argument("--checkpoint", help="trained checkpoint (from zoo train)")
+    p.add_argument(
+        "--weights", help="shipped weights file (weights/<benchmark>/<label>.safetensors)"
+    )
+    p.add_argument("--benchmark", help=benchmark_help)
+
+
 def results_option(p, help: str = "results root") -> None:
     """``--results``: the results root (``--out``, its old spelling, where it meant that)."""
     from zoo.store import RESULTS_DIR

@@ -10,6 +10,7 @@ from zoo.cli.common import (
     benchmark_of,
     common_options,
     model_source,
+    model_source_options,
     positive_int,
     print_average,
     registry_of,
@@ -22,14 +23,7 @@ from zoo.options import EVAL_BATCH
 def add(sub) -> None:
     p = add_command(sub, "eval", "evaluate one model on one benchmark", run)
     common_options(p)
-    p.add_argument("--model", help="registered model name")
-    p.add_argument("--checkpoint", help="trained checkpoint (from zoo train)")
-    p.add_argument(
-        "--weights", help="shipped weights file (weights/<benchmark>/<label>.safetensors)"
-    )
-    p.add_argument(
-        "--benchmark", help="benchmark name or YAML path (default: the checkpoint's, else cmu)"
-    )
+    model_source_options(p, "benchmark name or YAML path (default: the checkpoint's, else cmu)")
     p.add_argument(
         "--sampler",
         action="append",

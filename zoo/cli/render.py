@@ -10,6 +10,7 @@ from zoo.cli.common import (
     benchmark_of,
     common_options,
     model_source,
+    model_source_options,
     registry_of,
     task_options,
 )
@@ -19,14 +20,7 @@ from zoo.store import RESULTS_DIR
 def add(sub) -> None:
     p = add_command(sub, "render", "ground truth and prediction side by side (PNG, .glb)", run)
     common_options(p)
-    p.add_argument("--model", help="registered model name")
-    p.add_argument("--checkpoint", help="trained checkpoint (from zoo train)")
-    p.add_argument(
-        "--weights", help="shipped weights file (weights/<benchmark>/<label>.safetensors)"
-    )
-    p.add_argument(
-        "--benchmark", help="mesh benchmark (default: the checkpoint's or weights', else cloth)"
-    )
+    model_source_options(p, "mesh benchmark (default: the checkpoint's or weights', else cloth)")
     p.add_argument(
         "--windows", type=int, nargs="+", default=[0, 1, 2], help="test windows to draw, by number"
     )
