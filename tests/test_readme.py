@@ -36,3 +36,23 @@ def test_readme_headline_numbers_are_the_committed_ones():
                     f"README: {bench}/{table} {model} at {horizon} ms says {cell}, "
                     f"its rows' results.csv {format(values[horizon], fmt)}"
                 )
+
+
+def test_zoo_cards_rewrites_a_stale_headline(tmp_path):
+    """The README's headline tables are generated: a number edited by hand is found stale by
+    ``zoo cards --check`` and put back by ``zoo cards``."""
+    from zoo.cli import main
+
+    readme = tmp_path / "README.md"
+    text = (REPO_ROOT / "README.md").read_text()
+    block = BLOCK.search(text)
+    row = [line for line in block.group(5).splitlines() if line.startswith("|")][2]
+    model, first, *rest = [c.strip() for c in row.strip("|").split("|")]
+    edited = "| " + " | ".join([model, "0.00", *rest]) + " |"
+    assert edited != row
+    readme.write_text(text.replace(row, edited))
+    out = tmp_path / "cards"
+    argv = ["cards", "--out", str(out), "--readme", str(readme)]
+    assert main([*argv, "--check"]) == 1
+    assert main(argv) == 0
+    assert readme.read_text() == text

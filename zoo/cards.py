@@ -17,6 +17,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -551,10 +552,12 @@ def build_cards(
     weights_root: str | Path | None = None,
     results_root: str | Path = RESULTS_DIR,
     write: bool = True,
+    readme: str | Path | None = None,
 ) -> list[CardStatus]:
     """Every card's status; with ``write``, stale cards (and their curves) are rewritten, the
     hand-written part kept. Cards of models that no longer have one are reported, never
-    deleted."""
+    deleted. ``readme``: a Markdown file whose headline tables (:func:`headline_tables`) are
+    brought up to date the same way."""
     cards_dir, results_root = Path(cards_dir), Path(results_root)
     registry = registry or load_registry()
     shipped = shipped_weights(weights_root or WEIGHTS_DIR)
@@ -597,6 +600,8 @@ def build_cards(
         if write:
             cards_dir.mkdir(parents=True, exist_ok=True)
             atomic_write_text(index, text)
+    if readme is not None and readme.is_file():
+        statuses.append(_readme_status(readme, results_root, write))
     for path in sorted(cards_dir.glob("*.md")) if cards_dir.is_dir() else []:
         if path.stem not in names and path.name != "README.md":
             if GENERATED_NOTE in path.read_text():
@@ -604,6 +609,57 @@ def build_cards(
                     CardStatus(path.stem, path, False, "no shipped weights or published figures")
                 )
     return statuses
+
+
+HEADLINE = re.compile(
+    r"(<!-- headline (\S+)/(\S+) (\S+) (\S+) -->\n)(.*?)(<!-- end headline -->)", re.S
+)
+
+
+def headline_tables(text: str, results_root: Path) -> str:
+    """``text`` with every headline block (``<!-- headline <benchmark>/<table> <metric>
+    <joints> -->`` ... ``<!-- end headline -->``) rewritten from the committed table: the same
+    rows and horizons, each value the action average with frame averaging, printed as the
+    tables print it."""
+    from zoo.results import read_table
+    from zoo.tables import metric_unit
+
+    def block(match: re.Match) -> str:
+        start, bench, table, metric, joints, body, end = match.groups()
+        frame = read_table(results_root / bench / table).frame
+        frame = frame[
+            (frame["action"] == "average")
+            & (frame["metric"] == metric)
+            & (frame["joints"] == joints)
+            & (frame["averaging"] == "frame")
+        ]
+        lines = [line for line in body.strip().splitlines() if line.startswith("|")]
+        horizons = [int(h.strip().removesuffix(" ms")) for h in lines[0].strip("|").split("|")[1:]]
+        fmt = metric_unit(metric)[1]
+        rows = lines[:2]
+        for line in lines[2:]:
+            model = line.strip("|").split("|")[0].strip()
+            values = frame[frame["model"] == model].set_index("horizon_ms")["value"]
+            if not len(values):
+                raise CardError(f"headline {bench}/{table}: no row {model!r} in its table")
+            rows.append(
+                f"| {model} | " + " | ".join(format(values[h], fmt) for h in horizons) + " |"
+            )
+        return start + "\n".join(rows) + "\n" + end
+
+    return HEADLINE.sub(block, text)
+
+
+def _readme_status(readme: Path, results_root: Path, write: bool) -> CardStatus:
+    text = readme.read_text()
+    fresh = headline_tables(text, results_root)
+    if fresh == text:
+        return CardStatus(readme.stem, readme, True)
+    if write:
+        atomic_write_text(readme, fresh)
+    return CardStatus(
+        readme.stem, readme, False, "headline tables out of date with results/", _diff(text, fresh)
+    )
 
 
 def _diff(current: str, generated: str) -> tuple[str, ...]:

@@ -29,6 +29,12 @@ def add(sub) -> None:
     weights_dir_option(p, "shipped weights folder")
     p.add_argument("--weights", dest="weights_dir", action=Deprecated, new="--weights-dir")
     results_option(p)
+    p.add_argument(
+        "--readme",
+        default=str(REPO_ROOT / "README.md"),
+        help="a Markdown file whose headline tables (<!-- headline ... --> blocks) are "
+        "rewritten from --results too; '' for none",
+    )
 
 
 def run(args) -> int:
@@ -40,6 +46,7 @@ def run(args) -> int:
         weights_root=Path(args.weights_dir),
         results_root=Path(args.results),
         write=not args.check,
+        readme=Path(args.readme) if args.readme else None,
     )
     stale = [s for s in statuses if not s.fresh]
     for s in statuses:
