@@ -31,7 +31,7 @@ def run(capsys, *args):
     [
         (
             ["train", "--model", "mlp", "--max-batches", "0", "--epochs", "1"],
-            "max_batches (--max-batches) must be a positive integer, got 0",
+            "--max-batches: must be a positive integer, got 0",
         ),
         (
             ["train", "--model", "mlp", "--seed", "-1", "--epochs", "1"],

@@ -69,6 +69,16 @@ def test_a_class_the_file_lacks_is_named_with_the_file_and_its_classes(tmp_path)
     assert "it defines DampedVelocity" in text and "zoo_user_" not in text
 
 
+def test_a_class_file_that_fails_on_import_is_named_and_not_kept_half_loaded(tmp_path):
+    (tmp_path / "broken.py").write_text("import torch\nBROKEN = torch.no_such_thing\n")
+    path = tmp_path / "broken.yaml"
+    path.write_text("models:\n  b:\n    class: broken.py:Model\n    representation: joints\n")
+    entry = Registry.from_files(path).get("b")
+    for _ in range(2):  # the second try runs the file again, not a half-run module
+        with pytest.raises(RegistryError, match=r"cannot load class 'broken.py:Model' .*no_such"):
+            entry.load_class()
+
+
 BASELINE = '''
 import torch
 

@@ -94,7 +94,7 @@ def test_bfloat16_on_a_cpu_without_native_bfloat16_warns_that_float32_is_faster(
     with pytest.warns(
         RuntimeWarning,
         match=r"precision bfloat16 on a CPU without native "
-        r"bfloat16 .* precision=float32 is faster here",
+        r"bfloat16 .* precision float32 is faster here",
     ):
         run(setup, tmp_path / "bf16", epochs=1, train_overrides={"precision": "bfloat16"})
 
@@ -430,14 +430,14 @@ def test_init_from_shipped_weights_extends_a_published_row(setup, tmp_path):
 
 def test_init_from_refusals_name_the_file(setup, tmp_path):
     first = run(setup, tmp_path / "a", epochs=1)
-    with pytest.raises(TrainingError, match=r"--init-from .*missing\.pt: no such file"):
+    with pytest.raises(TrainingError, match=r"init_from: .*missing\.pt: no such file"):
         run(setup, tmp_path / "b", init_from=tmp_path / "missing.pt")
-    with pytest.raises(TrainingError, match=r"--init-from .*tiny\.safetensors: no such file"):
+    with pytest.raises(TrainingError, match=r"init_from: .*tiny\.safetensors: no such file"):
         run(setup, tmp_path / "b", init_from=tmp_path / "tiny.safetensors")
     (tmp_path / "tiny.npz").write_bytes(b"")
     with pytest.raises(
         TrainingError,
-        match=r"--init-from .*tiny\.npz: expected a training "
+        match=r"init_from: .*tiny\.npz: expected a training "
         r"checkpoint .* or shipped weights",
     ):
         run(setup, tmp_path / "b", init_from=tmp_path / "tiny.npz")
@@ -544,7 +544,7 @@ def test_validation_by_tails_takes_the_end_of_long_recordings_and_trains_on_shor
     assert validation["tails"]["fraction"] == 0.1
     assert [h.rsplit("/", 1)[-1] for h in validation["tails"]["of"]] == ["basketball_1.txt"]
     assert validation["windows"] == 40 - 35 + 1
-    with pytest.raises(TrainingError, match="no recording is long enough.*val_split=recordings"):
+    with pytest.raises(TrainingError, match="no recording is long enough.*val_split 'recordings'"):
         held_out_frames(dataset, [150, 150, 150], 0.1, 35, "tails")
 
 
@@ -574,7 +574,7 @@ def test_validation_by_actions_gives_every_action_windows_and_holds_none_out_who
     # its longest; running: one recording of 80, which spares a window and keeps one
     assert plan == {basketball: 360, walking_2: 200 - 35, running: 80 - 35}
     assert all(start > 0 for start in plan.values())  # no recording held out whole
-    with pytest.raises(TrainingError, match="action 'running'.*60 frames.*val_split=tails"):
+    with pytest.raises(TrainingError, match="action 'running'.*60 frames.*val_split 'tails'"):
         lengths[running] = 60
         held_out_frames(dataset, lengths, 0.1, 35, "actions")
     # CMU's own rule (benchmarks/cmu.yaml), for every model whose recipe names none
@@ -737,7 +737,7 @@ def test_a_best_epoch_that_predicts_no_motion_is_warned_about(setup, tmp_path):
 
 
 def test_like_repeat_last_needs_every_horizon_within_one_percent():
-    from zoo.train.validate import like_repeat_last
+    from zoo.train.validation import like_repeat_last
 
     horizons = {"horizons": ["a", "b"], "repeat_last": [10.0, 100.0]}
     assert like_repeat_last({**horizons, "model": [10.05, 100.9]})

@@ -258,7 +258,7 @@ def test_validation_logs_each_horizon_beside_repeat_last_on_the_same_windows(toy
     from zoo.data.windows import window_sampler
     from zoo.metrics import vertex_rmse
     from zoo.models.repeat_last import RepeatLast
-    from zoo.train.validate import validate, validation_frames
+    from zoo.train.validation import validate, validation_frames
 
     # 25 fps: frame t at 40 t ms; 80 ms is the 2nd predicted frame, 400 ms the 10th, 1000 ms
     # beyond a 4-frame future

@@ -102,6 +102,7 @@ def evaluate(
     import torch
 
     from zoo.benchmark import get_benchmark
+    from zoo.errors import EvaluationError
     from zoo.model_source import ModelSource
     from zoo.options import EVAL_BATCH
     from zoo.pipeline import Subject, compute, place
@@ -111,7 +112,7 @@ def evaluate(
 
     bench = get_benchmark(benchmark) if isinstance(benchmark, (str, Path)) else benchmark
     if dataset is not None and data_root is not None:
-        raise RegistryError("zoo.evaluate: give dataset (loaded data) or data_root, not both")
+        raise EvaluationError("zoo.evaluate: give dataset (loaded data) or data_root, not both")
     dataset = dataset if dataset is not None else bench.load(data_root)
     registry = registry or load_registry()
     if isinstance(model, torch.nn.Module):

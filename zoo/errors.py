@@ -3,7 +3,13 @@ reports it as a one-line message while genuine bugs still show their traceback."
 
 
 class ZooError(Exception):
-    pass
+    """``parameter``: the argument of the library call the error is about, named as the library
+    names it at the start of the message (``init_from: ...``); an interface may show its own
+    name for it (the command line: its flag)."""
+
+    def __init__(self, *args, parameter: str | None = None) -> None:
+        super().__init__(*args)
+        self.parameter = parameter
 
 
 class DataNotFoundError(ZooError, FileNotFoundError):

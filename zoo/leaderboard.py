@@ -765,10 +765,13 @@ def _same_files(old: Path, new: Path) -> bool:
 
 
 def _why_not_planned(folder: Path, board: Leaderboard) -> str:
-    from zoo.io import registry_record
+    from zoo.io import registry_record, repo_relative
 
     recorded = recorded_registry(folder)
-    loaded = {registry_record(e.source) for e in board.registry.entries.values()}
+    entries = board.registry.entries.values()
+    loaded = {registry_record(e.source) for e in entries} | {
+        repo_relative(e.source) for e in entries
+    }
     if recorded is not None and recorded not in loaded:
         return (
             f"registry {recorded} not loaded: --registry with that file recomputes it, "

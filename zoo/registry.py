@@ -111,7 +111,11 @@ class ModelEntry:
                     spec = importlib.util.spec_from_file_location(module_name, file)
                     module = importlib.util.module_from_spec(spec)
                     sys.modules[module_name] = module
-                    spec.loader.exec_module(module)
+                    try:
+                        spec.loader.exec_module(module)
+                    except BaseException:
+                        del sys.modules[module_name]  # a half-run file is not loaded
+                        raise
             else:
                 file = None
                 module_name, cls_name = path.rsplit(".", 1)
@@ -128,7 +132,7 @@ class ModelEntry:
                     f"{cls_name!r}; it defines {', '.join(defined) or 'no class'}"
                 )
             return getattr(module, cls_name)
-        except (ImportError, ValueError) as e:
+        except (ImportError, AttributeError, ValueError) as e:
             raise RegistryError(
                 f"{self.source}: model {self.name!r}: cannot load class {path!r} ({e})"
             ) from e

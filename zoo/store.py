@@ -590,10 +590,14 @@ def recorded_registry(folder: Path) -> str | None:
 def refuse_foreign_registry(folder: Path, loaded, label: str) -> None:
     """A stored row of this label made with another registry's model is the user's: never
     replaced by a rebuild that does not load that registry."""
-    from zoo.io import registry_record
+    from zoo.io import registry_record, repo_relative
 
     recorded = recorded_registry(folder)
-    if recorded is not None and recorded != registry_record(loaded.entry.source):
+    # rows recorded before registry_record named an outside registry by its absolute path
+    if recorded is not None and recorded not in (
+        registry_record(loaded.entry.source),
+        repo_relative(loaded.entry.source),
+    ):
         raise StoreError(
             f"{folder}: row {label!r} was evaluated with registry {recorded}, which "
             f"this run does not load (its {label!r} comes from "

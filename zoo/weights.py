@@ -119,7 +119,7 @@ def training_points(record: dict[str, Any]) -> list[tuple[int, float]]:
 
 def training_horizons(record: dict[str, Any]) -> list[tuple[int, dict[str, Any]]]:
     """``[(optimizer steps, val_horizons), ...]``: the per-horizon validation errors (the
-    model's and repeat-last's, see :func:`zoo.train.validate`) of every epoch that logged
+    model's and repeat-last's, see :func:`zoo.train.validation.validate`) of every epoch that logged
     them."""
     return [
         (steps, epoch["val_horizons"])

@@ -180,7 +180,7 @@ def score(cfg: dict) -> str:
     from zoo.protocol import plan_protocol
     from zoo.registry import load_registry
     from zoo.train.split import split_train_val, usable_windows
-    from zoo.train.validate import validate
+    from zoo.train.validation import validate
 
     torch.set_grad_enabled(False)
     bench = get_benchmark(cfg["benchmark"])

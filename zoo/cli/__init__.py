@@ -23,7 +23,14 @@ from zoo.cli import (
     train,
     weights,
 )
-from zoo.cli.common import HelpFormatter, UsageError, check_device, parse_overrides, shape_overrides
+from zoo.cli.common import (
+    HelpFormatter,
+    UsageError,
+    check_device,
+    in_flags,
+    parse_overrides,
+    shape_overrides,
+)
 from zoo.errors import ZooError
 
 COMMANDS = (
@@ -67,7 +74,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             shape_overrides(parse_overrides(args.set), getattr(args, "benchmark", None))
         return args.func(args)
     except ZooError as e:
-        print(f"zoo {args.command}: error: {e}", file=sys.stderr)
+        print(f"zoo {args.command}: error: {in_flags(e)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(

@@ -20,13 +20,34 @@ class UsageError(ZooError, ValueError):
     """A command-line argument is wrong; the message names it and what was expected."""
 
 
+# A library call's argument -> the flag that gives it on the command line, where they differ
+# by more than dashes for underscores.
+FLAGS = {"out_dir": "--out", "train_overrides": "--train-set", "overrides": "--set"}
+
+
+def in_flags(error: ZooError) -> str:
+    """A library error's message, its leading parameter named by the command line's flag."""
+    text, parameter = str(error), getattr(error, "parameter", None)
+    if parameter and text.startswith(f"{parameter}:"):
+        flag = FLAGS.get(parameter, "--" + parameter.replace("_", "-"))
+        text = flag + text[len(parameter) :]
+    return text
+
+
 class HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
     """Each option's default shown by the formatter (none where it has none), paths inside the
     repository shown relative to it."""
 
     def _get_help_string(self, action):
         text = action.help or ""
-        if "%(default)" in text or action.default in (None, False, [], argparse.SUPPRESS):
+        default = action.default
+        if (
+            "%(default)" in text
+            or default is None
+            or default is False
+            or default == []
+            or default is argparse.SUPPRESS
+        ):
             return text
         return text + " (default: %(default)s)"
 

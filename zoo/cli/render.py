@@ -26,7 +26,7 @@ def add(sub) -> None:
     )
     p.add_argument("--set", action="append", metavar="KEY=VALUE", help="model hyper-parameter")
     task_options(p)
-    p.add_argument("--out", help="folder (default: <results>/<benchmark>/renders)")
+    p.add_argument("--out", help="folder (default: results/<benchmark>/renders)")
 
 
 def run(args) -> int:

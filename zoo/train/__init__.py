@@ -2,7 +2,7 @@
 
 A recipe (:mod:`.recipe`) says how to train; the split (:mod:`.split`) which frames train and
 which validate; a step (:mod:`.step`) is what the cost columns time too; validation
-(:mod:`.validate`) picks the best epoch; the state (:mod:`.state`) is what ``best.pt`` and
+(:mod:`.validation`) picks the best epoch; the state (:mod:`.state`) is what ``best.pt`` and
 ``last.pt`` hold; the loop (:mod:`.loop`) runs them, seeded, so that a resumed run ends with
 the weights of an uninterrupted one. The model hooks it calls: :mod:`zoo.models.hooks`.
 docs/training.md says how to train and what each recipe ran.
@@ -34,7 +34,7 @@ _EXPORTS = {
     "prepare_epoch": "step",
     "set_learning_rate": "step",
     "training_step": "step",
-    "validate": "validate",
+    "validate": "validation",
     "save_epoch": "state",
 }
 

@@ -47,7 +47,7 @@ from zoo.train.step import (
     set_learning_rate,
     training_step,
 )
-from zoo.train.validate import (
+from zoo.train.validation import (
     LIKE_REPEAT_LAST,
     check_output,
     horizons_text,
@@ -109,8 +109,9 @@ def train(
         (out_dir / f).resolve() for f in ("best.pt", "last.pt")
     }:
         raise TrainingError(
-            f"--init-from {init_from}: this run would overwrite it; give the new stage its "
-            f"own --out"
+            f"init_from: {init_from}: this run would overwrite it; give the new stage its own "
+            f"out_dir",
+            parameter="init_from",
         )
     initial = (
         initial_weights(init_from, model_name, bench, registry, data_root, dataset)
@@ -175,11 +176,7 @@ def _warn_if_repeat_last(model_name: str, run: _Run) -> None:
     best = next((h for h in run.history if h["epoch"] == run.best["epoch"]), None)
     if best is None or not like_repeat_last(best.get("val_horizons")):
         return
-    horizons = best["val_horizons"]
-    pairs = ", ".join(
-        f"{h} {m:.1f} (repeat-last {r:.1f})"
-        for h, m, r in zip(horizons["horizons"], horizons["model"], horizons["repeat_last"])
-    )
+    pairs = horizons_text(best["val_horizons"])
     warnings.warn(
         f"{model_name}: its best epoch ({run.best['epoch']}) cannot be told apart from "
         f"repeat-last (validation within {LIKE_REPEAT_LAST:.0%} of it at every horizon: "
@@ -195,7 +192,7 @@ def _check_arguments(entry: ModelEntry, seed, max_batches, init_from, resume) ->
     if not entry.trainable:
         raise TrainingError(
             f"model {entry.name!r} runs the weights of {entry.weights_of!r} (registry: "
-            f"weights_of): train that one (zoo train --model {entry.weights_of})"
+            f"weights_of): train that one ({entry.weights_of})"
             if entry.weights_of
             else f"model {entry.name!r} has nothing to train (registry: trainable: false)"
         )
@@ -205,12 +202,14 @@ def _check_arguments(entry: ModelEntry, seed, max_batches, init_from, resume) ->
         isinstance(max_batches, bool) or not isinstance(max_batches, int) or max_batches < 1
     ):
         raise TrainingError(
-            f"max_batches (--max-batches) must be a positive integer, got {max_batches!r}"
+            f"max_batches: must be a positive integer, got {max_batches!r}",
+            parameter="max_batches",
         )
     if init_from is not None and resume:
         raise TrainingError(
-            "give --init-from (a new stage from other weights) or --resume (this run's last "
-            "state), not both"
+            "init_from: give init_from (a new stage from other weights) or resume (this run's "
+            "last state), not both",
+            parameter="init_from",
         )
 
 
@@ -226,8 +225,9 @@ def _new_model(registry, model_name, hparams, seed, device, initial, init_from) 
             model.load_state_dict(initial[0])
         except RuntimeError as e:
             raise TrainingError(
-                f"--init-from {init_from}: its weights do not fit {model_name} "
-                f"with these hyper-parameters: {e}"
+                f"init_from: {init_from}: its weights do not fit {model_name} with these "
+                f"hyper-parameters: {e}",
+                parameter="init_from",
             ) from None
     return model
 
@@ -241,7 +241,7 @@ def _warn_slow_bfloat16(model_name: str, recipe: Recipe, device) -> None:
         warnings.warn(
             f"training {model_name} with precision bfloat16 on a CPU without native "
             f"bfloat16 products (no avx512_bf16 or amx_bf16 flag): torch falls back to a slow "
-            f"path (docs/training.md); --train-set precision=float32 is faster here",
+            f"path (docs/training.md); the recipe's precision float32 is faster here",
             RuntimeWarning,
             stacklevel=3,
         )
@@ -286,13 +286,13 @@ def _training_windows(model, model_name, bench, dataset, recipe, hooks: Hooks, p
             f"{recipe.train_sampler!r} finds no window of {length} frames in "
             f"the training sequences (longest: "
             f"{max((len(a) for a in train_seqs), default=0)} frames); choose "
-            f"another with --train-set train_sampler=NAME (e.g. all)"
+            f"another train_sampler for the recipe (e.g. all)"
         )
     if len(val_index) == 0:
         raise TrainingError(
             f"{dataset.name}/{dataset.split}: validation sampler "
             f"{recipe.val_sampler!r} finds no window of {length} frames in the held-out "
-            f"sequences; choose another with --train-set val_sampler=NAME (e.g. all)"
+            f"sequences; choose another val_sampler for the recipe (e.g. all)"
         )
     used = _point_index(bench)
     # A model with a training view trains on windows of that view of every frame, computed once

@@ -64,7 +64,7 @@ def held_out_frames(
                 f"{val_fraction:.0%} of its frames for a validation window of {window} (the "
                 f"longest has {max(lengths, default=0)} frames, at least "
                 f"{math.ceil(window / val_fraction)} needed); choose "
-                f"--train-set val_split=recordings"
+                f"the recipe's val_split 'recordings'"
             )
         return {i: int(round(lengths[i] * (1 - val_fraction))) for i in long_enough}
     held = max(1, int(round(count * val_fraction)))
@@ -95,7 +95,7 @@ def _held_out_per_action(
             raise TrainingError(
                 f"{dataset.name}/{dataset.split}: action {action!r}: its longest recording "
                 f"({lengths[longest]} frames) cannot spare {held} frames for validation and "
-                f"keep a training window of {window}; choose --train-set val_split=tails"
+                f"keep a training window of {window}; choose the recipe's val_split 'tails'"
             )
         plan[longest] = lengths[longest] - held
     return plan

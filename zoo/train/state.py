@@ -15,6 +15,7 @@ from zoo.checkpoints import (
     CheckpointError,
     model_origin,
     model_protocol,
+    plain,
     read_checkpoint,
     save_checkpoint,
     stored_hparams,
@@ -88,7 +89,7 @@ def resume_changes(
     """The checkpoint's recorded recipe changes plus this resume's; refuses any change that is
     not the budget, naming the fields."""
     stored = state.get("recipe") or {}
-    given = recipe.as_dict()
+    given = plain(recipe.as_dict())
     differ = [
         f"{key}: {stored.get(key, DEFAULT_RECIPE.get(key))!r} in the checkpoint, "
         f"{given.get(key)!r} now"
@@ -100,16 +101,16 @@ def resume_changes(
         differ.append(f"seed: {state.get('seed')!r} in the checkpoint, {seed!r} now")
     if differ:
         raise CheckpointError(
-            f"{path}: cannot resume with another recipe ({'; '.join(differ)}); "
-            f"only the budget (--epochs, --max-batches) may change on "
-            f"resume. Resume with the checkpoint's values, or start a new "
-            f"run with another --out"
+            f"{path}: cannot resume with another recipe ({'; '.join(differ)}); only the "
+            f"budget (epochs, max_batches) may change on resume. Resume with the "
+            f"checkpoint's values, or start a new run in another out_dir"
         )
     done = state["epoch"] + 1
     if recipe.epochs < done:
         raise CheckpointError(
-            f"{path}: cannot resume with --epochs {recipe.epochs}: the run "
-            f"has already trained {done} epochs"
+            f"epochs: cannot resume {path} with {recipe.epochs} epochs: the run has already "
+            f"trained {done} epochs",
+            parameter="epochs",
         )
     changes = list(state.get("recipe_changes") or [])
     now = {"epochs": recipe.epochs, "max_batches": max_batches}
@@ -142,11 +143,12 @@ def initial_weights(
     path = Path(path)
     if path.suffix not in (".pt", ".safetensors"):
         raise TrainingError(
-            f"--init-from {path}: expected a training checkpoint (best.pt or "
-            f"last.pt) or shipped weights (.safetensors with their .json record)"
+            f"init_from: {path}: expected a training checkpoint (best.pt or last.pt) or "
+            f"shipped weights (.safetensors with their .json record)",
+            parameter="init_from",
         )
     if not path.is_file():
-        raise TrainingError(f"--init-from {path}: no such file")
+        raise TrainingError(f"init_from: {path}: no such file", parameter="init_from")
     if path.suffix == ".safetensors":
         state_dict, meta = read_weights(path)
         kind, digest = "weights", meta["sha256"]
@@ -154,7 +156,10 @@ def initial_weights(
         meta = read_checkpoint(path)
         state_dict, kind, digest = meta["state_dict"], "checkpoint", sha256_file(path)
     if meta["model"] != model_name:
-        raise TrainingError(f"--init-from {path}: it holds {meta['model']!r}, not {model_name!r}")
+        raise TrainingError(
+            f"init_from: {path}: it holds {meta['model']!r}, not {model_name!r}",
+            parameter="init_from",
+        )
     source = trained_model(
         meta,
         state_dict,
@@ -189,7 +194,7 @@ def run_metadata(entry, hparams, bench, dataset, recipe, seed, device, dist_info
         "context_hashes": context_hashes,
         "protocol": model_protocol(bench, view),
         "training_data": _training_data(dataset),
-        "recipe": recipe.as_dict(),
+        "recipe": plain(recipe.as_dict()),
         "seed": seed,
         "code_version": code_version(),
         "torch": str(torch.__version__),

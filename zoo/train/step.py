@@ -174,7 +174,7 @@ class CudaGraphStep:
             except RuntimeError as e:
                 raise TrainingError(
                     f"{where.split(':')[0]}: its training step cannot be captured as a CUDA "
-                    f"graph ({str(e).splitlines()[0][:200]}); train without --cuda-graph"
+                    f"graph ({str(e).splitlines()[0][:200]}); train without cuda_graph"
                 ) from None
         else:
             self.history.copy_(history)
