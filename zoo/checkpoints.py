@@ -12,6 +12,7 @@ belongs to another class is refused naming both classes.
 from __future__ import annotations
 
 import hashlib
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -134,6 +135,68 @@ def weights_digest(model: nn.Module) -> str:
         digest.update(name.encode())
         digest.update(tensor.detach().cpu().contiguous().numpy().tobytes())
     return digest.hexdigest()
+
+
+@dataclass
+class RunRecord:
+    """What every checkpoint of a training run records about the run, ``best.pt`` and
+    ``last.pt`` alike (and shipped weights' records after them): the model and where its class
+    comes from, its hyper-parameters, the protocol and data it trained for, the recipe, seed,
+    budget changes, the stage it started from and what validated it."""
+
+    model: str
+    origin: dict[str, Any]
+    hparams: dict[str, Any]
+    context_hashes: dict[str, str]
+    protocol: dict[str, Any]
+    training_data: dict[str, Any]
+    recipe: dict[str, Any]
+    seed: int
+    code_version: str | None
+    torch: str
+    world_size: int
+    max_batches: int | None = None
+    recipe_changes: list[dict[str, Any]] = field(default_factory=list)
+    init_from: dict[str, Any] | None = None
+    validation: dict[str, Any] | None = None
+
+
+@dataclass
+class ResumeState:
+    """What ``last.pt`` adds for ``--resume``: the optimiser, the RNG states (the CUDA one on a
+    GPU), the last finished epoch (0-based) and the best so far."""
+
+    optimizer: dict[str, Any]
+    rng: torch.Tensor
+    epoch: int
+    best: dict[str, Any]
+    cuda_rng: torch.Tensor | None = None
+
+
+def checkpoint_payload(
+    record: RunRecord,
+    state_dict: dict[str, torch.Tensor],
+    history: list[dict[str, Any]],
+    training: dict[str, Any],
+    resume: ResumeState | None = None,
+) -> dict[str, Any]:
+    """What a checkpoint file holds (:data:`CHECKPOINT_FORMAT`): the run's record, the weights,
+    the validation curve so far and the training summary, and for ``last.pt`` the resume
+    state; :func:`read_checkpoint` reads it back."""
+    state = {}
+    if resume is not None:
+        state = {"optimizer": resume.optimizer, "rng": resume.rng}
+        if resume.cuda_rng is not None:
+            state["cuda_rng"] = resume.cuda_rng
+        state.update(epoch=resume.epoch, best=resume.best)
+    return {
+        "format": CHECKPOINT_FORMAT,
+        **asdict(record),
+        "state_dict": state_dict,
+        **state,
+        "history": history,
+        "training": training,
+    }
 
 
 def save_checkpoint(path: Path, payload: dict[str, Any]) -> None:

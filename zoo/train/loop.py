@@ -34,7 +34,7 @@ from zoo.train.split import (
 from zoo.train.state import (
     initial_weights,
     resume_changes,
-    run_metadata,
+    run_record,
     save_epoch,
     write_rank_digest,
 )
@@ -142,13 +142,13 @@ def train(
         fps=getattr(dataset, "mesh", dataset).fps,  # a JointsView: its mesh's rate
         mesh=bench.representation == "mesh" and view == "mesh",
     )  # fmt: skip
-    meta = {
-        **run_metadata(entry, hparams, bench, dataset, recipe, seed, device, dist_info, view),
-        "max_batches": max_batches,
-        "recipe_changes": run.recipe_changes,
-        "init_from": run.init_record,
-        "validation": validation_record(dataset, recipe, data.length, len(data.val_index)),
-    }
+    record = run_record(
+        entry, hparams, bench, dataset, recipe, seed, dist_info, view,
+        max_batches=max_batches,
+        recipe_changes=run.recipe_changes,
+        init_from=run.init_record,
+        validation=validation_record(dataset, recipe, data.length, len(data.val_index)),
+    )  # fmt: skip
     if not data.view and not hooks.training_loss:
         check_output(
             model, model_name, data.val_pos, data.val_index, data.used,
@@ -157,10 +157,10 @@ def train(
     if dist_info.rank == 0:
         _print_plan(model_name, bench, data, recipe, epochs.steps, run.first_epoch, seed, out_dir)
     for epoch in range(run.first_epoch, recipe.epochs):
-        record = epochs.run(epoch)
-        run.history.append(record)
+        line = epochs.run(epoch)
+        run.history.append(line)
         if dist_info.rank == 0:
-            _finish_epoch(out_dir, meta, model, optimizer, epoch, run, recipe, device, record)
+            _finish_epoch(out_dir, record, model, optimizer, epoch, run, recipe, device, line)
         if stop_after_epoch is not None and epoch + 1 >= stop_after_epoch:
             break
     if dist_info.active:
@@ -516,17 +516,18 @@ class _Epochs:
         return lr, loss_sum / self.steps, started, seen
 
 
-def _finish_epoch(out_dir, meta, model, optimizer, epoch, run: _Run, recipe, device, record):
-    """Rank 0: the best epoch so far, both checkpoints, and the epoch's log line."""
-    val = record["val_mpjpe"]
+def _finish_epoch(out_dir, record, model, optimizer, epoch, run: _Run, recipe, device, line):
+    """Rank 0: the best epoch so far, both checkpoints, and the epoch's log line (``line``: the
+    epoch's history record; ``record``: the run's)."""
+    val = line["val_mpjpe"]
     if val < run.best["val_mpjpe"]:
         run.best = {"val_mpjpe": val, "epoch": epoch + 1}
-    save_epoch(out_dir, meta, model, optimizer, epoch, run.best, run.history, recipe, device)
+    save_epoch(out_dir, record, model, optimizer, epoch, run.best, run.history, recipe, device)
     best = run.best
     print(
-        f"{meta['model']} epoch {epoch + 1}: train loss {record['train_loss']:.4f}, "
+        f"{record.model} epoch {epoch + 1}: train loss {line['train_loss']:.4f}, "
         f"val MPJPE {val:.2f} mm (best {best['val_mpjpe']:.2f} at epoch {best['epoch']}), "
-        f"{record['seconds']:.1f} s; " + horizons_text(record["val_horizons"]),
+        f"{line['seconds']:.1f} s; " + horizons_text(line["val_horizons"]),
         flush=True,
     )
 

@@ -11,8 +11,10 @@ from torch import nn
 
 from zoo.benchmark import Benchmark
 from zoo.checkpoints import (
-    CHECKPOINT_FORMAT,
     CheckpointError,
+    ResumeState,
+    RunRecord,
+    checkpoint_payload,
     model_origin,
     model_protocol,
     plain,
@@ -33,7 +35,7 @@ from zoo.weights import read_weights
 
 def save_epoch(
     out_dir: Path,
-    meta: dict[str, Any],
+    record: RunRecord,
     model: nn.Module,
     optimizer: torch.optim.Optimizer,
     epoch: int,
@@ -50,31 +52,23 @@ def save_epoch(
         # one file, and its training plot with it
         save_checkpoint(
             out_dir / "best.pt",
-            {
-                **meta,
-                "state_dict": model.state_dict(),
-                "history": list(history),
-                "training": summary,
-            },
+            checkpoint_payload(record, model.state_dict(), list(history), summary),
         )
+    resume = ResumeState(
+        optimizer=optimizer.state_dict(),
+        rng=torch.get_rng_state(),
+        epoch=epoch,
+        best=best,
+        # dropout on a GPU draws from the device's generator
+        cuda_rng=(
+            torch.cuda.get_rng_state(torch.device(device))
+            if torch.device(device).type == "cuda"
+            else None
+        ),
+    )
     save_checkpoint(
         out_dir / "last.pt",
-        {
-            **meta,
-            "state_dict": model.state_dict(),
-            "optimizer": optimizer.state_dict(),
-            "rng": torch.get_rng_state(),
-            # dropout on a GPU draws from the device's generator
-            **(
-                {"cuda_rng": torch.cuda.get_rng_state(torch.device(device))}
-                if torch.device(device).type == "cuda"
-                else {}
-            ),
-            "epoch": epoch,
-            "best": best,
-            "history": history,
-            "training": summary,
-        },
+        checkpoint_payload(record, model.state_dict(), history, summary, resume),
     )
 
 
@@ -184,22 +178,23 @@ def initial_weights(
     return source.state_dict(), record
 
 
-def run_metadata(entry, hparams, bench, dataset, recipe, seed, device, dist_info, view):
+def run_record(entry, hparams, bench, dataset, recipe, seed, dist_info, view, **run) -> RunRecord:
+    """The run's record (``run``: its budget cap, recipe changes, initial stage, validation)."""
     stored, context_hashes = stored_hparams(hparams)
-    return {
-        "format": CHECKPOINT_FORMAT,
-        "model": entry.name,
-        "origin": model_origin(entry),
-        "hparams": stored,
-        "context_hashes": context_hashes,
-        "protocol": model_protocol(bench, view),
-        "training_data": _training_data(dataset),
-        "recipe": plain(recipe.as_dict()),
-        "seed": seed,
-        "code_version": code_version(),
-        "torch": str(torch.__version__),
-        "world_size": dist_info.world,
-    }
+    return RunRecord(
+        model=entry.name,
+        origin=model_origin(entry),
+        hparams=stored,
+        context_hashes=context_hashes,
+        protocol=model_protocol(bench, view),
+        training_data=_training_data(dataset),
+        recipe=plain(recipe.as_dict()),
+        seed=seed,
+        code_version=code_version(),
+        torch=str(torch.__version__),
+        world_size=dist_info.world,
+        **run,
+    )
 
 
 def _training_data(dataset) -> dict[str, Any]:
