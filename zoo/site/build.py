@@ -15,6 +15,7 @@ import re
 import shutil
 import time
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -212,7 +213,6 @@ def build_site(
     from zoo.paths import REPO_ROOT
     from zoo.registry import load_registry
     from zoo.version import __version__
-    from zoo.weights import training_points
 
     start = time.perf_counter()
     results_root = Path(results_root)
@@ -237,78 +237,13 @@ def build_site(
     images: dict[str, Path] = {}
     pages: dict[str, str] = {}
     extra: dict[str, str] = {}
-
+    render = partial(_render, env, common)
     for bench in benchmarks:
-        quoted = bench.quoted
-        for table in bench.tables:
-            pages[table.page] = env.get_template("table.html").render(
-                **common,
-                title=f"{bench.name} / {table.name}",
-                bench=bench,
-                table=table,
-                protocol_rows=_readable_protocol(table.protocol),
-                data={
-                    "summary": _for_script(table.summary),
-                    "costs": _cost_rows(table),
-                    "models": model_names,
-                    "pages": sorted(model_pages),
-                },
-            )
-        clips = None
-        if bench.clips is not None:
-            try:
-                script, clips = _clips_script(bench.clips)
-            except ZooError as exc:
-                bench.problems.append(f"{exc} (zoo site --clips --benchmark {bench.name})")
-            else:
-                extra[f"clips-{bench.name}.js"] = script
-                pages[f"meshes-{bench.name}.html"] = env.get_template("meshes.html").render(
-                    **common,
-                    title=f"{bench.name}: meshes",
-                    bench=bench,
-                    clips=clips,
-                    data={"models": model_names},
-                )
-        comparisons = [
-            (t, t.summary.get("comparisons") or [])
-            for t in bench.tables
-            if t.summary is not None and t.summary.get("comparisons")
-        ]
-        if comparisons:
-            pages[f"compare-{bench.name}.html"] = env.get_template("compare.html").render(
-                **common, title=f"{bench.name}: comparisons", bench=bench, comparisons=comparisons
-            )
-        pages[bench.page] = env.get_template("benchmark.html").render(
-            **common,
-            title=bench.name,
-            bench=bench,
-            quoted=quoted,
-            citation=_citation(bench, quoted, __version__) if quoted else "",
-            clips=clips,
-            compare_page=f"compare-{bench.name}.html" if comparisons else None,
-        )
-
+        _benchmark_pages(render, bench, model_names, sorted(model_pages), pages, extra)
     for model in models:
         card = _markdown(model.card, model_pages, images, cards_dir) if model.card else ""
-        curves = {}
-        for rec in model.shipped:
-            name = f"{rec.get('benchmark', '?')}/{rec.get('label', model.name)}"
-            try:
-                curves[name] = [[int(s), float(v)] for s, v in training_points(rec)]
-            except (KeyError, TypeError, ValueError) as exc:
-                model.problems.append(f"{name}: its weights record's training history ({exc!r})")
-        pages[model.page] = env.get_template("model.html").render(
-            **common,
-            title=model.name,
-            model=model,
-            card=card,
-            rows=_model_rows(model.name, benchmarks),
-            data={"curves": {k: v for k, v in curves.items() if v}, "models": model_names},
-        )
-
-    pages["index.html"] = env.get_template("index.html").render(
-        **common, title="motion-zoo", problems=weight_problems
-    )
+        pages[model.page] = _model_page(render, model, card, benchmarks, model_names)
+    pages["index.html"] = render("index.html", title="motion-zoo", problems=weight_problems)
 
     for bench in benchmarks:
         build.warnings += bench.problems + [p for t in bench.tables for p in t.problems]
@@ -329,6 +264,86 @@ def build_site(
     build.pages = sorted(pages)
     build.seconds = time.perf_counter() - start
     return build
+
+
+def _render(env, common: dict, template: str, **context) -> str:
+    return env.get_template(template).render(**common, **context)
+
+
+def _benchmark_pages(render, bench, model_names, model_pages, pages: dict, extra: dict) -> None:
+    """A benchmark's pages: one per table, its mesh page (with its clips' script), its
+    comparisons page and its own page."""
+    from zoo.version import __version__
+
+    quoted = bench.quoted
+    for table in bench.tables:
+        pages[table.page] = render(
+            "table.html",
+            title=f"{bench.name} / {table.name}",
+            bench=bench,
+            table=table,
+            protocol_rows=_readable_protocol(table.protocol),
+            data={
+                "summary": _for_script(table.summary),
+                "costs": _cost_rows(table),
+                "models": model_names,
+                "pages": model_pages,
+            },
+        )
+    clips = None
+    if bench.clips is not None:
+        try:
+            script, clips = _clips_script(bench.clips)
+        except ZooError as exc:
+            bench.problems.append(f"{exc} (zoo site --clips --benchmark {bench.name})")
+        else:
+            extra[f"clips-{bench.name}.js"] = script
+            pages[f"meshes-{bench.name}.html"] = render(
+                "meshes.html",
+                title=f"{bench.name}: meshes",
+                bench=bench,
+                clips=clips,
+                data={"models": model_names},
+            )
+    comparisons = [
+        (t, t.summary.get("comparisons") or [])
+        for t in bench.tables
+        if t.summary is not None and t.summary.get("comparisons")
+    ]
+    if comparisons:
+        pages[f"compare-{bench.name}.html"] = render(
+            "compare.html", title=f"{bench.name}: comparisons", bench=bench, comparisons=comparisons
+        )
+    pages[bench.page] = render(
+        "benchmark.html",
+        title=bench.name,
+        bench=bench,
+        quoted=quoted,
+        citation=_citation(bench, quoted, __version__) if quoted else "",
+        clips=clips,
+        compare_page=f"compare-{bench.name}.html" if comparisons else None,
+    )
+
+
+def _model_page(render, model, card: str, benchmarks, model_names) -> str:
+    """A model's page: its card, its shipped weights' training curves, its rows everywhere."""
+    from zoo.weights import training_points
+
+    curves = {}
+    for rec in model.shipped:
+        name = f"{rec.get('benchmark', '?')}/{rec.get('label', model.name)}"
+        try:
+            curves[name] = [[int(s), float(v)] for s, v in training_points(rec)]
+        except (KeyError, TypeError, ValueError) as exc:
+            model.problems.append(f"{name}: its weights record's training history ({exc!r})")
+    return render(
+        "model.html",
+        title=model.name,
+        model=model,
+        card=card,
+        rows=_model_rows(model.name, benchmarks),
+        data={"curves": {k: v for k, v in curves.items() if v}, "models": model_names},
+    )
 
 
 def _row_models(benchmarks: list[Benchmark]) -> set[str]:
