@@ -21,7 +21,7 @@ import torch
 from torch import nn
 
 from zoo.benchmark import Benchmark, get_benchmark
-from zoo.errors import ZooError
+from zoo.errors import NamesParameter, ZooError
 from zoo.io import atomic_path, atomic_write_json, repo_relative, sha256_file
 from zoo.registry import ModelEntry, Registry, load_registry
 from zoo.weights import (
@@ -37,7 +37,7 @@ from zoo.weights import (
 CHECKPOINT_FORMAT = "motion-zoo-checkpoint/1"
 
 
-class CheckpointError(ZooError, ValueError):
+class CheckpointError(NamesParameter, ZooError, ValueError):
     pass
 
 

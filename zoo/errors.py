@@ -3,9 +3,14 @@ reports it as a one-line message while genuine bugs still show their traceback."
 
 
 class ZooError(Exception):
-    """``parameter``: the argument of the library call the error is about, named as the library
-    names it at the start of the message (``init_from: ...``); an interface may show its own
-    name for it (the command line: its flag)."""
+    pass
+
+
+class NamesParameter:
+    """An error about one argument of a library call (``parameter``), which the message names
+    as the library does, at its start (``init_from: ...``); an interface may show its own name
+    for it (the command line: its flag). Kept out of ZooError, whose definition every model's
+    error class reaches (and so every model's code fingerprint)."""
 
     def __init__(self, *args, parameter: str | None = None) -> None:
         super().__init__(*args)
@@ -21,5 +26,5 @@ class EvaluationError(ZooError, RuntimeError):
     cannot be read."""
 
 
-class TrainingError(ZooError, RuntimeError):
+class TrainingError(NamesParameter, ZooError, RuntimeError):
     """A recipe, data split or run that cannot train, or a training that went wrong."""
