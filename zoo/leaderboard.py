@@ -108,39 +108,21 @@ class TablePlan:
     dropped: list[Path]
 
 
-def regenerate(
-    benchmark,
-    *,
-    registry=None,
-    data_root=None,
-    out_root: str | Path | None = None,
-    checkpoints: str | Path | None = None,
-    weights: str | Path | None = None,
-    device: str = "cpu",
-    plan: Plan | None = None,
-) -> list[Path]:
+def regenerate(benchmark, *, plan: Plan | None = None, **options) -> list[Path]:
     """Bring ``<out_root>/<benchmark>/<table>/`` up to date for every sampler, task and (mesh
     benchmarks) ground truth of ``benchmark``: reuse each stored row whose identity
     (:mod:`zoo.store`) still holds, recompute rows that are new or stale (saying why), keep
     every result folder it did not plan (a row of a registry not loaded now stays as stored),
-    and rewrite a table only when one of its rows changed.
+    and rewrite a table only when one of its rows changed. ``options``: ``registry``,
+    ``data_root``, ``out_root``, ``checkpoints``, ``weights`` and ``device``, as
+    :meth:`Leaderboard.of` takes them.
 
     Rows: every registered model that needs no training; a trainable one from its shipped
     weights ``<weights>/<benchmark>/<label>.safetensors`` (a published row is always computed
     from the published weights), else from its checkpoint ``<checkpoints>/<benchmark>/<model>/
     best.pt`` (and ``last.pt`` as ``<model>@last`` when it trained past its best epoch).
     """
-    board = Leaderboard.of(
-        benchmark,
-        registry=registry,
-        data_root=data_root,
-        out_root=out_root,
-        checkpoints=checkpoints,
-        weights=weights,
-        device=device,
-        plan=plan or Plan(),
-    )
-    return board.run()
+    return Leaderboard.of(benchmark, plan=plan, **options).run()
 
 
 class Leaderboard:
@@ -197,7 +179,7 @@ class Leaderboard:
         checkpoints: str | Path | None = None,
         weights: str | Path | None = None,
         device: str = "cpu",
-        plan: Plan,
+        plan: Plan | None = None,
     ) -> Leaderboard:
         """The tables of ``benchmark`` (a name, a YAML path or a Benchmark), its data loaded."""
         from zoo.benchmark import get_benchmark
@@ -210,7 +192,7 @@ class Leaderboard:
             weights=Path(weights) if weights else None,
             checkpoints=Path(checkpoints) if checkpoints else None,
             device=device,
-            plan=plan,
+            plan=plan or Plan(),
             data_root=data_root,
         )
 
