@@ -1,4 +1,4 @@
-"""SPGSN against a slow reference written from its equations (the paper's, in its module docstring).
+"""SPGSN against a slow reference written from its equations (the paper's, in docs/models/spgsn.md).
 
 The fast model batches everything (filters, tree channels, parts, blocks) into a few tensor
 products, so an axis mix-up there (a softmax over the wrong axis, a weight transposed, a part's

@@ -1,19 +1,7 @@
 """One path from a model to a stored result, shared by ``zoo eval``, ``zoo.evaluate`` and
-``zoo leaderboard`` (nothing else orchestrates an evaluation):
-
-1. the model source resolved (:class:`Subject`: a registered model, checkpoint or shipped
-   weights through :mod:`zoo.model_source`, or a module handed over from Python);
-2. the protocol planned once (:func:`zoo.protocol.plan_protocol`), and the subject's identity
-   under it;
-3. the place checked before anything runs (:func:`place`: a stored result of another identity
-   is refused unless replaced);
-4. the evaluation (:func:`compute`: the evaluator on the planned windows, the identity stamped;
-   :func:`compute_all`: several subjects in one pass over the windows);
-5. the result stored (:func:`store`: a recomputation that agrees with the stored result of its
-   identity, within :mod:`zoo.tolerance`, leaves the stored files byte for byte).
-
-The leaderboard decides per table which rows to reuse and writes whole tables; for every row it
-evaluates, it goes through :func:`compute`, as the others do.
+``zoo leaderboard`` (nothing else orchestrates an evaluation): the subject (:class:`Subject`),
+its place checked (:func:`place`), the evaluation (:func:`compute`, :func:`compute_all`) and the
+result stored (:func:`store`). docs/architecture.md ("The path of one result") walks through it.
 """
 
 from __future__ import annotations

@@ -1,21 +1,9 @@
 """How far a recomputed result may sit from a stored one and still be the same result.
 
-``zoo leaderboard --check`` names a value beyond this tolerance; ``zoo leaderboard``, ``zoo
-eval`` and ``zoo.evaluate`` leave a stored result byte for byte when a recomputation agrees with
-it within this tolerance (:func:`agreement`), so a rebuild on another CPU rewrites nothing that
-only rounded differently.
-
-The tolerance, from the arithmetic: every error is computed in float32, whose rounding follows
-the CPU's kernels (summation order, fused multiply-adds, vector width), and generated meshes' own
-bytes differ between CPUs in their last bits, so another machine reproduces a value to some
-units in the last place, not bit for bit. ``RELATIVE_TOLERANCE`` is 2**-16, 128 float32 units
-in the last place of the value (float32 carries 24 bits). The absolute floor is set by the
-inputs, not by the error: an error is a small difference of coordinates around a metre (MELV:
-of edge lengths), so its rounding is some units in the last place of a coordinate at one metre
-(6.1e-5 mm each): ``ABSOLUTE_TOLERANCE['mm']`` = 2**-9 mm is 32 of them, and 2**-18 is the same
-for RMSE, normalised by a bounding-box diagonal near 2 m. A standard deviation over windows
-moves as much as the windows' errors do, so it is held to the tolerance of its mean. A real
-change is far above all of these: a value moved by 0.01 mm is named (below 500 mm).
+``zoo leaderboard --check`` names a value beyond this tolerance, and a recomputation that agrees
+with a stored result within it leaves the stored files byte for byte (:func:`agreement`). The
+tolerance's error model (float32 rounding across CPUs) and its constants:
+docs/reproducibility.md ("The tolerance and its error model").
 """
 
 from __future__ import annotations

@@ -1,19 +1,9 @@
 """The BVH reader and BVH forward kinematics.
 
-A BVH file has a HIERARCHY part (joints with their parent, OFFSET and CHANNELS, and End Sites)
-and a MOTION part (``Frames:``, ``Frame Time:``, then one line of channel values per frame).
-``read_bvh`` parses both and raises ``DataFormatError`` naming the file and the line of anything
-malformed; with ``expected_joints`` it also checks the joint set (an unexpected or missing joint
-is an error naming it and the expected set).
-
-Conventions (those of the format, used by the CMU BVH conversion in ``shared/data/cmu_bvh``):
-- a joint's local rotation is the product of its rotation channels in file order, intrinsic:
-  ``Zrotation Yrotation Xrotation`` gives ``R = Rz Ry Rx`` (column vectors, degrees);
-- world rotation ``Q_j = Q_parent L_j``; world position ``x_j = x_parent + Q_parent offset_j``;
-  the root's position is its position channels plus its offset;
-- a joint's *bone* runs from the joint to its tail: the End Site if it has one, else the mean of
-  its children's offsets. Joints whose tail offset is zero (the CMU Hips, Spine1, hands: all their
-  children sit at the joint itself) have no direction; ``bone_directions`` gives NaN for them.
+``read_bvh`` parses a file's HIERARCHY and MOTION parts and raises ``DataFormatError`` naming the
+file and line of anything malformed; ``forward_kinematics`` and ``bone_directions`` follow the
+format's conventions. The format, its conventions and the bones with no direction:
+docs/datasets.md ("BVH files").
 """
 
 from __future__ import annotations

@@ -1,21 +1,9 @@
-"""LTD (Mao, Liu, Salzmann, Li. Learning Trajectory Dependencies for Human Motion Prediction,
-ICCV 2019), as its paper and its public CMU code describe it.
+"""LTD, as its paper and its public CMU code describe it: graph convolutions over joint-coordinate
+trajectories' DCT coefficients, a residual in DCT space.
 
-Data flow (``N = 3P`` nodes, one per joint coordinate trajectory; ``T = T_in + T_out``):
-
-1. the observed frames padded to ``T`` by repeating the last one; the orthonormal DCT-II along
-   time, the first ``dct_n`` coefficients: each node's features (mm, no normalisation);
-2. a graph convolution ``A (X W) + b`` to ``hidden`` features, with a learnable dense ``N x N``
-   adjacency ``A`` per layer (no skeleton prior), then BatchNorm over the flattened
-   ``N x hidden`` vector, tanh and dropout;
-3. ``blocks`` residual blocks of two such layers with an identity skip;
-4. a last graph convolution back to ``dct_n`` coefficients, added to the input's coefficients
-   (the network predicts a residual); the inverse DCT gives all ``T`` frames.
-
-Initialisation as the public code: every weight, adjacency and bias uniform in
-``+-1/sqrt(out_features)``. The loss is the mean joint distance (not squared) over all ``T``
-frames. Dropout is :class:`zoo.models.dropout.Dropout` (the same inverted dropout, its mask 16
-times cheaper to draw).
+Mao, Liu, Salzmann, Li. Learning Trajectory Dependencies for Human Motion Prediction. ICCV 2019.
+Data flow, initialisation, loss and dropout: docs/models/ltd.md ("As built, and where it departs
+from paper and code").
 """
 
 from __future__ import annotations

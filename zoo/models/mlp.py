@@ -1,20 +1,9 @@
-"""The MLP baseline (siMLPe; Guo et al., Back to MLP, WACV 2023).
+"""The MLP baseline, siMLPe: DCT along time, linear maps over time and space, no activations, the
+last observed frame added back; longer horizons rolled out ``chunk`` frames per step.
 
-One prediction step maps the last ``T_in`` observed frames to the next ``chunk`` frames:
-
-1. positions in metres (the published scale), flattened to ``D = 3P`` numbers per frame;
-2. the full orthonormal DCT-II along time (``T_in`` coefficients, no truncation);
-3. a spatial ``Linear(D -> hidden)``;
-4. ``blocks`` times ``x + LayerNorm(Linear_time(x))``: a ``T_in -> T_in`` linear map along time,
-   then a LayerNorm over the spatial axis with a per-channel affine; no activation anywhere;
-5. a spatial ``Linear(hidden -> D)``, the inverse DCT, the first ``chunk`` frames;
-6. plus the last observed frame.
-
-The block and output layers start from xavier weights with a tiny gain and zero biases, so the
-untrained model predicts the last observed frame. The residual is added in millimetres (the
-offset never makes the round trip through metres), which keeps that exact to float32 rounding.
-Longer horizons roll out autoregressively, ``chunk`` frames per step (published: 10 frames
-trained, 25 predicted in 3 steps).
+Guo, Du, Wang, Castillo, Alameda-Pineda, Horaud. Back to MLP: A simple baseline for human motion
+prediction. WACV 2023. Data flow, initialisation and units: docs/models/mlp.md ("What it is, and
+where it departs from the paper").
 """
 
 from __future__ import annotations

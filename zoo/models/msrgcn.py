@@ -1,27 +1,9 @@
-"""MSR-GCN (Dang, Nie, Long, Zhang, Li. MSR-GCN: Multi-Scale Residual Graph Convolution
-Networks for Human Motion Prediction, ICCV 2021), as its public code runs on CMU.
+"""MSR-GCN, as its public code runs on CMU: the body at four scales and a U-shaped graph network
+down and back up them, a residual prediction on DCT coefficients supervised at every scale.
 
-Data flow (``T = T_in + T_out``; a scale's nodes are its points' coordinates, ``3p + c``):
-
-1. the observed frames padded to ``T`` by repeating the last one, and three coarser bodies made
-   from them, each point the mean of a group of the finer scale's (``groups``; CMU:
-   25 -> 12 -> 7 -> 4 points);
-2. at every scale the orthonormal DCT-II along time, the first ``dct_n`` coefficients, mapped
-   to [-1, 1] by the training data's range (``low``, ``high``: one minimum and maximum over the
-   positions and coefficients of every scale, set in the first epoch);
-3. a U-shaped network: down the scales, a graph layer widening the features (``widths``) and
-   ``blocks`` residual graph blocks at each, a linear map over nodes between them; back up,
-   ``blocks`` blocks at each scale, a map over nodes and one over features to the finer scale,
-   its output stacked with the way down's and mapped back to the scale's nodes;
-4. at every scale ``head_blocks`` more blocks and a graph convolution back to ``dct_n``
-   coefficients, added to that scale's input (a residual); mapped back from [-1, 1], the
-   inverse DCT gives all ``T`` frames of every scale.
-
-Graph convolutions ``A (X W) + b`` have a learnable dense adjacency per layer
-(:class:`zoo.models.ltd.GraphConvolution`, initialised as both codes do); every layer but the
-last of a head is followed by BatchNorm over its flattened output, LeakyReLU and dropout. The
-loss supervises every scale: the sum over scales of the mean point distance over all ``T``
-frames. The finest scale is the prediction.
+Dang, Nie, Long, Zhang, Li. MSR-GCN: Multi-Scale Residual Graph Convolution Networks for Human
+Motion Prediction. ICCV 2021. Scales, data flow, normalisation and loss: docs/models/msrgcn.md
+("As built, and where it departs from paper and code").
 """
 
 from __future__ import annotations
@@ -181,7 +163,7 @@ class MSRGCN(nn.Module):
         dct = dct_matrix(frames)
         self.register_buffer("dct", dct[:dct_n].contiguous(), persistent=False)
         self.register_buffer("idct", dct[:dct_n].T.contiguous(), persistent=False)
-        # the training data's range (step 2 above); stored with the weights
+        # the range that maps the inputs to [-1, 1] (set_range); stored with the weights
         self.register_buffer("low", torch.tensor(-1.0))
         self.register_buffer("high", torch.tensor(1.0))
         self.register_buffer("range_frames", torch.tensor(0, dtype=torch.long))

@@ -1,39 +1,9 @@
-"""PGBIG (Ma, Nie, Long, Zhou, Yan, Liu. Progressively Generating Better Initial Guesses Towards
-Next Stages for High-Quality Human Motion Prediction, CVPR 2022), as its paper describes it.
+"""PGBIG, as its paper describes it: stages of encoder-copy-decoder graph networks on DCT
+coefficients, each learning a less smoothed future than the last and passing its guess on.
 
-Data flow (``P`` points, ``T = T_in + T_out`` frames, ``L = dct_n`` coefficients):
-
-1. the observed frames padded to ``T`` by repeating the last one; the orthonormal DCT-II along
-   time, arranged as ``(B, 3, P, L)``: 3 coordinate channels of ``P`` joints (mm);
-2. ``stages`` stages, each its own encoder-copy-decoder on coefficients:
-   - encoder (length ``L``): a graph layer ``3 -> d_model``, ``encoder_blocks`` residual
-     blocks, a plain layer ``d_model -> d_model``, plus a 1x1 convolution of its input;
-   - copy: the encoding concatenated with itself along the coefficient axis (``L -> 2L``);
-   - decoder (length ``2L``): a graph layer ``d_model -> d_model``, ``decoder_blocks`` residual
-     blocks, a plain layer ``d_model -> 3``, plus a 1x1 convolution of its input; the first
-     ``L`` coefficients are the stage's output;
-3. the inverse DCT of each stage's output gives all ``T`` frames; the last stage's future is
-   the prediction.
-
-The copy is computed, not made: the decoder's first layer multiplies the encoding by the sum
-of its coefficient matrix's two halves, and its last layer and convolution compute only the
-``L`` coefficients kept (the same map; a training step 1.24 times faster on a CPU).
-
-A plain layer mixes the joints with a learnable dense ``P x P`` matrix, the channels with a
-``C_in x C_out`` weight and the coefficient axis with a learnable dense ``L x L`` matrix, and
-adds a length-``L`` bias; a graph layer follows it with BatchNorm over the flattened vector,
-tanh and dropout; a residual block is two graph layers and an identity skip.
-
-Stage inputs, where paper and public code differ: the paper (Eq. 1) gives every stage after the
-first the true observed frames followed by the previous stage's future (``stage_input:
-observed``, the default); the public code passes the previous stage's whole output
-(``stage_input: previous``).
-
-Training targets: stage ``s`` of ``S`` learns the ground truth smoothed ``S - s`` times by
-accumulated averaging (future frame ``t`` becomes the mean of future frames ``1..t``, observed
-frames unchanged); the loss is the mean over stages of the mean joint distance over all ``T``
-frames. Initialisation as the public code: every weight, matrix and bias of a layer uniform in
-``+-1/sqrt(P)``; the 1x1 convolutions torch's default.
+Ma, Nie, Long, Zhou, Yan, Liu. Progressively Generating Better Initial Guesses Towards Next
+Stages for High-Quality Human Motion Prediction. CVPR 2022. Data flow, layers, targets and where
+paper and code differ: docs/models/pgbig.md ("As built, and where it departs from paper and code").
 """
 
 from __future__ import annotations

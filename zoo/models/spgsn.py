@@ -1,42 +1,9 @@
-"""SPGSN, the design of the paper (Li et al., Skeleton-Parted Graph Scattering Networks for 3D
-Human Motion Prediction, ECCV 2022), not that of its public code.
+"""SPGSN, the design of its paper, not that of its public code: multi-part adaptive graph
+scattering blocks on the DCT coefficients of the padded input.
 
-Data flow (``N = 3P`` nodes, one per joint coordinate; ``T = T_in + T_out``):
-
-1. the observed frames padded to ``T`` by repeating the last one, the orthonormal DCT-II along
-   time, the first ``dct_n`` coefficients: the node features;
-2. a per-node linear embedding to ``hidden`` channels (tanh, dropout);
-3. ``blocks`` multi-part graph scattering blocks, each added to its input (skip connections);
-4. a per-node linear readout to ``dct_n`` coefficients, added to the input's coefficients, so the
-   network learns the departure from the padded input; the inverse DCT gives all ``T`` frames.
-
-Two choices are the zoo's own, each an option so that an ablation weighs it
-(docs/models/spgsn.md): the network sees the coefficients in metres (``metre_inputs``, on by
-default; its output is scaled back to mm), and the readout may start at zero (``zero_readout``,
-off by default), so that the untrained model is nearly repeat-last.
-
-A block: for each body part (whole body, upper, lower; each its own learned graph ``A``, all other
-parameters shared by the parts) an adaptive graph scattering tree of ``L`` layers, ``K + 1``
-filters at every tree node, ``(K + 1) ** L`` leaf channels; the filters are polynomials of
-``A~ = (I + A / ||A||_F^2) / 2``: ``h_0 = a00 A``, ``h_1 = a10 I + a11 A~``,
-``h_k = sum_{j=1..k} a_kj A~^(2^(j-1))``, initialised as the diffusion wavelets
-(``a00 = 1``, ``a_k,k-1 = 1``, ``a_kk = -1``). Every tree node computes ``tanh(h_k X W_k)``
-(one weight per layer and filter). Spectrum aggregation weighs the leaves by a softmax over the
-channels of ``f2(tanh(f1([H_sp, H_k])))`` with ``H_sp = ReLU(mean_k(H_k) W_sp)``. Bipartite fusion
-lets the upper body update the lower one through the affinity
-``softmax(f_up(H_up) f_low(H_low)^T)`` and vice versa; then ``H' = MLP(H + (H_up' (+) H_low'))``
-where ``(+)`` places each part's nodes back at their body positions. The paper gives no widths
-for these maps; the authors' code does, and they are taken from it: ``f_up`` and ``f_low`` are
-two bias-free layers ``hidden -> fusion_dim -> fusion_dim`` with a ReLU between (64 wide), and
-the block ends in one ``hidden x hidden`` layer with a ReLU (the code's last transform of a
-block), which is the MLP here.
-
-Implementation: features are node-major ``(N, B, C)``, so every graph filter is one plain matrix
-product over the node axis and every weight one product over the channel axis, batched over
-filters and tree channels. The filter banks of all blocks are computed once per forward, batched
-over blocks. The first scattering layer multiplies by its weights before filtering, so the
-products ``X W_k`` are computed once for the whole body and shared by the parts (the parts'
-inputs are rows of the whole-body input and the weights are shared).
+Li, Chen, Zhang, Xie, Tian, Zhang. Skeleton-Parted Graph Scattering Networks for 3D Human Motion
+Prediction. ECCV 2022. Data flow, blocks, the zoo's own options and how the code is batched:
+docs/models/spgsn.md ("Architecture").
 """
 
 from __future__ import annotations
@@ -55,8 +22,7 @@ MM_PER_M = 1000.0
 
 class _Tanh(torch.autograd.Function):
     """``tanh(x)`` computed as ``2 sigmoid(2x) - 1``: the same function (to ~1e-7 absolute), but
-    ATen's float sigmoid runs about five times faster than its tanh on the AVX-512 CPUs this
-    project measured, and the scattering tree spends a sixth of its time in tanh."""
+    ATen's float sigmoid is the faster of the two on a CPU (docs/models/spgsn.md, Architecture)."""
 
     @staticmethod
     def forward(ctx, x: torch.Tensor) -> torch.Tensor:
