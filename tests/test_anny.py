@@ -1,4 +1,4 @@
-"""CMU BVH motion on the Anny body (zoo.data.anny_motion).
+"""CMU BVH motion on the Anny body (zoo.data.anny).
 
 The tests that need the ``anny`` package share one low-resolution model (session fixture) and
 use the shortest trials (09_03: 128 motion frames at 120 fps, 27 frames at 25 Hz). With a cold
@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from zoo.data import anny_motion as am
+from zoo.data import anny
+from zoo.data.anny import regressor as anny_regressor
 from zoo.data.bvh import CMU_BVH_JOINTS, read_bvh
 from zoo.data.expmap import DataFormatError
 from zoo.data.mesh import MeshDataset, MeshTopology
@@ -41,14 +42,14 @@ def test_rotation_between_is_the_smallest_rotation():
     rng = np.random.default_rng(1)
     for _ in range(20):
         a, b = rng.normal(size=3), rng.normal(size=3)
-        r = am.rotation_between(a, b)
+        r = anny.rotation_between(a, b)
         np.testing.assert_allclose(r @ (a / np.linalg.norm(a)), b / np.linalg.norm(b), atol=1e-12)
         axis = Rotation.from_matrix(r).as_rotvec()
         assert abs(axis @ a) < 1e-9 and abs(axis @ b) < 1e-9  # about a x b: smallest angle
     np.testing.assert_allclose(
-        am.rotation_between([1, 0, 0], [-1, 0, 0]) @ [1, 0, 0], [-1, 0, 0], atol=1e-12
+        anny.rotation_between([1, 0, 0], [-1, 0, 0]) @ [1, 0, 0], [-1, 0, 0], atol=1e-12
     )
-    np.testing.assert_allclose(am.rotation_between([0, 2, 0], [0, 1, 0]), np.eye(3))
+    np.testing.assert_allclose(anny.rotation_between([0, 2, 0], [0, 1, 0]), np.eye(3))
 
 
 def test_remove_heading_keeps_the_tilt():
@@ -59,10 +60,10 @@ def test_remove_heading_keeps_the_tilt():
         axis[1] = 0
         tilt = Rotation.from_rotvec(axis / np.linalg.norm(axis) * rng.uniform(0, 1.2))
         q = (heading * tilt).as_matrix()
-        np.testing.assert_allclose(am.remove_heading(q), tilt.as_matrix(), atol=1e-9)
+        np.testing.assert_allclose(anny.remove_heading(q), tilt.as_matrix(), atol=1e-9)
     # A pure heading leaves nothing; a rotation about a horizontal axis is kept as is.
     np.testing.assert_allclose(
-        am.remove_heading(Rotation.from_rotvec([0, 1, 0]).as_matrix()), np.eye(3), atol=1e-12
+        anny.remove_heading(Rotation.from_rotvec([0, 1, 0]).as_matrix()), np.eye(3), atol=1e-12
     )
 
 
@@ -70,7 +71,7 @@ def test_resampling_to_25_hz_is_exact_on_shared_instants_and_slerps_between():
     rng = np.random.default_rng(3)
     n = 241  # 2 s at 120 fps
     rots = Rotation.random(n * 2, random_state=4).as_matrix().reshape(n, 2, 3, 3)
-    out = am.resample_rotations(rots, 120.0)
+    out = anny.resample_rotations(rots, 120.0)
     assert out.shape == (51, 2, 3, 3)  # k / 25 for k = 0..50
     # 25 Hz frame 5k is 120 fps frame 24k.
     np.testing.assert_allclose(out[::5], rots[::24], atol=1e-9)
@@ -78,8 +79,8 @@ def test_resampling_to_25_hz_is_exact_on_shared_instants_and_slerps_between():
     r4, r5 = Rotation.from_matrix(rots[4, 0]), Rotation.from_matrix(rots[5, 0])
     expected = r4 * Rotation.from_rotvec(0.8 * (r4.inv() * r5).as_rotvec())
     np.testing.assert_allclose(out[1, 0], expected.as_matrix(), atol=1e-9)
-    assert len(am.resample_times(129 - 1, 120.0)) == 27
-    assert am.snapped_fps(0.0083333) == 120.0 and am.snapped_fps(0.01) == 100.0
+    assert len(anny.resample_times(129 - 1, 120.0)) == 27
+    assert anny.snapped_fps(0.0083333) == 120.0 and anny.snapped_fps(0.01) == 100.0
     del rng
 
 
@@ -88,16 +89,16 @@ def test_resampling_to_25_hz_is_exact_on_shared_instants_and_slerps_between():
 
 @needs_data
 def test_trials_split_and_selection_errors():
-    trials = am.list_trials(CMU_BVH)
+    trials = anny.list_trials(CMU_BVH)
     assert len(trials) == 98
     test = [t.key for t in trials if t.split == "test"]
     assert len(test) == 17 and all(int(k[3:]) % 5 == 0 for k in test)
     assert {t.description for t in trials if t.key in ("02_01", "09_03")} == {"walk", "run"}
-    assert [t.key for t in am.select_trials(CMU_BVH, "train", [SHORT])] == [SHORT]
+    assert [t.key for t in anny.select_trials(CMU_BVH, "train", [SHORT])] == [SHORT]
     with pytest.raises(ValueError, match=r"'09_03' belongs to the train split, not test"):
-        am.select_trials(CMU_BVH, "test", [SHORT])
+        anny.select_trials(CMU_BVH, "test", [SHORT])
     with pytest.raises(ValueError, match=r"'04_01' is not a trial under"):
-        am.select_trials(CMU_BVH, "train", ["04_01"])
+        anny.select_trials(CMU_BVH, "train", ["04_01"])
 
 
 @needs_data
@@ -119,7 +120,7 @@ def test_a_bvh_with_an_unexpected_joint_is_named(tmp_path):
 def low_model():
     if importlib.util.find_spec("anny") is None:
         pytest.skip("the anny package is not installed (pip install anny==0.6.2); CI installs it")
-    return am.load_anny_model("low")
+    return anny.load_anny_model("low")
 
 
 @pytest.fixture(scope="session")
@@ -127,7 +128,7 @@ def short_motion():
     if not CMU_BVH.is_dir():
         pytest.skip(f"CMU BVH data not found at {CMU_BVH}")
     bvh = read_bvh(bvh_path(SHORT), CMU_BVH_JOINTS)
-    return bvh, am.motion_rotations(bvh)
+    return bvh, anny.motion_rotations(bvh)
 
 
 @pytest.fixture(scope="session")
@@ -148,35 +149,35 @@ MI_BODY = {
 
 @needs_anny
 @pytest.mark.parametrize("phenotype", [None, MI_BODY], ids=["default", "mi"])
-@pytest.mark.parametrize("root", am.ROOT_MODES)
+@pytest.mark.parametrize("root", anny.ROOT_MODES)
 def test_skinned_bone_directions_match_the_bvh_forward_kinematics(
     low_model, short_motion, phenotype, root
 ):
     bvh, rots = short_motion
     frames = rots[[0, 9, 18, 26]]
-    target = am.retarget(low_model, bvh, phenotype)
+    target = anny.retarget(low_model, bvh, phenotype)
     params = target.pose_parameters(frames, root)
     if root == "identity":
         np.testing.assert_array_equal(params[:, 0], np.eye(4)[None].repeat(4, 0))
     np.testing.assert_array_equal(params[..., :3, 3], 0)  # no translation anywhere
-    out = am.skin(low_model, params, phenotype, return_bone_ends=True)
+    out = anny.skin(low_model, params, phenotype, return_bone_ends=True)
     got = out["tails"] - out["heads"]
     expected = target.expected_directions(frames, root)
-    angles = am.angle_degrees(got[:, target.directed], expected[:, target.directed])
+    angles = anny.angle_degrees(got[:, target.directed], expected[:, target.directed])
     assert target.directed.sum() == 17  # legs, feet, toes, back, neck, head, arms, forearms
     assert angles.max() < 0.01, f"max bone-direction error {angles.max():.4f} degrees"
     # The root (Hips) head sits at the origin: no global translation.
     np.testing.assert_allclose(out["heads"][:, 0], 0, atol=1e-3)
     # And the motion is not trivial: the legs swing by tens of degrees over the run.
     leg = low_model.bone_labels.index("LeftUpLeg")
-    swing = am.angle_degrees(got[:, None, leg], got[None, :, leg])
+    swing = anny.angle_degrees(got[:, None, leg], got[None, :, leg])
     assert swing.max() > 20, f"the thigh swings by {swing.max():.1f} degrees only"
 
 
 @needs_anny
 def test_identity_root_removes_heading_and_tilt(low_model, short_motion):
     bvh, rots = short_motion
-    target = am.retarget(low_model, bvh)
+    target = anny.retarget(low_model, bvh)
     turned = rots.copy()
     turned[:, 0] = Rotation.from_rotvec([0, 1.0, 0]).as_matrix() @ turned[:, 0]
     np.testing.assert_allclose(
@@ -200,8 +201,8 @@ def test_ground_truth_edge_length_changes_at_low_resolution(low_model, short_mot
     # edges (linear blend skinning). The low-resolution mesh has ~42 mm edges and, measured on
     # 09_03, 1.2 mm mean change (p99 18 mm, max 62 mm): the same ~3 % of an edge.
     bvh, rots = short_motion
-    v = am.skin(low_model, am.retarget(low_model, bvh).pose_parameters(rots))["vertices"]
-    edges = MeshTopology(am.model_faces(low_model), v.shape[1]).edges
+    v = anny.skin(low_model, anny.retarget(low_model, bvh).pose_parameters(rots))["vertices"]
+    edges = MeshTopology(anny.model_faces(low_model), v.shape[1]).edges
     lengths = np.linalg.norm(v[:, edges[:, 0]] - v[:, edges[:, 1]], axis=-1).astype(np.float64)
     change = np.abs(lengths[1:] - lengths[0])
     assert 38 < lengths[0].mean() < 46
@@ -218,7 +219,7 @@ def test_built_meshes_do_not_depend_on_the_thread_count(low_model, tmp_path):
         for threads in (3, 1):
             torch.set_num_threads(threads)
             hashes.append(
-                am.build_cmu_anny(
+                anny.build_cmu_anny(
                     CMU_BVH,
                     identities="one",
                     topology="low",
@@ -236,7 +237,7 @@ def test_built_meshes_do_not_depend_on_the_thread_count(low_model, tmp_path):
 
 def build_low(cache, identities="one", seed=0, split="train", trials=(SHORT,)):
     """A low-resolution CMU-on-Anny dataset of a few trials, in the session's cache."""
-    return am.build_cmu_anny(
+    return anny.build_cmu_anny(
         CMU_BVH,
         identities=identities,
         topology="low",
@@ -257,20 +258,20 @@ def test_build_one_identity_low(low_model, cache):
     assert seq.vertices.shape == (27, 1229, 3) and seq.vertices.dtype == np.float32
     assert seq.action == "run" and seq.identity == "default"
     assert seq.meta["source_frames"] == 128 and seq.meta["source_fps"] == 120.0
-    assert seq.meta["phenotype"] == am.DEFAULT_PHENOTYPE
+    assert seq.meta["phenotype"] == anny.DEFAULT_PHENOTYPE
     # Millimetres, Z up, about 1.6 m tall (the default body), root at the origin.
     height = np.ptp(seq.vertices[0, :, 2])
     assert 1400 < height < 1800
     assert ds.recipe["trials"][0]["trial"] == SHORT and len(ds.recipe["trials"][0]["sha256"]) == 64
-    assert ds.recipe["anny_version"] == am.anny_version() and ds.recipe["fps"] == 25.0
+    assert ds.recipe["anny_version"] == anny.anny_version() and ds.recipe["fps"] == 25.0
     # The joint regressor: 31 rows in BVH order summing to 1, close to the rig's bone heads.
     reg = ds.joint_regressor
     assert reg.shape == (31, 1229) and ds.joint_names == list(CMU_BVH_JOINTS)
     np.testing.assert_allclose(np.asarray(reg.sum(axis=1)).ravel(), 1.0, atol=1e-9)
     assert (reg.data > 0).all() and reg.nnz < 31 * 40
-    folder = am.dataset_folder(ds, cache)
-    (rig,) = am.load_rig_joints(folder)
-    err = am.regressor_error(reg, seq.vertices, rig)
+    folder = anny.dataset_folder(ds, cache)
+    (rig,) = anny.load_rig_joints(folder)
+    err = anny.regressor_error(reg, seq.vertices, rig)
     assert err.mean() < 10, f"regressed joints {err.mean():.1f} mm from the rig's bone heads"
     # Cached on disk under its recipe hash; a second call loads the same data.
     assert folder.name == f"{ds.name}-{ds.recipe_hash}"
@@ -280,8 +281,8 @@ def test_build_one_identity_low(low_model, cache):
     assert build_low(cache, seed=7).recipe_hash == ds.recipe_hash
     assert MeshDataset.load(folder).topology.hash == ds.topology.hash
     # The regressor is the shipped one, also for a dataset cached with another machine's fit.
-    recipe, _ = am.regressor_recipe(CMU_BVH, "low")
-    shipped, _ = am.load_regressor(am.shipped_regressor_path("low", recipe))
+    recipe, _ = anny.regressor_recipe(CMU_BVH, "low")
+    shipped, _ = anny.load_regressor(anny.shipped_regressor_path("low", recipe))
     assert (abs(ds.joint_regressor - shipped) > 0).nnz == 0
     other = MeshDataset.load(folder)
     other.joint_regressor = other.joint_regressor.multiply(0.5).tocsr()
@@ -302,8 +303,8 @@ def test_many_identities_share_the_triangulation_differ_in_shape_and_are_seeded(
     assert ds.topology.hash == oi.topology.hash  # one triangulation for every identity
     a, b = ds.sequences
     assert a.identity != b.identity and a.meta["phenotype"] != b.meta["phenotype"]
-    assert a.meta["phenotype"] == am.mi_phenotype(0, SHORT)
-    for key, (lo, hi) in am.MI_PHENOTYPE_RANGES.items():
+    assert a.meta["phenotype"] == anny.mi_phenotype(0, SHORT)
+    for key, (lo, hi) in anny.MI_PHENOTYPE_RANGES.items():
         assert lo <= a.meta["phenotype"][key] <= hi
     # Different bodies: same motion frame, different shapes (edge lengths differ).
     edges = ds.topology.edges
@@ -315,7 +316,7 @@ def test_many_identities_share_the_triangulation_differ_in_shape_and_are_seeded(
     assert diff.mean() > 0.5  # mm
     assert a.vertices.shape[0] == oi.sequences[0].vertices.shape[0] == 27
     # Reproducible: rebuilt from scratch with the same seed it is identical; another seed is not.
-    shutil.rmtree(am.dataset_folder(ds, cache))
+    shutil.rmtree(anny.dataset_folder(ds, cache))
     assert build(0).content_hash() == ds.content_hash()
     other = build(1)
     assert other.recipe_hash != ds.recipe_hash and other.content_hash() != ds.content_hash()
@@ -330,15 +331,17 @@ def test_many_identities_share_the_triangulation_differ_in_shape_and_are_seeded(
 @needs_data
 def test_builder_argument_errors(cache):
     with pytest.raises(ValueError, match="identities must be one of"):
-        am.build_cmu_anny(
+        anny.build_cmu_anny(
             CMU_BVH, identities="some", topology="low", split="train", cache_dir=cache
         )
     with pytest.raises(ValueError, match="topology must be one of"):
-        am.build_cmu_anny(CMU_BVH, identities="one", topology="mid", split="train", cache_dir=cache)
+        anny.build_cmu_anny(
+            CMU_BVH, identities="one", topology="mid", split="train", cache_dir=cache
+        )
     with pytest.raises(ValueError, match="split must be one of"):
-        am.build_cmu_anny(CMU_BVH, identities="one", topology="low", split="val", cache_dir=cache)
+        anny.build_cmu_anny(CMU_BVH, identities="one", topology="low", split="val", cache_dir=cache)
     with pytest.raises(ValueError, match="root must be one of"):
-        am.build_cmu_anny(
+        anny.build_cmu_anny(
             CMU_BVH, identities="one", topology="low", split="train", root="world", cache_dir=cache
         )
 
@@ -349,18 +352,18 @@ def test_builder_argument_errors(cache):
 def test_full_resolution_directions_and_edge_lengths(short_motion):
     # Sanity figures at 13,718 vertices, measured on 09_03: mean edge 9.96 mm,
     # mean |edge change| 0.22 mm, p99 4.2 mm, max 30 mm.
-    model = am.load_anny_model("full")
+    model = anny.load_anny_model("full")
     bvh, rots = short_motion
-    target = am.retarget(model, bvh)
-    out = am.skin(model, target.pose_parameters(rots), return_bone_ends=True)
-    angles = am.angle_degrees(
+    target = anny.retarget(model, bvh)
+    out = anny.skin(model, target.pose_parameters(rots), return_bone_ends=True)
+    angles = anny.angle_degrees(
         (out["tails"] - out["heads"])[:, target.directed],
         target.expected_directions(rots)[:, target.directed],
     )
     assert angles.max() < 0.01
     v = out["vertices"]
     assert v.shape == (27, 13718, 3)
-    topology = MeshTopology(am.model_faces(model), v.shape[1])
+    topology = MeshTopology(anny.model_faces(model), v.shape[1])
     # The same faces on every CPU (the zoo splits anny's quads, ties along a fixed diagonal):
     # this hash is in every full-resolution protocol id.
     assert topology.hash == "7f172bf4f4c3b63ab89785c7169e4ecea18a640758fd85a31597c4dd2ac185da"
@@ -381,26 +384,32 @@ def test_the_shipped_regressor_fits_the_frames_skinned_here_as_recorded(low_mode
     """What holds on every CPU: the shipped file passes its checksum (load_regressor) and
     misses the bone heads of the fit frames skinned here by what its record says. A fit here
     may land on other weights (the full body's fit is ill-conditioned), which is why it ships."""
-    report = am.check_joint_regressor(
+    report = anny.check_joint_regressor(
         CMU_BVH, topology, model=low_model if topology == "low" else None
     )
     assert report["fits_here"], report
     for key, value in report["shipped_here"].items():
-        assert abs(value - report["stats"][key][1]) <= am.REGRESSOR_TOLERANCE_MM + 5e-4
+        assert abs(value - report["stats"][key][1]) <= anny.REGRESSOR_TOLERANCE_MM + 5e-4
     assert report["stats"]["fit_frames"] == (1280.0, 1280.0)
+
+
+def forbid_refitting(monkeypatch) -> None:
+    """Make any fit of a joint regressor fail the test: a shipped one must only be loaded."""
+
+    def no_fit(*args, **kwargs):
+        raise AssertionError("a shipped regressor was fitted again")
+
+    monkeypatch.setattr(anny_regressor, "fit_joint_regressor", no_fit)
 
 
 @needs_data
 def test_the_regressor_is_loaded_from_the_shipped_file_not_fitted(tmp_path, monkeypatch):
     pytest.importorskip("anny")  # its version is part of the regressor's recipe
 
-    def no_fit(*args, **kwargs):
-        raise AssertionError("a shipped regressor was fitted again")
-
-    monkeypatch.setattr(am, "fit_joint_regressor", no_fit)
-    regressor = am.joint_regressor(CMU_BVH, "low", cache_dir=tmp_path)
+    forbid_refitting(monkeypatch)
+    regressor = anny.joint_regressor(CMU_BVH, "low", cache_dir=tmp_path)
     assert regressor.source == str(
-        am.shipped_regressor_path("low", am.regressor_recipe(CMU_BVH, "low")[0])
+        anny.shipped_regressor_path("low", anny.regressor_recipe(CMU_BVH, "low")[0])
     )
     assert regressor.matrix.shape == (31, 1229) and regressor.recipe["fit_frames"] == 1280.0
     assert not (tmp_path / "anny").exists()  # nothing fitted, nothing cached
@@ -411,16 +420,16 @@ def test_the_regressor_is_loaded_from_the_shipped_file_not_fitted(tmp_path, monk
 def test_a_recipe_with_no_shipped_regressor_is_fitted_here_and_says_so(
     low_model, tmp_path, monkeypatch, capsys
 ):
-    monkeypatch.setattr(am, "SHIPPED_REGRESSORS", tmp_path / "none")
-    fitted = am.joint_regressor(CMU_BVH, "low", cache_dir=tmp_path, model=low_model)
+    monkeypatch.setattr(anny_regressor, "SHIPPED_REGRESSORS", tmp_path / "none")
+    fitted = anny.joint_regressor(CMU_BVH, "low", cache_dir=tmp_path, model=low_model)
     assert "fitting one here" in capsys.readouterr().err
     assert Path(fitted.source).parent == tmp_path / "anny"
 
     def no_fit(*args, **kwargs):
         raise AssertionError("a cached regressor was fitted again")
 
-    monkeypatch.setattr(am, "fit_joint_regressor", no_fit)
-    again = am.joint_regressor(CMU_BVH, "low", cache_dir=tmp_path)  # from the cache
+    monkeypatch.setattr(anny_regressor, "fit_joint_regressor", no_fit)
+    again = anny.joint_regressor(CMU_BVH, "low", cache_dir=tmp_path)  # from the cache
     assert "using the one fitted here" in capsys.readouterr().err
     assert again.source == fitted.source and again.recipe == fitted.recipe
     assert (abs(again.matrix - fitted.matrix) > 0).nnz == 0
@@ -430,26 +439,26 @@ def test_a_damaged_regressor_file_is_named(tmp_path):
     import scipy.sparse as sp
 
     matrix = sp.csr_matrix(np.array([[0.25, 0.75, 0.0], [0.0, 0.0, 1.0]]))
-    path = am.save_regressor(tmp_path / "r.npz", matrix, {k: 1.0 for k in am.REGRESSOR_STATS})
-    loaded, stats = am.load_regressor(path)
+    path = anny.save_regressor(tmp_path / "r.npz", matrix, {k: 1.0 for k in anny.REGRESSOR_STATS})
+    loaded, stats = anny.load_regressor(path)
     assert (abs(loaded - matrix) > 0).nnz == 0 and stats["fit_frames"] == 1.0
     with np.load(path) as z:
         fields = dict(z)
     fields["data"] = fields["data"] + 1e-9
     np.savez(tmp_path / "edited.npz", **fields)
     with pytest.raises(DataFormatError, match="edited.npz: its weights do not match"):
-        am.load_regressor(tmp_path / "edited.npz")
+        anny.load_regressor(tmp_path / "edited.npz")
     (tmp_path / "text.npz").write_text("not a regressor")
     with pytest.raises(DataFormatError, match="text.npz: not a joint regressor file"):
-        am.load_regressor(tmp_path / "text.npz")
+        anny.load_regressor(tmp_path / "text.npz")
     (tmp_path / "cut.npz").write_bytes(path.read_bytes()[:2000])
     with pytest.raises(DataFormatError, match="cut.npz: not a joint regressor file"):
-        am.load_regressor(tmp_path / "cut.npz")
+        anny.load_regressor(tmp_path / "cut.npz")
     del fields["checksum"]
     np.savez(tmp_path / "old.npz", **fields)  # a cache file from before checksums
     with pytest.raises(DataFormatError, match="old.npz: no checksum field"):
-        am.load_regressor(tmp_path / "old.npz")
-    am.load_regressor(tmp_path / "old.npz", checksum_required=False)
+        anny.load_regressor(tmp_path / "old.npz")
+    anny.load_regressor(tmp_path / "old.npz", checksum_required=False)
 
 
 @needs_anny
@@ -457,21 +466,40 @@ def test_a_damaged_regressor_file_is_named(tmp_path):
 def test_zoo_data_regressor_ships_a_fit_and_refuses_to_overwrite(low_model, tmp_path, monkeypatch):
     from zoo.cli import main
 
-    monkeypatch.setattr(am, "SHIPPED_REGRESSORS", tmp_path / "regressors")
+    monkeypatch.setattr(anny_regressor, "SHIPPED_REGRESSORS", tmp_path / "regressors")
     args = ["data", "regressor", "cmu_anny_oi_low", "--data-root", str(CMU_BVH), "--ship"]
     assert main(args) == 0
     (written,) = (tmp_path / "regressors").iterdir()
-    recipe, _ = am.regressor_recipe(CMU_BVH, "low")
-    assert written == am.shipped_regressor_path("low", recipe)
-    shipped, shipped_stats = am.load_regressor(
+    recipe, _ = anny.regressor_recipe(CMU_BVH, "low")
+    assert written == anny.shipped_regressor_path("low", recipe)
+    shipped, shipped_stats = anny.load_regressor(
         REPO_ROOT / "benchmarks" / "regressors" / written.name
     )
-    fitted, stats = am.load_regressor(written)  # its checksum holds
+    fitted, stats = anny.load_regressor(written)  # its checksum holds
     assert fitted.shape == shipped.shape
     # a fit on another CPU may differ in its last bits, not in how well it fits
     for key in ("fit_mean_mm", "fit_p99_mm"):
-        assert abs(stats[key] - shipped_stats[key]) <= am.REGRESSOR_TOLERANCE_MM
+        assert abs(stats[key] - shipped_stats[key]) <= anny.REGRESSOR_TOLERANCE_MM
     before = written.read_bytes()
     assert main(args) == 2  # shipped already: refused, nothing overwritten
     assert written.read_bytes() == before
     assert main(args[:-1]) == 0  # the shipped regressor fits the frames skinned here
+
+
+@needs_data
+def test_shipping_over_a_shipped_regressor_is_refused_before_any_fit(monkeypatch, capsys):
+    pytest.importorskip("anny")  # its version is part of the regressor's recipe
+    from zoo.cli import main
+
+    forbid_refitting(monkeypatch)
+    path = anny.shipped_regressor_path("low", anny.regressor_recipe(CMU_BVH, "low")[0])
+    before = path.read_bytes()
+    with pytest.raises(anny.RegressorShippedError, match="is shipped already"):
+        anny.ship_joint_regressor(CMU_BVH, "low")
+    args = ["data", "regressor", "cmu_anny_oi_low", "--data-root", str(CMU_BVH), "--ship"]
+    assert main(args) == 2
+    assert capsys.readouterr().err == (
+        f"zoo data: error: {path} is shipped already (committed MPJPE rows depend on it); "
+        "delete it deliberately to ship another\n"
+    )
+    assert path.read_bytes() == before

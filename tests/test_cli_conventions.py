@@ -128,6 +128,41 @@ def test_an_old_spelling_works_with_a_deprecation_line(tmp_path, capsys):
     assert "--root is deprecated, use --weights-dir" in old.err and "deprecated" not in new.err
 
 
+def test_options_before_a_nested_action_parse_as_they_did(tmp_path, capsys):
+    """Earlier releases took the action as a positional, so options could precede it
+    (``zoo weights --root X list``); they still do, and only options move."""
+    from zoo.cli import build_parser, main
+    from zoo.cli.common import action_first
+
+    parser = build_parser()
+    assert action_first(parser, ["weights", "--weights-dir", "w", "list"]) == [
+        "weights",
+        "list",
+        "--weights-dir",
+        "w",
+    ]
+    assert action_first(parser, ["data", "--data-root=x", "describe", "cmu"]) == [
+        "data",
+        "describe",
+        "--data-root=x",
+        "cmu",
+    ]
+    # a folder named like an action is an option's value, not the action
+    assert action_first(parser, ["data", "--data-root", "list", "build", "cmu"]) == [
+        "data",
+        "build",
+        "--data-root",
+        "list",
+        "cmu",
+    ]
+    for argv in (["weights", "list", "--root", "w"], ["eval", "--model", "repeat_last"]):
+        assert action_first(parser, argv) == argv
+    assert main(["weights", "list", "--weights-dir", str(tmp_path)]) == 0
+    after = capsys.readouterr()
+    assert main(["weights", "--weights-dir", str(tmp_path), "list"]) == 0
+    assert capsys.readouterr().out == after.out
+
+
 def test_compare_refuses_an_unknown_sampler_by_name(capsys):
     from zoo.cli import main
 

@@ -1,4 +1,4 @@
-"""SpecTrHuMS: statistics, masking, phases, the three tasks, errors and checkpoints.
+"""SpecTrHuMS: statistics, masking, phases, the three tasks, its config, errors and checkpoints.
 
 Small configurations on a small mesh: the basis is the low-frequency eigenvectors of the graph
 Laplacian of a 6 x 5 grid, computed here (the tests do not depend on zoo.data.spectral).
@@ -14,13 +14,9 @@ import torch.nn.functional as F
 from torch import nn
 
 from zoo.data.spectral import SpectralBasis
-from zoo.models.spectrhums import (
-    EncoderLayer,
-    SpectralAutoencoder,
-    SpecTrHuMS,
-    SpecTrHuMSError,
-    Welford,
-)
+from zoo.models.latent_transformer import EncoderLayer
+from zoo.models.spectral_autoencoder import SpectralAutoencoder
+from zoo.models.spectrhums import SpecTrHuMS, SpecTrHuMSConfig, SpecTrHuMSError, Welford
 from zoo.registry import load_registry
 from zoo.train.recipe import learning_rate, training_recipe
 
@@ -502,6 +498,47 @@ def test_errors_name_the_argument_and_what_was_expected():
         completion(motion(2)[:, :T_IN], final_frame=motion(1)[:, -1])
     with pytest.raises(SpecTrHuMSError, match="rollout is long-term prediction"):
         completion.rollout(motion(1), 10)
+
+
+def test_config_holds_the_hyper_parameters_as_the_model_takes_them():
+    """The config's fields are the model's arguments but the basis, with the same defaults;
+    the model keeps the one it built, frozen, with channels and pooling as tuples."""
+    import dataclasses
+    import inspect
+
+    params = inspect.signature(SpecTrHuMS.__init__).parameters
+    taken = [(p.name, p.default) for p in params.values() if p.name not in ("self", "basis")]
+    held = [
+        (f.name, inspect.Parameter.empty if f.default is dataclasses.MISSING else f.default)
+        for f in dataclasses.fields(SpecTrHuMSConfig)
+    ]
+    assert taken == held
+    model = make(channels=[4, 8], pooling=[6, 3], static_frames=3)
+    assert model.config == SpecTrHuMSConfig(T_IN, T_OUT, V, **{**SMALL, "static_frames": 3})
+    assert (model.config.channels, model.config.pooling) == ((4, 8), (6, 3))
+    assert model.config.window == model.window == W
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        model.config.latent = 8
+
+
+def test_config_checks_itself_without_a_model_or_a_basis():
+    with pytest.raises(SpecTrHuMSError, match=rf"static_frames={W + 1}: at most the window"):
+        SpecTrHuMSConfig(T_IN, T_OUT, V, static_frames=W + 1)
+    with pytest.raises(SpecTrHuMSError, match="kernel_size: odd"):
+        SpecTrHuMSConfig(T_IN, T_OUT, V, kernel_size=2)
+    with pytest.raises(SpecTrHuMSError, match="d_model=10: must be even .* heads=4"):
+        SpecTrHuMSConfig(T_IN, T_OUT, V, d_model=10)
+    with pytest.raises(SpecTrHuMSError, match="autoencoder_epochs: a non-negative integer"):
+        SpecTrHuMSConfig(T_IN, T_OUT, V, autoencoder_epochs=-1)
+    with pytest.raises(SpecTrHuMSError, match="loss_unit_mm: positive"):
+        SpecTrHuMSConfig(T_IN, T_OUT, V, loss_unit_mm=0)
+    with pytest.raises(SpecTrHuMSError, match=r"channels\[1\]: a positive integer, got 0"):
+        SpecTrHuMSConfig(T_IN, T_OUT, V, channels=(4, 0))
+    with pytest.raises(SpecTrHuMSError, match="num_points: a positive integer, got True"):
+        SpecTrHuMSConfig(T_IN, T_OUT, True)
+    # the model checks its settings before its basis
+    with pytest.raises(SpecTrHuMSError, match="static_frames"):
+        SpecTrHuMS(T_IN, T_OUT, V, None, **{**SMALL, "static_frames": W + 1})
 
 
 # ---- checkpoints ---------------------------------------------------------------------------------

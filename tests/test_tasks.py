@@ -10,6 +10,7 @@ from zoo import create_model
 from zoo.benchmark import get_benchmark
 from zoo.cli import main
 from zoo.evaluation import EvaluationError, predict
+from zoo.models.hooks import ModelContractError
 
 
 class LastTwoFramesModel(torch.nn.Module):
@@ -24,6 +25,34 @@ def test_generic_longterm_loop_feeds_predictions_back():
     out = predict(LastTwoFramesModel(), history, "longterm", 5)
     assert out.shape == (1, 5, 2, 3)
     np.testing.assert_allclose(out[0, :, 0, 0].numpy(), [1, 1, 2, 2, 3])
+
+
+class OwnRolloutModel(LastTwoFramesModel):
+    """Long horizons by its own rollout (the ``rollout`` hook): the evaluator must use it."""
+
+    def rollout(self, history, frames):
+        return torch.full((history.shape[0], frames, *history.shape[2:]), 7.0)
+
+
+def test_longterm_uses_a_models_own_rollout():
+    out = predict(OwnRolloutModel(), torch.zeros(1, 3, 2, 3), "longterm", 5)
+    assert out.shape == (1, 5, 2, 3) and bool((out == 7.0).all())
+
+
+class HalfTrainingViewModel(torch.nn.Module):
+    """Defines one method of the training-view hook group only."""
+
+    def forward(self, history):
+        return history[:, -1:].repeat(1, 25, 1, 1)
+
+    def training_view(self, frames):
+        return frames
+
+
+def test_evaluator_refuses_half_a_hook_group_once_naming_what_is_missing(swinging_cmu):
+    root, _ = swinging_cmu
+    with pytest.raises(ModelContractError, match="half.*defines training_view but not"):
+        zoo.evaluate(HalfTrainingViewModel(), get_benchmark("cmu"), label="half", data_root=root)
 
 
 def test_longterm_repeat_last_by_hand(swinging_cmu):

@@ -50,7 +50,7 @@ _OPTIONAL = (
 # "module:function" that names one (``root``: where the data, or the cache of generated data,
 # lives; None: the loader's default).
 # An entry may also be ("module:function", {keyword: value}) to fix a loader's options.
-_ANNY = "zoo.data.anny_motion:cmu_anny_dataset"
+_ANNY = "zoo.data.anny.dataset:cmu_anny_dataset"
 MESH_DATASETS: dict[str, Any] = {
     "cloth": "zoo.data.cloth:cloth_dataset",
     "cloth_full": "zoo.data.cloth:cloth_full_dataset",

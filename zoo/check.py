@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from zoo.options import CHECK_WINDOWS
+from zoo.budgets import CHECK_WINDOWS
 from zoo.store import identity_differences, only_code_changed
 from zoo.tolerance import KEY_COLUMNS, agreement, tolerance_by_metric, window_gaps
 from zoo.tolerance import Incomparable as _Incomparable

@@ -13,7 +13,7 @@ import datetime as _dt
 import inspect
 import sys
 import traceback
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import partial
 from typing import Any
 
@@ -26,6 +26,7 @@ from zoo.distributed import DistInfo, gather_shares, init_distributed
 from zoo.errors import EvaluationError
 from zoo.io import code_version, progress_bar
 from zoo.metrics import FLOOR_SUFFIX, FrameErrorMean, cumulative_mean, skeleton_errors
+from zoo.models.hooks import Hooks, model_hooks
 from zoo.options import EVAL_BATCH
 from zoo.protocol import Protocol
 from zoo.results import RESULT_COLUMNS, EvalResult, WindowErrors
@@ -42,6 +43,7 @@ class Scored:
     name: str
     view: str = "mesh"
     provenance: dict[str, Any] | None = None
+    hooks: Hooks | None = field(default=None, init=False, repr=False)  # set by the pass
 
 
 def evaluate_models(
@@ -81,6 +83,8 @@ class _Pass:
             model = self.attempt(i, lambda model=scored.model: model.to(device).eval())
             if model is not None:
                 scored.model = model
+                # the optional hooks, read and checked once (zoo.models.hooks)
+                scored.hooks = self.attempt(i, partial(model_hooks, model, scored.name))
 
     def live(self) -> list[tuple[int, Scored]]:
         return [(i, m) for i, m in enumerate(self.models) if i not in self.failed]
@@ -202,7 +206,9 @@ def _evaluate_skeleton(
 
     def errors(scored: Scored, windows: torch.Tensor, start: int) -> dict:
         history = windows[:, :t_in, used].to(device)
-        pred = predict(scored.model, history, task, t_out, windows[:, -1, used].to(device))
+        pred = predict(
+            scored.model, history, task, t_out, windows[:, -1, used].to(device), hooks=scored.hooks
+        )
         pred = checked_prediction(pred, (len(history), t_out, len(used), 3), scored.name, start)
         return {
             (scored.name, "mpjpe", joints): _float64(e)
@@ -258,8 +264,11 @@ def predict(
     task: str,
     frames: int,
     final_frame: torch.Tensor | None = None,
+    *,
+    hooks: Hooks | None = None,
 ) -> torch.Tensor:
-    """A model's prediction for one of the evaluator's tasks (see ``TASKS``)."""
+    """A model's prediction for one of the evaluator's tasks (see ``TASKS``); ``hooks``: the
+    model's, when already read (:func:`zoo.models.hooks.model_hooks`)."""
     if task == "prediction":
         return model(history)
     if task == "completion":
@@ -268,7 +277,7 @@ def predict(
                 f"{type(model).__name__} does no completion: its forward takes no final_frame"
             )
         return model(history, final_frame=final_frame)
-    if hasattr(model, "rollout"):  # a model's own (cheaper) autoregression
+    if (hooks or model_hooks(model)).rollout:  # a model's own (cheaper) autoregression
         return model.rollout(history, frames)
     t_in, window, out, produced = history.shape[1], history, [], 0
     while produced < frames:
@@ -388,100 +397,22 @@ def _evaluate_mesh(
     models: list[Scored], protocol: Protocol, batch_size: int, device, keep_going: bool
 ) -> list[EvalResult | Exception]:
     """Models on a mesh benchmark: windows ``(B, T_in, V, 3)`` in, ``(B, T_out, V, 3)`` out,
-    rows for ``melv``, ``rmse`` and (with a joint regressor) ``mpjpe``.
-
-    ``melv_frames``: ``spectral`` (the default of benchmarks with a basis) measures MELV on the
-    k-coefficient reconstruction of the reference frame and of the scored frames, as SpecTrHuMS
-    does; ``raw`` on the frames as they are.
-
-    A model with an ``autoencoder_floor(frames)`` method (SpecTrHuMS) also gets the rows of
-    ``<name>:autoencoder``: the ground-truth future passed through its autoencoder alone, scored
-    like a prediction; what the model could reach if its transformer were perfect.
-
-    ``view='joints'``: a skeleton model sees the regressed joints ``(B, T_in, J, 3)`` of the same
-    windows and predicts ``(B, T_out, J, 3)``; it gets the ``mpjpe`` rows only, under the very
-    protocol record of the mesh models, so both share one MPJPE table.
-
+    rows for ``melv``, ``rmse`` and (with a joint regressor) ``mpjpe`` (:class:`_MeshScoring`).
     What the ground truth alone gives (its spectral reconstruction, the reference frame's edge
     lengths, its own MELV, its regressed joints) is computed once a batch for all the models."""
     from zoo.data.mesh import regress_joints
-    from zoo.data.spectral import SpectralBasis
-    from zoo.metrics import edge_lengths, length_variation, mpjpe, vertex_rmse
+    from zoo.metrics import length_variation
 
-    bench, dataset, task = protocol.benchmark, protocol.dataset, protocol.task
-    topology = dataset.topology
-    regressor = dataset.joint_regressor
+    scoring = _MeshScoring(protocol, device)
     run = _Pass(models, device, keep_going)
-
-    def view_of(scored: Scored) -> None:
-        if scored.view not in ("mesh", "joints"):
-            raise EvaluationError(f"view must be mesh or joints, got {scored.view!r}")
-        if scored.view == "joints" and regressor is None:
-            raise EvaluationError(
-                f"benchmark {bench.name}: {dataset.name} has no joint regressor, so "
-                f"skeleton model {scored.name!r} cannot be evaluated on it"
-            )
-
     for i, scored in run.live():
-        run.attempt(i, partial(view_of, scored))
-    t_out, index, basis = protocol.predicted_frames, protocol.index, protocol.basis
-    melv_frames = protocol.melv_frames
-    truth_basis = basis if protocol.ground_truth == "spectral" else None
-    joint_column = f"regressor{regressor.shape[0]}" if regressor is not None else None
-
-    def melv_lengths(frames: torch.Tensor) -> torch.Tensor:
-        """Edge lengths of the frames MELV is measured on."""
-        if melv_frames == "spectral":  # reconstructed from k coefficients (SpecTrHuMS)
-            frames = basis.reconstruct(basis.project(frames.double())).float()
-        return edge_lengths(frames, edges)
-
-    t_in = protocol.input_frames
-    vertices = [s.vertices for s in dataset.sequences]
-    edges = torch.as_tensor(np.asarray(topology.edges), dtype=torch.long)  # once, not per call
+        run.attempt(i, partial(scoring.check_view, scored))
+    t_in, t_out, index = protocol.input_frames, protocol.predicted_frames, protocol.index
+    truth_basis = protocol.basis if protocol.ground_truth == "spectral" else None
+    vertices = [s.vertices for s in protocol.dataset.sequences]
     dist_info = init_distributed(device)
-    batch = max(
-        1, min(batch_size, MESH_BATCH_VALUES // ((t_in + t_out) * topology.num_vertices * 3))
-    )
-    expected_tail = (t_out, topology.num_vertices, 3)
-
-    def joint_errors(scored: Scored, truth: _MeshTruth, start: int) -> dict:
-        joints = truth.joints()
-        pred = predict(
-            scored.model, joints[:, :t_in].to(device), task, t_out, joints[:, -1].to(device)
-        )
-        pred = checked_prediction(
-            pred, (len(joints), t_out, regressor.shape[0], 3), scored.name, start
-        )
-        return {(scored.name, "mpjpe", joint_column): _float64(mpjpe(pred, joints[:, t_in:]))}
-
-    def mesh_errors(scored: Scored, truth: _MeshTruth, start: int) -> dict:
-        windows = truth.windows
-        pred = predict(
-            scored.model, windows[:, :t_in].to(device), task, t_out, windows[:, -1].to(device)
-        )
-        pred = checked_prediction(pred, (len(windows), *expected_tail), scored.name, start)
-        scored_frames = {scored.name: pred}
-        floor = getattr(scored.model, "autoencoder_floor", None)
-        if floor is not None:
-            name = scored.name + FLOOR_SUFFIX
-            rebuilt = floor(truth.target.to(device))
-            scored_frames[name] = checked_prediction(
-                rebuilt, (len(windows), *expected_tail), name, start
-            )
-        errors = {}
-        for name, frames in scored_frames.items():
-            errors[(name, "melv", "vertices")] = length_variation(
-                melv_lengths(frames), truth.reference_lengths
-            )
-            errors[(name, "rmse", "vertices")] = vertex_rmse(frames, truth.target)
-            if regressor is not None:
-                predicted_joints = regress_joints(frames, regressor)
-                errors[(name, "mpjpe", joint_column)] = mpjpe(
-                    predicted_joints, truth.joints()[:, t_in:]
-                )
-        errors = {key: _float64(value) for key, value in errors.items()}
-        errors[("ground_truth", "melv", "vertices")] = truth.melv
-        return errors
+    num_vertices = protocol.dataset.topology.num_vertices
+    batch = max(1, min(batch_size, MESH_BATCH_VALUES // ((t_in + t_out) * num_vertices * 3)))
 
     with torch.no_grad(), _progress(protocol, models, dist_info) as bar:
         for start in _my_batches(len(index), batch, dist_info):
@@ -493,20 +424,122 @@ def _evaluate_mesh(
             windows = torch.from_numpy(gather_windows(vertices, index[rows], t_in + t_out))
             if truth_basis is not None:
                 windows = truth_basis.reconstruct(truth_basis.project(windows.double())).float()
-            truth = _MeshTruth(windows, t_in, partial(regress_joints, regressor=regressor))
+            truth = _MeshTruth(windows, t_in, partial(regress_joints, regressor=scoring.regressor))
             if any(s.view == "mesh" for _, s in live):
                 reference = windows[:, t_in - 1 : t_in]
-                truth.reference_lengths = melv_lengths(reference)[:, 0]
+                truth.reference_lengths = scoring.melv_lengths(reference)[:, 0]
                 # the data's own MELV: the ground-truth rows of every mesh model
                 truth.melv = _float64(
-                    length_variation(melv_lengths(truth.target), truth.reference_lengths)
+                    length_variation(scoring.melv_lengths(truth.target), truth.reference_lengths)
                 )
-
             for i, scored in live:
-                errors = joint_errors if scored.view == "joints" else mesh_errors
+                errors = scoring.joint_errors if scored.view == "joints" else scoring.mesh_errors
                 run.score(i, start, partial(errors, scored, truth, start))
 
-    def finish(scored: Scored, batches: dict) -> EvalResult:
+    return run.results(dist_info, scoring.finish)
+
+
+class _MeshScoring:
+    """How one mesh protocol scores a model on a batch of windows.
+
+    ``melv_frames``: ``spectral`` (the default of benchmarks with a basis) measures MELV on the
+    k-coefficient reconstruction of the reference frame and of the scored frames, as SpecTrHuMS
+    does; ``raw`` on the frames as they are.
+
+    A model with the ``autoencoder_floor`` hook (SpecTrHuMS) also gets the rows of
+    ``<name>:autoencoder``: the ground-truth future passed through its autoencoder alone, scored
+    like a prediction; what the model could reach if its transformer were perfect.
+
+    ``view='joints'``: a skeleton model sees the regressed joints ``(B, T_in, J, 3)`` of the same
+    windows and predicts ``(B, T_out, J, 3)``; it gets the ``mpjpe`` rows only, under the very
+    protocol record of the mesh models, so both share one MPJPE table."""
+
+    def __init__(self, protocol: Protocol, device) -> None:
+        self.protocol, self.device = protocol, device
+        self.regressor = protocol.dataset.joint_regressor
+        self.t_in, self.t_out = protocol.input_frames, protocol.predicted_frames
+        num_vertices = protocol.dataset.topology.num_vertices
+        self.expected_tail = (self.t_out, num_vertices, 3)
+        self.joint_column = (
+            f"regressor{self.regressor.shape[0]}" if self.regressor is not None else None
+        )
+        # once, not per call
+        self.edges = torch.as_tensor(np.asarray(protocol.dataset.topology.edges), dtype=torch.long)
+
+    def check_view(self, scored: Scored) -> None:
+        if scored.view not in ("mesh", "joints"):
+            raise EvaluationError(f"view must be mesh or joints, got {scored.view!r}")
+        if scored.view == "joints" and self.regressor is None:
+            raise EvaluationError(
+                f"benchmark {self.protocol.benchmark.name}: {self.protocol.dataset.name} has no "
+                f"joint regressor, so skeleton model {scored.name!r} cannot be evaluated on it"
+            )
+
+    def melv_lengths(self, frames: torch.Tensor) -> torch.Tensor:
+        """Edge lengths of the frames MELV is measured on."""
+        from zoo.metrics import edge_lengths
+
+        if self.protocol.melv_frames == "spectral":  # reconstructed from k coefficients
+            basis = self.protocol.basis
+            frames = basis.reconstruct(basis.project(frames.double())).float()
+        return edge_lengths(frames, self.edges)
+
+    def joint_errors(self, scored: Scored, truth: _MeshTruth, start: int) -> dict:
+        from zoo.metrics import mpjpe
+
+        t_in, device = self.t_in, self.device
+        joints = truth.joints()
+        pred = predict(
+            scored.model,
+            joints[:, :t_in].to(device),
+            self.protocol.task,
+            self.t_out,
+            joints[:, -1].to(device),
+            hooks=scored.hooks,
+        )
+        pred = checked_prediction(
+            pred, (len(joints), self.t_out, self.regressor.shape[0], 3), scored.name, start
+        )
+        return {(scored.name, "mpjpe", self.joint_column): _float64(mpjpe(pred, joints[:, t_in:]))}
+
+    def mesh_errors(self, scored: Scored, truth: _MeshTruth, start: int) -> dict:
+        from zoo.data.mesh import regress_joints
+        from zoo.metrics import length_variation, mpjpe, vertex_rmse
+
+        windows, device, expected = truth.windows, self.device, (len(truth.windows),)
+        expected += self.expected_tail
+        pred = predict(
+            scored.model,
+            windows[:, : self.t_in].to(device),
+            self.protocol.task,
+            self.t_out,
+            windows[:, -1].to(device),
+            hooks=scored.hooks,
+        )
+        scored_frames = {scored.name: checked_prediction(pred, expected, scored.name, start)}
+        if scored.hooks is not None and scored.hooks.autoencoder_floor:
+            name = scored.name + FLOOR_SUFFIX
+            rebuilt = scored.model.autoencoder_floor(truth.target.to(device))
+            scored_frames[name] = checked_prediction(rebuilt, expected, name, start)
+        errors = {}
+        for name, frames in scored_frames.items():
+            errors[(name, "melv", "vertices")] = length_variation(
+                self.melv_lengths(frames), truth.reference_lengths
+            )
+            errors[(name, "rmse", "vertices")] = vertex_rmse(frames, truth.target)
+            if self.regressor is not None:
+                predicted_joints = regress_joints(frames, self.regressor)
+                errors[(name, "mpjpe", self.joint_column)] = mpjpe(
+                    predicted_joints, truth.joints()[:, self.t_in :]
+                )
+        errors = {key: _float64(value) for key, value in errors.items()}
+        errors[("ground_truth", "melv", "vertices")] = truth.melv
+        return errors
+
+    def finish(self, scored: Scored, batches: dict) -> EvalResult:
+        from zoo.data.spectral import SpectralBasis
+
+        basis, dataset = self.protocol.basis, self.protocol.dataset
         model_basis = getattr(scored.model, "basis", None)
         recorded = {
             # The data are named by their recipe in the protocol; the bytes of a generated mesh
@@ -523,14 +556,12 @@ def _evaluate_mesh(
                 else {}
             ),
             **(
-                {"model_input": f"regressed joints ({joint_column})"}
+                {"model_input": f"regressed joints ({self.joint_column})"}
                 if scored.view == "joints"
                 else {}
             ),
         }
-        return _finished(protocol, scored, batches, device, recorded)
-
-    return run.results(dist_info, finish)
+        return _finished(self.protocol, scored, batches, self.device, recorded)
 
 
 class _MeshTruth:

@@ -1,22 +1,9 @@
 """Where results go, and what a stored result is: its location and its identity.
 
-A result lives in ``<root>/<benchmark>/<table>/<label>/`` (``results.csv``, ``protocol.json``,
-``tables.md``, ``windows.npz``), where ``<table>`` names the sampler, task and ground truth
-(:func:`table_folder`) and ``<label>`` the row (a model's name, ``<model>@last``, or a label of
-the user's own). Its **identity** is what was measured, recorded in ``protocol.json`` under
-``provenance.identity``:
-
-- ``benchmark`` and ``protocol_id`` (data files and their hashes, windows, frames, metrics);
-- ``model``: the registry name, class path, registry file and every hyper-parameter (a bare
-  ``nn.Module`` handed to :func:`zoo.evaluate`: its class and a hash of its weights);
-- ``trained``: the sha256 of the shipped weights or checkpoint it was computed from;
-- ``code``: fingerprints of the evaluator, the metrics, the window sampler and the model's
-  own code (:func:`model_fingerprint`: the definitions its class reaches), each of syntax trees
-  without docstrings, so comments and formatting do not count and any change to what the code
-  does does.
-
-A store never replaces a result of another identity unless told to (the error names the fields
-that differ), and the leaderboard reuses a stored row exactly while its identity holds.
+A result's folder is ``<root>/<benchmark>/<table>/<label>/`` (:func:`table_folder`); its identity
+(:func:`result_identity`, code fingerprints by :func:`model_fingerprint`) is what was measured,
+and a store never replaces a result of another identity unless told to. The layout and the
+identity's fields: docs/results.md ("What a stored row is").
 """
 
 from __future__ import annotations
@@ -40,7 +27,8 @@ IDENTITY_VERSION = 1
 # others (metrics, windows, benchmarks, data loaders and forward kinematics, spectral bases);
 # a model's code is its file and the zoo modules it imports. Left out: modules that only
 # present, store or move results and cannot change a number (tables, the result files,
-# intervals, files and locks, paths, errors, the process group).
+# intervals, files and locks, paths, errors, the process group, the check's and costs'
+# budgets).
 EVALUATOR = "zoo/evaluation.py"
 NOT_COMPUTING = frozenset(
     {
@@ -52,6 +40,7 @@ NOT_COMPUTING = frozenset(
         "zoo/paths.py",
         "zoo/errors.py",
         "zoo/distributed.py",
+        "zoo/budgets.py",
     }
 )
 LABEL_PATTERN = r"[A-Za-z0-9_][A-Za-z0-9_.@+=,-]*"

@@ -27,12 +27,12 @@ from tabulate import tabulate
 REPO = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(REPO))
 
-from zoo.data import anny_motion as am  # noqa: E402
+from zoo.data import anny as zoo_anny  # noqa: E402
 from zoo.data.bvh import CMU_BVH_JOINTS, read_bvh  # noqa: E402
 
 DEFAULT_BVH = REPO.parent / "shared" / "data" / "cmu_bvh"
 LOAD_SNIPPET = (
-    "import time; import anny; from zoo.data.anny_motion import load_anny_model; "
+    "import time; import anny; from zoo.data.anny import load_anny_model; "
     "t = time.perf_counter(); load_anny_model({topology!r}); "
     "print(time.perf_counter() - t)"
 )
@@ -54,9 +54,9 @@ def timed_load(topology: str, cache: str | None) -> float:
 
 
 def skin_rate(model, params: np.ndarray, batch: int) -> float:
-    am.skin(model, params[:batch], batch_size=batch)  # warm-up (kernel load, allocations)
+    zoo_anny.skin(model, params[:batch], batch_size=batch)  # warm-up (kernel load, allocations)
     t = time.perf_counter()
-    am.skin(model, params, batch_size=batch)
+    zoo_anny.skin(model, params, batch_size=batch)
     return len(params) / (time.perf_counter() - t)
 
 
@@ -88,14 +88,14 @@ def main(argv: list[str] | None = None) -> None:
     print(tabulate(rows, headers=["model load", "time"]))
     print()
 
-    trial = next(t for t in am.list_trials(args.bvh_root) if t.key == args.trial)
+    trial = next(t for t in zoo_anny.list_trials(args.bvh_root) if t.key == args.trial)
     rows = []
     for topology in ("low", "full"):
-        model = am.load_anny_model(topology)
+        model = zoo_anny.load_anny_model(topology)
         t = time.perf_counter()
         bvh = read_bvh(trial.path, CMU_BVH_JOINTS)
-        rots = am.motion_rotations(bvh)
-        target = am.retarget(model, bvh)
+        rots = zoo_anny.motion_rotations(bvh)
+        target = zoo_anny.retarget(model, bvh)
         params = target.pose_parameters(rots)
         prep = time.perf_counter() - t
         tiled = np.concatenate([params] * (args.frames // len(params) + 1))[: args.frames]
@@ -111,7 +111,7 @@ def main(argv: list[str] | None = None) -> None:
                 ]
             )
         t = time.perf_counter()
-        am.skin(model, params, batch_size=max(batches))
+        zoo_anny.skin(model, params, batch_size=max(batches))
         end_to_end = len(params) / (prep + time.perf_counter() - t)
         rows.append(
             [
@@ -125,7 +125,7 @@ def main(argv: list[str] | None = None) -> None:
     print(tabulate(rows, headers=["topology", "vertices", "batch", "frames/s", "ms/frame"]))
     print(
         f"\n{args.frames} frames of {trial.key} per figure, float32, torch threads "
-        f"{torch.get_num_threads()}, anny {am.anny_version()}"
+        f"{torch.get_num_threads()}, anny {zoo_anny.anny_version()}"
     )
 
 

@@ -54,7 +54,7 @@ def uv_sphere(rings: int = 127, segments: int = 108, seed: int = 0) -> MeshTopol
 def anny_topology() -> MeshTopology | None:
     """Anny's full-resolution triangulation, or None without ``anny`` (or its cached build)."""
     try:
-        from zoo.data.anny_motion import load_anny_model, model_faces
+        from zoo.data.anny import load_anny_model, model_faces
     except ImportError:
         return None
     model = load_anny_model("full")

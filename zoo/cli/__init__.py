@@ -7,6 +7,7 @@ what they share is in :mod:`zoo.cli.common`. Nothing here imports torch until a 
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from collections.abc import Sequence
 
@@ -26,6 +27,7 @@ from zoo.cli import (
 from zoo.cli.common import (
     HelpFormatter,
     UsageError,
+    action_first,
     check_device,
     in_flags,
     parse_overrides,
@@ -66,7 +68,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
+    argv = sys.argv[1:] if argv is None else argv
+    args = parser.parse_args(action_first(parser, argv))
     try:
         if getattr(args, "device", None) is not None:
             check_device(args.device)
@@ -76,6 +79,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ZooError as e:
         print(f"zoo {args.command}: error: {in_flags(e)}", file=sys.stderr)
         return 2
+    except BrokenPipeError:  # the reader left (zoo list | head): no traceback, no more output
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 141
     except KeyboardInterrupt:
         print(
             f"zoo {args.command}: interrupted (nothing half-written is left; a training run "

@@ -67,6 +67,42 @@ def add_command(sub, name: str, help: str, run, **kwargs) -> argparse.ArgumentPa
     return p
 
 
+def _subparsers(parser: argparse.ArgumentParser) -> dict[str, argparse.ArgumentParser]:
+    for action in parser._actions:  # argparse keeps its subcommands nowhere public
+        if isinstance(action, argparse._SubParsersAction):
+            return dict(action.choices)
+    return {}
+
+
+def action_first(parser: argparse.ArgumentParser, argv: Sequence[str]) -> list[str]:
+    """``argv`` with the options written between a nested command and its action moved after
+    the action (``zoo weights --weights-dir X list`` -> ``zoo weights list --weights-dir X``):
+    the order the positional actions of earlier releases accepted, which argparse's nested
+    subcommands refuse."""
+    argv = list(argv)
+    commands = _subparsers(parser)
+    at = next((i for i, token in enumerate(argv) if token in commands), None)
+    if at is None:
+        return argv
+    actions = _subparsers(commands[argv[at]])
+    if not actions:
+        return argv
+    takes_value = {
+        option
+        for child in actions.values()
+        for a in child._actions
+        if a.nargs != 0
+        for option in a.option_strings
+    }
+    i = at + 1
+    while i < len(argv) and argv[i].startswith("-") and argv[i] != "--":
+        option = argv[i]
+        i += 2 if option in takes_value and "=" not in option else 1
+    if i == at + 1 or i >= len(argv) or argv[i] not in actions:
+        return argv
+    return argv[: at + 1] + [argv[i]] + argv[at + 1 : i] + argv[i + 1 :]
+
+
 class Deprecated(argparse.Action):
     """An old spelling of an option: it still works this release, with a line saying which
     one replaces it."""

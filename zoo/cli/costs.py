@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from zoo.budgets import COST_SECONDS
 from zoo.cli.common import (
     Deprecated,
     UsageError,
@@ -14,7 +15,6 @@ from zoo.cli.common import (
     results_option,
     weights_dir_option,
 )
-from zoo.options import COST_SECONDS
 from zoo.paths import REPO_ROOT
 
 

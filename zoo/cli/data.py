@@ -147,38 +147,28 @@ def _data_basis(bench, args) -> int:
     """``zoo data basis NAME``: the basis this machine computes for the benchmark's mesh,
     aligned to the shipped reference and checked against it; ``--ship`` writes the reference
     for a mesh that has none yet."""
-    import time
-
-    from zoo.data.spectral import BasisReference, SpectralBasis, reference_path
+    from zoo.data.spectral import check_basis_reference, reference_path, ship_basis_reference
 
     if bench.spectral_k is None:
         raise UsageError(f"benchmark {bench.name} has no spectral basis (no spectral_k)")
     topology = bench.load_mesh(args.data_root).topology
     path = reference_path(topology, bench.spectral_k)
-    if args.ship and path.is_file():
-        raise UsageError(
-            f"{path} is shipped already (trained weights depend on its frame); delete it "
-            f"deliberately to ship another"
-        )
     if not args.ship and not path.is_file():
         raise UsageError(
             f"no shipped basis reference for {bench.name} ({path}); zoo data basis "
             f"{bench.name} --ship writes one"
         )
-    print(f"computing the basis of {topology.name} (k={bench.spectral_k}) ...", file=sys.stderr)
-    started = time.perf_counter()
-    computed = SpectralBasis.compute(topology, bench.spectral_k)
-    took = time.perf_counter() - started
-    if args.ship:
-        BasisReference.of(computed).save(path)
+    if args.ship:  # refused at once where a reference is shipped
+        path, computed, took = ship_basis_reference(topology, bench.spectral_k)
         print(f"wrote {path} ({computed.solver}, {took:.1f} s)")
         return 0
-    reference = BasisReference.load(path)
-    report = reference.misfit(computed)
+    print(f"computing the basis of {topology.name} (k={bench.spectral_k}) ...", file=sys.stderr)
+    check = check_basis_reference(topology, bench.spectral_k)
+    report = check.report
     print(
-        f"{bench.name}: basis {reference.hash[:12]} computed here in {took:.1f} s: eigenvalues "
-        f"within {report['eigenvalues']:.2g} of the shipped reference, probe projections "
-        f"within {report['misfit']:.2g} after alignment (worst: vectors "
+        f"{bench.name}: basis {check.reference.hash[:12]} computed here in {check.seconds:.1f} s: "
+        f"eigenvalues within {report['eigenvalues']:.2g} of the shipped reference, probe "
+        f"projections within {report['misfit']:.2g} after alignment (worst: vectors "
         f"{report['worst_group']}): {'the same basis' if report['same'] else 'ANOTHER BASIS'}"
     )
     return 0 if report["same"] else 1
@@ -190,7 +180,7 @@ def _data_regressor(bench, args) -> int:
     import time
 
     from zoo.benchmark import MESH_DATASETS
-    from zoo.data import anny_motion as am
+    from zoo.data import anny
 
     loader, options = MESH_DATASETS.get(bench.dataset, (None, {}))
     if not str(loader).endswith(":cmu_anny_dataset"):
@@ -202,27 +192,16 @@ def _data_regressor(bench, args) -> int:
     root = args.data_root or bench.resolve_data_root()
     if root is None:
         raise UsageError(f"{bench.name}: give --data-root (the CMU BVH folder)")
-    path = am.shipped_regressor_path(topology, am.regressor_recipe(root, topology)[0])
     if args.ship:
-        if path.is_file():
-            raise UsageError(
-                f"{path} is shipped already (committed MPJPE rows depend on it); delete it "
-                f"deliberately to ship another"
-            )
-        import shutil
-        import tempfile
-
-        # The one fitting path (joint_regressor, which fits where none is shipped), into a
-        # scratch cache, then its file moved to where it ships.
-        with tempfile.TemporaryDirectory() as scratch:
-            fitted = am.joint_regressor(root, topology, cache_dir=scratch)
-            path.parent.mkdir(parents=True, exist_ok=True)
-            shutil.move(fitted.source, path)
+        try:
+            path, fitted = anny.ship_joint_regressor(root, topology)
+        except anny.RegressorShippedError as e:
+            raise UsageError(str(e)) from None
         print(f"wrote {path} ({fitted.matrix.nnz} weights; fit {fitted.recipe['fit_mean_mm']} mm)")
         return 0
     print(f"fitting the joint regressor of the {topology} Anny body ...", file=sys.stderr)
     started = time.perf_counter()
-    report = am.check_joint_regressor(root, topology)
+    report = anny.check_joint_regressor(root, topology)
     took = time.perf_counter() - started
     print(
         f"{bench.name}: joint regressor {report['path'].name} fitted here in {took:.1f} s: "
@@ -230,7 +209,7 @@ def _data_regressor(bench, args) -> int:
         f"against {report['support'][1]} non-zeros; a joint's row within "
         f"{report['rows_l1']:.2g} in L1), regressed joints on the fit's "
         f"{int(report['stats']['fit_frames'][0])} frames within {report['joints_mm']:.3g} mm "
-        f"(mean {report['joints_mean_mm']:.2g} mm; tolerance {am.REGRESSOR_TOLERANCE_MM} mm): "
+        f"(mean {report['joints_mean_mm']:.2g} mm; tolerance {anny.REGRESSOR_TOLERANCE_MM} mm): "
         + (
             "the same regressor"
             if report["same"]

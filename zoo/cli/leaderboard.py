@@ -5,6 +5,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+from zoo.budgets import CHECK_WINDOWS
 from zoo.cli.common import (
     Deprecated,
     UsageError,
@@ -16,7 +17,6 @@ from zoo.cli.common import (
     results_option,
     weights_dir_option,
 )
-from zoo.options import CHECK_WINDOWS
 from zoo.paths import REPO_ROOT
 
 

@@ -352,30 +352,7 @@ def build_amass(
         if files is None
         else [Path(f) if Path(f).is_absolute() else root / f for f in files]
     )
-    models = (
-        {"any": Path(model)}
-        if isinstance(model, (str, Path))
-        else {str(k).lower(): Path(v) for k, v in model.items()}
-    )
-    if not models:
-        raise ValueError("model: no SMPL-H model file given")
-    loaded = {g: load_smplh(p) for g, p in models.items()}
-    faces = {m.faces.tobytes() for m in loaded.values()}
-    if len(faces) != 1 or len({m.num_vertices for m in loaded.values()}) != 1:
-        raise DataFormatError(
-            f"model: the SMPL-H files {[str(p) for p in models.values()]} do "
-            f"not share one triangulation"
-        )
-    reg_gender = (
-        "any" if "any" in loaded else ("neutral" if "neutral" in loaded else sorted(loaded)[0])
-    )
-    reg_model = loaded[reg_gender]
-    if reg_model.num_joints < len(SMPLH_BODY_JOINTS):
-        raise DataFormatError(
-            f"{reg_model.path}: {reg_model.num_joints} joints, fewer than the "
-            f"{len(SMPLH_BODY_JOINTS)} SMPL body joints"
-        )
-    regressor = sp.csr_matrix(reg_model.j_regressor[: len(SMPLH_BODY_JOINTS)].numpy())
+    loaded, reg_gender, regressor = _smplh_models(model)
     recipe = {
         "builder": "zoo.data.amass.build_amass",
         "format": DATASET_FORMAT,
@@ -398,40 +375,10 @@ def build_amass(
             return cached
     first = next(iter(loaded.values()))
     topology = MeshTopology(first.faces, first.num_vertices, name=f"{name}-smplh")
-    sequences = []
-    for path, entry in zip(
-        progress_bar(paths, desc=f"{name}-{split}", unit="file", disable=not progress),
-        recipe["files"],
-    ):
-        motion = read_amass(path, first.num_joints)
-        body = loaded.get("any") or loaded.get(motion.gender)
-        if body is None:
-            raise DataFormatError(
-                f"{path}: gender {motion.gender!r} has no model (given: "
-                f"{', '.join(sorted(loaded))})"
-            )
-        vertices, stride = amass_vertices(body, motion)
-        rel = entry["file"]
-        parts = Path(rel).parts
-        sequences.append(
-            MeshSequence(
-                name=rel,
-                action=parts[0] if len(parts) > 1 else name,
-                vertices=vertices,
-                fps=motion.fps / stride,
-                identity=_body_identity(motion, body),
-                meta={
-                    "file": rel,
-                    "sha256": entry["sha256"],
-                    "gender": motion.gender,
-                    "source_fps": motion.fps,
-                    "stride": stride,
-                    "effective_fps": motion.fps / stride,
-                    "source_frames": len(motion.poses),
-                    "betas_used": int(min(len(motion.betas), body.num_betas)),
-                },
-            )
-        )
+    bar = progress_bar(paths, desc=f"{name}-{split}", unit="file", disable=not progress)
+    sequences = [
+        _amass_sequence(path, entry, loaded, name) for path, entry in zip(bar, recipe["files"])
+    ]
     dataset = MeshDataset(
         name=f"{name}-{split}",
         split=split,
@@ -463,3 +410,68 @@ def _canonical(data: Any) -> str:
     from zoo.io import canonical_json
 
     return canonical_json(data)
+
+
+def _smplh_models(
+    model: str | Path | Mapping[str, str | Path],
+) -> tuple[dict[str, SMPLH], str, sp.csr_matrix]:
+    """``build_amass``'s bodies by gender (``"any"`` for one file), the gender whose joint
+    regressor the dataset carries, and that regressor's body rows."""
+    models = (
+        {"any": Path(model)}
+        if isinstance(model, (str, Path))
+        else {str(k).lower(): Path(v) for k, v in model.items()}
+    )
+    if not models:
+        raise ValueError("model: no SMPL-H model file given")
+    loaded = {g: load_smplh(p) for g, p in models.items()}
+    faces = {m.faces.tobytes() for m in loaded.values()}
+    if len(faces) != 1 or len({m.num_vertices for m in loaded.values()}) != 1:
+        raise DataFormatError(
+            f"model: the SMPL-H files {[str(p) for p in models.values()]} do "
+            f"not share one triangulation"
+        )
+    reg_gender = (
+        "any" if "any" in loaded else ("neutral" if "neutral" in loaded else sorted(loaded)[0])
+    )
+    reg_model = loaded[reg_gender]
+    if reg_model.num_joints < len(SMPLH_BODY_JOINTS):
+        raise DataFormatError(
+            f"{reg_model.path}: {reg_model.num_joints} joints, fewer than the "
+            f"{len(SMPLH_BODY_JOINTS)} SMPL body joints"
+        )
+    regressor = sp.csr_matrix(reg_model.j_regressor[: len(SMPLH_BODY_JOINTS)].numpy())
+    return loaded, reg_gender, regressor
+
+
+def _amass_sequence(
+    path: Path, entry: dict[str, str], loaded: dict[str, SMPLH], name: str
+) -> MeshSequence:
+    """One AMASS file posed on its gender's body (``entry``: its recipe record)."""
+    first = next(iter(loaded.values()))
+    motion = read_amass(path, first.num_joints)
+    body = loaded.get("any") or loaded.get(motion.gender)
+    if body is None:
+        raise DataFormatError(
+            f"{path}: gender {motion.gender!r} has no model (given: {', '.join(sorted(loaded))})"
+        )
+    vertices, stride = amass_vertices(body, motion)
+    rel = entry["file"]
+    parts = Path(rel).parts
+    return MeshSequence(
+        name=rel,
+        action=parts[0] if len(parts) > 1 else name,
+        vertices=vertices,
+        fps=motion.fps / stride,
+        identity=_body_identity(motion, body),
+        meta={
+            "file": rel,
+            "sha256": entry["sha256"],
+            "gender": motion.gender,
+            "source_fps": motion.fps,
+            "stride": stride,
+            "effective_fps": motion.fps / stride,
+            "source_frames": len(motion.poses),
+            "betas_used": int(min(len(motion.betas), body.num_betas)),
+        },
+    )

@@ -8,9 +8,12 @@ trained on. docs/reproducibility.md ("Spectral bases") says why and how well.
 from __future__ import annotations
 
 import hashlib
+import time
 import warnings
 import zipfile
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import scipy.linalg
@@ -549,6 +552,48 @@ class BasisReference:
             "worst_group": where,
             "same": eigen <= BASIS_TOLERANCE and worst <= ALIGN_TOLERANCE,
         }
+
+
+@dataclass(frozen=True)
+class BasisCheck:
+    """A basis computed on this machine against its shipped reference (:meth:`misfit`'s
+    ``report``), and how long the computation took."""
+
+    reference: BasisReference
+    computed: SpectralBasis
+    seconds: float
+    report: dict[str, Any]
+
+
+def _timed_basis(topology: MeshTopology, k: int) -> tuple[SpectralBasis, float]:
+    started = time.perf_counter()
+    computed = SpectralBasis.compute(topology, k)
+    return computed, time.perf_counter() - started
+
+
+def check_basis_reference(topology: MeshTopology, k: int) -> BasisCheck:
+    """The basis of ``topology`` computed here, aligned to its shipped reference and measured
+    against it; :class:`SpectralError` when no reference is shipped."""
+    path = reference_path(topology, k)
+    if not path.is_file():
+        raise SpectralError(f"{path}: no shipped basis reference for {topology.name} (k={k})")
+    reference = BasisReference.load(path)
+    computed, seconds = _timed_basis(topology, k)
+    return BasisCheck(reference, computed, seconds, reference.misfit(computed))
+
+
+def ship_basis_reference(topology: MeshTopology, k: int) -> tuple[Path, SpectralBasis, float]:
+    """Compute the basis of a mesh that has no reference yet and write its reference where it
+    ships; a shipped one is never replaced (trained weights depend on its frame)."""
+    path = reference_path(topology, k)
+    if path.is_file():
+        raise SpectralError(
+            f"{path} is shipped already (trained weights depend on its frame); delete it "
+            f"deliberately to ship another"
+        )
+    computed, seconds = _timed_basis(topology, k)
+    BasisReference.of(computed).save(path)
+    return path, computed, seconds
 
 
 def cache_path(topology: MeshTopology, k: int, cache_dir: str | Path | None = None) -> Path:

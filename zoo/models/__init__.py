@@ -15,8 +15,11 @@ The common contract (all a model needs to be evaluated, trained and registered):
   dataset's ``zoo.data.spectral.SpectralBasis``, SpecTrHuMS);
 - completion models (registry ``task: completion``) take ``forward(history, final_frame)``,
   ``final_frame (B, P, 3)`` being the last of the ``T_out`` frames to fill in;
-- optional training hooks ``training_loss(history, future)`` and ``start_epoch(epoch, frames)``,
-  and a training view (``training_view``, ``training_view_identity``, ``training_loss_view``:
-  a representation of the frames computed once and cached, SpecTrHuMS's coefficients); see
-  ``zoo.train``.
+- optional hooks, each a ``typing.Protocol`` of :mod:`zoo.models.hooks`, read once by the
+  engine and the evaluator with ``model_hooks`` (a model defining half a group is refused):
+  ``training_loss`` (its own loss), ``start_epoch`` (a per-epoch step), the training view
+  (``training_view``, ``training_view_identity``, ``training_loss_view``: a representation of
+  the frames computed once and cached, SpecTrHuMS's coefficients), ``rollout`` (its own
+  autoregression for long horizons) and ``autoencoder_floor`` (the ground truth through its
+  autoencoder alone: the ``<name>:autoencoder`` rows of mesh tables).
 """

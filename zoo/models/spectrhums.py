@@ -35,13 +35,17 @@ unit of the published SMPL data, while the model's inputs and outputs are in mm 
 
 Long-term prediction (``rollout``) feeds the last ``T_in`` frames back: predicted coefficients
 are re-encoded, which equals projecting their reconstructed vertices since ``Phi^T Phi = I``.
+
+The autoencoder lives in :mod:`zoo.models.spectral_autoencoder`, the transformer in
+:mod:`zoo.models.latent_transformer`; this module holds the model, its hyper-parameters
+(:class:`SpecTrHuMSConfig`), the statistics and the basis checks.
 """
 
 from __future__ import annotations
 
 import hashlib
-import math
 from collections.abc import Callable, Iterable, Iterator, Sequence
+from dataclasses import dataclass, fields
 from typing import Any
 
 import numpy as np
@@ -51,11 +55,13 @@ from torch import Tensor, nn
 
 from zoo.data.spectral import probe_projections
 from zoo.errors import ZooError
+from zoo.models.latent_transformer import LatentTransformer
+from zoo.models.spectral_autoencoder import SpectralAutoencoder
 
 TASKS = ("prediction", "completion")
-# Largest |difference| of basis probe projections (values up to about 4) that counts as the same
-# basis: float16 storage rounds them by up to 2e-3, other machines' solvers by about 1e-11, while
-# a flipped sign or a rotated eigenspace moves them by about 1.
+# Largest |difference| of basis probe projections that counts as the same basis: above rounding
+# (float16 storage, other machines' solvers), far below a flipped sign or a rotated eigenspace
+# (the sizes: docs/models/spectrhums.md, "Implementation notes").
 PROBE_TOLERANCE = 1e-2
 _STD_FLOOR = 1e-6  # a feature whose std is below this is only centred (its std is set to 1)
 _FRAMES_PER_CHUNK = 2048  # frames projected at once when computing statistics
@@ -116,223 +122,115 @@ def _floored(std: Tensor) -> Tensor:
     return torch.where(std < _STD_FLOOR, torch.ones_like(std), std)
 
 
-# ---- building blocks -------------------------------------------------------------------------
+# ---- the hyper-parameters -------------------------------------------------------------------
 
 
-class FrequencyPooling(nn.Module):
-    """A learned matrix along the frequency axis: ``(N, C, n_in) -> (N, C, n_out)``."""
-
-    def __init__(self, n_in: int, n_out: int) -> None:
-        super().__init__()
-        self.weight = nn.Parameter(torch.empty(n_in, n_out))
-        nn.init.xavier_uniform_(self.weight)
-
-    def forward(self, x: Tensor) -> Tensor:
-        return x @ self.weight
-
-    def extra_repr(self) -> str:
-        return f"{self.weight.shape[0]} -> {self.weight.shape[1]}"
+def _positive(name: str, value: Any) -> None:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+        raise SpecTrHuMSError(f"{name}: a positive integer, got {value!r}")
 
 
-class SpectralAutoencoder(nn.Module):
-    """Per-frame autoencoder of standardised coefficients ``(N, k, 3) <-> (N, latent)``.
+@dataclass(frozen=True)
+class SpecTrHuMSConfig:
+    """SpecTrHuMS's hyper-parameters: :class:`SpecTrHuMS`'s arguments but the basis, with the
+    same defaults. Checked on construction (a bad value raises :class:`SpecTrHuMSError` naming
+    it); ``channels`` and ``pooling`` are kept as tuples."""
 
-    Encoder: for each level, ``Conv1d`` along the frequency axis (zero padding, same length),
-    learned pooling of that axis, ELU; then flatten (channel-major) and a linear layer to the
-    latent. Decoder: the mirror image (linear, then per level unpooling, ``Conv1d``, ELU), ending
-    in a ``Conv1d`` to the 3 coordinates. Published sizes: channels (32, 64), pooling (64, 32),
-    kernel 3, latent 256.
+    input_frames: int
+    output_frames: int
+    num_points: int
+    task: str = "prediction"
+    latent: int = 256
+    channels: Sequence[int] = (32, 64)
+    pooling: Sequence[int] = (64, 32)
+    kernel_size: int = 3
+    d_model: int = 256
+    layers: int = 6
+    heads: int = 4
+    ff: int = 1024
+    dropout: float = 0.0
+    position_dropout: float = 0.1
+    autoencoder_epochs: int = 2
+    static_frames: int = 1
+    loss_unit_mm: float = 1000.0
 
-    The parameters are those of these layers (``nn.Conv1d`` weights, pooling matrices), but the
-    arithmetic runs on a frequency-major layout ``(frequencies, frames, channels)`` where every
-    step is one large matrix product over all frames. Convolution and (un)pooling are both
-    linear with nothing between them, so the encoder computes ``pool(conv(x))`` as
-    ``mix_channels(pool_shifted(x))`` and the decoder ``conv(unpool(x))`` as
-    ``unpool_shifted(mix_channels(x))``: the same sums in another order, without the slow
-    convolutions over all ``k`` frequencies (3 input channels in the encoder).
-    """
+    @property
+    def window(self) -> int:
+        """Frames the transformer sees: ``input_frames + output_frames``."""
+        return int(self.input_frames) + int(self.output_frames)
 
-    def __init__(
-        self, k: int, channels: Sequence[int], pooling: Sequence[int], kernel_size: int, latent: int
-    ) -> None:
-        super().__init__()
-        sizes = [k, *pooling]
-        enc_ch = [3, *channels]
-        self.encoder_convs = nn.ModuleList(
-            nn.Conv1d(enc_ch[i], enc_ch[i + 1], kernel_size, padding=kernel_size // 2)
-            for i in range(len(channels))
-        )
-        self.encoder_pools = nn.ModuleList(
-            FrequencyPooling(sizes[i], sizes[i + 1]) for i in range(len(channels))
-        )
-        self.bottleneck = (channels[-1], pooling[-1])
-        self.to_latent = nn.Linear(channels[-1] * pooling[-1], latent)
-        self.from_latent = nn.Linear(latent, channels[-1] * pooling[-1])
-        dec_ch = [*channels[::-1], channels[0]]  # (32, 64) -> 64 -> 32 -> 32, then 32 -> 3
-        rev = sizes[::-1]
-        self.decoder_pools = nn.ModuleList(
-            FrequencyPooling(rev[i], rev[i + 1]) for i in range(len(channels))
-        )
-        self.decoder_convs = nn.ModuleList(
-            nn.Conv1d(dec_ch[i], dec_ch[i + 1], kernel_size, padding=kernel_size // 2)
-            for i in range(len(channels))
-        )
-        self.to_coordinates = nn.Conv1d(dec_ch[-1], 3, kernel_size, padding=kernel_size // 2)
+    def __post_init__(self) -> None:
+        for name in (
+            "input_frames",
+            "output_frames",
+            "num_points",
+            "latent",
+            "kernel_size",
+            "d_model",
+            "layers",
+            "heads",
+            "ff",
+            "static_frames",
+        ):
+            _positive(name, getattr(self, name))
+        if self.task not in TASKS:
+            raise SpecTrHuMSError(f"task: {self.task!r} unknown; valid: {', '.join(TASKS)}")
+        self._check_levels()
+        self._check_shapes()
+        self._check_training()
 
-    def encode(self, x: Tensor) -> Tensor:
-        """``(N, k, 3) -> (N, latent)``."""
-        h = x.transpose(0, 1)  # (k, N, 3): the coordinates are the input channels
-        for conv, pool in zip(self.encoder_convs, self.encoder_pools):
-            h = F.elu(_conv_then_pool(h, conv.weight, conv.bias, pool.weight))
-        return self.to_latent(h.permute(1, 2, 0).flatten(1))  # channel-major flatten
-
-    def decode(self, z: Tensor) -> Tensor:
-        """``(N, latent) -> (N, k, 3)``."""
-        h = self.from_latent(z).view(-1, *self.bottleneck).permute(2, 0, 1)  # (J, N, C)
-        for pool, conv in zip(self.decoder_pools, self.decoder_convs):
-            h = F.elu(_unpool_then_conv(h, pool.weight, conv.weight, conv.bias))
-        # The last layer's outputs are scaled by the coefficients' std (up to metres once
-        # de-standardised): float32 even under a bfloat16 autocast.
-        with torch.autocast(h.device.type, enabled=False):
-            out = _conv(
-                h.to(self.to_coordinates.weight.dtype),
-                self.to_coordinates.weight,
-                self.to_coordinates.bias,
+    def _check_levels(self) -> None:
+        """One channel count and one pooled size per encoder level; stored as tuples."""
+        channels, pooling = list(self.channels), list(self.pooling)
+        if not channels or len(channels) != len(pooling):
+            raise SpecTrHuMSError(
+                f"channels {channels} and pooling {pooling}: one channel count and "
+                f"one pooled size per encoder level (published: [32, 64], [64, 32])"
             )
-        return out.transpose(0, 1)  # (N, k, 3)
+        for i, (c, p) in enumerate(zip(channels, pooling)):
+            _positive(f"channels[{i}]", c)
+            _positive(f"pooling[{i}]", p)
+        object.__setattr__(self, "channels", tuple(channels))
+        object.__setattr__(self, "pooling", tuple(pooling))
 
+    def _check_shapes(self) -> None:
+        if self.kernel_size % 2 == 0:
+            raise SpecTrHuMSError(
+                f"kernel_size: odd (the convolutions keep the frequency axis' "
+                f"length), got {self.kernel_size}"
+            )
+        if self.d_model % 2 or self.d_model % self.heads:
+            raise SpecTrHuMSError(
+                f"d_model={self.d_model}: must be even (sinusoidal positions) and divisible by "
+                f"heads={self.heads}"
+            )
 
-def _conv_then_pool(x: Tensor, weight: Tensor, bias: Tensor, pool: Tensor) -> Tensor:
-    """``Conv1d`` (zero padding, same length) then pooling, on ``x (L, N, C)`` -> ``(M, N, O)``.
-
-    ``pool(conv(x))[j, o] = sum_{c,d} W[o,c,d] sum_g x[g,c] S_d[g,j] + b[o] sum_f P[f,j]`` with
-    ``S_d[g, j] = P[g - d + pad, j]`` (zero outside): pool the shifted inputs, then mix channels.
-    """
-    length, n, c = x.shape
-    o, _, kernel = weight.shape
-    pad, m = kernel // 2, pool.shape[1]
-    padded = F.pad(pool, (0, 0, pad, pad))  # padded[i] = P[i - pad]
-    shifted = torch.stack([padded[2 * pad - d : 2 * pad - d + length] for d in range(kernel)])
-    y = shifted.transpose(1, 2).reshape(kernel * m, length) @ x.reshape(length, n * c)
-    y = y.view(kernel, m, n, c).permute(1, 2, 3, 0).reshape(m * n, c * kernel)
-    out = (y @ weight.reshape(o, c * kernel).T).view(m, n, o)
-    return out + (pool.sum(0)[:, None] * bias)[:, None, :]
-
-
-def _unpool_then_conv(x: Tensor, pool: Tensor, weight: Tensor, bias: Tensor) -> Tensor:
-    """Unpooling with ``pool (J, L)`` then ``Conv1d`` (zero padding, same length), on
-    ``x (J, N, C)`` -> ``(L, N, O)``.
-
-    ``conv(unpool(x))[f, o] = b[o] + sum_{d,j} U_d[j, f] sum_c W[o,c,d] x[j,c]`` with
-    ``U_d[j, f] = U[j, f + d - pad]`` (zero outside): mix channels per tap, then one product
-    with the shifted unpooling matrices.
-    """
-    j, n, c = x.shape
-    o, _, kernel = weight.shape
-    pad, length = kernel // 2, pool.shape[1]
-    mixed = x.reshape(j * n, c) @ weight.permute(1, 2, 0).reshape(c, kernel * o)
-    mixed = mixed.view(j, n, kernel, o).permute(2, 0, 1, 3).reshape(kernel * j, n * o)
-    padded = F.pad(pool, (pad, pad))  # padded[:, i] = U[:, i - pad]
-    shifted = torch.cat([padded[:, d : d + length] for d in range(kernel)])  # (K * J, L)
-    return (shifted.T @ mixed).view(length, n, o) + bias
-
-
-def _conv(x: Tensor, weight: Tensor, bias: Tensor) -> Tensor:
-    """``Conv1d`` (zero padding, same length) on ``x (L, N, C)`` -> ``(L, N, O)``: one matrix
-    product for every tap at once, then the taps' shifted sums."""
-    length, n, c = x.shape
-    o, _, kernel = weight.shape
-    pad = kernel // 2
-    taps = x.reshape(length * n, c) @ weight.permute(1, 2, 0).reshape(c, kernel * o)
-    taps = taps.view(length, n, kernel, o)
-    out = taps[:, :, pad] + bias
-    for d in range(kernel):
-        s = d - pad  # out[f] += taps[f + s, tap d]
-        if s > 0:
-            out[: length - s] += taps[s:, :, d]
-        elif s < 0:
-            out[-s:] += taps[: length + s, :, d]
-    return out
-
-
-class EncoderLayer(nn.Module):
-    """A post-norm transformer encoder layer (as ``nn.TransformerEncoderLayer`` with
-    ``norm_first=False``, GELU): ``x = LN(x + MHA(x))``, ``x = LN(x + FF(x))``, on
-    ``(B, T, E)``, with one fused projection for queries, keys and values."""
-
-    def __init__(self, d_model: int, heads: int, ff: int, dropout: float) -> None:
-        super().__init__()
-        self.heads, self.dropout = heads, dropout
-        self.qkv = nn.Linear(d_model, 3 * d_model)
-        self.attn_out = nn.Linear(d_model, d_model)
-        self.norm1 = nn.LayerNorm(d_model)
-        self.ff1 = nn.Linear(d_model, ff)
-        self.ff2 = nn.Linear(ff, d_model)
-        self.norm2 = nn.LayerNorm(d_model)
-
-    def forward(self, x: Tensor) -> Tensor:
-        b, t, e = x.shape
-        p = self.dropout if self.training else 0.0
-        q, k, v = self.qkv(x).view(b, t, 3, self.heads, e // self.heads).permute(2, 0, 3, 1, 4)
-        # Attention written out: on 75-frame windows it trains faster on the CPU than torch's
-        # fused kernel (one layer, batch 32, fwd + bwd: float32 1.3x, bfloat16 4x).
-        weights = ((q * (e // self.heads) ** -0.5) @ k.transpose(-2, -1)).softmax(-1)
-        a = F.dropout(weights, p, self.training) @ v
-        a = self.attn_out(a.transpose(1, 2).reshape(b, t, e))
-        x = self.norm1(x + F.dropout(a, p, self.training))
-        h = self.ff2(F.dropout(F.gelu(self.ff1(x)), p, self.training))
-        return self.norm2(x + F.dropout(h, p, self.training))
-
-
-class LatentTransformer(nn.Module):
-    """Linear, sinusoidal positions, dropout (``position_dropout``, 0.1 in the public code),
-    post-norm transformer encoder layers, Linear."""
-
-    def __init__(
-        self,
-        latent: int,
-        d_model: int,
-        layers: int,
-        heads: int,
-        ff: int,
-        dropout: float,
-        window: int,
-        position_dropout: float = 0.0,
-    ) -> None:
-        super().__init__()
-        self.position_dropout = position_dropout
-        self.inp = nn.Linear(latent, d_model)
-        self.layers = nn.ModuleList(
-            EncoderLayer(d_model, heads, ff, dropout) for _ in range(layers)
-        )
-        self.out = nn.Linear(d_model, latent)
-        self.register_buffer("positions", sinusoidal_positions(window, d_model), persistent=False)
-
-    def forward(self, x: Tensor) -> Tensor:
-        h = F.dropout(
-            self.inp(x) + self.positions[: x.shape[1]], self.position_dropout, self.training
-        )
-        for layer in self.layers:
-            h = layer(h)
-        return self.out(h)
-
-
-def sinusoidal_positions(length: int, dim: int) -> Tensor:
-    """``pe[t, 2i] = sin(t / 10000^(2i/dim))``, ``pe[t, 2i+1] = cos(...)``: ``(length, dim)``."""
-    t = torch.arange(length, dtype=torch.float64)[:, None]
-    freq = torch.exp(torch.arange(0, dim, 2, dtype=torch.float64) * (-math.log(10000.0) / dim))
-    pe = torch.zeros(length, dim, dtype=torch.float64)
-    pe[:, 0::2] = torch.sin(t * freq)
-    pe[:, 1::2] = torch.cos(t * freq)
-    return pe.float()
+    def _check_training(self) -> None:
+        for name in ("dropout", "position_dropout"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 <= value < 1:
+                raise SpecTrHuMSError(f"{name}: a probability in [0, 1), got {value!r}")
+        epochs = self.autoencoder_epochs
+        if isinstance(epochs, bool) or not isinstance(epochs, int) or epochs < 0:
+            raise SpecTrHuMSError(f"autoencoder_epochs: a non-negative integer, got {epochs!r}")
+        if not self.loss_unit_mm > 0:
+            raise SpecTrHuMSError(f"loss_unit_mm: positive, got {self.loss_unit_mm!r}")
+        if self.static_frames > self.window:
+            raise SpecTrHuMSError(
+                f"static_frames={self.static_frames}: at most the window "
+                f"(input_frames + output_frames = {self.window})"
+            )
 
 
 # ---- the model -------------------------------------------------------------------------------
 
 
 class SpecTrHuMS(nn.Module):
-    """SpecTrHuMS for prediction (``task='prediction'``) or completion (``'completion'``).
+    """SpecTrHuMS (Lemeunier et al., Computers & Graphics 2023), for prediction
+    (``task='prediction'``) or completion (``'completion'``): a convolutional autoencoder of
+    each frame's spectral coefficients and a transformer over the latents of a window.
 
+    The hyper-parameters are checked and kept as ``config`` (:class:`SpecTrHuMSConfig`).
     ``basis``: the dataset's spectral basis (``vectors (V, k)`` with orthonormal columns ordered
     by frequency, ``hash``), supplied by the benchmark (registry ``context: [basis]``). Its
     ``V`` must equal ``num_points``; ``k`` comes from it and the window is
@@ -360,46 +258,34 @@ class SpecTrHuMS(nn.Module):
         static_frames: int = 1,
         loss_unit_mm: float = 1000.0,
     ) -> None:
+        given = locals()  # every argument by name: the config's fields are among them
         super().__init__()
-        _check_settings(
-            input_frames,
-            output_frames,
-            num_points,
-            task,
-            latent,
-            channels,
-            pooling,
-            kernel_size,
-            d_model,
-            layers,
-            heads,
-            ff,
-            dropout,
-            position_dropout,
-            autoencoder_epochs,
-            static_frames,
-            loss_unit_mm,
-        )
-        phi = _basis_vectors(basis, num_points)
-        self.input_frames, self.output_frames = int(input_frames), int(output_frames)
-        self.window = self.input_frames + self.output_frames
-        if static_frames > self.window:
-            raise SpecTrHuMSError(
-                f"static_frames={static_frames}: at most the window "
-                f"(input_frames + output_frames = {self.window})"
-            )
-        self.num_points, self.k = int(num_points), phi.shape[1]
-        self.task = task
-        self.autoencoder_epochs = int(autoencoder_epochs)
-        self.static_frames = int(static_frames)
-        self.loss_unit_mm = float(loss_unit_mm)
+        config = SpecTrHuMSConfig(**{f.name: given[f.name] for f in fields(SpecTrHuMSConfig)})
+        phi = _basis_vectors(basis, config.num_points)
+        self.config = config
+        self.input_frames, self.output_frames = int(config.input_frames), int(config.output_frames)
+        self.window = config.window
+        self.num_points, self.k = int(config.num_points), phi.shape[1]
+        self.task = config.task
+        self.autoencoder_epochs = int(config.autoencoder_epochs)
+        self.static_frames = int(config.static_frames)
+        self.loss_unit_mm = float(config.loss_unit_mm)
         self.basis_hash = str(basis.hash)
         self.topology_hash = str(getattr(basis, "topology_hash", ""))
         self.phase = "autoencoder" if self.autoencoder_epochs > 0 else "joint"
 
-        self.autoencoder = SpectralAutoencoder(self.k, channels, pooling, kernel_size, latent)
+        self.autoencoder = SpectralAutoencoder(
+            self.k, config.channels, config.pooling, config.kernel_size, config.latent
+        )
         self.transformer = LatentTransformer(
-            latent, d_model, layers, heads, ff, dropout, self.window, position_dropout
+            config.latent,
+            config.d_model,
+            config.layers,
+            config.heads,
+            config.ff,
+            config.dropout,
+            self.window,
+            config.position_dropout,
         )
         for m in self.modules():  # the published initialisation: xavier, zero bias
             if isinstance(m, (nn.Linear, nn.Conv1d)):
@@ -407,6 +293,11 @@ class SpecTrHuMS(nn.Module):
                 nn.init.zeros_(m.bias)
 
         self.basis = basis  # data, not parameters: it travels with the dataset, by hash
+        self._register_buffers(phi, config.latent)
+
+    def _register_buffers(self, phi: np.ndarray, latent: int) -> None:
+        """What travels with the weights besides the parameters: the basis's identity and the
+        standardisation statistics (empty until ``start_epoch`` computes them)."""
         self.register_buffer(
             "basis_id",
             torch.tensor(
@@ -738,8 +629,8 @@ class SpecTrHuMS(nn.Module):
         }
 
     def training_loss_view(self, history: Tensor, future: Tensor) -> Tensor:
-        """Training-engine hook: the loss of windows of coefficients ``(B, T, k, 3)``; a step
-        then costs the same at 13,718 vertices as at 1,229."""
+        """Training-engine hook: the loss of windows of coefficients ``(B, T, k, 3)``, whose cost
+        does not grow with the number of vertices (measured: docs/models/spectrhums.md)."""
         return _total(self.coefficient_loss_terms(torch.cat([history, future], dim=1)))
 
     # ---- checks --------------------------------------------------------------------------------
@@ -832,74 +723,3 @@ def _basis_vectors(basis: Any, num_points: int) -> np.ndarray:
             f"{gram_error:.2g}); reconstruction V = Phi C needs them to be"
         )
     return phi
-
-
-def _check_settings(
-    input_frames,
-    output_frames,
-    num_points,
-    task,
-    latent,
-    channels,
-    pooling,
-    kernel_size,
-    d_model,
-    layers,
-    heads,
-    ff,
-    dropout,
-    position_dropout,
-    autoencoder_epochs,
-    static_frames,
-    loss_unit_mm,
-) -> None:
-    def positive(name, value):
-        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
-            raise SpecTrHuMSError(f"{name}: a positive integer, got {value!r}")
-
-    for name, value in (
-        ("input_frames", input_frames),
-        ("output_frames", output_frames),
-        ("num_points", num_points),
-        ("latent", latent),
-        ("kernel_size", kernel_size),
-        ("d_model", d_model),
-        ("layers", layers),
-        ("heads", heads),
-        ("ff", ff),
-        ("static_frames", static_frames),
-    ):
-        positive(name, value)
-    if task not in TASKS:
-        raise SpecTrHuMSError(f"task: {task!r} unknown; valid: {', '.join(TASKS)}")
-    channels, pooling = list(channels), list(pooling)
-    if not channels or len(channels) != len(pooling):
-        raise SpecTrHuMSError(
-            f"channels {channels} and pooling {pooling}: one channel count and "
-            f"one pooled size per encoder level (published: [32, 64], [64, 32])"
-        )
-    for i, (c, p) in enumerate(zip(channels, pooling)):
-        positive(f"channels[{i}]", c)
-        positive(f"pooling[{i}]", p)
-    if kernel_size % 2 == 0:
-        raise SpecTrHuMSError(
-            f"kernel_size: odd (the convolutions keep the frequency axis' "
-            f"length), got {kernel_size}"
-        )
-    if d_model % 2 or d_model % heads:
-        raise SpecTrHuMSError(
-            f"d_model={d_model}: must be even (sinusoidal positions) and divisible by heads={heads}"
-        )
-    for name, value in (("dropout", dropout), ("position_dropout", position_dropout)):
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 <= value < 1:
-            raise SpecTrHuMSError(f"{name}: a probability in [0, 1), got {value!r}")
-    if (
-        isinstance(autoencoder_epochs, bool)
-        or not isinstance(autoencoder_epochs, int)
-        or autoencoder_epochs < 0
-    ):
-        raise SpecTrHuMSError(
-            f"autoencoder_epochs: a non-negative integer, got {autoencoder_epochs!r}"
-        )
-    if not loss_unit_mm > 0:
-        raise SpecTrHuMSError(f"loss_unit_mm: positive, got {loss_unit_mm!r}")
