@@ -280,3 +280,28 @@ def test_costs_file_of_another_format_is_not_read(tmp_path, version):
     expected = {"parameters": 3, "precision": "float32"} if version else None
     assert costs.get("m", "a" * 16) == expected
     assert costs.get("m", "b" * 16) is None  # another architecture's costs: not shown
+
+
+def test_costs_of_some_models_skip_the_benchmarks_without_their_rows(tmp_path, monkeypatch, capsys):
+    """`zoo costs --model M` over every committed benchmark measures where M has rows and
+    says which it skipped; a benchmark named with --benchmark must have them."""
+    for name in ("cmu", "cloth"):
+        (tmp_path / name / "all").mkdir(parents=True)
+        (tmp_path / name / "all" / "results.csv").write_text("model\n")
+    measured = []
+
+    def measure_costs(bench, *, models, **options):
+        if bench == "cmu":
+            raise zoo.costs.NoRowsError(f"{bench}: no row of {', '.join(models)} in its tables")
+        measured.append(bench)
+
+    monkeypatch.setattr(zoo.costs, "measure_costs", measure_costs)
+    monkeypatch.setattr("zoo.report.write_index", lambda root: root / "README.md")
+    monkeypatch.setattr(
+        "zoo.cli.costs.committed_benchmarks", lambda root: ["cmu", "cloth"], raising=True
+    )
+    assert main(["costs", "--model", "spectrhums", "--results", str(tmp_path)]) == 0
+    assert measured == ["cloth"]
+    assert "cmu: no row of spectrhums in its tables: skipped" in capsys.readouterr().err
+    assert main(["costs", "--model", "spectrhums", "--benchmark", "cmu"]) == 2
+    assert "cmu: no row of spectrhums in its tables" in capsys.readouterr().err

@@ -29,6 +29,10 @@ class CostsError(ZooError, ValueError):
     pass
 
 
+class NoRowsError(CostsError):
+    """The benchmark's tables hold no row of the models asked for."""
+
+
 def measure_costs(
     benchmark,
     *,
@@ -81,7 +85,7 @@ def measure_costs(
         key = cost_key(loaded, bench, board.dataset, task)
         groups.setdefault(architecture(key), []).append((label, loaded, key, task))
     if not groups:
-        raise CostsError(
+        raise NoRowsError(
             f"{bench.name}: no row of {', '.join(sorted(models)) or 'any model'} in its tables"
         )
     if store.old:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 from zoo.budgets import COST_SECONDS
@@ -60,7 +61,7 @@ def add(sub) -> None:
 def run(args) -> int:
     import time
 
-    from zoo.costs import measure_costs
+    from zoo.costs import NoRowsError, measure_costs
     from zoo.report import write_index
 
     if not args.seconds > 0:
@@ -69,18 +70,28 @@ def run(args) -> int:
     benchmarks = args.benchmark or committed_benchmarks(Path(args.results))
     if not benchmarks:
         raise UsageError(f"{args.results}: no committed table; give --benchmark NAME")
-    started = time.perf_counter()
+    started, measured = time.perf_counter(), 0
     for bench in benchmarks:
-        measure_costs(
-            bench,
-            registry=registry,
-            data_root=args.data_root,
-            out_root=Path(args.results),
-            weights=Path(args.weights_dir),
-            checkpoints=Path(args.checkpoints),
-            device=args.device,
-            models=args.model or (),
-            seconds=args.seconds,
+        try:
+            measure_costs(
+                bench,
+                registry=registry,
+                data_root=args.data_root,
+                out_root=Path(args.results),
+                weights=Path(args.weights_dir),
+                checkpoints=Path(args.checkpoints),
+                device=args.device,
+                models=args.model or (),
+                seconds=args.seconds,
+            )
+            measured += 1
+        except NoRowsError as e:
+            if args.benchmark:  # named: its rows were expected
+                raise
+            print(f"{e}: skipped", file=sys.stderr)
+    if not measured:
+        raise UsageError(
+            f"no table under {args.results} has a row of {', '.join(args.model or ['any model'])}"
         )
     print(f"wrote {write_index(Path(args.results))} ({time.perf_counter() - started:.0f} s)")
     return 0
