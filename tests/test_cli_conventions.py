@@ -155,7 +155,19 @@ def test_options_before_a_nested_action_parse_as_they_did(tmp_path, capsys):
         "list",
         "cmu",
     ]
-    for argv in (["weights", "list", "--root", "w"], ["eval", "--model", "repeat_last"]):
+    # argparse's unique prefix of a long option takes its value too
+    assert action_first(parser, ["data", "--data", "list", "build", "cmu"]) == [
+        "data",
+        "build",
+        "--data",
+        "list",
+        "cmu",
+    ]
+    for argv in (
+        ["weights", "list", "--root", "w"],
+        ["eval", "--model", "repeat_last"],
+        ["weights", "-h", "list"],  # the command's help, not the action's
+    ):
         assert action_first(parser, argv) == argv
     assert main(["weights", "list", "--weights-dir", str(tmp_path)]) == 0
     after = capsys.readouterr()
@@ -169,3 +181,15 @@ def test_compare_refuses_an_unknown_sampler_by_name(capsys):
     assert main(["compare", "a", "b", "--benchmark", "cmu", "--sampler", "ltd9"]) == 2
     err = capsys.readouterr().err
     assert "--sampler: unknown sampler 'ltd9'; valid samplers: ltd8" in err
+
+
+def test_a_reader_that_leaves_ends_the_command_quietly():
+    """``zoo list | head``: the pipe closes before zoo writes; no traceback, exit 141."""
+    process = subprocess.Popen(
+        [sys.executable, "-c", "import sys; from zoo.cli import main; sys.exit(main(['list']))"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+    )
+    process.stdout.close()  # the reader is gone before the first write
+    _, err = process.communicate(timeout=120)
+    assert process.returncode == 141 and err == b""

@@ -305,3 +305,17 @@ def test_costs_of_some_models_skip_the_benchmarks_without_their_rows(tmp_path, m
     assert "cmu: no row of spectrhums in its tables: skipped" in capsys.readouterr().err
     assert main(["costs", "--model", "spectrhums", "--benchmark", "cmu"]) == 2
     assert "cmu: no row of spectrhums in its tables" in capsys.readouterr().err
+
+
+def test_costs_of_a_model_without_rows_anywhere_is_one_line(tmp_path, capsys):
+    """On real tables: a model with no row in any committed table skips each benchmark and
+    ends in one error line."""
+    root, registry = cmu_and_registry(tmp_path)
+    out = tmp_path / "results"
+    regenerate("cmu", registry=registry, data_root=root, out_root=out)
+    capsys.readouterr()
+    args = ["costs", "--model", "tiny", "--results", str(out), "--data-root", str(root)]
+    assert main([*args, "--registry", str(tmp_path / "registry.yaml")]) == 2
+    err = capsys.readouterr().err
+    assert "cmu: no row of tiny in its tables: skipped" in err
+    assert f"no table under {out} has a row of tiny" in err

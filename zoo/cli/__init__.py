@@ -75,12 +75,14 @@ def main(argv: Sequence[str] | None = None) -> int:
             check_device(args.device)
         if getattr(args, "set", None):
             shape_overrides(parse_overrides(args.set), getattr(args, "benchmark", None))
-        return args.func(args)
+        code = args.func(args)
+        sys.stdout.flush()  # a closed pipe shows here, not at the interpreter's exit
+        return code
     except ZooError as e:
         print(f"zoo {args.command}: error: {in_flags(e)}", file=sys.stderr)
         return 2
     except BrokenPipeError:  # the reader left (zoo list | head): no traceback, no more output
-        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        _discard_stdout()
         return 141
     except KeyboardInterrupt:
         print(
@@ -89,6 +91,15 @@ def main(argv: Sequence[str] | None = None) -> int:
             file=sys.stderr,
         )
         return 130
+
+
+def _discard_stdout() -> None:
+    """Point stdout at the null device, so that the interpreter's last flush of what the closed
+    pipe did not take raises nothing."""
+    try:
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+    except (AttributeError, OSError, ValueError):  # a stdout without a descriptor (captured)
+        pass
 
 
 __all__ = ["UsageError", "build_parser", "main", "parse_overrides"]

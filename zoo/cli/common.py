@@ -78,7 +78,7 @@ def action_first(parser: argparse.ArgumentParser, argv: Sequence[str]) -> list[s
     """``argv`` with the options written between a nested command and its action moved after
     the action (``zoo weights --weights-dir X list`` -> ``zoo weights list --weights-dir X``):
     the order the positional actions of earlier releases accepted, which argparse's nested
-    subcommands refuse."""
+    subcommands refuse. Help (``zoo weights -h list``) stays the command's."""
     argv = list(argv)
     commands = _subparsers(parser)
     at = next((i for i, token in enumerate(argv) if token in commands), None)
@@ -87,17 +87,22 @@ def action_first(parser: argparse.ArgumentParser, argv: Sequence[str]) -> list[s
     actions = _subparsers(commands[argv[at]])
     if not actions:
         return argv
-    takes_value = {
-        option
+    values = {  # option string -> how many values follow it
+        option: 1 if a.nargs is None else a.nargs if isinstance(a.nargs, int) else 1
         for child in actions.values()
         for a in child._actions
-        if a.nargs != 0
         for option in a.option_strings
     }
     i = at + 1
     while i < len(argv) and argv[i].startswith("-") and argv[i] != "--":
         option = argv[i]
-        i += 2 if option in takes_value and "=" not in option else 1
+        if option in ("-h", "--help"):
+            return argv
+        if "=" not in option:
+            # argparse takes a unique prefix of a long option (--data for --data-root)
+            known = [o for o in values if o.startswith(option)] if option.startswith("--") else []
+            i += values.get(option, values[known[0]] if len(known) == 1 else 0)
+        i += 1
     if i == at + 1 or i >= len(argv) or argv[i] not in actions:
         return argv
     return argv[: at + 1] + [argv[i]] + argv[at + 1 : i] + argv[i + 1 :]
