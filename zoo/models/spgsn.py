@@ -198,7 +198,7 @@ class ScatteringBlock(nn.Module):
         over the channels weighs them; returns ``(N_p, B, C)``."""
         channel_dims = (0, 2)
         count = leaves.shape[0] * leaves.shape[2]
-        # sum(0).sum(1), not sum((0, 2)): ATen reduces two split dims 20x slower than one by one.
+        # sum(0).sum(1), not sum((0, 2)): one dim at a time is much faster (docs/models/spgsn.md).
         spectrum = torch.relu(self.spectrum(leaves.sum(0).sum(1) / count))
         scores = self.attention_out(
             tanh(self.attention_leaf(leaves) + self.attention_sp(spectrum)[:, None])
