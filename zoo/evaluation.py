@@ -25,7 +25,16 @@ from zoo.data.windows import gather_windows
 from zoo.distributed import DistInfo, gather_shares, init_distributed
 from zoo.errors import EvaluationError
 from zoo.io import code_version, progress_bar
-from zoo.metrics import FLOOR_SUFFIX, FrameErrorMean, cumulative_mean, skeleton_errors
+from zoo.metrics import (
+    FLOOR_SUFFIX,
+    FrameErrorMean,
+    cumulative_mean,
+    edge_lengths,
+    length_variation,
+    mpjpe,
+    skeleton_errors,
+    vertex_rmse,
+)
 from zoo.models.hooks import Hooks, model_hooks
 from zoo.options import EVAL_BATCH
 from zoo.protocol import Protocol
@@ -400,42 +409,24 @@ def _evaluate_mesh(
     rows for ``melv``, ``rmse`` and (with a joint regressor) ``mpjpe`` (:class:`_MeshScoring`).
     What the ground truth alone gives (its spectral reconstruction, the reference frame's edge
     lengths, its own MELV, its regressed joints) is computed once a batch for all the models."""
-    from zoo.data.mesh import regress_joints
-    from zoo.metrics import length_variation
-
     scoring = _MeshScoring(protocol, device)
     run = _Pass(models, device, keep_going)
     for i, scored in run.live():
         run.attempt(i, partial(scoring.check_view, scored))
-    t_in, t_out, index = protocol.input_frames, protocol.predicted_frames, protocol.index
-    truth_basis = protocol.basis if protocol.ground_truth == "spectral" else None
-    vertices = [s.vertices for s in protocol.dataset.sequences]
-    dist_info = init_distributed(device)
-    num_vertices = protocol.dataset.topology.num_vertices
-    batch = max(1, min(batch_size, MESH_BATCH_VALUES // ((t_in + t_out) * num_vertices * 3)))
-
+    index, dist_info = protocol.index, init_distributed(device)
+    batch = scoring.batch_size(batch_size)
     with torch.no_grad(), _progress(protocol, models, dist_info) as bar:
         for start in _my_batches(len(index), batch, dist_info):
             bar.update(min(batch, len(index) - start) * dist_info.world)
             live = run.live()
             if not live:
                 continue
-            rows = slice(start, start + batch)
-            windows = torch.from_numpy(gather_windows(vertices, index[rows], t_in + t_out))
-            if truth_basis is not None:
-                windows = truth_basis.reconstruct(truth_basis.project(windows.double())).float()
-            truth = _MeshTruth(windows, t_in, partial(regress_joints, regressor=scoring.regressor))
-            if any(s.view == "mesh" for _, s in live):
-                reference = windows[:, t_in - 1 : t_in]
-                truth.reference_lengths = scoring.melv_lengths(reference)[:, 0]
-                # the data's own MELV: the ground-truth rows of every mesh model
-                truth.melv = _float64(
-                    length_variation(scoring.melv_lengths(truth.target), truth.reference_lengths)
-                )
+            truth = scoring.truth(
+                index[start : start + batch], any(s.view == "mesh" for _, s in live)
+            )
             for i, scored in live:
                 errors = scoring.joint_errors if scored.view == "joints" else scoring.mesh_errors
                 run.score(i, start, partial(errors, scored, truth, start))
-
     return run.results(dist_info, scoring.finish)
 
 
@@ -455,16 +446,41 @@ class _MeshScoring:
     protocol record of the mesh models, so both share one MPJPE table."""
 
     def __init__(self, protocol: Protocol, device) -> None:
+        from zoo.data.mesh import regress_joints
+
         self.protocol, self.device = protocol, device
         self.regressor = protocol.dataset.joint_regressor
+        self.regress = partial(regress_joints, regressor=self.regressor)
         self.t_in, self.t_out = protocol.input_frames, protocol.predicted_frames
-        num_vertices = protocol.dataset.topology.num_vertices
-        self.expected_tail = (self.t_out, num_vertices, 3)
+        self.num_vertices = protocol.dataset.topology.num_vertices
         self.joint_column = (
             f"regressor{self.regressor.shape[0]}" if self.regressor is not None else None
         )
         # once, not per call
         self.edges = torch.as_tensor(np.asarray(protocol.dataset.topology.edges), dtype=torch.long)
+        self.vertices = [s.vertices for s in protocol.dataset.sequences]
+
+    def batch_size(self, asked: int) -> int:
+        """``asked``, or fewer windows where a batch would exceed ``MESH_BATCH_VALUES``."""
+        window_values = (self.t_in + self.t_out) * self.num_vertices * 3
+        return max(1, min(asked, MESH_BATCH_VALUES // window_values))
+
+    def truth(self, index: np.ndarray, mesh_rows: bool) -> _MeshTruth:
+        """The ground-truth windows of ``index`` (spectral truth: their reconstruction) and, for
+        ``mesh_rows``, the reference frame's edge lengths and the future's own MELV."""
+        windows = torch.from_numpy(gather_windows(self.vertices, index, self.t_in + self.t_out))
+        if self.protocol.ground_truth == "spectral":
+            basis = self.protocol.basis
+            windows = basis.reconstruct(basis.project(windows.double())).float()
+        truth = _MeshTruth(windows, self.t_in, self.regress)
+        if mesh_rows:
+            reference = windows[:, self.t_in - 1 : self.t_in]
+            truth.reference_lengths = self.melv_lengths(reference)[:, 0]
+            # the data's own MELV: the ground-truth rows of every mesh model
+            truth.melv = _float64(
+                length_variation(self.melv_lengths(truth.target), truth.reference_lengths)
+            )
+        return truth
 
     def check_view(self, scored: Scored) -> None:
         if scored.view not in ("mesh", "joints"):
@@ -477,50 +493,39 @@ class _MeshScoring:
 
     def melv_lengths(self, frames: torch.Tensor) -> torch.Tensor:
         """Edge lengths of the frames MELV is measured on."""
-        from zoo.metrics import edge_lengths
-
         if self.protocol.melv_frames == "spectral":  # reconstructed from k coefficients
             basis = self.protocol.basis
             frames = basis.reconstruct(basis.project(frames.double())).float()
         return edge_lengths(frames, self.edges)
 
-    def joint_errors(self, scored: Scored, truth: _MeshTruth, start: int) -> dict:
-        from zoo.metrics import mpjpe
-
-        t_in, device = self.t_in, self.device
-        joints = truth.joints()
+    def _predicted(self, scored: Scored, windows: torch.Tensor, start: int) -> torch.Tensor:
+        """The model's checked prediction from the first ``t_in`` frames of ``windows``."""
         pred = predict(
             scored.model,
-            joints[:, :t_in].to(device),
+            windows[:, : self.t_in].to(self.device),
             self.protocol.task,
             self.t_out,
-            joints[:, -1].to(device),
+            windows[:, -1].to(self.device),
             hooks=scored.hooks,
         )
-        pred = checked_prediction(
-            pred, (len(joints), self.t_out, self.regressor.shape[0], 3), scored.name, start
-        )
-        return {(scored.name, "mpjpe", self.joint_column): _float64(mpjpe(pred, joints[:, t_in:]))}
+        expected = (len(windows), self.t_out, *windows.shape[2:])
+        return checked_prediction(pred, expected, scored.name, start)
+
+    def joint_errors(self, scored: Scored, truth: _MeshTruth, start: int) -> dict:
+        joints = truth.joints()
+        pred = self._predicted(scored, joints, start)
+        return {
+            (scored.name, "mpjpe", self.joint_column): _float64(mpjpe(pred, joints[:, self.t_in :]))
+        }
 
     def mesh_errors(self, scored: Scored, truth: _MeshTruth, start: int) -> dict:
-        from zoo.data.mesh import regress_joints
-        from zoo.metrics import length_variation, mpjpe, vertex_rmse
-
-        windows, device, expected = truth.windows, self.device, (len(truth.windows),)
-        expected += self.expected_tail
-        pred = predict(
-            scored.model,
-            windows[:, : self.t_in].to(device),
-            self.protocol.task,
-            self.t_out,
-            windows[:, -1].to(device),
-            hooks=scored.hooks,
-        )
-        scored_frames = {scored.name: checked_prediction(pred, expected, scored.name, start)}
-        if scored.hooks is not None and scored.hooks.autoencoder_floor:
+        scored_frames = {scored.name: self._predicted(scored, truth.windows, start)}
+        if scored.hooks.autoencoder_floor:
             name = scored.name + FLOOR_SUFFIX
-            rebuilt = scored.model.autoencoder_floor(truth.target.to(device))
-            scored_frames[name] = checked_prediction(rebuilt, expected, name, start)
+            rebuilt = scored.model.autoencoder_floor(truth.target.to(self.device))
+            scored_frames[name] = checked_prediction(
+                rebuilt, tuple(truth.target.shape), name, start
+            )
         errors = {}
         for name, frames in scored_frames.items():
             errors[(name, "melv", "vertices")] = length_variation(
@@ -528,9 +533,8 @@ class _MeshScoring:
             )
             errors[(name, "rmse", "vertices")] = vertex_rmse(frames, truth.target)
             if self.regressor is not None:
-                predicted_joints = regress_joints(frames, self.regressor)
                 errors[(name, "mpjpe", self.joint_column)] = mpjpe(
-                    predicted_joints, truth.joints()[:, self.t_in :]
+                    self.regress(frames), truth.joints()[:, self.t_in :]
                 )
         errors = {key: _float64(value) for key, value in errors.items()}
         errors[("ground_truth", "melv", "vertices")] = truth.melv

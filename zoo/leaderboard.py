@@ -455,13 +455,15 @@ class Leaderboard:
                 )
             except Exception as e:  # noqa: BLE001 - every failure is reported, none stops
                 return RowPlan(row, "failed", stored=old, error=e)
+        if plan.models and row.name not in plan.models and old is None and not plan.recompute:
+            return RowPlan(row, "skip")  # neither asked for nor stored: not even loaded
         loaded = self.load(row)
         identity = loaded.identity(self.bench, protocol.id)
         step = partial(RowPlan, row, loaded=loaded, identity=identity, stored=old)
         if plan.recompute:
             return step("compute", why="asked (--recompute)")
         if plan.models and row.name not in plan.models:
-            return step("keep") if old is not None else step("skip")
+            return step("keep")
         if plan.models:
             return step("compute", why="asked (--model)")
         if old is None:

@@ -22,14 +22,13 @@ import math
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
 import torch
 
 from zoo.data.expmap import DataFormatError
-from zoo.data.mesh import MeshDataset, MeshSequence, MeshTopology
+from zoo.data.mesh import MeshDataset, MeshSequence, MeshTopology, recipe_hash
 from zoo.data.skeleton import kinematic_chain, rodrigues
 from zoo.io import progress_bar, sha256_file
 
@@ -367,11 +366,11 @@ def build_amass(
         "regressor": {"model": reg_gender, "joints": len(SMPLH_BODY_JOINTS)},
         "files": [{"file": _relative(p, root), "sha256": sha256_file(p)} for p in paths],
     }
-    recipe_hash = hashlib.sha256(_canonical(recipe).encode()).hexdigest()[:16]
-    folder = cache_root(cache_dir) / "datasets" / f"{name}-{split}-{recipe_hash}"
+    key = recipe_hash(recipe)
+    folder = cache_root(cache_dir) / "datasets" / f"{name}-{split}-{key}"
     if (folder / "dataset.json").is_file() and (folder / "meshes.npz").is_file():
         cached = MeshDataset.load(folder)
-        if cached.recipe_hash == recipe_hash:
+        if cached.recipe_hash == key:
             return cached
     first = next(iter(loaded.values()))
     topology = MeshTopology(first.faces, first.num_vertices, name=f"{name}-smplh")
@@ -404,12 +403,6 @@ def _relative(path: Path, root: Path) -> str:
         return str(path.resolve().relative_to(root.resolve()))
     except ValueError:
         return str(path)
-
-
-def _canonical(data: Any) -> str:
-    from zoo.io import canonical_json
-
-    return canonical_json(data)
 
 
 def _smplh_models(

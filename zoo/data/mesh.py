@@ -162,6 +162,12 @@ class MeshSequence:
         return len(self.vertices)
 
 
+def recipe_hash(recipe: dict[str, Any]) -> str:
+    """The name a recipe gives what is built from it (a dataset's cache folder, a shipped
+    regressor's file): its canonical JSON, hashed."""
+    return hashlib.sha256(canonical_json(recipe).encode()).hexdigest()[:16]
+
+
 @dataclass
 class MeshDataset:
     """Mesh sequences sharing one topology; ``recipe`` says how they were made (hashed)."""
@@ -187,7 +193,7 @@ class MeshDataset:
 
     @property
     def recipe_hash(self) -> str:
-        return hashlib.sha256(canonical_json(self.recipe).encode()).hexdigest()[:16]
+        return recipe_hash(self.recipe)
 
     @property
     def fps(self) -> float:

@@ -23,7 +23,7 @@ from zoo.data.anny.body import (
     one_thread,
     shared_model,
 )
-from zoo.data.anny.regressor import JointRegressor, joint_regressor, recipe_hash
+from zoo.data.anny.regressor import JointRegressor, joint_regressor
 from zoo.data.anny.retargeting import (
     ROOT_MODES,
     TARGET_FPS,
@@ -34,7 +34,7 @@ from zoo.data.anny.retargeting import (
 )
 from zoo.data.anny.trials import SPLIT_RULE, Trial, select_trials
 from zoo.data.bvh import CMU_BVH_JOINTS, read_bvh
-from zoo.data.mesh import MeshDataset, MeshSequence, MeshTopology, cache_root
+from zoo.data.mesh import MeshDataset, MeshSequence, MeshTopology, cache_root, recipe_hash
 from zoo.errors import DataNotFoundError
 from zoo.io import atomic_path, progress_bar, sha256_file
 
@@ -57,7 +57,11 @@ def dataset_name(identities: str, topology: str, split: str, root: str = "identi
 
 def dataset_folder(dataset: MeshDataset, cache_dir: str | Path | None = None) -> Path:
     """Where ``build_cmu_anny`` keeps ``dataset``: ``<cache>/datasets/<name>-<recipe_hash>``."""
-    return cache_root(cache_dir) / "datasets" / f"{dataset.name}-{dataset.recipe_hash}"
+    return _folder(dataset.name, dataset.recipe_hash, cache_dir)
+
+
+def _folder(name: str, key: str, cache_dir: str | Path | None) -> Path:
+    return cache_root(cache_dir) / "datasets" / f"{name}-{key}"
 
 
 def dataset_recipe(
@@ -116,14 +120,13 @@ def _check_arguments(identities: str, topology: str, root: str, seed: Any) -> No
         raise ValueError(f"seed must be an integer, got {seed!r}")
 
 
-def _load_cached(
-    folder: Path, recipe: dict[str, Any], regressor: JointRegressor
-) -> MeshDataset | None:
-    """The dataset cached in ``folder`` for ``recipe``, carrying ``regressor``; None if none."""
+def _load_cached(folder: Path, key: str, regressor: JointRegressor) -> MeshDataset | None:
+    """The dataset cached in ``folder`` for the recipe hashed ``key``, carrying ``regressor``;
+    None if none."""
     if not ((folder / "dataset.json").is_file() and (folder / "meshes.npz").is_file()):
         return None
     cached = MeshDataset.load(folder)
-    if cached.recipe_hash != recipe_hash(recipe):
+    if cached.recipe_hash != key:
         return None
     # A dataset cached before its regressor shipped carries this machine's fit.
     if cached.joint_regressor is None or (abs(cached.joint_regressor - regressor.matrix) > 0).nnz:
@@ -223,8 +226,9 @@ def build_cmu_anny(
         seed=seed,
     )
     name = dataset_name(identities, topology, split, root)
-    folder = cache_root(cache_dir) / "datasets" / f"{name}-{recipe_hash(recipe)}"
-    cached = _load_cached(folder, recipe, regressor)
+    key = recipe_hash(recipe)
+    folder = _folder(name, key, cache_dir)
+    cached = _load_cached(folder, key, regressor)
     if cached is not None:
         return cached
     model = shared_model(topology)

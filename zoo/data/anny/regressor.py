@@ -7,12 +7,9 @@ regressors: fitted once, shipped") says why.
 
 from __future__ import annotations
 
-import dataclasses
 import hashlib
 import math
-import shutil
 import sys
-import tempfile
 import zipfile
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -36,9 +33,9 @@ from zoo.data.anny.retargeting import motion_rotations, retarget, skin
 from zoo.data.anny.trials import list_trials
 from zoo.data.bvh import CMU_BVH_JOINTS, read_bvh
 from zoo.data.expmap import DataFormatError
-from zoo.data.mesh import cache_root
+from zoo.data.mesh import cache_root, recipe_hash
 from zoo.errors import DataNotFoundError, ZooError
-from zoo.io import atomic_path, canonical_json, sha256_file
+from zoo.io import atomic_path, sha256_file
 from zoo.paths import REPO_ROOT
 
 # Training trials (trial numbers not divisible by 5) whose frames fit the regressor: walking,
@@ -160,12 +157,6 @@ def regressor_error(
     return np.linalg.norm(regressed_joints(regressor, vertices) - heads_bvh_order, axis=-1)
 
 
-def recipe_hash(recipe: dict[str, Any]) -> str:
-    """The hash of a recipe that names a regressor's or a dataset's file: the one
-    ``MeshDataset.recipe_hash`` computes."""
-    return hashlib.sha256(canonical_json(recipe).encode()).hexdigest()[:16]
-
-
 def regressor_recipe(bvh_root: str | Path, topology: str) -> tuple[dict[str, Any], list[Path]]:
     """What a topology's joint regressor is fitted from (hashed; the stats are added once
     fitted) and the BVH files of ``REGRESSOR_TRIALS`` under ``bvh_root``."""
@@ -278,11 +269,7 @@ def joint_regressor(
             path, remedy="delete it and it is fitted again", checksum_required=False
         )
     else:
-        model = shared_model(topology) if model is None else model
-        with one_thread():
-            matrix, stats = fit_joint_regressor(
-                model, files, seed=0, **REGRESSOR_SETTINGS[topology]
-            )
+        matrix, stats = _fit(topology, files, model)
         save_regressor(path, matrix, stats)
     return JointRegressor(
         matrix, list(CMU_BVH_JOINTS), recipe={**recipe, **stats}, source=str(path)
@@ -343,18 +330,24 @@ def check_joint_regressor(bvh_root: str | Path, topology: str, *, model=None) ->
 def ship_joint_regressor(bvh_root: str | Path, topology: str) -> tuple[Path, JointRegressor]:
     """Fit the topology's regressor here and write it where it ships (``SHIPPED_REGRESSORS``),
     for a recipe that has none; refused (``RegressorShippedError``) where one ships already.
-
-    The fit is ``joint_regressor``'s (the one fitting path) into a scratch cache; its file then
-    replaces the shipped path atomically. Returns that path and the regressor (its ``source``
-    that path)."""
-    path = shipped_regressor_path(topology, regressor_recipe(bvh_root, topology)[0])
+    Returns that path and the regressor."""
+    recipe, files = regressor_recipe(bvh_root, topology)
+    path = shipped_regressor_path(topology, recipe)
     if path.is_file():
         raise RegressorShippedError(
             f"{path} is shipped already (committed MPJPE rows depend on it); delete it "
             f"deliberately to ship another"
         )
-    with tempfile.TemporaryDirectory() as scratch:
-        fitted = joint_regressor(bvh_root, topology, cache_dir=scratch)
-        with atomic_path(path) as tmp:
-            shutil.copyfile(fitted.source, tmp)
-    return path, dataclasses.replace(fitted, source=str(path))
+    matrix, stats = _fit(topology, files)
+    save_regressor(path, matrix, stats)
+    return path, JointRegressor(
+        matrix, list(CMU_BVH_JOINTS), recipe={**recipe, **stats}, source=str(path)
+    )
+
+
+def _fit(topology: str, files: Sequence[Path], model=None) -> tuple[sp.csr_matrix, dict]:
+    """The one fit of a topology's regressor (``fit_joint_regressor`` with its settings, on
+    one thread, seed 0)."""
+    model = shared_model(topology) if model is None else model
+    with one_thread():
+        return fit_joint_regressor(model, files, seed=0, **REGRESSOR_SETTINGS[topology])
