@@ -22,13 +22,15 @@ from torch import nn
 
 from zoo.benchmark import Benchmark, get_benchmark
 from zoo.errors import NamesParameter, ZooError
-from zoo.io import atomic_path, atomic_write_json, repo_relative, sha256_file
+from zoo.io import atomic_path, atomic_write_json, replace_folder, repo_relative, sha256_file
 from zoo.registry import ModelEntry, Registry, load_registry
 from zoo.weights import (
+    PAUSED_SUMMARY,
     RECORD_FORMAT,
     STORAGE_DTYPES,
     WeightsError,
     checkpoint_label,
+    paused_dir,
     read_weights,
     record_file,
     weights_file,
@@ -199,9 +201,114 @@ def checkpoint_payload(
     }
 
 
+# A paused run's committed state (weights/in_progress): weights in float16 (float32 for a tensor
+# past float16's range), Adam's moments in bfloat16 (float32's range, so v never underflows to
+# 0). Loading casts both back: load_state_dict copies into float32 parameters, and the
+# optimiser casts its state to its parameters' dtype. docs/training.md measures the resume.
+PAUSED_WEIGHTS_DTYPE = torch.float16
+PAUSED_MOMENTS_DTYPE = torch.bfloat16
+
+
+def _compact_tensor(tensor: torch.Tensor) -> torch.Tensor:
+    if not tensor.is_floating_point() or tensor.dtype != torch.float32:
+        return tensor
+    small = tensor.to(PAUSED_WEIGHTS_DTYPE)
+    overflow = bool((torch.isfinite(tensor) & ~torch.isfinite(small)).any())
+    return tensor if overflow else small
+
+
+def compact_payload(payload: dict[str, Any]) -> dict[str, Any]:
+    """``payload`` (a checkpoint's contents) in the paused state's storage: float16 weights,
+    where each tensor fits, and bfloat16 optimiser moments (the step counters as they are).
+    ``stored_as`` records what was done; loading needs nothing else."""
+    compact = dict(payload)
+    compact["state_dict"] = {k: _compact_tensor(t) for k, t in payload["state_dict"].items()}
+    kept = [k for k, t in compact["state_dict"].items() if t.dtype == torch.float32]
+    stored = {"weights": "float16", "weights_kept_float32": kept}
+    if "optimizer" in payload:
+        optimizer = dict(payload["optimizer"])
+        optimizer["state"] = {
+            index: {
+                key: value.to(PAUSED_MOMENTS_DTYPE)
+                if torch.is_tensor(value) and value.is_floating_point() and key != "step"
+                else value
+                for key, value in state.items()
+            }
+            for index, state in payload["optimizer"]["state"].items()
+        }
+        compact["optimizer"] = optimizer
+        stored["optimizer_moments"] = "bfloat16"
+    compact["stored_as"] = stored
+    return compact
+
+
 def save_checkpoint(path: Path, payload: dict[str, Any]) -> None:
     with atomic_path(path) as tmp:
         torch.save(payload, tmp)
+
+
+def pause_run(run_dir: str | Path, root: str | Path | None = None) -> Path:
+    """Store the paused training of ``run_dir`` (its ``last.pt`` and ``best.pt``) as the one
+    committed state of its model (:func:`zoo.weights.paused_dir`), in the paused storage
+    (:func:`compact_payload`), with a ``state.json`` summary; the previous state of that model is
+    replaced as a whole. Returns the folder."""
+    run_dir = Path(run_dir)
+    last = read_checkpoint(run_dir / "last.pt")
+    best_path = run_dir / "best.pt"
+    best = read_checkpoint(best_path) if best_path.is_file() else None
+    benchmark, model = last["protocol"]["benchmark"], last["model"]
+    if best is not None and best["model"] != model:
+        raise CheckpointError(
+            f"{best_path} holds {best['model']!r}, {run_dir / 'last.pt'} holds {model!r}"
+        )
+    dest = paused_dir(benchmark, model, root)
+    summary = paused_summary(last)
+    with replace_folder(dest, markers=(PAUSED_SUMMARY,)) as tmp:
+        save_checkpoint(tmp / "last.pt", compact_payload(last))
+        if best is not None:
+            save_checkpoint(tmp / "best.pt", compact_payload(best))
+        summary["files"] = {p.name: p.stat().st_size for p in sorted(tmp.glob("*.pt"))}
+        atomic_write_json(tmp / PAUSED_SUMMARY, summary)
+    return dest
+
+
+def paused_summary(last: dict[str, Any]) -> dict[str, Any]:
+    """Where a run stands, from its ``last.pt``: what ``zoo list``, the tables and the site say
+    of a model still training, and how to resume it."""
+    from zoo.train.recipe import Recipe, patience_spent
+
+    history = last.get("history") or []
+    recipe = last.get("recipe") or {}
+    training = last.get("training") or {}
+    done = last["epoch"] + 1
+    best = last.get("best") or {"epoch": -1}
+    return {
+        "model": last["model"],
+        "benchmark": last["protocol"]["benchmark"],
+        "epochs_run": done,
+        "epochs_planned": recipe.get("epochs"),
+        # every planned epoch run, or stopped early by the recipe's patience
+        "finished": done >= recipe.get("epochs", done)
+        or patience_spent(Recipe.of(recipe), done, best["epoch"]),
+        "best": last.get("best"),
+        "samples_seen": training.get("samples_seen"),
+        "minutes": round(training.get("seconds", 0.0) / 60, 1),
+        "device_name": training.get("device_name"),
+        "epochs": [
+            {
+                "epoch": h["epoch"],
+                "val_mpjpe": h["val_mpjpe"],
+                "seconds": round(h["seconds"], 1),
+                "precision": h.get("precision", recipe.get("precision", "float32")),
+                "device": h.get("device"),
+            }
+            for h in history
+        ],
+        "recipe": recipe,
+        "seed": last.get("seed"),
+        "resume": f"zoo train --model {last['model']} --benchmark "
+        f"{last['protocol']['benchmark']} --seed {last.get('seed')} --resume",
+    }
 
 
 def read_checkpoint(path: str | Path) -> dict[str, Any]:

@@ -128,6 +128,55 @@ def training_horizons(record: dict[str, Any]) -> list[tuple[int, dict[str, Any]]
     ]
 
 
+# A paused training's state, committed so that the run resumes on the next machine: one folder
+# per benchmark and model under weights/in_progress, replaced at each pause. state.json says
+# where the run stands without loading the state itself.
+PAUSED_FOLDER = "in_progress"
+PAUSED_SUMMARY = "state.json"
+
+
+def paused_dir(benchmark: str, model: str, root: str | Path | None = None) -> Path:
+    return Path(root or WEIGHTS_DIR) / PAUSED_FOLDER / benchmark / model
+
+
+def paused_runs(root: str | Path | None = None) -> dict[tuple[str, str], dict[str, Any]]:
+    """``{(benchmark, model): summary}`` of every paused training under ``root``: epochs done and
+    planned, best validation epoch, minutes, precision and device of each epoch."""
+    runs = {}
+    for path in sorted((Path(root or WEIGHTS_DIR) / PAUSED_FOLDER).glob(f"*/*/{PAUSED_SUMMARY}")):
+        try:
+            summary = json.loads(path.read_text())
+        except (OSError, ValueError) as e:
+            raise WeightsError(f"{path}: not a readable paused-training summary ({e})") from e
+        runs[path.parent.parent.name, path.parent.name] = summary
+    return runs
+
+
+def training_status(paused: dict[str, Any] | None, epochs_planned: int | None) -> str:
+    """What a trainable model without shipped weights shows where its rows would be: the
+    epochs its paused training has done (``paused``: its summary, or None where none is paused)
+    of those planned (the paused run's, else the registry recipe's ``epochs_planned``)."""
+    done = paused["epochs_run"] if paused else 0
+    planned = paused["epochs_planned"] if paused else epochs_planned
+    return f"training: no weights shipped yet ({done} of {planned or '?'} epochs done)"
+
+
+def unshipped_models(registry, root: str | Path | None = None) -> dict[str, str]:
+    """``{model: training status}`` of each trainable registered model with no shipped weights
+    on any benchmark (a model running another's weights counts as that one)."""
+    shipped = {
+        read_weights_record(weights_file(b, label, root))["model"]
+        for b, label in available_weights(root)
+    }
+    paused = {model: summary for (_, model), summary in paused_runs(root).items()}
+    out = {}
+    for name in registry.list_models():
+        entry = registry.get(name)
+        if entry.trainable and (entry.weights_of or name) not in shipped:
+            out[name] = training_status(paused.get(name), (entry.train or {}).get("epochs"))
+    return out
+
+
 def pretrained_path(name: str, benchmark: str, root: str | Path | None = None) -> Path:
     """The shipped weights of ``name`` (a model or ``<model>@last``) on ``benchmark``; an error
     listing what exists if there are none."""

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 from zoo.cli.common import Deprecated, add_command, weights_dir_option
@@ -25,6 +26,16 @@ def add(sub) -> None:
     )
     weights_dir_option(e, "weights folder to write <benchmark>/<label>.safetensors in")
     e.add_argument("--root", dest="weights_dir", action=Deprecated, new="--weights-dir")
+    pause = add_command(
+        actions,
+        "pause",
+        "store a paused training (its last.pt and best.pt) as its model's one committed state "
+        "under <weights-dir>/in_progress, compact (float16 weights, bfloat16 Adam moments); "
+        "zoo train --resume continues it on any machine",
+        pause_run,
+    )
+    pause.add_argument("run", help="the run's folder (e.g. checkpoints/cmu/spgsn)")
+    weights_dir_option(pause, "weights folder whose in_progress/ holds the paused states")
     listing = add_command(actions, "list", "the shipped weights, with their training budgets", show)
     weights_dir_option(listing, "weights folder")
     listing.add_argument("--root", dest="weights_dir", action=Deprecated, new="--weights-dir")
@@ -37,6 +48,19 @@ def export(args) -> int:
         args.checkpoint, label=args.label, root=Path(args.weights_dir), dtype=args.dtype
     )
     print(f"wrote {path} and {path.with_suffix('.json').name}")
+    return 0
+
+
+def pause_run(args) -> int:
+    from zoo.checkpoints import pause_run
+
+    dest = pause_run(args.run, root=Path(args.weights_dir))
+    summary = json.loads((dest / "state.json").read_text())
+    sizes = ", ".join(f"{name} {size / 1e6:.1f} MB" for name, size in summary["files"].items())
+    print(
+        f"wrote {dest} ({sizes}): {summary['model']} after {summary['epochs_run']} of "
+        f"{summary['epochs_planned']} epochs; resume with: {summary['resume']}"
+    )
     return 0
 
 

@@ -19,12 +19,12 @@ from zoo.checkpoints import CheckpointError, read_checkpoint, stored_hparams
 from zoo.data.windows import frame_counts, gather_windows
 from zoo.distributed import DistInfo, init_distributed
 from zoo.errors import TrainingError
-from zoo.io import progress_bar
+from zoo.io import progress_bar, repo_relative
 from zoo.models.hooks import Hooks, model_hooks
 from zoo.paths import REPO_ROOT
 from zoo.registry import ModelEntry, Registry, load_registry
 from zoo.train.host import cpu_has_native_bfloat16, device_name
-from zoo.train.recipe import Recipe, learning_rate, training_recipe
+from zoo.train.recipe import Recipe, learning_rate, patience_spent, training_recipe
 from zoo.train.split import (
     split_train_val,
     training_view_arrays,
@@ -33,6 +33,7 @@ from zoo.train.split import (
 )
 from zoo.train.state import (
     initial_weights,
+    restore_paused,
     resume_changes,
     run_record,
     save_epoch,
@@ -74,6 +75,7 @@ def train(
     stop_after_epoch: int | None = None,
     init_from: str | Path | None = None,
     cuda_graph: bool = False,
+    stop_by: float | None = None,
 ) -> Path:
     """Train ``model_name`` on ``benchmark``'s training split; returns the best checkpoint path.
 
@@ -85,6 +87,10 @@ def train(
     autoencoder phase, then the joint one), recorded with the source's own budget.
 
     ``stop_after_epoch`` ends the run early as if interrupted (tests of ``resume``).
+
+    ``stop_by`` (a ``time.time()``): the run ends by then, its last finished epoch on disk: an
+    epoch that the longest one so far says cannot finish in time is not begun, and one that runs
+    past it is abandoned (a lent machine's time limit).
     """
     registry = registry or load_registry()
     bench = get_benchmark(benchmark) if isinstance(benchmark, (str, Path)) else benchmark
@@ -128,6 +134,9 @@ def train(
     run = _Run(first_epoch=0, best={"val_mpjpe": math.inf, "epoch": -1}, history=[])
     run.init_record = initial[1] if initial is not None else None
     if resume:
+        restored = restore_paused(out_dir, bench.name, model_name)
+        if restored is not None and dist_info.rank == 0:
+            print(f"resuming {model_name} from its paused state in {repo_relative(restored)}")
         run = _resumed(out_dir / "last.pt", model_name, hparams, model, optimizer, recipe, seed)
         run.recipe_changes += resume_changes(
             out_dir / "last.pt", run.state, recipe, seed, max_batches
@@ -140,7 +149,7 @@ def train(
         model_name, model, optimizer, recipe, data, seed, device, dist_info, progress, graphed,
         task=entry.task, max_batches=max_batches,
         fps=getattr(dataset, "mesh", dataset).fps,  # a JointsView: its mesh's rate
-        mesh=bench.representation == "mesh" and view == "mesh",
+        mesh=bench.representation == "mesh" and view == "mesh", stop_by=stop_by,
     )  # fmt: skip
     record = run_record(
         entry, hparams, bench, dataset, recipe, seed, dist_info, view,
@@ -157,7 +166,20 @@ def train(
     if dist_info.rank == 0:
         _print_plan(model_name, bench, data, recipe, epochs.steps, run.first_epoch, seed, out_dir)
     for epoch in range(run.first_epoch, recipe.epochs):
-        line = epochs.run(epoch)
+        if patience_spent(recipe, epoch, run.best["epoch"]):
+            if dist_info.rank == 0:
+                print(
+                    f"{model_name}: stopped after epoch {epoch}: no better validation error "
+                    f"for {recipe.patience} epochs (patience; best at epoch "
+                    f"{run.best['epoch']})",
+                    flush=True,
+                )
+            break
+        try:
+            line = epochs.run(epoch)
+        except OutOfTime as e:
+            print(f"{model_name}: {e}", flush=True)
+            break
         run.history.append(line)
         if dist_info.rank == 0:
             _finish_epoch(out_dir, record, model, optimizer, epoch, run, recipe, device, line)
@@ -317,6 +339,10 @@ def _training_windows(model, model_name, bench, dataset, recipe, hooks: Hooks, p
     )
 
 
+class OutOfTime(Exception):
+    """The run's ``stop_by`` came, or would come, before the epoch could finish."""
+
+
 @dataclass
 class _Run:
     """Where a run stands: its next epoch, best epoch, history and recorded recipe changes."""
@@ -343,8 +369,9 @@ def _resumed(path: Path, model_name, hparams, model, optimizer, recipe, seed) ->
     optimizer.load_state_dict(state["optimizer"])
     torch.set_rng_state(state["rng"])
     history = state["history"]
-    for record in history:  # epochs written before they named their device
+    for record in history:  # epochs written before they named their device and precision
         record.setdefault("device", (state.get("training") or {}).get("device_name"))
+        record.setdefault("precision", (state.get("recipe") or {}).get("precision", "float32"))
     return _Run(
         first_epoch=state["epoch"] + 1,
         best=state["best"],
@@ -374,13 +401,14 @@ class _Epochs:
     def __init__(
         self, model_name, model, optimizer, recipe, data: _Data, seed: int, device,
         dist_info: DistInfo, progress: bool, graphed: bool, *, task: str,
-        max_batches: int | None, fps: float, mesh: bool,
+        max_batches: int | None, fps: float, mesh: bool, stop_by: float | None = None,
     ) -> None:  # fmt: skip
         self.model_name, self.model, self.optimizer = model_name, model, optimizer
         self.recipe, self.data, self.seed, self.device = recipe, data, seed, device
         self.dist_info, self.graphed = dist_info, graphed
         self.progress = progress and dist_info.rank == 0
         self.task, self.fps, self.mesh = task, fps, mesh
+        self.stop_by, self.longest_epoch = stop_by, 0.0
         objective = TrainingObjective(model, task, view=data.view)
         # Some phases leave parameters without gradients (SpecTrHuMS's transformer while the
         # autoencoder trains alone), which DDP must be told to expect.
@@ -400,6 +428,11 @@ class _Epochs:
 
     def run(self, epoch: int) -> dict[str, Any]:
         """0-based ``epoch`` trained and validated: its record in the run's history."""
+        if self.stop_by is not None and time.time() + self.longest_epoch > self.stop_by:
+            raise OutOfTime(
+                f"stopped before epoch {epoch + 1}: it would end past the time limit (the "
+                f"longest epoch so far took {self.longest_epoch:.0f} s)"
+            )
         lr, train_loss, started, seen = self.train_epoch(epoch)
         data = self.data
         validation = validate(
@@ -414,6 +447,7 @@ class _Epochs:
             fps=self.fps,
             mesh=self.mesh,
         )
+        self.longest_epoch = max(self.longest_epoch, time.perf_counter() - started)
         return {
             "epoch": epoch + 1,
             "lr": lr,
@@ -422,6 +456,7 @@ class _Epochs:
             "seconds": time.perf_counter() - started,
             "samples": seen,
             "device": device_name(self.device),  # a resumed run may move between machines
+            "precision": self.recipe.precision,
         }
 
     def frames(self):
@@ -484,6 +519,11 @@ class _Epochs:
         started, seen, loss_sum = time.perf_counter(), 0, 0.0
         batch_size, rank, world = recipe.batch_size, self.dist_info.rank, self.dist_info.world
         for step in range(self.steps):
+            if self.stop_by is not None and time.time() > self.stop_by:
+                raise OutOfTime(
+                    f"epoch {epoch + 1} abandoned at batch {step + 1} of {self.steps}: the "
+                    f"time limit came; the run stands at its last finished epoch"
+                )
             lr = learning_rate(
                 recipe.schedule, recipe.lr, epoch, recipe.epochs, epoch * self.steps + step
             )

@@ -41,6 +41,9 @@ class Recipe:
     # "bfloat16": the training loss (forward) under torch.autocast; weights, optimiser,
     # validation and evaluation stay float32.
     precision: str = "float32"
+    # Early stopping: the run ends once this many epochs have passed without a new best
+    # validation error (MSR-GCN's code trains until its loss stops improving); None: never.
+    patience: int | None = None
 
     def as_dict(self) -> dict[str, Any]:
         """The recipe as records keep it (plain data, every field)."""
@@ -101,6 +104,14 @@ def training_recipe(entry_train: dict[str, Any], overrides: dict[str, Any] | Non
             raise TrainingError(
                 f"training recipe: {key} must be a positive integer, got {recipe[key]!r}"
             )
+    patience = recipe["patience"]
+    if patience is not None and (
+        isinstance(patience, bool) or not isinstance(patience, int) or patience < 1
+    ):
+        raise TrainingError(
+            f"training recipe: patience must be a positive integer (epochs without a new best "
+            f"validation error before the run stops) or null, got {patience!r}"
+        )
     # lr 0 is allowed: it runs the whole pipeline with frozen weights (tests use it).
     if not _positive_number(recipe["lr"], allow_zero=True):
         raise TrainingError(f"training recipe: lr must be a number >= 0, got {recipe['lr']!r}")
@@ -159,6 +170,12 @@ def training_recipe(entry_train: dict[str, Any], overrides: dict[str, Any] | Non
             f"{', '.join(VAL_SPLITS)}"
         )
     return Recipe(**recipe)
+
+
+def patience_spent(recipe: Recipe, epochs_done: int, best_epoch: int) -> bool:
+    """Whether a run that has finished ``epochs_done`` epochs, its best validation at
+    ``best_epoch`` (1-based), stops early under the recipe's ``patience``."""
+    return recipe.patience is not None and epochs_done - max(best_epoch, 0) >= recipe.patience
 
 
 def _positive_number(value, allow_zero: bool = False) -> bool:

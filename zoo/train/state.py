@@ -26,7 +26,7 @@ from zoo.checkpoints import (
 )
 from zoo.distributed import DistInfo
 from zoo.errors import TrainingError
-from zoo.io import code_version, repo_relative, sha256_file
+from zoo.io import atomic_path, code_version, repo_relative, sha256_file
 from zoo.registry import Registry
 from zoo.train.host import device_name, devices_text
 from zoo.train.recipe import DEFAULT_RECIPE, Recipe
@@ -72,9 +72,11 @@ def save_epoch(
     )
 
 
-# The run's budget may grow when it is resumed (each change is recorded with the epoch it took
-# effect); every other field of the recipe must stay what the checkpoint says was run.
-BUDGET_FIELDS = ("epochs", "max_batches")
+# The run's budget may grow when it is resumed, and its precision change with the machine (a
+# GPU's float32 epochs, a bfloat16 CPU's): each change is recorded with the epoch it took
+# effect, and each epoch records its precision; every other field of the recipe must stay what
+# the checkpoint says was run.
+BUDGET_FIELDS = ("epochs", "max_batches", "precision")
 
 
 def resume_changes(
@@ -96,7 +98,7 @@ def resume_changes(
     if differ:
         raise CheckpointError(
             f"{path}: cannot resume with another recipe ({'; '.join(differ)}); only the "
-            f"budget (epochs, max_batches) may change on resume. Resume with the "
+            f"budget (epochs, max_batches) and precision may change on resume. Resume with the "
             f"checkpoint's values, or start a new run in another out_dir"
         )
     done = state["epoch"] + 1
@@ -107,11 +109,15 @@ def resume_changes(
             parameter="epochs",
         )
     changes = list(state.get("recipe_changes") or [])
-    now = {"epochs": recipe.epochs, "max_batches": max_batches}
-    before = {"epochs": stored.get("epochs"), "max_batches": state.get("max_batches")}
+    now = {"epochs": recipe.epochs, "max_batches": max_batches, "precision": recipe.precision}
+    before = {
+        "epochs": stored.get("epochs"),
+        "max_batches": state.get("max_batches"),
+        "precision": stored.get("precision", DEFAULT_RECIPE["precision"]),
+    }
     for field in BUDGET_FIELDS:
         # Checkpoints written before max_batches was recorded cannot say what it was.
-        if field in stored or field in state:
+        if field in stored or field in state or field == "precision":
             if before[field] != now[field]:
                 changes.append(
                     {
@@ -122,6 +128,25 @@ def resume_changes(
                     }
                 )
     return changes
+
+
+def restore_paused(out_dir: Path, benchmark: str, model: str, root=None) -> Path | None:
+    """Where ``out_dir`` holds no ``last.pt``: the committed paused state of ``model`` on
+    ``benchmark`` copied there (its ``last.pt`` and ``best.pt``), so ``--resume`` continues it on
+    a new machine; returns the folder copied from, or None where there is none."""
+    import shutil
+
+    from zoo.weights import paused_dir
+
+    source = paused_dir(benchmark, model, root)
+    if (out_dir / "last.pt").is_file() or not (source / "last.pt").is_file():
+        return None
+    out_dir.mkdir(parents=True, exist_ok=True)
+    for name in ("best.pt", "last.pt"):  # last.pt last: a half-copied run has none
+        if (source / name).is_file():
+            with atomic_path(out_dir / name) as tmp:
+                shutil.copyfile(source / name, tmp)
+    return source
 
 
 def initial_weights(

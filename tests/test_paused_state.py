@@ -1,0 +1,194 @@
+"""A paused training committed compactly (float16 weights, bfloat16 Adam moments) and resumed
+from it on another machine; precision recorded per epoch and changeable on resume."""
+
+import importlib.util
+import json
+import time
+from pathlib import Path
+
+import pytest
+import test_train
+import torch
+from test_train import run
+
+import zoo
+import zoo.weights
+from zoo.checkpoints import CheckpointError, pause_run, read_checkpoint
+from zoo.cli import main
+from zoo.errors import TrainingError
+
+setup = test_train.setup  # the tiny CMU data and registry of the training tests
+
+
+@pytest.fixture
+def weights_root(tmp_path, monkeypatch):
+    root = tmp_path / "weights"
+    monkeypatch.setattr(zoo.weights, "WEIGHTS_DIR", root)
+    return root
+
+
+def test_a_paused_state_is_compact_and_resumes_on_a_new_machine(setup, tmp_path, weights_root):
+    run(setup, tmp_path / "full", epochs=3)
+    run(setup, tmp_path / "first", epochs=3, stop_after_epoch=2)
+    dest = pause_run(tmp_path / "first", root=weights_root)
+    assert dest == weights_root / "in_progress" / "cmu" / "tiny"
+    last = read_checkpoint(dest / "last.pt")
+    assert {t.dtype for t in last["state_dict"].values() if t.is_floating_point()} == {
+        torch.float16
+    }
+    moments = [v for s in last["optimizer"]["state"].values() for k, v in s.items() if k != "step"]
+    assert moments and {v.dtype for v in moments} == {torch.bfloat16}
+    assert read_checkpoint(dest / "best.pt")["stored_as"]["weights"] == "float16"
+    summary = json.loads((dest / "state.json").read_text())
+    assert (summary["epochs_run"], summary["epochs_planned"]) == (2, 3)
+    assert [e["precision"] for e in summary["epochs"]] == ["float32", "float32"]
+    assert "--resume" in summary["resume"]
+
+    # a new machine: no checkpoints folder, only the committed paused state
+    out = tmp_path / "second"
+    run(setup, out, epochs=3, resume=True)
+    resumed = read_checkpoint(out / "last.pt")
+    full = read_checkpoint(tmp_path / "full" / "last.pt")
+    assert [h["epoch"] for h in resumed["history"]] == [1, 2, 3]
+    assert [h["val_mpjpe"] for h in resumed["history"][:2]] == [
+        h["val_mpjpe"] for h in full["history"][:2]
+    ]
+    # the rounding of the paused weights and moments moves the next epoch by little, not nothing
+    for name, weight in full["state_dict"].items():
+        assert torch.allclose(resumed["state_dict"][name], weight, rtol=0.05, atol=1e-3), name
+
+
+def test_pausing_again_replaces_the_state_and_a_tensor_past_float16_stays_float32(
+    setup, tmp_path, weights_root
+):
+    run(setup, tmp_path / "r", epochs=2, stop_after_epoch=1)
+    dest = pause_run(tmp_path / "r", root=weights_root)
+    (dest / "stray.pt").write_bytes(b"from an older pause")
+    last = read_checkpoint(tmp_path / "r" / "last.pt")
+    name = next(k for k, t in last["state_dict"].items() if t.is_floating_point())
+    last["state_dict"][name] = last["state_dict"][name] + 1e5
+    torch.save(last, tmp_path / "r" / "last.pt")
+    pause_run(tmp_path / "r", root=weights_root)
+    assert sorted(p.name for p in dest.iterdir()) == ["best.pt", "last.pt", "state.json"]
+    paused = read_checkpoint(dest / "last.pt")
+    assert paused["state_dict"][name].dtype == torch.float32
+    assert paused["stored_as"]["weights_kept_float32"] == [name]
+    assert zoo.weights.paused_runs(weights_root)[("cmu", "tiny")]["epochs_run"] == 1
+
+
+def test_precision_may_change_on_resume_and_each_epoch_records_its_own(setup, tmp_path):
+    out = tmp_path / "run"
+    run(setup, out, epochs=2, max_batches=2, stop_after_epoch=1)
+    run(setup, out, epochs=2, max_batches=2, resume=True, train_overrides={"precision": "bfloat16"})
+    ckpt = read_checkpoint(out / "last.pt")
+    assert [h["precision"] for h in ckpt["history"]] == ["float32", "bfloat16"]
+    assert ckpt["recipe_changes"] == [
+        {"field": "precision", "from": "float32", "to": "bfloat16", "from_epoch": 2}
+    ]
+
+
+def test_zoo_weights_pause_names_a_missing_run_in_one_line(tmp_path, capsys):
+    assert main(["weights", "pause", str(tmp_path / "nothing")]) != 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "nothing/last.pt does not exist" in err[0]
+
+
+def test_a_paused_state_that_is_not_a_checkpoint_is_refused(tmp_path, weights_root):
+    (tmp_path / "run").mkdir()
+    (tmp_path / "run" / "last.pt").write_bytes(b"not a checkpoint")
+    with pytest.raises(CheckpointError, match="not a motion-zoo checkpoint|truncated"):
+        pause_run(tmp_path / "run", root=weights_root)
+
+
+def test_a_run_past_its_time_limit_begins_no_epoch(setup, tmp_path, capsys):
+    run(setup, tmp_path / "late", epochs=2, stop_by=time.time() - 1)
+    assert not (tmp_path / "late" / "last.pt").exists()
+    assert "stopped before epoch 1: it would end past the time limit" in capsys.readouterr().out
+
+
+def test_the_gpu_command_resumes_a_paused_state_and_brings_it_back(setup, tmp_path, weights_root):
+    """The prepared GPU command, run on the CPU with a tiny budget: packed data, resume from
+    the committed paused state, states back in parts, unpacked into weights/in_progress."""
+    root, _, reg_file = setup
+    script = _gpu_script()
+    packed = tmp_path / "cmu_train.tar.xz"
+    assert script.main(["pack", "--data-root", str(root), "--out", str(packed)]) == 0
+    run(setup, tmp_path / "first", stop_after_epoch=1)
+    pause_run(tmp_path / "first", root=weights_root)
+    out = tmp_path / "OUT"
+    assert (
+        script.main(
+            [
+                "run",
+                "--out",
+                str(out),
+                "--data",
+                str(packed),
+                "--models",
+                "tiny",
+                "--device",
+                "cpu",
+                "--max-batches",
+                "2",
+                "--minutes",
+                "5",
+                "--registry",
+                str(reg_file),
+            ]
+        )  # fmt: skip
+        == 0
+    )
+    log = (out / "log.txt").read_text()
+    assert "tiny: 2 of 2 epochs" in log and "done in" in log
+    parts = sorted((out / "tiny").iterdir())
+    assert [p.name for p in parts] == ["state.tar.00"]
+    assert script.main(["unpack", str(out), "--weights-dir", str(weights_root)]) == 0
+    summary = zoo.weights.paused_runs(weights_root)[("cmu", "tiny")]
+    assert summary["epochs_run"] == 2 and len(summary["epochs"]) == 2
+    # a finished model is passed over by the next run
+    out2 = tmp_path / "OUT2"
+    script.main(
+        ["run", "--out", str(out2), "--data", str(packed), "--models", "tiny", "--device",
+         "cpu", "--registry", str(reg_file)]
+    )  # fmt: skip
+    assert "tiny: finished (2 epochs); nothing to do" in (out2 / "log.txt").read_text()
+
+
+def test_unpack_of_a_folder_without_states_says_so(tmp_path, capsys):
+    assert _gpu_script().main(["unpack", str(tmp_path)]) == 1
+    assert "no <model>/state.tar.00 to unpack" in capsys.readouterr().err
+
+
+def _gpu_script():
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "gpu" / "train_pending.py"
+    spec = importlib.util.spec_from_file_location("train_pending", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_patience_stops_a_run_that_no_longer_improves_and_its_state_says_finished(
+    setup, tmp_path, capsys
+):
+    out = tmp_path / "run"
+    # lr 0: the weights never change, so epoch 1 stays the best and patience 2 ends at 3
+    run(setup, out, epochs=10, max_batches=1, train_overrides={"lr": 0.0, "patience": 2})
+    ckpt = read_checkpoint(out / "last.pt")
+    assert [h["epoch"] for h in ckpt["history"]] == [1, 2, 3]
+    assert "stopped after epoch 3: no better validation error for 2 epochs" in (
+        capsys.readouterr().out
+    )
+    from zoo.checkpoints import paused_summary
+
+    assert paused_summary(ckpt)["finished"] is True
+    run(
+        setup,
+        out,
+        epochs=10,
+        max_batches=1,
+        resume=True,
+        train_overrides={"lr": 0.0, "patience": 2},
+    )
+    assert read_checkpoint(out / "last.pt")["epoch"] == 2  # resuming adds no epoch
+    with pytest.raises(TrainingError, match="patience must be a positive integer"):
+        run(setup, tmp_path / "bad", train_overrides={"patience": 0})
