@@ -13,11 +13,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from zoo.cli import main
 from zoo.clips import Clips, cluster_vertices
 from zoo.paths import REPO_ROOT
+from zoo.registry import load_registry
 from zoo.results import EvalResult, table_labels
 from zoo.site import build_site
 from zoo.tables import headline_key, table_summary
+from zoo.weights import unshipped_models
 
 RESULTS = REPO_ROOT / "results"
 TABLE = RESULTS / "cmu_anny_oi_low" / "stride5_strict"
@@ -256,3 +259,24 @@ def test_zoo_site_cli_reports_and_refuses_a_foreign_folder(tmp_path):
         text=True,
     )
     assert again.returncode == 0, again.stderr
+
+
+def test_a_model_without_weights_says_where_its_training_stands(tmp_path, capsys):
+    """zoo list, the site's index and the model's page: "training: no weights shipped yet",
+    with the epochs its paused state has done of those planned (0 of the recipe's without)."""
+    weights = tmp_path / "weights"
+    shutil.copytree(REPO_ROOT / "weights" / "cmu", weights / "cmu")
+    paused = weights / "in_progress" / "cmu" / "msrgcn"
+    paused.mkdir(parents=True)
+    (paused / "state.json").write_text(json.dumps({"epochs_run": 3, "epochs_planned": 58}))
+    status = "training: no weights shipped yet (3 of 58 epochs done)"
+    unshipped = unshipped_models(load_registry(), weights)
+    assert unshipped["msrgcn"] == status and "spgsn" not in unshipped and "ltd" not in unshipped
+    (tmp_path / "results").mkdir()
+    build_site(tmp_path / "site", tmp_path / "results", weights_root=weights)
+    assert status in (tmp_path / "site" / "index.html").read_text()
+    assert status in (tmp_path / "site" / "model-msrgcn.html").read_text()
+    assert "spgsn</a>: SPGSN" in (tmp_path / "site" / "index.html").read_text()
+    assert main(["list"]) == 0  # the repository's weights: msrgcn has none
+    line = next(x for x in capsys.readouterr().out.splitlines() if x.startswith("msrgcn "))
+    assert "training: no weights shipped yet (" in line

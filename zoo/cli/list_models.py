@@ -19,7 +19,10 @@ def run(args) -> int:
     import shutil
     import textwrap
 
+    from zoo.weights import unshipped_models
+
     registry = registry_of(args)
+    unshipped = unshipped_models(registry)
     width = min(100, shutil.get_terminal_size((100, 24)).columns)
     blocks = []
     for name in registry.list_models(args.representation):
@@ -29,6 +32,8 @@ def run(args) -> int:
             if e.trainable
             else (f"runs {e.weights_of}'s weights" if e.weights_of else "not trained")
         )
+        if name in unshipped:
+            trains += f"; {unshipped[name]}"
         lines = [f"{name}  ({'/'.join(e.representation)}; {trains})"]
         for label, text in (("", e.description), ("Reference: ", e.reference)):
             if text:

@@ -71,6 +71,7 @@ class Model:
     description: str
     shipped: list[dict[str, Any]] = field(default_factory=list)  # weights records
     problems: list[str] = field(default_factory=list)
+    training: str | None = None  # a trainable model without shipped weights: where it stands
 
     @property
     def page(self) -> str:
@@ -231,6 +232,7 @@ def read_models(
     ``problems``."""
     from zoo.cards import shipped_weights
     from zoo.errors import ZooError
+    from zoo.weights import unshipped_models
 
     try:
         shipped = shipped_weights(weights_root)
@@ -238,6 +240,11 @@ def read_models(
         where = weights_root or "weights/"
         problems.append(f"{where}: the shipped weights' records cannot be read ({exc})")
         shipped = {}
+    try:
+        unshipped = unshipped_models(registry, weights_root)
+    except (ZooError, KeyError, TypeError, ValueError) as exc:
+        problems.append(f"{weights_root or 'weights/'}: paused trainings cannot be read ({exc})")
+        unshipped = {}
     out = []
     for name in registry.list_models():
         entry = registry.get(name)
@@ -251,6 +258,7 @@ def read_models(
             card,
             " ".join(str(getattr(entry, "description", "") or "").split()),
             [dict(s.record, benchmarks=list(s.benchmarks)) for s in files],
+            training=unshipped.get(name),
         )
         if card is None:
             model.problems.append(f"{card_path}: missing (the model's card); zoo cards writes it")
