@@ -4,6 +4,7 @@ scripts, not of the figures they print. speed_anny needs the ``anny`` package an
 data, and a warm anny cache (test_anny.py builds it) to take seconds rather than minutes."""
 
 import importlib.util
+import math
 from pathlib import Path
 
 import pytest
@@ -24,6 +25,7 @@ SCRIPTS = [
     "speed_spectral",
     "speed_spectrhums",
     "speed_spgsn",
+    "speed_spgsn_training",
     "speed_training_view",
 ]
 
@@ -147,6 +149,20 @@ def test_speed_spgsn(capsys):
     load("speed_spgsn").main(["--tiny", "--repeats", "1", "--bf16", "--models", "spgsn", "mlp"])
     out = capsys.readouterr().out
     assert "public code" in out and "== mlp ==" in out and "aim (>=" in out
+
+
+def test_speed_spgsn_training_prints_a_finite_rate_for_every_configuration(capsys):
+    load("speed_spgsn_training").main(["--tiny", "--repeats", "1", "--no-compile"])
+    out = capsys.readouterr().out
+    rows = {}
+    for line in out.splitlines():
+        label, _, cells = line.partition("  ")
+        if label in ("float32 eager", "bfloat16 eager", "public code, float32 eager"):
+            rows[label] = [float(c.rstrip("x")) for c in cells.split()[:3]]
+    assert len(rows) == 3
+    assert all(math.isfinite(v) and v > 0 for cells in rows.values() for v in cells)
+    assert rows["public code, float32 eager"][2] == 1.0  # its own ratio
+    assert "float32 eager: aten::" in out and "bfloat16 eager: aten::" in out
 
 
 @pytest.mark.slow  # out of the README test command's 2 minutes; .ci/run runs it after
