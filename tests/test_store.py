@@ -560,3 +560,73 @@ def test_a_model_reaches_what_it_imports_inside_its_methods(tmp_path):
     )
     code = reachable_code(_model_class(tmp_path / "local", local))
     assert any(c.startswith("zoo/models/dct.py::dct_matrix::") for c in code)
+
+
+AUTHORS_FILE = """\
+from torch import nn
+
+
+class AuthorsNet(nn.Module):
+    def __init__(self):
+        super().__init__()
+        self.act = nn.Tanh()
+
+    def forward(self, x):
+        return self.act(x)
+
+
+class Unused(nn.Module):
+    pass
+"""
+
+WRAPPER_FILE = """\
+from torch import nn
+{import_line}
+
+
+class Wrapper(nn.Module):
+    def __init__(self, **_):
+        super().__init__()
+        self.net = {use}
+
+    def forward(self, history):
+        return self.net(history)
+"""
+
+
+@pytest.mark.parametrize(
+    "import_line, use",
+    [
+        ("from authors import AuthorsNet", "AuthorsNet()"),
+        ("import authors", "authors.AuthorsNet()"),
+        ("import authors as au", "au.AuthorsNet()"),
+    ],
+)
+def test_a_wrapper_imports_the_file_beside_it_and_its_fingerprint_follows_that_file(
+    tmp_path, import_line, use
+):
+    """A researcher's class file imports the authors' code from a file beside it (the
+    registry puts its folder on sys.path), and the model's fingerprint covers what it reaches
+    there: an activation changed in that file makes its rows stale, wherever the folder is."""
+    from zoo.registry import Registry
+    from zoo.store import model_fingerprint
+
+    def fingerprint(folder: Path, authors: str) -> str:
+        folder.mkdir()
+        (folder / "authors.py").write_text(authors)
+        (folder / "wrapper.py").write_text(WRAPPER_FILE.format(import_line=import_line, use=use))
+        (folder / "my.yaml").write_text(
+            "models:\n  mine:\n    class: wrapper.py:Wrapper\n    representation: joints\n"
+        )
+        sys.modules.pop("authors", None)  # each folder's own authors.py
+        cls = Registry.from_files(folder / "my.yaml").get("mine").load_class()
+        assert cls()(torch.zeros(2)).shape == (2,)
+        return model_fingerprint(cls)
+
+    before = fingerprint(tmp_path / "a", AUTHORS_FILE)
+    assert fingerprint(tmp_path / "b", AUTHORS_FILE) == before  # another folder, same code
+    relu = fingerprint(tmp_path / "c", AUTHORS_FILE.replace("nn.Tanh()", "nn.ReLU()"))
+    unused = fingerprint(tmp_path / "d", AUTHORS_FILE.replace("    pass", "    x = 1"))
+    assert relu != before
+    # a name imported from the file: only what it reaches; the module itself: all of it
+    assert (unused == before) == import_line.startswith("from")

@@ -108,6 +108,9 @@ class ModelEntry:
                 module_name = f"zoo_user_{abs(hash(str(file)))}"
                 module = sys.modules.get(module_name)
                 if module is None:
+                    # as Python runs a script: the files beside it import by their names
+                    if str(file.parent) not in sys.path:
+                        sys.path.insert(0, str(file.parent))
                     spec = importlib.util.spec_from_file_location(module_name, file)
                     module = importlib.util.module_from_spec(spec)
                     sys.modules[module_name] = module

@@ -243,7 +243,7 @@ def _module_parts(path: str, mtime_ns: int) -> tuple[dict, dict, list]:
             if not names:
                 others.append(node)
         elif isinstance(node, (ast.Import, ast.ImportFrom)):
-            imports.update(_import_bindings(node, package))
+            imports.update(_import_bindings(node, package, Path(path)))
         else:
             others.append(node)
     return defs, imports, others
@@ -261,16 +261,38 @@ def _bound_names(target) -> list[str]:
     return []
 
 
-def _import_bindings(node, package: str) -> dict[str, tuple]:
+def _beside(path: Path | None, module: str) -> Path | None:
+    """The file of ``module`` where it lies beside ``path``, a model file outside the zoo
+    package (a researcher's wrapper importing the authors' code from its folder, which the
+    registry puts on ``sys.path``); None for zoo's own files and for installed modules."""
+    if path is None or not module or path.is_relative_to(REPO_ROOT / "zoo"):
+        return None
+    parts = module.split(".")
+    for candidate in (
+        path.parent.joinpath(*parts).with_suffix(".py"),
+        path.parent.joinpath(*parts, "__init__.py"),
+    ):
+        if candidate.is_file():
+            return candidate.resolve()
+    return None
+
+
+def _import_bindings(node, package: str, path: Path | None = None) -> dict[str, tuple]:
     """The names an import statement binds: ``("zoo", module, attribute or None)`` for a zoo
-    module or one of its names, ``("outside", text)`` for anything else."""
+    module or one of its names, ``("beside", file, attribute or None)`` for a module beside a
+    model file outside zoo (:func:`_beside`), ``("outside", text)`` for anything else."""
     bindings: dict[str, tuple] = {}
     if isinstance(node, ast.Import):
         for alias in node.names:
-            if alias.name.split(".")[0] == "zoo":
+            beside = _beside(path, alias.name) if alias.asname else None
+            if beside is not None:
+                bindings[alias.asname] = ("beside", beside, None)
+            elif alias.name.split(".")[0] == "zoo":
                 # import zoo.a.b binds zoo; import zoo.a.b as m binds the module itself
                 bound = alias.asname or "zoo"
                 bindings[bound] = ("zoo", alias.name if alias.asname else "zoo", None)
+            elif _beside(path, alias.name.split(".")[0]) is not None and "." not in alias.name:
+                bindings[alias.name] = ("beside", _beside(path, alias.name), None)
             else:
                 bindings[alias.asname or alias.name.split(".")[0]] = (
                     "outside",
@@ -278,9 +300,15 @@ def _import_bindings(node, package: str) -> dict[str, tuple]:
                 )
         return bindings
     base = _import_base(node, package)
+    beside = _beside(path, base) if not node.level else None
     for alias in node.names:
         bound = alias.asname or alias.name
-        if base.split(".")[0] == "zoo" and alias.name != "*":
+        if beside is not None and alias.name != "*":
+            submodule = _beside(path, f"{base}.{alias.name}")
+            bindings[bound] = (
+                ("beside", submodule, None) if submodule else ("beside", beside, alias.name)
+            )
+        elif base.split(".")[0] == "zoo" and alias.name != "*":
             submodule = f"{base}.{alias.name}"
             bindings[bound] = (
                 ("zoo", submodule, None)
@@ -355,7 +383,7 @@ def reachable_code(cls: type) -> list[str] | None:
         for node in nodes:
             for sub in ast.walk(node):
                 if isinstance(sub, (ast.Import, ast.ImportFrom)):
-                    local.update(_import_bindings(sub, _package_of(path)))
+                    local.update(_import_bindings(sub, _package_of(path), path))
         for used in uses:
             head = used[0]
             if head in defs and head != name and head not in local:
@@ -364,6 +392,17 @@ def reachable_code(cls: type) -> list[str] | None:
                 kind, *target = local.get(head) or imports[head]
                 if kind == "outside":
                     pieces.add(f"{label(path)}::import::{target[0]}")
+                    continue
+                if kind == "beside":  # a researcher's own module: followed as zoo's are
+                    target_file, attribute = target
+                    attribute = attribute or (used[1] if len(used) > 1 else None)
+                    parts = _module_parts(str(target_file), target_file.stat().st_mtime_ns)
+                    if attribute is None or (
+                        attribute not in parts[0] and attribute not in parts[1]
+                    ):
+                        todo += [(target_file, n) for n in parts[0]] + [(target_file, None)]
+                    else:
+                        todo.append((target_file, attribute))
                     continue
                 module, attribute = target
                 rest = list(used[1:])
