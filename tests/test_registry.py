@@ -308,3 +308,42 @@ def test_a_model_kept_out_of_the_leaderboards_is_still_a_zoo_model():
     )
     history = torch.tensor([[[[0.0, 0, 0]], [[1.0, 0, 0]], [[2.0, 0, 0]]]])
     assert model(history)[0, :, 0, 0].tolist() == [3.0, 4.0]
+
+
+STILL = """\
+from torch import nn
+
+
+class Still(nn.Module):
+    def __init__(self, input_frames, output_frames, num_points):
+        super().__init__()
+        self.output_frames = output_frames
+
+    def forward(self, history):
+        return history[:, -1:].expand(-1, self.output_frames, -1, -1)
+"""
+
+
+def test_the_api_takes_a_registry_files_path(tmp_path):
+    """zoo.evaluate and zoo.create_model take the path of one's registry file (or a list),
+    as --registry does; anything else, or a missing file, is one clear error before any data
+    is read."""
+    import numpy as np
+    from conftest import write_cmu_file
+
+    import zoo
+    from zoo.registry import RegistryError
+
+    root = tmp_path / "cmu"
+    write_cmu_file(root / "test" / "walking" / "walking_1.txt", 0.01 * np.arange(400))
+    (tmp_path / "still.py").write_text(STILL)
+    reg = tmp_path / "my_registry.yaml"
+    reg.write_text("models:\n  still:\n    class: still.py:Still\n    representation: joints\n")
+    result = zoo.evaluate("still", "cmu", registry=str(reg), data_root=root, sampler="all")
+    assert len(result.frame) > 0
+    assert type(zoo.create_model("still", "cmu", registry=reg)).__name__ == "Still"
+    assert zoo.create_model("still", "cmu", registry=[reg]) is not None
+    with pytest.raises(RegistryError, match="zoo.evaluate: registry must be a zoo.Registry"):
+        zoo.evaluate("still", "cmu", registry=3, data_root=tmp_path / "no data")
+    with pytest.raises(RegistryError, match="registry file .*nope.yaml does not exist"):
+        zoo.evaluate("still", "cmu", registry=tmp_path / "nope.yaml", data_root=tmp_path / "x")

@@ -15,7 +15,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from zoo.registry import Registry, RegistryError, load_registry
+from zoo.registry import Registry, RegistryError, as_registry, load_registry
 
 
 def list_models(representation: str | None = None) -> list[str]:
@@ -25,7 +25,7 @@ def list_models(representation: str | None = None) -> list[str]:
 def create_model(
     name: str,
     benchmark: Any = None,
-    registry: Registry | None = None,
+    registry: Registry | str | Path | None = None,
     pretrained: bool = False,
     **overrides: Any,
 ):
@@ -35,8 +35,9 @@ def create_model(
     ``pretrained=True`` returns the model trained on ``benchmark`` from the weights shipped in
     ``weights/<benchmark>/<name>.safetensors`` (``name`` may be ``<model>@last``; an entry with
     ``weights_of`` ships a link to that model's), in eval mode; the error lists the shipped ones
-    when there are none."""
-    registry = registry or load_registry()
+    when there are none. ``registry``: a :class:`zoo.registry.Registry`, or the path of your
+    registry file (or a list of them), added to the project's."""
+    registry = as_registry(registry, "zoo.create_model")
     if pretrained:
         from zoo.checkpoints import load_weights
         from zoo.weights import pretrained_path
@@ -79,7 +80,7 @@ def evaluate(
     sampler: str | None = None,
     data_root: str | Path | None = None,
     dataset: Any = None,
-    registry: Registry | None = None,
+    registry: Registry | str | Path | None = None,
     out: str | Path | None = None,
     store: bool = False,
     replace: bool = False,
@@ -95,7 +96,8 @@ def evaluate(
     Nothing is written unless asked: ``out=FOLDER``, or ``store=True`` for
     ``results/<benchmark>/<table>/<label>/``, which refuses a stored result of another identity
     unless ``replace=True``. ``dataset``: the benchmark's test data already loaded
-    (``get_benchmark(b).load(root)``), instead of loading it from ``data_root``.
+    (``get_benchmark(b).load(root)``), instead of loading it from ``data_root``. ``registry``:
+    a :class:`zoo.registry.Registry`, or the path of your registry file (or a list of them).
     ``options``: ``task`` (``prediction``, ``completion`` or ``longterm`` with ``horizon``
     frames), ``ground_truth`` and ``melv_frames`` (mesh benchmarks: ``raw`` or ``spectral``),
     ``view`` (``joints`` for a skeleton module on a mesh benchmark), ``batch_size``."""
@@ -113,8 +115,8 @@ def evaluate(
     bench = get_benchmark(benchmark) if isinstance(benchmark, (str, Path)) else benchmark
     if dataset is not None and data_root is not None:
         raise EvaluationError("zoo.evaluate: give dataset (loaded data) or data_root, not both")
+    registry = as_registry(registry, "zoo.evaluate")
     dataset = dataset if dataset is not None else bench.load(data_root)
-    registry = registry or load_registry()
     if isinstance(model, torch.nn.Module):
         default_view = "mesh" if bench.representation == "mesh" else "joints"
         subject = Subject.of_module(

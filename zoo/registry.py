@@ -357,3 +357,23 @@ def load_registry(*extra: str | Path) -> Registry:
         )
     env = [p for p in os.environ.get("ZOO_REGISTRY", "").split(os.pathsep) if p]
     return Registry.from_files(DEFAULT_REGISTRY, *env, *extra)
+
+
+def as_registry(registry: Registry | str | Path | list | tuple | None, what: str) -> Registry:
+    """What an API function's ``registry=`` may be: a :class:`Registry`, the path of a registry
+    file or a list of them (added to the project's, as ``--registry`` adds them), or None (the
+    project's); anything else is refused naming ``what``."""
+    if registry is None:
+        return load_registry()
+    if isinstance(registry, Registry):
+        return registry
+    files = [registry] if isinstance(registry, (str, Path)) else registry
+    if not isinstance(files, (list, tuple)) or not all(isinstance(f, (str, Path)) for f in files):
+        raise RegistryError(
+            f"{what}: registry must be a zoo.Registry or the path of a registry file (or a list "
+            f"of them), got {type(registry).__name__}"
+        )
+    missing = [str(f) for f in files if not Path(f).is_file()]
+    if missing:
+        raise RegistryError(f"{what}: registry file {missing[0]} does not exist")
+    return load_registry(*files)
