@@ -285,3 +285,34 @@ def test_an_interrupted_leaderboard_leaves_the_old_folder_whole(tmp_path, monkey
         if p.name.startswith(".") and not p.name.endswith(".lock")
     ]
     assert leftovers == []
+
+
+def test_a_model_asked_for_by_name_without_weights_is_an_error_naming_where_it_looked(
+    tmp_path, capsys
+):
+    """--model of a trainable model with no shipped weights and no checkpoint: not '22 rows
+    reused, 0 recomputed' and exit 0, but one error naming the files it looked for; nothing
+    written."""
+    from zoo.cli import main
+    from zoo.store import StoreError
+
+    root, registry = cmu_and_registry(tmp_path)
+    out = tmp_path / "results"
+    with pytest.raises(StoreError, match=r"--model tiny \(looked for .*tiny.safetensors and "):
+        regenerate(
+            "cmu",
+            registry=registry,
+            data_root=root,
+            out_root=out,
+            checkpoints=tmp_path / "checkpoints",
+            weights=tmp_path / "weights",
+            plan=Plan(models=frozenset({"tiny"})),
+        )
+    assert not out.exists()
+    code = main(
+        ["leaderboard", "--registry", str(tmp_path / "registry.yaml"), "--benchmark", "cmu",
+         "--model", "tiny", "--data-root", str(root), "--results", str(out)]
+    )  # fmt: skip
+    err = capsys.readouterr().err
+    assert code != 0 and "no trained weights to score, so no row; train it" in err
+    assert "Traceback" not in err

@@ -26,7 +26,7 @@ from zoo.check import (
     verification_record,
 )
 from zoo.efficiency import COSTS_FILE, Costs, architecture, cost_key
-from zoo.io import atomic_write_json, replace_folder
+from zoo.io import atomic_write_json, replace_folder, repo_relative
 from zoo.model_source import ModelSource
 from zoo.pipeline import Subject, compute_all
 from zoo.protocol import plan_protocol
@@ -216,6 +216,7 @@ class Leaderboard:
     def run(self) -> list[Path]:
         bench, check = self.bench, self.plan.check
         written, changed = [], False
+        self._refuse_models_without_rows()
         if check is None:
             self._preflight()
         for sampler, task, truth, folder in self.tables():
@@ -269,6 +270,31 @@ class Leaderboard:
             file=sys.stderr,
         )
         return written
+
+    def _refuse_models_without_rows(self) -> None:
+        """A model asked for by name (``--model``) that has nothing to be scored from: a
+        trainable one with neither shipped weights nor a checkpoint here. Refused naming where
+        the leaderboard looked, rather than reporting its other rows reused and exiting 0."""
+        empty = []
+        for name in self.plan.models:
+            entry = self.registry.get(name)
+            if entry.leaderboard and not any(r.name == name for r in self.rows(entry.task)):
+                trained_as = entry.weights_of or name
+                looked = [
+                    repo_relative(self.weights / self.bench.name / f"{trained_as}.safetensors")
+                    if self.weights
+                    else None,
+                    repo_relative(self.checkpoints / self.bench.name / trained_as / "best.pt")
+                    if self.checkpoints
+                    else None,
+                ]
+                empty.append(f"{name} (looked for {' and '.join(p for p in looked if p)})")
+        if empty:
+            raise StoreError(
+                f"--model {', '.join(empty)}: no trained weights to score, so no row; train it "
+                f"(zoo train --model {empty[0].split()[0]} --benchmark {self.bench.name}, with "
+                f"--registry for your own) or export its weights (zoo weights export)"
+            )
 
     def _preflight(self) -> None:
         """Before anything is evaluated or written: a stored row that this run would replace
@@ -749,7 +775,7 @@ def _same_files(old: Path, new: Path) -> bool:
 
 
 def _why_not_planned(folder: Path, board: Leaderboard) -> str:
-    from zoo.io import registry_record, repo_relative
+    from zoo.io import registry_record
 
     recorded = recorded_registry(folder)
     entries = board.registry.entries.values()
