@@ -110,4 +110,6 @@ def test_recipe_decays_as_the_code_does():
     rates = [learning_rate(recipe.schedule, recipe.lr, e, 50) for e in range(6)]
     expected = [2e-4 * 0.98 ** ((e + 1) // 2) for e in range(6)]
     assert rates == pytest.approx(expected)
-    assert (recipe.batch_size, recipe.epochs, recipe.grad_clip) == (16, 50, None)
+    assert (recipe.batch_size, recipe.grad_clip) == (16, None)
+    # to the released checkpoint's epoch, or until 10 epochs bring no better validation
+    assert (recipe.epochs, recipe.patience) == (58, 10)
