@@ -193,3 +193,16 @@ def test_a_reader_that_leaves_ends_the_command_quietly():
     process.stdout.close()  # the reader is gone before the first write
     _, err = process.communicate(timeout=120)
     assert process.returncode == 141 and err == b""
+
+
+def test_compare_help_states_the_block_length_the_bootstrap_uses(capsys):
+    import re
+
+    from zoo.cli import main
+    from zoo.intervals import BLOCK_WINDOWS
+
+    with pytest.raises(SystemExit):
+        main(["compare", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    said = re.search(r"default: (\d+) window lengths", text)
+    assert said and int(said.group(1)) == BLOCK_WINDOWS

@@ -26,12 +26,19 @@ def test_unknown_model_lists_valid_names():
 
 
 def test_unknown_hparam_lists_valid_ones():
+    """The model's own hyper-parameters, the benchmark's shape arguments apart (a --set of one
+    of those is refused as fixed by the benchmark)."""
     with pytest.raises(
         RegistryError,
-        match=r"no hyper-parameter 'depth'; valid: input_frames, "
-        r"num_points, output_frames",
+        match=r"no hyper-parameter 'depth'; its hyper-parameters: none \(input_frames, "
+        r"output_frames, num_points come from the benchmark\)",
     ):
         zoo.create_model("repeat_last", benchmark="cmu", depth=3)
+    with pytest.raises(
+        RegistryError,
+        match=r"its hyper-parameters: blocks, dct_n, dropout, hidden \(input_frames, ",
+    ):
+        zoo.create_model("ltd", benchmark="cmu", hiden=3)
 
 
 def test_missing_shape_args_say_benchmark_supplies_them():
@@ -187,7 +194,7 @@ def test_user_baseline_from_outside_zoo(tmp_path, swinging_cmu, capsys):
         )
         == 2
     )
-    assert "valid: damping" in capsys.readouterr().err
+    assert "its hyper-parameters: damping" in capsys.readouterr().err
 
 
 def test_command_line_overrides_read_numbers_as_numbers():
@@ -347,3 +354,46 @@ def test_the_api_takes_a_registry_files_path(tmp_path):
         zoo.evaluate("still", "cmu", registry=3, data_root=tmp_path / "no data")
     with pytest.raises(RegistryError, match="registry file .*nope.yaml does not exist"):
         zoo.evaluate("still", "cmu", registry=tmp_path / "nope.yaml", data_root=tmp_path / "x")
+
+
+def test_a_users_model_that_raises_in_its_forward_gets_a_short_headed_error(tmp_path, capsys):
+    """The authors' .cuda() inside forward: one error line naming the exception, then only the
+    frames of the researcher's own files; not a raw traceback through the zoo and torch."""
+    import numpy as np
+    from conftest import write_cmu_file
+
+    root = tmp_path / "cmu"
+    write_cmu_file(root / "test" / "walking" / "walking_1.txt", 0.01 * np.arange(400))
+    (tmp_path / "still.py").write_text(
+        STILL.replace("        return history", "        raise RuntimeError('no CUDA here')\n"
+                      "        return history")
+    )  # fmt: skip
+    reg = tmp_path / "my_registry.yaml"
+    reg.write_text("models:\n  still:\n    class: still.py:Still\n    representation: joints\n")
+    code = main(
+        ["eval", "--registry", str(reg), "--model", "still", "--data-root", str(root),
+         "--sampler", "all", "--out", str(tmp_path / "out")]
+    )  # fmt: skip
+    err = capsys.readouterr().err
+    assert code == 1
+    assert "zoo eval: error: your code raised RuntimeError: no CUDA here" in err
+    assert "still.py" in err and "in forward" in err
+    assert "zoo/evaluation.py" not in err and "torch/nn" not in err
+    assert "Traceback" not in err and len(err.strip().splitlines()) < 8
+
+
+def test_an_unknown_model_defined_by_a_registry_file_here_suggests_that_file(
+    tmp_path, capsys, monkeypatch
+):
+    (tmp_path / "still.py").write_text(STILL)
+    (tmp_path / "my_registry.yaml").write_text(
+        "models:\n  still:\n    class: still.py:Still\n    representation: joints\n"
+    )
+    (tmp_path / "other.yaml").write_text("not: [a registry\n")  # unreadable: passed over
+    monkeypatch.chdir(tmp_path)
+    assert main(["eval", "--model", "still", "--data-root", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert "unknown model 'still'" in err
+    assert "(my_registry.yaml here defines 'still': add --registry my_registry.yaml)" in err
+    assert main(["eval", "--model", "nothing_defines_this", "--data-root", str(tmp_path)]) == 2
+    assert "here defines" not in capsys.readouterr().err

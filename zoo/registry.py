@@ -60,6 +60,14 @@ class RegistryError(ZooError, KeyError):
         return str(self.args[0])
 
 
+class UnknownModelError(RegistryError):
+    """A model name no loaded registry defines (``model``: the name asked for)."""
+
+    def __init__(self, message: str, model: str) -> None:
+        super().__init__(message)
+        self.model = model
+
+
 @dataclass(frozen=True)
 class ModelEntry:
     name: str
@@ -216,8 +224,9 @@ class Registry:
 
             close = difflib.get_close_matches(str(name), self.list_models(), n=3, cutoff=0.6)
             hint = f"did you mean {' or '.join(close)}? " if close else ""
-            raise RegistryError(
-                f"unknown model {name!r}; {hint}registered models: {', '.join(self.list_models())}"
+            raise UnknownModelError(
+                f"unknown model {name!r}; {hint}registered models: {', '.join(self.list_models())}",
+                str(name),
             )
         return self.entries[name]
 
@@ -226,10 +235,12 @@ class Registry:
         entry = self.get(name)
         unknown = sorted(set(overrides) - set(entry.valid_args))
         if unknown:
+            supplied = [*SHAPE_ARGS, *entry.context]
             raise RegistryError(
                 f"model {name!r} has no hyper-parameter "
-                f"{', '.join(map(repr, unknown))}; valid: "
-                f"{', '.join(entry.valid_args)}"
+                f"{', '.join(map(repr, unknown))}; its hyper-parameters: "
+                f"{', '.join(sorted(entry.hparams)) or 'none'} ({', '.join(supplied)} come from "
+                f"the benchmark)"
             )
         args = {**entry.hparams, **overrides}
         missing = [a for a in (*SHAPE_ARGS, *entry.context) if a not in args]

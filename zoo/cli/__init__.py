@@ -10,6 +10,7 @@ import argparse
 import os
 import sys
 from collections.abc import Sequence
+from pathlib import Path
 
 from zoo.cli import (
     cards,
@@ -31,6 +32,7 @@ from zoo.cli.common import (
     check_device,
     in_flags,
     parse_overrides,
+    registry_hint,
     shape_overrides,
 )
 from zoo.errors import ZooError
@@ -79,7 +81,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         sys.stdout.flush()  # a closed pipe shows here, not at the interpreter's exit
         return code
     except ZooError as e:
-        print(f"zoo {args.command}: error: {in_flags(e)}", file=sys.stderr)
+        print(f"zoo {args.command}: error: {in_flags(e)}{registry_hint(e)}", file=sys.stderr)
         return 2
     except BrokenPipeError:  # the reader left (zoo list | head): no traceback, no more output
         _discard_stdout()
@@ -91,6 +93,37 @@ def main(argv: Sequence[str] | None = None) -> int:
             file=sys.stderr,
         )
         return 130
+    except Exception as e:
+        frames = _user_frames(e)
+        if not frames:
+            raise  # the zoo's own fault: the whole traceback, to report
+        import traceback
+
+        print(
+            f"zoo {args.command}: error: your code raised {type(e).__name__}: {e}\n"
+            f"(a model or registry file outside the zoo; its frames, innermost last:)",
+            file=sys.stderr,
+        )
+        print("".join(traceback.format_list(frames)), end="", file=sys.stderr)
+        return 1
+
+
+def _user_frames(error: BaseException) -> list:
+    """The frames of ``error``'s traceback in a researcher's own files: neither the zoo's
+    package nor an installed library (site-packages) nor Python's own."""
+    import sysconfig
+    import traceback
+
+    skip = [
+        str(Path(__file__).resolve().parents[1]),
+        *{sysconfig.get_paths()[k] for k in ("stdlib", "purelib", "platlib")},
+    ]
+    return [
+        frame
+        for frame in traceback.extract_tb(error.__traceback__)
+        if not any(str(Path(frame.filename).resolve()).startswith(s) for s in skip)
+        and not frame.filename.startswith("<")
+    ]
 
 
 def _discard_stdout() -> None:

@@ -34,6 +34,26 @@ def in_flags(error: ZooError) -> str:
     return text
 
 
+def registry_hint(error: ZooError, folder: Path | None = None) -> str:
+    """For an unknown model: the registry files in ``folder`` (the working one) that define it,
+    as the ``--registry`` to add; empty otherwise."""
+    from zoo.registry import UnknownModelError
+
+    if not isinstance(error, UnknownModelError):
+        return ""
+    defining = []
+    for path in sorted((folder or Path.cwd()).glob("*.y*ml")):
+        try:
+            models = (yaml.safe_load(path.read_text()) or {}).get("models")
+        except (OSError, UnicodeDecodeError, yaml.YAMLError, AttributeError):
+            continue
+        if isinstance(models, dict) and error.model in models:
+            defining.append(path.name)
+    if not defining:
+        return ""
+    return f" ({defining[0]} here defines {error.model!r}: add --registry {defining[0]})"
+
+
 class HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
     """Each option's default shown by the formatter (none where it has none), paths inside the
     repository shown relative to it."""

@@ -35,7 +35,8 @@ def add(sub) -> None:
     p.add_argument(
         "--block-frames",
         type=positive_int,
-        help="bootstrap block length in frames (default: eight window lengths)",
+        help="bootstrap block length in frames (default: 2 window lengths, BLOCK_WINDOWS in "
+        "zoo/intervals.py)",
     )
     p.add_argument("--confidence", type=float, default=0.95, help="level of the intervals")
     p.add_argument("--replicates", type=positive_int, default=2000, help="bootstrap replicates")

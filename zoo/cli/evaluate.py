@@ -67,6 +67,7 @@ def add(sub) -> None:
 
 
 def run(args) -> int:
+    from zoo.data.windows import check_sampler
     from zoo.distributed import init_distributed
     from zoo.pipeline import Subject, compute, place, store
     from zoo.protocol import plan_protocol
@@ -76,6 +77,11 @@ def run(args) -> int:
     registry = registry_of(args)
     source = model_source(args)
     bench = benchmark_of(args, source, "cmu")
+    # what can be refused without the data first: a model name, its class, a sampler's name
+    if source.name is not None:
+        registry.get(source.name).load_class()
+    for sampler in args.sampler or ():
+        check_sampler(sampler)
     dataset = bench.load(args.data_root)
     loaded = source.load(registry, bench, dataset, args.data_root)
     loaded.warn_if_untrained()
