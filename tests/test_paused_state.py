@@ -1,5 +1,6 @@
-"""A paused training committed compactly (float16 weights, bfloat16 Adam moments) and resumed
-from it on another machine; precision recorded per epoch and changeable on resume."""
+"""A paused training committed compactly (float16 weights, Adam moments in 8 bits and
+bfloat16) and resumed from it on another machine; precision recorded per epoch and changeable
+on resume."""
 
 import importlib.util
 import json
@@ -36,8 +37,17 @@ def test_a_paused_state_is_compact_and_resumes_on_a_new_machine(setup, tmp_path,
     assert {t.dtype for t in last["state_dict"].values() if t.is_floating_point()} == {
         torch.float16
     }
-    moments = [v for s in last["optimizer"]["state"].values() for k, v in s.items() if k != "step"]
-    assert moments and {v.dtype for v in moments} == {torch.bfloat16}
+    states = list(last["optimizer"]["state"].values())
+    assert states and {s["exp_avg_sq"].dtype for s in states} == {torch.bfloat16}
+    # the first moments travel as 8-bit blocks; read back, each within its block's step
+    stored = torch.load(dest / "last.pt", weights_only=True)["optimizer"]["state"]
+    assert {s["exp_avg"]["int8"].dtype for s in stored.values()} == {torch.int8}
+    full_state = read_checkpoint(tmp_path / "first" / "last.pt")["optimizer"]["state"]
+    for index, state in full_state.items():
+        read_back = last["optimizer"]["state"][index]["exp_avg"]
+        assert read_back.dtype == torch.float32 and read_back.shape == state["exp_avg"].shape
+        bound = state["exp_avg"].abs().max() / 254 + 1e-12
+        assert (read_back - state["exp_avg"]).abs().max() <= bound
     assert read_checkpoint(dest / "best.pt")["stored_as"]["weights"] == "float16"
     summary = json.loads((dest / "state.json").read_text())
     assert (summary["epochs_run"], summary["epochs_planned"]) == (2, 3)

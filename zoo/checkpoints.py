@@ -12,6 +12,7 @@ belongs to another class is refused naming both classes.
 from __future__ import annotations
 
 import hashlib
+import math
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -202,11 +203,15 @@ def checkpoint_payload(
 
 
 # A paused run's committed state (weights/in_progress): weights in float16 (float32 for a tensor
-# past float16's range), Adam's moments in bfloat16 (float32's range, so v never underflows to
-# 0). Loading casts both back: load_state_dict copies into float32 parameters, and the
-# optimiser casts its state to its parameters' dtype. docs/training.md measures the resume.
+# past float16's range); Adam's first moments in 8 bits per value with one scale per block of
+# MOMENT_BLOCK (signed, symmetric: each decays by beta1 a step, so its rounding fades within a few
+# dozen steps), its second moments in bfloat16 (float32's range, so v never underflows to 0).
+# read_checkpoint restores the first moments; the rest loads as it is (load_state_dict and
+# Optimizer.load_state_dict cast to the parameters' dtype). docs/training.md measures the resume.
 PAUSED_WEIGHTS_DTYPE = torch.float16
 PAUSED_MOMENTS_DTYPE = torch.bfloat16
+MOMENT_BLOCK = 64
+QUANTIZED_MOMENTS = ("exp_avg",)
 
 
 def _compact_tensor(tensor: torch.Tensor) -> torch.Tensor:
@@ -217,10 +222,34 @@ def _compact_tensor(tensor: torch.Tensor) -> torch.Tensor:
     return tensor if overflow else small
 
 
+def _quantized(tensor: torch.Tensor) -> dict[str, Any]:
+    """``tensor`` as int8 values with a float32 scale per block of :data:`MOMENT_BLOCK`."""
+    flat = tensor.detach().float().flatten()
+    blocks = torch.nn.functional.pad(flat, (0, -flat.numel() % MOMENT_BLOCK))
+    blocks = blocks.view(-1, MOMENT_BLOCK)
+    scale = blocks.abs().amax(dim=1) / 127.0
+    values = (blocks / torch.where(scale > 0, scale, 1.0)[:, None]).round().to(torch.int8)
+    return {"int8": values, "scale": scale, "shape": list(tensor.shape)}
+
+
+def _dequantized(stored: dict[str, Any]) -> torch.Tensor:
+    values = stored["int8"].float() * stored["scale"][:, None]
+    count = math.prod(stored["shape"])
+    return values.flatten()[:count].reshape(stored["shape"])
+
+
+def _compact_moment(key: str, value):
+    if not torch.is_tensor(value) or not value.is_floating_point() or key == "step":
+        return value
+    if key in QUANTIZED_MOMENTS:
+        return _quantized(value)
+    return value.to(PAUSED_MOMENTS_DTYPE)
+
+
 def compact_payload(payload: dict[str, Any]) -> dict[str, Any]:
-    """``payload`` (a checkpoint's contents) in the paused state's storage: float16 weights,
-    where each tensor fits, and bfloat16 optimiser moments (the step counters as they are).
-    ``stored_as`` records what was done; loading needs nothing else."""
+    """``payload`` (a checkpoint's contents) in the paused state's storage: float16 weights
+    where each tensor fits, 8-bit first and bfloat16 second Adam moments (the step counters as
+    they are). ``stored_as`` records what was done; :func:`read_checkpoint` undoes the 8 bits."""
     compact = dict(payload)
     compact["state_dict"] = {k: _compact_tensor(t) for k, t in payload["state_dict"].items()}
     kept = [k for k, t in compact["state_dict"].items() if t.dtype == torch.float32]
@@ -228,18 +257,28 @@ def compact_payload(payload: dict[str, Any]) -> dict[str, Any]:
     if "optimizer" in payload:
         optimizer = dict(payload["optimizer"])
         optimizer["state"] = {
-            index: {
-                key: value.to(PAUSED_MOMENTS_DTYPE)
-                if torch.is_tensor(value) and value.is_floating_point() and key != "step"
-                else value
-                for key, value in state.items()
-            }
+            index: {key: _compact_moment(key, value) for key, value in state.items()}
             for index, state in payload["optimizer"]["state"].items()
         }
         compact["optimizer"] = optimizer
         stored["optimizer_moments"] = "bfloat16"
+        stored["optimizer_int8_blocks"] = {
+            "moments": list(QUANTIZED_MOMENTS),
+            "block": MOMENT_BLOCK,
+        }
     compact["stored_as"] = stored
     return compact
+
+
+def _expanded(payload: dict[str, Any]) -> dict[str, Any]:
+    """A paused state's 8-bit moments as tensors again (a checkpoint without them as it is)."""
+    if "optimizer_int8_blocks" not in (payload.get("stored_as") or {}):
+        return payload
+    for state in payload["optimizer"]["state"].values():
+        for key, value in state.items():
+            if isinstance(value, dict) and "int8" in value:
+                state[key] = _dequantized(value)
+    return payload
 
 
 def save_checkpoint(path: Path, payload: dict[str, Any]) -> None:
@@ -330,7 +369,7 @@ def read_checkpoint(path: str | Path) -> dict[str, Any]:
             f"{payload.get('format') if isinstance(payload, dict) else None!r},"
             f" expected {CHECKPOINT_FORMAT!r})"
         )
-    return payload
+    return _expanded(payload)
 
 
 def checkpoint_provenance(path: str | Path, checkpoint: dict[str, Any]) -> dict[str, Any]:

@@ -5,8 +5,8 @@ Run from the repository root, on a run folder that ``zoo train`` wrote::
     python benchmarks/training/paused_state.py checkpoints/cmu/spgsn [--epochs 2] [--max-batches N]
 
 It prints the sizes of the full state (``last.pt`` + ``best.pt`` as training writes them) and of
-the paused state (``zoo weights pause``: float16 weights, bfloat16 Adam moments), then resumes
-the run three times for ``--epochs`` epochs, on the same seed and batches:
+the paused state (``zoo weights pause``: float16 weights, Adam moments in 8 bits and bfloat16),
+then resumes the run three times for ``--epochs`` epochs, on the same seed and batches:
 
 - from the full state (the reference);
 - from the paused state;

@@ -30,8 +30,8 @@ def add(sub) -> None:
         actions,
         "pause",
         "store a paused training (its last.pt and best.pt) as its model's one committed state "
-        "under <weights-dir>/in_progress, compact (float16 weights, bfloat16 Adam moments); "
-        "zoo train --resume continues it on any machine",
+        "under <weights-dir>/in_progress, compact (float16 weights, Adam moments in 8 bits and "
+        "bfloat16); zoo train --resume continues it on any machine",
         pause_run,
     )
     pause.add_argument("run", help="the run's folder (e.g. checkpoints/cmu/spgsn)")
