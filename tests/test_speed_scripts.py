@@ -38,6 +38,22 @@ def load(name: str):
     return module
 
 
+def figures(out: str) -> list[float]:
+    """Every number a script printed, NaN and infinity included, so that a test can refuse a
+    timing that came out as NaN (a word printed beside it proves nothing)."""
+    import re
+
+    number = r"(?:nan|inf|-?\d+(?:\.\d+)?(?:e[-+]?\d+)?)"
+    words = re.findall(rf"(?<![\w.]){number}(?=x?(?![\w.]))", out)  # 1.57x: a ratio
+    return [float(w) for w in words]
+
+
+def assert_finite(out: str, at_least: int) -> None:
+    values = figures(out)
+    assert len(values) >= at_least, out
+    assert all(math.isfinite(v) for v in values), [v for v in values if not math.isfinite(v)]
+
+
 @pytest.fixture(autouse=True)
 def one_thread():
     """One torch thread (steady on a shared machine); the scripts' own thread settings and this
@@ -63,13 +79,16 @@ def test_public_spgsn(capsys):
     load("public_spgsn").main(
         ["--steps", "1", "--batch-size", "2", "--num-stage", "1", "--hidden", "16"]
     )
-    assert "training step, batch 2" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "training step, batch 2" in out
+    assert_finite(out, at_least=3)
 
 
 def test_speed_baselines(capsys):
     load("speed_baselines").main(["--repeats", "1", "--tiny"])
     out = capsys.readouterr().out
     assert "ltd training step" in out and "pgbig training step" in out and "ratio" in out
+    assert_finite(out, at_least=6)
 
 
 def test_public_msrgcn_training_names_a_missing_checkout(tmp_path, capsys):
@@ -94,6 +113,7 @@ def test_speed_eval(swinging_cmu, capsys):
     load("speed_eval").main(["--data-root", str(root), "--repeats", "1"])
     out = capsys.readouterr().out
     assert "per-window loop" in out and "ratio" in out
+    assert_finite(out, at_least=3)
 
 
 def test_speed_check(swinging_cmu, tmp_path, capsys):
@@ -129,6 +149,7 @@ def test_speed_spectral(capsys):
     )
     out = capsys.readouterr().out
     assert "uv_sphere_82" in out and "batch of 2 sequences" in out and "ratio" in out
+    assert_finite(out, at_least=6)
 
 
 def test_speed_spectrhums(capsys):
@@ -136,6 +157,7 @@ def test_speed_spectrhums(capsys):
     out = capsys.readouterr().out
     assert "tiny configuration: k=16 coefficients on V=64" in out
     assert "layer-by-layer baseline, train step b32" in out
+    assert_finite(out, at_least=6)
 
 
 def test_speed_training_view(capsys):
@@ -149,6 +171,7 @@ def test_speed_spgsn(capsys):
     load("speed_spgsn").main(["--tiny", "--repeats", "1", "--bf16", "--models", "spgsn", "mlp"])
     out = capsys.readouterr().out
     assert "public code" in out and "== mlp ==" in out and "aim (>=" in out
+    assert_finite(out, at_least=20)
 
 
 def test_speed_spgsn_training_prints_a_finite_rate_for_every_configuration(capsys):
