@@ -300,6 +300,10 @@ def test_learning_rate_schedules():
     multi = {"type": "multistep", "milestones_steps": [30000], "lrs": [3e-4, 1e-5]}
     assert learning_rate(multi, 3e-4, 0, 1, 29999) == 3e-4
     assert learning_rate(multi, 3e-4, 0, 1, 30000) == 1e-5
+    # GGMotion's MultiStepLR stepped after each epoch: x 0.88 from the epoch after a milestone
+    milestones = {"type": "epoch_milestones", "milestones": [5, 7], "gamma": 0.88}
+    rates = [learning_rate(milestones, 3e-4, e, 50) for e in range(9)]
+    assert rates == pytest.approx([3e-4] * 5 + [3e-4 * 0.88] * 2 + [3e-4 * 0.88**2] * 2)
     warm = {**cosine, "warmup_steps": 4}
     assert [learning_rate(warm, 1e-4, 0, 100, s) for s in range(5)] == pytest.approx(
         [2.5e-5, 5e-5, 7.5e-5, 1e-4, 1e-4], rel=1e-12

@@ -60,7 +60,7 @@ DEFAULT_RECIPE: dict[str, Any] = Recipe().as_dict()
 _FIELDS = frozenset(DEFAULT_RECIPE)
 PRECISIONS = {"float32": None, "bfloat16": torch.bfloat16}
 VAL_SPLITS = ("auto", "tails", "actions", "recordings")
-SCHEDULES = ("constant", "step", "cosine", "multistep")
+SCHEDULES = ("constant", "step", "cosine", "multistep", "epoch_milestones")
 AUGMENTATIONS = ("time_reversal",)
 
 
@@ -138,6 +138,20 @@ def training_recipe(entry_train: dict[str, Any], overrides: dict[str, Any] | Non
             f">= 1) and gamma (a number > 0), and offset_epochs, if given, an "
             f"integer >= 0; got {schedule!r}"
         )
+    if schedule["type"] == "epoch_milestones":
+        milestones = schedule.get("milestones")
+        if not (
+            isinstance(milestones, list)
+            and milestones
+            and all(isinstance(m, int) and not isinstance(m, bool) and m >= 1 for m in milestones)
+            and milestones == sorted(milestones)
+            and _positive_number(schedule.get("gamma"))
+        ):
+            raise TrainingError(
+                f"training recipe: an epoch_milestones schedule needs milestones (increasing "
+                f"epochs >= 1 after which the rate is multiplied by gamma) and gamma (a number "
+                f"> 0); got {schedule!r}"
+            )
     if schedule["type"] == "multistep":
         lrs, milestones = schedule.get("lrs"), schedule.get("milestones_steps")
         if (
@@ -208,6 +222,8 @@ def learning_rate(
     if kind == "cosine":  # SpecTrHuMS: cosine from lr to min_lr over the run, per epoch
         lo = schedule.get("min_lr", 0.0)
         return lo + (base_lr - lo) * 0.5 * (1 + math.cos(math.pi * epoch / max(1, epochs)))
+    if kind == "epoch_milestones":  # GGMotion: x gamma after each milestone epoch (MultiStepLR)
+        return base_lr * schedule["gamma"] ** sum(epoch >= m for m in schedule["milestones"])
     if kind == "multistep":  # siMLPe: lrs[i] from optimizer step milestones_steps[i-1] on
         lrs, milestones = schedule["lrs"], schedule["milestones_steps"]
         return lrs[sum(step >= m for m in milestones)]
