@@ -180,7 +180,7 @@ def test_compare_refuses_an_unknown_sampler_by_name(capsys):
 
     assert main(["compare", "a", "b", "--benchmark", "cmu", "--sampler", "ltd9"]) == 2
     err = capsys.readouterr().err
-    assert "--sampler: unknown sampler 'ltd9'; valid samplers: ltd8" in err
+    assert "--sampler 'ltd9': unknown for benchmark cmu; valid: ltd8, all (its tables)" in err
 
 
 def test_a_reader_that_leaves_ends_the_command_quietly():

@@ -34,6 +34,30 @@ def in_flags(error: ZooError) -> str:
     return text
 
 
+def checked_sampler(name: str, bench=None) -> str:
+    """``--sampler``'s value, refused in one line before any data is read; an unknown one lists
+    the samplers that apply to ``bench`` (rand256 only to Human3.6M's two sub-actions)."""
+    from zoo.data.windows import SamplerError, check_sampler
+
+    general = "allK, strideK, strideK_strict (K a positive integer, e.g. stride5, all50)"
+    h36m = bench is None or bench.dataset == "h36m"
+    try:
+        check_sampler(name)
+    except SamplerError:
+        tables = f"{', '.join(bench.samplers)} (its tables), " if bench is not None else ""
+        extra = "rand256, " if h36m and "rand256" not in tables else ""
+        where = f" for benchmark {bench.name}" if bench is not None else ""
+        raise UsageError(
+            f"--sampler {name!r}: unknown{where}; valid: {tables}{extra}{general}"
+        ) from None
+    if name == "rand256" and not h36m:
+        raise UsageError(
+            f"--sampler rand256: defined for Human3.6M's two sub-actions per action, not for "
+            f"benchmark {bench.name}; valid: {', '.join(bench.samplers)} (its tables), {general}"
+        )
+    return name
+
+
 def registry_hint(error: ZooError, folder: Path | None = None) -> str:
     """For an unknown model: the registry files in ``folder`` (the working one) that define it,
     as the ``--registry`` to add; empty otherwise."""

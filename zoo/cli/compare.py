@@ -4,7 +4,13 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from zoo.cli.common import UsageError, add_command, positive_int, results_option
+from zoo.cli.common import (
+    UsageError,
+    add_command,
+    checked_sampler,
+    positive_int,
+    results_option,
+)
 
 
 def add(sub) -> None:
@@ -45,14 +51,11 @@ def add(sub) -> None:
 
 
 def run(args) -> int:
+    from zoo.benchmark import get_benchmark
     from zoo.comparison import compare
-    from zoo.data.windows import SamplerError, check_sampler
 
     if args.sampler is not None:
-        try:
-            check_sampler(args.sampler)
-        except SamplerError as e:
-            raise UsageError(f"--sampler: {e}") from None
+        checked_sampler(args.sampler, get_benchmark(args.benchmark) if args.benchmark else None)
     folders = []
     for name in (args.a, args.b):
         if Path(name).is_dir():

@@ -8,6 +8,7 @@ from zoo.cli.common import (
     UsageError,
     add_command,
     benchmark_of,
+    checked_sampler,
     common_options,
     model_source,
     model_source_options,
@@ -67,7 +68,6 @@ def add(sub) -> None:
 
 
 def run(args) -> int:
-    from zoo.data.windows import check_sampler
     from zoo.distributed import init_distributed
     from zoo.pipeline import Subject, compute, place, store
     from zoo.protocol import plan_protocol
@@ -81,7 +81,7 @@ def run(args) -> int:
     if source.name is not None:
         registry.get(source.name).load_class()
     for sampler in args.sampler or ():
-        check_sampler(sampler)
+        checked_sampler(sampler, bench)
     dataset = bench.load(args.data_root)
     loaded = source.load(registry, bench, dataset, args.data_root)
     loaded.warn_if_untrained()
