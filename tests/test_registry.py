@@ -397,3 +397,18 @@ def test_an_unknown_model_defined_by_a_registry_file_here_suggests_that_file(
     assert "(my_registry.yaml here defines 'still': add --registry my_registry.yaml)" in err
     assert main(["eval", "--model", "nothing_defines_this", "--data-root", str(tmp_path)]) == 2
     assert "here defines" not in capsys.readouterr().err
+
+
+def test_a_longer_history_is_padded_with_the_oldest_frame():
+    import torch
+
+    from zoo.models.history import pad_history
+
+    history = torch.arange(2 * 3 * 2, dtype=torch.float32).reshape(2, 3, 2)
+    padded = pad_history(history, 5)
+    assert padded.shape == (2, 5, 2)
+    assert torch.equal(padded[:, :3], history[:, :1].expand(-1, 3, -1))
+    assert torch.equal(padded[:, 2:], history)
+    assert torch.equal(pad_history(history, 2), history[:, 1:])
+    with pytest.raises(ValueError, match="frames must be a positive integer"):
+        pad_history(history, 0)
