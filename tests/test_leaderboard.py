@@ -316,3 +316,26 @@ def test_a_model_asked_for_by_name_without_weights_is_an_error_naming_where_it_l
     err = capsys.readouterr().err
     assert code != 0 and "no trained weights to score, so no row; train it" in err
     assert "Traceback" not in err
+
+
+def test_base_shows_ones_rows_beside_the_committed_ones_and_never_writes_them(tmp_path):
+    """--base RESULTS: the committed tables are the start, the user's rows go under --results
+    beside them, and RESULTS is left byte for byte as it was."""
+    from zoo.cli import main
+
+    root, registry = cmu_and_registry(tmp_path)
+    base, mine = tmp_path / "committed", tmp_path / "mine"
+    common = ["--registry", str(tmp_path / "registry.yaml"), "--benchmark", "cmu",
+              "--data-root", str(root), "--weights-dir", str(tmp_path / "no_weights")]  # fmt: skip
+    none = str(tmp_path / "no_checkpoints")
+    assert main(["leaderboard", *common, "--results", str(base), "--checkpoints", none]) == 0
+    before = {p: p.read_bytes() for p in base.rglob("*") if p.is_file()}
+    checkpoints = tmp_path / "checkpoints"
+    train("tiny", "cmu", registry=registry, data_root=root, epochs=1, progress=False,
+          out_dir=checkpoints / "cmu" / "tiny")  # fmt: skip
+    args = ["--base", str(base), "--results", str(mine), "--checkpoints", str(checkpoints)]
+    assert main(["leaderboard", *common, "--model", "tiny", *args]) == 0
+    labels = set(read_table(mine / "cmu" / "all").frame.model)
+    assert {"tiny", "repeat_last"} <= labels
+    assert {p: p.read_bytes() for p in base.rglob("*") if p.is_file()} == before
+    assert main(["leaderboard", *common, "--base", str(mine), "--results", str(mine)]) == 2

@@ -195,6 +195,26 @@ def table_files(root: str | Path, depth: int = 1) -> list[Path]:
     )
 
 
+def copy_benchmark_tables(base: str | Path, out: str | Path, benchmark: str) -> list[Path]:
+    """The tables of ``benchmark`` under the results folder ``base`` (e.g. the repository's
+    ``results/``) copied to ``out`` where ``out`` has none of its own, with the benchmark's cost
+    cells: a rebuild under ``out`` then reuses their rows beside the user's and never writes
+    ``base``. Returns the tables copied."""
+    import shutil
+
+    source, target = Path(base) / benchmark, Path(out) / benchmark
+    copied = []
+    for table in table_files(source):
+        folder = target / table.parent.name
+        if not folder.exists():
+            shutil.copytree(table.parent, folder)
+            copied.append(folder)
+    costs = source / "costs.json"
+    if costs.is_file() and not (target / "costs.json").exists():
+        shutil.copy2(costs, target / "costs.json")
+    return copied
+
+
 def table_labels(folder: str | Path) -> list[str]:
     """The labels of a leaderboard table's rows (``<folder>/<label>/``), in the table's order,
     as its ``protocol.json`` lists them."""

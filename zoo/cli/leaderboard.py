@@ -81,6 +81,13 @@ def add(sub) -> None:
         "reusing stored rows whose identity holds",
     )
     p.add_argument(
+        "--base",
+        metavar="RESULTS",
+        help="a results folder to start from (e.g. the repository's results/): its tables of "
+        "each benchmark are copied under --results where that has none, so the rebuild "
+        "there shows their rows beside yours; RESULTS itself is never written",
+    )
+    p.add_argument(
         "--drop",
         action="append",
         metavar="LABEL",
@@ -141,6 +148,19 @@ def run(args) -> int:
                     f"--check: no committed table of {name} under {args.results} "
                     f"(expected {args.results}/{name}/<sampler>/{TABLE_FILE})"
                 )
+    if args.base is not None:
+        if check:
+            raise UsageError("--base starts a rebuild elsewhere; --check writes nothing")
+        base = Path(args.base)
+        if not base.is_dir():
+            raise UsageError(f"--base {base}: no such results folder")
+        if base.resolve() == Path(args.results).resolve():
+            raise UsageError(f"--base {base} is --results itself: name another --results")
+        from zoo.results import copy_benchmark_tables
+
+        for name in names:
+            copied = copy_benchmark_tables(base, args.results, name)
+            print(f"{name}: {len(copied)} table(s) copied from {base}", file=sys.stderr)
     started = time.perf_counter()
     for bench, name in zip(args.benchmark, names):
         plan = Plan(
