@@ -226,3 +226,70 @@ def test_screenshots_are_not_blank(browser, site, tmp_path):
         "s.dispatchEvent(new Event('input'));"
     )
     _not_blank(_shot(browser, "meshes-cmu_anny_oi_low.png", tmp_path))
+
+
+@pytest.mark.parametrize("width, height", [(1366, 768), (1920, 1080)])
+def test_a_table_fits_the_screen_on_load_with_its_rows_ranked(browser, site, width, height):
+    """The last horizon and the model column in view on load at a laptop's and a desktop's
+    size; rows ranked at the longest horizon, ranks in order."""
+    browser.set_window_size(width, height)
+    try:
+        for page in ("table-cmu-all.html", "table-cmu_anny_oi_low-stride5_strict.html"):
+            _open(browser, site / page)
+            inner = browser.execute_script("return document.documentElement.clientWidth")
+            last = browser.find_elements("css selector", "#board thead th.sortable.num")
+            visible = [th for th in last if th.is_displayed()]
+            for th in (visible[-1], browser.find_element("css selector", "#board th.model")):
+                box = browser.execute_script("return arguments[0].getBoundingClientRect()", th)
+                assert 0 <= box["left"] and box["right"] <= inner, (page, th.text, box, inner)
+            assert visible[-1].get_attribute("class").split().count("asc") == 1
+            ranks = [
+                int(t) for t in (c.text for c in browser.find_elements(
+                    "css selector", "#board tbody tr[data-model] td.rank")) if t
+            ]  # fmt: skip
+            assert ranks and ranks == sorted(ranks) and ranks[0] == 1
+    finally:
+        browser.set_window_size(1280, 1400)
+
+
+def test_a_view_in_the_fragment_reopens(browser, site):
+    page = site / "table-cmu-all.html"
+    _open(browser, page)
+    browser.find_element("id", "show-last").click()
+    browser.find_element("css selector", "#board th[data-key='3']").click()
+    browser.find_element("css selector", "#board th[data-key='3']").click()  # descending
+    fragment = browser.execute_script("return location.hash")
+    assert "sort=3" in fragment and "desc=1" in fragment and "last=1" in fragment
+    shown = [
+        r.get_attribute("data-model")
+        for r in browser.find_elements("css selector", "#board tbody tr[data-model]")
+    ]
+    browser.get("about:blank")
+    browser.get(page.as_uri() + fragment)
+    again = [
+        r.get_attribute("data-model")
+        for r in browser.find_elements("css selector", "#board tbody tr[data-model]")
+    ]
+    assert again == shown and any("@last" in m for m in again)
+    assert browser.find_element("id", "show-last").is_selected()
+
+
+def test_the_csv_download_holds_the_stored_rows(browser, site):
+    import csv
+    import io
+    import urllib.parse
+
+    summary = json.loads((site.parent / "results" / "cmu" / "all" / "summary.json").read_text())
+    _open(browser, site / "table-cmu-all.html")
+    browser.find_element("id", "show-last").click()
+    href = browser.find_element("id", "download").get_attribute("href")
+    assert href.startswith("data:text/csv")
+    rows = list(csv.DictReader(io.StringIO(urllib.parse.unquote(href.split(",", 1)[1]))))
+    view = summary["views"][0]
+    stored = {m["model"]: m["values"] for m in view["models"]}
+    assert {r["model"] for r in rows} == set(stored)
+    for r in rows:
+        assert r["protocol_id"] == summary["protocol_id"]
+        for h, value in zip(view["horizons_ms"], stored[r["model"]]):
+            got = r[f"{h}_ms"]
+            assert (got == "" and value is None) or float(got) == pytest.approx(value, abs=0)

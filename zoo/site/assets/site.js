@@ -114,7 +114,39 @@ var ZooSite = (function () {
     var summary = data.summary;
     if (!summary || !summary.views || !summary.views.length) { return; }
     var views = summary.views, costs = data.costs || {};
-    var state = {view: views[0], action: "average", sort: null, descending: false, last: false};
+    var state = {view: views[0], action: "average", sort: null, descending: false, last: false,
+                 horizons: "key", costs: false};
+    // a view lives in the page's fragment (#metric=...&sort=7), so that it can be sent and reopened
+    function readFragment() {
+      var f = {};
+      location.hash.replace(/^#/, "").split("&").forEach(function (kv) {
+        var i = kv.indexOf("="); if (i > 0) { f[decodeURIComponent(kv.slice(0, i))] = decodeURIComponent(kv.slice(i + 1)); }
+      });
+      var v = views.filter(function (x) {
+        return (!f.metric || x.metric === f.metric) && (!f.averaging || x.averaging === f.averaging) && (!f.joints || x.joints === f.joints);
+      })[0];
+      if (v) { state.view = v; }
+      if (f.action && (f.action === "average" || summary.actions.indexOf(f.action) >= 0)) { state.action = f.action; }
+      if (f.sort === "model") { state.sort = "model"; }
+      else if (f.sort !== undefined && /^\d+$/.test(f.sort) && +f.sort < state.view.horizons_ms.length) { state.sort = +f.sort; }
+      state.descending = f.desc === "1"; state.last = f.last === "1";
+      state.horizons = f.h === "all" ? "all" : "key"; state.costs = f.costs === "1";
+    }
+    function writeFragment() {
+      var v = state.view;
+      var parts = {metric: v.metric, averaging: v.averaging, joints: v.joints, action: state.action,
+                   sort: state.sort === null ? "" : String(state.sort), desc: state.descending ? "1" : "0",
+                   last: state.last ? "1" : "0", h: state.horizons, costs: state.costs ? "1" : "0"};
+      var text = Object.keys(parts).map(function (k) { return k + "=" + encodeURIComponent(parts[k]); }).join("&");
+      if (history.replaceState) { history.replaceState(null, "", "#" + text); } else { location.hash = text; }
+    }
+    // the horizons shown by default: the first, the one nearest 400 ms and the last
+    function keyHorizons(v) {
+      var hs = v.horizons_ms, mid = 0;
+      hs.forEach(function (h, i) { if (Math.abs(h - 400) < Math.abs(hs[mid] - 400)) { mid = i; } });
+      return unique([0, mid, hs.length - 1]);
+    }
+    function shown(i) { return state.horizons === "all" || keyHorizons(state.view).indexOf(i) >= 0; }
     var $ = function (id) { return document.getElementById(id); };
     function unique(list) { return list.filter(function (v, i) { return list.indexOf(v) === i; }); }
     function fill(select, values, chosen) {
@@ -132,6 +164,7 @@ var ZooSite = (function () {
         if (s > score) { best = v; score = s; }
       });
       state.view = best || views[0];
+      if (state.sort !== null && state.sort !== "model" && state.sort >= state.view.horizons_ms.length) { state.sort = null; }
       render();
     }
     function controls() {
@@ -140,6 +173,22 @@ var ZooSite = (function () {
       fill($("averaging"), unique(views.filter(function (x) { return x.metric === v.metric; }).map(function (x) { return x.averaging; })), v.averaging);
       fill($("joints"), unique(views.filter(function (x) { return x.metric === v.metric && x.averaging === v.averaging; }).map(function (x) { return x.joints; })), v.joints);
       fill($("action"), ["average"].concat(summary.actions), state.action);
+      $("show-last").checked = state.last; $("show-costs").checked = state.costs;
+      var keys = keyHorizons(v).map(function (i) { return v.horizons_ms[i]; }).join(", ");
+      fill($("horizons"), ["key", "all"], state.horizons);
+      $("horizons").options[0].textContent = keys + " ms"; $("horizons").options[1].textContent = "all " + v.horizons_ms.length;
+    }
+    function csv(rows) {
+      // the rows shown, every horizon of the view, with the table's protocol id
+      var v = state.view, head = ["protocol_id", "metric", "averaging", "joints", "action", "model"];
+      v.horizons_ms.forEach(function (h) { head.push(h + "_ms"); });
+      var lines = [head.join(",")];
+      rows.forEach(function (r) {
+        var line = [summary.protocol_id, v.metric, v.averaging, v.joints, state.action, r.model];
+        v.horizons_ms.forEach(function (h, i) { var c = cell(r, i).value; line.push(c === null ? "" : String(c)); });
+        lines.push(line.join(","));
+      });
+      return lines.join("\n") + "\n";
     }
     function cell(row, i) {
       var average = state.action === "average";
@@ -154,6 +203,7 @@ var ZooSite = (function () {
       $("protocol-note").textContent = v.metric.toUpperCase() + " (" + v.unit + "), averaging " + v.averaging + ": " + v.averaging_words + (v.joints_words ? ". Joints " + v.joints + ": " + v.joints_words : "") + ". Every row below is this one protocol.";
       richText($("bold-note"), state.action === "average" ? v.interval_words + "." : "Per action: the mean over that action's windows; intervals and bold are computed for the mean over actions only.");
       var rows = v.models.filter(function (r) { return state.last || r.model.indexOf("@") < 0; });
+      if (state.sort === null) { state.sort = v.horizons_ms.length - 1; }  // ranked at the longest horizon
       if (state.sort !== null) {
         rows = rows.slice().sort(function (a, b) {
           var x = state.sort === "model" ? a.model : cell(a, state.sort).value;
@@ -164,10 +214,12 @@ var ZooSite = (function () {
         });
       }
       var board = $("board"); board.textContent = "";
+      var ranked = state.sort !== "model";
       var head = el("tr");
-      var th = el("th", {"data-key": "model", "class": "sortable"}, "model"); head.appendChild(th);
-      v.horizons_ms.forEach(function (h, i) { head.appendChild(el("th", {"data-key": String(i), "class": "sortable num"}, h + " ms")); });
-      ["parameters", "GFLOP / window", "latency (ms)", "training windows / s"].forEach(function (c) { head.appendChild(el("th", {"class": "num cost"}, c)); });
+      head.appendChild(el("th", {"class": "rank num", "title": ranked ? "rank at " + v.horizons_ms[state.sort] + " ms (ties share a rank)" : ""}, "#"));
+      var th = el("th", {"data-key": "model", "class": "sortable model"}, "model"); head.appendChild(th);
+      v.horizons_ms.forEach(function (h, i) { head.appendChild(el("th", {"data-key": String(i), "class": "sortable num" + (shown(i) ? "" : " off")}, h + " ms")); });
+      ["parameters", "GFLOP / window", "latency (ms)", "training windows / s"].forEach(function (c) { head.appendChild(el("th", {"class": "num cost" + (state.costs ? "" : " off")}, c)); });
       var thead = el("thead"); thead.appendChild(head); board.appendChild(thead);
       Array.prototype.forEach.call(head.querySelectorAll("th.sortable"), function (t) {
         var key = t.getAttribute("data-key");
@@ -180,9 +232,13 @@ var ZooSite = (function () {
         });
       });
       var body = el("tbody");
+      var place = 0, previous = null, rank = 0;
       rows.forEach(function (r) {
         var tr = el("tr", {"data-model": r.model});
         if (r.floor) { tr.classList.add("floor"); }
+        var score = ranked ? cell(r, state.sort).value : null;
+        if (ranked && score !== null && !r.floor) { place += 1; if (score !== previous) { rank = place; previous = score; } }
+        tr.appendChild(el("td", {"class": "rank num"}, ranked && score !== null && !r.floor ? String(rank) : ""));
         var name = el("td", {"class": "model"});
         var swatch = el("span", {"class": "swatch"}); swatch.style.background = style(r).colour; name.appendChild(swatch);
         if ((data.pages || []).indexOf("model-" + r.base + ".html") >= 0) { var a = el("a", {href: "model-" + r.base + ".html"}, r.model); name.appendChild(a); }
@@ -190,7 +246,7 @@ var ZooSite = (function () {
         tr.appendChild(name);
         v.horizons_ms.forEach(function (h, i) {
           var c = cell(r, i);
-          var td = el("td", {"class": "num", "data-horizon": String(h), "data-value": c.value === null ? "" : String(c.value)});
+          var td = el("td", {"class": "num" + (shown(i) ? "" : " off"), "data-horizon": String(h), "data-value": c.value === null ? "" : String(c.value)});
           td.textContent = format(c.value, fmt) + (c.half !== null && c.half !== undefined ? " ±" + format(c.half, fmt) : "");
           if (c.bold) { td.classList.add("bold"); }
           tr.appendChild(td);
@@ -198,19 +254,25 @@ var ZooSite = (function () {
         var k = costs[r.model] || {};
         [k.parameters === "0" ? "0" : k.parameters ? (k.parameters / 1e6).toFixed(3) + " M" : "",
          k.gflop ? (+k.gflop).toPrecision(3) : "", k.latency_ms ? (+k.latency_ms).toPrecision(3) : "",
-         k.train_per_s ? (+k.train_per_s).toPrecision(3) : ""].forEach(function (t) { tr.appendChild(el("td", {"class": "num cost"}, t)); });
+         k.train_per_s ? (+k.train_per_s).toPrecision(3) : ""].forEach(function (t) { tr.appendChild(el("td", {"class": "num cost" + (state.costs ? "" : " off")}, t)); });
         body.appendChild(tr);
       });
       (v.reported || []).forEach(function (p) {
         var values = state.action === "average" ? p.values : (p.per_action || {})[state.action];
         if (!values) { return; }
         var tr = el("tr", {"class": "reported", "data-reported": p.label});
-        tr.appendChild(el("td", {"class": "model"}, p.label + ": " + p.source));
-        v.horizons_ms.forEach(function (h, i) { tr.appendChild(el("td", {"class": "num"}, format(values[i], fmt))); });
-        for (var c = 0; c < 4; c++) { tr.appendChild(el("td", {"class": "num cost"}, "–")); }
+        tr.appendChild(el("td", {"class": "rank num"}, ""));
+        var label = el("td", {"class": "model", "title": p.source}, p.label);
+        label.appendChild(el("span", {"class": "source"}, p.source)); tr.appendChild(label);
+        v.horizons_ms.forEach(function (h, i) { tr.appendChild(el("td", {"class": "num" + (shown(i) ? "" : " off")}, format(values[i], fmt))); });
+        for (var c = 0; c < 4; c++) { tr.appendChild(el("td", {"class": "num cost" + (state.costs ? "" : " off")}, "–")); }
         body.appendChild(tr);
       });
       board.appendChild(body);
+      var download = $("download");
+      download.href = "data:text/csv;charset=utf-8," + encodeURIComponent(csv(rows));
+      download.setAttribute("download", (summary.benchmark || "table") + "-" + v.metric + "-" + v.averaging + "-" + v.joints + "-" + state.action + ".csv");
+      writeFragment();
       var machines = unique(Object.keys(costs).map(function (m) {
         return (costs[m].device || "a machine not recorded") + (costs[m].date ? " (" + costs[m].date + ")" : "");
       }));
@@ -235,6 +297,10 @@ var ZooSite = (function () {
     ["metric", "averaging", "joints"].forEach(function (id) { $(id).addEventListener("change", function () { pick(id); }); });
     $("action").addEventListener("change", function () { state.action = $("action").value; render(); });
     $("show-last").addEventListener("change", function () { state.last = $("show-last").checked; render(); });
+    $("show-costs").addEventListener("change", function () { state.costs = $("show-costs").checked; render(); });
+    $("horizons").addEventListener("change", function () { state.horizons = $("horizons").value; render(); });
+    window.addEventListener("hashchange", function () { readFragment(); render(); });
+    readFragment();
     render();
   }
 
