@@ -293,3 +293,27 @@ def test_the_csv_download_holds_the_stored_rows(browser, site):
         for h, value in zip(view["horizons_ms"], stored[r["model"]]):
             got = r[f"{h}_ms"]
             assert (got == "" and value is None) or float(got) == pytest.approx(value, abs=0)
+
+
+def test_hiding_a_model_from_the_legend_removes_its_curve_and_rescales(browser, site):
+    _open(browser, site / "table-cmu-all.html")
+    selector = "#curves g.series[data-series='repeat_last']"
+    assert browser.find_elements("css selector", selector)
+    top = browser.execute_script(
+        "return Math.max(...[...document.querySelectorAll('#curves text.tick[text-anchor=end]')]"
+        ".map(t => +t.textContent))"
+    )
+    browser.find_element(
+        "css selector", "#curves g.legend-entry[data-series='repeat_last']"
+    ).click()
+    assert not browser.find_elements("css selector", selector)
+    assert browser.find_elements("css selector", "#curves g.series[data-series='pgbig']")
+    rescaled = browser.execute_script(
+        "return Math.max(...[...document.querySelectorAll('#curves text.tick[text-anchor=end]')]"
+        ".map(t => +t.textContent))"
+    )
+    assert rescaled < top  # repeat-last no longer sets the y range
+    browser.find_element(
+        "css selector", "#curves g.legend-entry[data-series='repeat_last']"
+    ).click()
+    assert browser.find_elements("css selector", selector)

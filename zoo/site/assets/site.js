@@ -69,13 +69,18 @@ var ZooSite = (function () {
     g.appendChild(shape);
   }
 
-  /* series: [{label, points: [[x, y], ...], style}]; draws into container (replacing it). */
+  /* series: [{label, points: [[x, y], ...], style}]; draws into container (replacing it).
+     Clicking a legend entry hides or shows its curve (kept across redraws of the container),
+     and the y range follows the curves shown. */
+  var chartCount = 0;
   function lineChart(container, series, xLabel, yLabel, title) {
     container.textContent = "";
+    var hidden = container.hiddenSeries || (container.hiddenSeries = {});
     var W = 760, L = 64, R = 230, T = 30, B = 46;
     var H = Math.max(380, T + B + 17 * series.length);  // room for every legend entry
     var xs = [], ys = [];
-    series.forEach(function (s) { s.points.forEach(function (p) { if (p[1] !== null) { xs.push(p[0]); ys.push(p[1]); } }); });
+    var drawn = series.filter(function (s) { return !hidden[s.label]; });
+    (drawn.length ? drawn : series).forEach(function (s) { s.points.forEach(function (p) { if (p[1] !== null) { xs.push(p[0]); ys.push(p[1]); } }); });
     if (!xs.length) { container.appendChild(el("p", {"class": "note"}, "No values to draw.")); return; }
     var x0 = Math.min.apply(null, xs), x1 = Math.max.apply(null, xs);
     var y0 = Math.min(0, Math.min.apply(null, ys)), y1 = Math.max.apply(null, ys) * 1.05;
@@ -94,18 +99,30 @@ var ZooSite = (function () {
     svg.appendChild(svgEl("line", {x1: L, x2: L, y1: T, y2: H - B, "class": "axis"}));
     var xl = svgEl("text", {x: (L + W - R) / 2, y: H - 8, "text-anchor": "middle", "class": "label"}); xl.textContent = xLabel; svg.appendChild(xl);
     var yl = svgEl("text", {x: 14, y: (T + H - B) / 2, transform: "rotate(-90 14 " + (T + H - B) / 2 + ")", "text-anchor": "middle", "class": "label"}); yl.textContent = yLabel; svg.appendChild(yl);
+    var clip = "plot-area-" + (chartCount += 1);  // curves stay inside the axes
+    svg.appendChild(svgEl("clipPath", {id: clip})).appendChild(svgEl("rect", {x: L, y: T - 4, width: W - L - R, height: H - T - B + 8}));
     series.forEach(function (s, i) {
-      var g = svgEl("g", {"class": "series", "data-series": s.label});
-      var pts = s.points.filter(function (p) { return p[1] !== null; });
-      var d = pts.map(function (p, j) { return (j ? "L" : "M") + sx(p[0]).toFixed(1) + " " + sy(p[1]).toFixed(1); }).join("");
-      g.appendChild(svgEl("path", {d: d, fill: "none", stroke: s.style.colour, "stroke-width": 1.8, "stroke-dasharray": s.style.dashed ? "5 3" : "none"}));
-      var every = Math.max(1, Math.round(pts.length / 10));
-      pts.forEach(function (p, j) { if (j % every === 0 || j === pts.length - 1) { marker(g, s.style.marker, sx(p[0]), sy(p[1]), s.style.colour); } });
+      if (!hidden[s.label]) {
+        var g = svgEl("g", {"class": "series", "data-series": s.label, "clip-path": "url(#" + clip + ")"});
+        var pts = s.points.filter(function (p) { return p[1] !== null; });
+        var d = pts.map(function (p, j) { return (j ? "L" : "M") + sx(p[0]).toFixed(1) + " " + sy(p[1]).toFixed(1); }).join("");
+        g.appendChild(svgEl("path", {d: d, fill: "none", stroke: s.style.colour, "stroke-width": 1.8, "stroke-dasharray": s.style.dashed ? "5 3" : "none"}));
+        var every = Math.max(1, Math.round(pts.length / 10));
+        pts.forEach(function (p, j) { if (j % every === 0 || j === pts.length - 1) { marker(g, s.style.marker, sx(p[0]), sy(p[1]), s.style.colour); } });
+        svg.appendChild(g);
+      }
       var ly = T + 8 + i * 17;
-      g.appendChild(svgEl("line", {x1: W - R + 12, x2: W - R + 34, y1: ly, y2: ly, stroke: s.style.colour, "stroke-width": 1.8, "stroke-dasharray": s.style.dashed ? "5 3" : "none"}));
-      marker(g, s.style.marker, W - R + 23, ly, s.style.colour);
-      var lt = svgEl("text", {x: W - R + 40, y: ly + 4, "class": "legend"}); lt.textContent = s.label; g.appendChild(lt);
-      svg.appendChild(g);
+      var entry = svgEl("g", {"class": "legend-entry" + (hidden[s.label] ? " hidden" : ""), "data-series": s.label});
+      var tip = svgEl("title"); tip.textContent = (hidden[s.label] ? "show " : "hide ") + s.label; entry.appendChild(tip);
+      entry.appendChild(svgEl("rect", {x: W - R + 8, y: ly - 8, width: R - 12, height: 16, fill: "transparent"}));
+      entry.appendChild(svgEl("line", {x1: W - R + 12, x2: W - R + 34, y1: ly, y2: ly, stroke: s.style.colour, "stroke-width": 1.8, "stroke-dasharray": s.style.dashed ? "5 3" : "none"}));
+      marker(entry, s.style.marker, W - R + 23, ly, s.style.colour);
+      var lt = svgEl("text", {x: W - R + 40, y: ly + 4, "class": "legend"}); lt.textContent = s.label; entry.appendChild(lt);
+      entry.addEventListener("click", function () {
+        hidden[s.label] = !hidden[s.label];
+        lineChart(container, series, xLabel, yLabel, title);
+      });
+      svg.appendChild(entry);
     });
     container.appendChild(svg);
   }
