@@ -280,3 +280,18 @@ def test_a_model_without_weights_says_where_its_training_stands(tmp_path, capsys
     assert main(["list"]) == 0  # the repository's weights: msrgcn has none
     line = next(x for x in capsys.readouterr().out.splitlines() if x.startswith("msrgcn "))
     assert "training: no weights shipped yet (" in line
+
+
+def test_the_index_names_the_lowest_row_the_table_shows_and_how_many_are_bold(tmp_path):
+    results = _copy_results(tmp_path, "cmu")
+    build_site(tmp_path / "site", results)
+    index = (tmp_path / "site" / "index.html").read_text()
+    summary = json.loads((results / "cmu" / "all" / "summary.json").read_text())
+    view = next(v for v in summary["views"] if v["headline"])
+    shown = [m for m in view["models"] if "@" not in m["model"] and not m["floor"]]
+    last = len(view["horizons_ms"]) - 1
+    best = min(shown, key=lambda m: m["values"][last])
+    bold = sum(bool(m["bold"][last]) for m in shown)
+    assert f'{best["model"]}<br><span class="num">{best["values"][last]:.2f}</span>' in index
+    assert f"{bold} of {len(shown)} bold" in index
+    assert "@last<br>" not in index

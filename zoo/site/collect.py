@@ -46,6 +46,30 @@ class Table:
         views = (self.summary or {}).get("views") or []
         return next((v for v in views if v.get("headline")), None)
 
+    def leaders(self) -> list[dict[str, Any]]:
+        """Per horizon of the headline view, what the table shows on load: the lowest of its
+        rows (no ``@last`` row, no floor) and how many of them are bold (not distinguishable
+        from the table's best), so the index says no more than the table does."""
+        view = self.headline
+        if view is None:
+            return []
+        rows = [m for m in view["models"] if "@" not in m["model"] and not m.get("floor")]
+        out = []
+        for i, horizon in enumerate(view["horizons_ms"]):
+            valued = [m for m in rows if m["values"][i] is not None]
+            best = min(valued, key=lambda m: m["values"][i], default=None)
+            bold = sum(1 for m in valued if (m.get("bold") or [False] * (i + 1))[i])
+            out.append(
+                {
+                    "horizon_ms": horizon,
+                    "model": best["model"] if best else None,
+                    "value": best["values"][i] if best else None,
+                    "bold": bold,
+                    "rows": len(valued),
+                }
+            )
+        return out
+
 
 @dataclass
 class Benchmark:
