@@ -295,3 +295,22 @@ def test_the_index_names_the_lowest_row_the_table_shows_and_how_many_are_bold(tm
     assert f'{best["model"]}<br><span class="num">{best["values"][last]:.2f}</span>' in index
     assert f"{bold} of {len(shown)} bold" in index
     assert "@last<br>" not in index
+
+
+def test_the_compare_page_says_which_model_is_lower_in_the_tables_digits(tmp_path):
+    """ltd against repeat_last at 720 ms on ltd8: the interval includes 0 (few windows a
+    recording), so no verdict; the page says that is the rule, and that ltd is lower."""
+    import html as html_lib
+
+    results = _copy_results(tmp_path, "cmu")
+    build_site(tmp_path / "site", results)
+    page = html_lib.unescape((tmp_path / "site" / "compare-cmu.html").read_text())
+    summary = json.loads((results / "cmu" / "ltd8" / "summary.json").read_text())
+    pair = next(c for c in summary["comparisons"] if (c["a"], c["b"]) == ("ltd", "repeat_last"))
+    row = next(r for r in pair["rows"] if r["verdict"] == "none")
+    assert f"{row['a']:.2f}" in page and f"{row['b']:.2f}" in page  # the tables' digits
+    assert (
+        f"not separated: the interval includes 0 (ltd lower here by {-row['difference']:.2f})"
+        in page
+    )
+    assert "no difference detectable" not in page
