@@ -77,15 +77,16 @@ class Benchmark:
     tables: list[Table]
     clips: Path | None = None
     problems: list[str] = field(default_factory=list)
-
-    @property
-    def page(self) -> str:
-        return f"bench-{self.name}.html"
+    about: str = ""  # what the benchmark is: its YAML's opening comment
 
     @property
     def quoted(self) -> Table | None:
         readable = [t for t in self.tables if t.headline is not None]
         return next((t for t in readable if t.quoted), readable[0] if readable else None)
+
+    @property
+    def page(self) -> str:
+        return f"bench-{self.name}.html"
 
 
 @dataclass
@@ -233,6 +234,20 @@ def read_table(benchmark: str, folder: Path) -> Table:
     return table
 
 
+def benchmark_about(name: str) -> str:
+    """A benchmark's own words for what it is: the opening comment of its YAML file (up to the
+    first blank comment line), or "" where there is none."""
+    from zoo.benchmark import BENCHMARK_DIR
+
+    path = BENCHMARK_DIR / f"{name}.yaml"
+    lines = []
+    for line in path.read_text().splitlines() if path.is_file() else []:
+        if not line.startswith("#") or not line.strip("# "):
+            break
+        lines.append(line.lstrip("#").strip())
+    return " ".join(lines)
+
+
 def read_benchmarks(results_root: Path) -> list[Benchmark]:
     out = []
     for bench_dir in sorted(
@@ -240,6 +255,7 @@ def read_benchmarks(results_root: Path) -> list[Benchmark]:
     ):
         folders = [t.parent for t in table_files(bench_dir)]
         bench = Benchmark(bench_dir.name, [read_table(bench_dir.name, f) for f in folders])
+        bench.about = benchmark_about(bench_dir.name)
         if not bench.tables:
             bench.problems.append(f"{bench_dir}: no table ({TABLE_FILE}) in any folder")
         clips = bench_dir / "clips.npz"
