@@ -314,3 +314,27 @@ def test_the_compare_page_says_which_model_is_lower_in_the_tables_digits(tmp_pat
         in page
     )
     assert "no difference detectable" not in page
+
+
+def test_a_row_trained_short_of_its_recipe_says_so_where_its_number_is(tmp_path):
+    """spgsn's shipped run capped its epochs at 50 batches (22% of the recipe's windows): its
+    rows carry a note in the table's data; a record with the epoch's window count gives the
+    share; a full run gives none."""
+    from zoo.site.collect import Model, _budget_note, budget_notes
+
+    results = _copy_results(tmp_path, "cmu")
+    build_site(tmp_path / "site", results)
+    page = (tmp_path / "site" / "table-cmu-all.html").read_text()
+    assert '"spgsn@last":"its run capped each epoch at 50 batches (161,920' in page
+    record = {
+        "training": {"samples_seen": 161_920},
+        "validation": {"training_windows": 14_389},
+        "recipe": {"batch_size": 32},
+    }
+    assert _budget_note(record, 50) == (
+        "its run saw 23% of its recipe's training windows (161,920 of 718,400)"
+    )
+    record["training"]["samples_seen"] = 718_400
+    assert _budget_note(record, 50) is None
+    model = Model("ltd", None, "", [dict(record, label="ltd@last", benchmarks=["cmu"])])
+    assert budget_notes([model], load_registry()) == {}

@@ -317,3 +317,11 @@ def test_hiding_a_model_from_the_legend_removes_its_curve_and_rescales(browser, 
         "css selector", "#curves g.legend-entry[data-series='repeat_last']"
     ).click()
     assert browser.find_elements("css selector", selector)
+
+
+def test_a_short_trained_row_links_its_note_to_the_card(browser, site):
+    _open(browser, site / "table-cmu-all.html")
+    tag = browser.find_element("css selector", "#board tr[data-model='spgsn'] .short")
+    assert tag.text == "short training" and "capped each epoch" in tag.get_attribute("title")
+    assert tag.get_attribute("href").endswith("model-spgsn.html")
+    assert not browser.find_elements("css selector", "#board tr[data-model='pgbig'] .short")

@@ -25,7 +25,7 @@ from zoo.errors import ZooError
 from zoo.io import replace_folder
 from zoo.metrics import FLOOR_SUFFIX
 from zoo.report import PALETTE
-from zoo.site.collect import Benchmark, Table, read_benchmarks, read_models
+from zoo.site.collect import Benchmark, Table, budget_notes, read_benchmarks, read_models
 
 HERE = Path(__file__).parent
 # In every built site: a folder that holds anything else is never replaced.
@@ -238,8 +238,10 @@ def build_site(
     pages: dict[str, str] = {}
     extra: dict[str, str] = {}
     render = partial(_render, env, common)
+    budgets = budget_notes(models, registry)
     for bench in benchmarks:
-        _benchmark_pages(render, bench, model_names, sorted(model_pages), pages, extra)
+        notes = {label: note for (b, label), note in budgets.items() if b == bench.name}
+        _benchmark_pages(render, bench, model_names, sorted(model_pages), pages, extra, notes)
     for model in models:
         card = _markdown(model.card, model_pages, images, cards_dir) if model.card else ""
         pages[model.page] = _model_page(render, model, card, benchmarks, model_names)
@@ -270,7 +272,9 @@ def _render(env, common: dict, template: str, **context) -> str:
     return env.get_template(template).render(**common, **context)
 
 
-def _benchmark_pages(render, bench, model_names, model_pages, pages: dict, extra: dict) -> None:
+def _benchmark_pages(
+    render, bench, model_names, model_pages, pages: dict, extra: dict, budgets: dict
+) -> None:
     """A benchmark's pages: one per table, its mesh page (with its clips' script), its
     comparisons page and its own page."""
     from zoo.version import __version__
@@ -288,6 +292,7 @@ def _benchmark_pages(render, bench, model_names, model_pages, pages: dict, extra
                 "costs": _cost_rows(table),
                 "models": model_names,
                 "pages": model_pages,
+                "budgets": budgets,
             },
         )
     clips = None

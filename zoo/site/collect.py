@@ -234,6 +234,49 @@ def read_table(benchmark: str, folder: Path) -> Table:
     return table
 
 
+def budget_notes(models: list[Model], registry) -> dict[tuple[str, str], str]:
+    """``{(benchmark, row label): note}`` for each shipped row whose training run stopped short
+    of its registry recipe: the share of the recipe's training windows the run saw (its @last
+    record where there is one: a best-validation row is one epoch of a run), or, for records
+    that predate the epoch's window count, the cap on batches an epoch."""
+    notes = {}
+    for model in models:
+        entry = registry.get(model.name)
+        trained = registry.get(entry.weights_of) if entry.weights_of else entry
+        planned = (trained.train or {}).get("epochs")
+        records = {
+            (bench, r["label"]): r
+            for r in model.shipped
+            for bench in r.get("benchmarks") or [r.get("benchmark")]
+        }
+        for (bench, label), record in records.items():
+            last = records.get((bench, label.partition("@")[0] + "@last"), record)
+            note = _budget_note(last, planned)
+            if note:  # the row is named after this model (an entry running another's weights)
+                notes[bench, model.name + ("@last" if label.endswith("@last") else "")] = note
+    return notes
+
+
+def _budget_note(run: dict[str, Any], planned: int | None) -> str | None:
+    seen = (run.get("training") or {}).get("samples_seen")
+    windows = (run.get("validation") or {}).get("training_windows")
+    batch = (run.get("recipe") or {}).get("batch_size")
+    if seen and windows and batch and planned:
+        full = planned * (windows // batch) * batch
+        share = seen / full
+        if share < 0.95:
+            return (
+                f"its run saw {share:.0%} of its recipe's training windows ({seen:,} of {full:,})"
+            )
+        return None
+    if run.get("max_batches") and seen:
+        return (
+            f"its run capped each epoch at {run['max_batches']} batches ({seen:,} training "
+            f"windows in all)"
+        )
+    return None
+
+
 def benchmark_about(name: str) -> str:
     """A benchmark's own words for what it is: the opening comment of its YAML file (up to the
     first blank comment line), or "" where there is none."""

@@ -156,7 +156,9 @@ def train(
         max_batches=max_batches,
         recipe_changes=run.recipe_changes,
         init_from=run.init_record,
-        validation=validation_record(dataset, recipe, data.length, len(data.val_index)),
+        validation=validation_record(
+            dataset, recipe, data.length, len(data.val_index), len(data.train_index)
+        ),
     )  # fmt: skip
     if not data.view and not hooks.training_loss:
         check_output(

@@ -114,10 +114,13 @@ def split_train_val(
     return kept, [arrays[i][plan[i] :] for i in sorted(plan)]
 
 
-def validation_record(dataset, recipe: Recipe, window: int, windows: int) -> dict[str, Any]:
+def validation_record(
+    dataset, recipe: Recipe, window: int, windows: int, training_windows: int | None = None
+) -> dict[str, Any]:
     """What a run validated on, as its checkpoint and shipped record say: the rule, the
     recordings held out whole and those whose last frames validate, and the number of
-    windows."""
+    windows; with ``training_windows``, how many windows a full epoch draws from (what a
+    record's budget is measured against)."""
     names = [s.name for s in dataset.sequences]
     lengths = [len(sequence_frames(s)) for s in dataset.sequences]
     plan = held_out_frames(dataset, lengths, recipe.val_fraction, window, recipe.val_split)
@@ -131,6 +134,7 @@ def validation_record(dataset, recipe: Recipe, window: int, windows: int) -> dic
         "of": f"{dataset.name}/{dataset.split} ({len(names)} recordings)",
         **what,
         "windows": int(windows),
+        **({"training_windows": int(training_windows)} if training_windows is not None else {}),
     }
 
 

@@ -258,8 +258,15 @@ var ZooSite = (function () {
         tr.appendChild(el("td", {"class": "rank num"}, ranked && score !== null && !r.floor ? String(rank) : ""));
         var name = el("td", {"class": "model"});
         var swatch = el("span", {"class": "swatch"}); swatch.style.background = style(r).colour; name.appendChild(swatch);
-        if ((data.pages || []).indexOf("model-" + r.base + ".html") >= 0) { var a = el("a", {href: "model-" + r.base + ".html"}, r.model); name.appendChild(a); }
+        var card = (data.pages || []).indexOf("model-" + r.base + ".html") >= 0 ? "model-" + r.base + ".html" : null;
+        if (card) { var a = el("a", {href: card}, r.model); name.appendChild(a); }
         else { name.appendChild(document.createTextNode(r.model)); }
+        var budget = (data.budgets || {})[r.model];
+        if (budget) {  // weights trained short of their recipe: said where the number is
+          var tag = el(card ? "a" : "span", {"class": "tag warn short", title: budget}, "short training");
+          if (card) { tag.setAttribute("href", card); }
+          name.appendChild(tag);
+        }
         tr.appendChild(name);
         v.horizons_ms.forEach(function (h, i) {
           var c = cell(r, i);
