@@ -325,3 +325,45 @@ def test_a_short_trained_row_links_its_note_to_the_card(browser, site):
     assert tag.text == "short training" and "capped each epoch" in tag.get_attribute("title")
     assert tag.get_attribute("href").endswith("model-spgsn.html")
     assert not browser.find_elements("css selector", "#board tr[data-model='pgbig'] .short")
+
+
+def test_every_mesh_frame_fits_its_canvas_and_repeat_last_has_a_panel(browser, site):
+    """Every frame of every window of the clips, at the default turn and turned a quarter:
+    no pixel but the background on any canvas's edge; repeat_last drawn beside the models."""
+    from selenium.webdriver.support.ui import Select
+
+    _open(browser, site / "meshes-cmu_anny_oi_low.html")
+    edges = """
+        return [...document.querySelectorAll('#viewer canvas')].map(c => {
+          const g = c.getContext('2d'), w = c.width, h = c.height;
+          const strips = [g.getImageData(0, 0, w, 1), g.getImageData(0, h - 1, w, 1),
+                          g.getImageData(0, 0, 1, h), g.getImageData(w - 1, 0, 1, h)];
+          let lit = 0;
+          for (const s of strips) for (let i = 0; i < s.data.length; i += 4)
+            if (s.data[i] !== 246 || s.data[i + 1] !== 246 || s.data[i + 2] !== 244) lit++;
+          return lit;
+        });"""
+    select = Select(browser.find_element("id", "clip-window"))
+    frames = int(browser.find_element("id", "frame").get_attribute("max")) + 1
+    for window in range(len(select.options)):
+        select.select_by_index(window)
+        for turn in (30, 120):
+            browser.execute_script(
+                f"var t = document.getElementById('turn'); t.value = {turn};"
+                "t.dispatchEvent(new Event('input'));"
+            )
+            for frame in range(frames):
+                browser.execute_script(
+                    f"var s = document.getElementById('frame'); s.value = {frame};"
+                    "s.dispatchEvent(new Event('input'));"
+                )
+                assert browser.execute_script(edges) == [0] * len(
+                    browser.find_elements("css selector", "#viewer canvas")
+                ), (window, turn, frame)
+    panels = [
+        c.get_attribute("data-panel")
+        for c in browser.find_elements("css selector", "#viewer canvas")
+    ]
+    assert panels[:2] == ["ground truth", "repeat_last"]
+    captions = browser.find_elements("css selector", "#viewer figcaption")
+    assert "repeat_last: mean vertex error" in captions[1].text

@@ -27,16 +27,30 @@ var ZooViewer = (function () {
     clips.models.forEach(function (m) { preds[m] = int16(clips.predictions[m]); });
     var $ = function (id) { return document.getElementById(id); };
     var state = {window: 0, frame: Tin, playing: false, turn: 30 * Math.PI / 180};
-    // per window, the vertical axis (the one its first frame spreads most along) and extents
-    var up = 2, ext = [1, 1, 1];
-    function measure(w) {
-      var lo = [1e9, 1e9, 1e9], hi = [-1e9, -1e9, -1e9], first = w * T * V * 3;
-      for (var v = 0; v < V; v++) { for (var k = 0; k < 3; k++) { var x = truth[first + v * 3 + k]; lo[k] = Math.min(lo[k], x); hi[k] = Math.max(hi[k], x); } }
-      for (k = 0; k < 3; k++) { ext[k] = Math.max(hi[k] - lo[k], 1); }
-      up = ext.indexOf(Math.max.apply(null, ext));
+    // per window: the vertical axis (the one its first frame spreads most along), and the box
+    // of every frame shown (truth and predictions), so that no frame leaves the canvas
+    var up = 2, ext = [1, 1, 1], mid = [0, 0, 0];
+    function spread(array, from, count, lo, hi) {
+      for (var i = from; i < from + count * 3; i += 3) {
+        for (var k = 0; k < 3; k++) { var x = array[i + k]; if (x < lo[k]) { lo[k] = x; } if (x > hi[k]) { hi[k] = x; } }
+      }
     }
+    function measure(w) {
+      var lo = [1e9, 1e9, 1e9], hi = [-1e9, -1e9, -1e9];
+      spread(truth, w * T * V * 3, V, lo, hi);
+      for (var k = 0; k < 3; k++) { ext[k] = Math.max(hi[k] - lo[k], 1); }
+      up = ext.indexOf(Math.max.apply(null, ext));
+      lo = [1e9, 1e9, 1e9]; hi = [-1e9, -1e9, -1e9];
+      spread(truth, w * T * V * 3, T * V, lo, hi);
+      clips.models.forEach(function (m) { spread(preds[m], w * Tout * V * 3, Tout * V, lo, hi); });
+      for (k = 0; k < 3; k++) { ext[k] = Math.max(hi[k] - lo[k], 1); mid[k] = (lo[k] + hi[k]) / 2; }
+    }
+    // one colour scale for the benchmark: a twentieth of the largest body extent of any window
+    var top = 1;
+    for (var w0 = 0; w0 < clips.windows.length; w0++) { measure(w0); top = Math.max(top, 0.05 * Math.max(ext[0], ext[1], ext[2])); }
     measure(0);
-    var panels = [{name: "ground truth", model: null}].concat(clips.models.map(function (m) { return {name: m, model: m}; }));
+    // repeat_last: the last observed frame held, the baseline every model must beat
+    var panels = [{name: "ground truth", model: null}, {name: "repeat_last", model: null, still: true}].concat(clips.models.map(function (m) { return {name: m, model: m}; }));
     var viewer = $("viewer"); viewer.textContent = "";
     panels.forEach(function (p) {
       var fig = document.createElement("figure");
@@ -55,7 +69,7 @@ var ZooViewer = (function () {
       var h1 = (up + 1) % 3, h2 = (up + 2) % 3, c = Math.cos(state.turn), s = Math.sin(state.turn);
       var px = new Float32Array(V), py = new Float32Array(V), pz = new Float32Array(V);
       for (var v = 0; v < V; v++) {
-        var a = pos[v * 3 + h1], b = pos[v * 3 + h2], u = pos[v * 3 + up];
+        var a = pos[v * 3 + h1] - mid[h1], b = pos[v * 3 + h2] - mid[h2], u = pos[v * 3 + up] - mid[up];
         px[v] = W / 2 + (c * a - s * b) * scale; pz[v] = s * a + c * b; py[v] = H / 2 - u * scale;
       }
       var order = new Array(F), depth = new Float32Array(F);
@@ -79,13 +93,23 @@ var ZooViewer = (function () {
     function render() {
       var w = state.window, t = state.frame, future = t >= Tin;
       var gt = frameOf(truth, w, t, T);
-      var across = Math.max(ext[(up + 1) % 3], ext[(up + 2) % 3], 1);
-      var scale = 0.85 * Math.min(200 / across, 280 / Math.max(ext[up], 1));
-      var top = 0.05 * Math.max(ext[0], ext[1], ext[2]);  // error (mm) at the ramp's top: 5% of the body
+      // the box's horizontal diagonal: what any turn can span across the canvas
+      var across = Math.max(Math.sqrt(ext[(up + 1) % 3] * ext[(up + 1) % 3] + ext[(up + 2) % 3] * ext[(up + 2) % 3]), 1);
+      var scale = 0.9 * Math.min(200 / across, 280 / Math.max(ext[up], 1));
       panels.forEach(function (p) {
+        if (p.still && future) {
+          var held = frameOf(truth, w, Tin - 1, T), errs = new Float32Array(V), sum = 0;
+          for (var q = 0; q < V; q++) {
+            var ex = held[3 * q] - gt[3 * q], ey = held[3 * q + 1] - gt[3 * q + 1], ez = held[3 * q + 2] - gt[3 * q + 2];
+            var d = Math.sqrt(ex * ex + ey * ey + ez * ez); sum += d; errs[q] = d / top;
+          }
+          draw(p, held, errs, scale);
+          p.caption.textContent = p.name + ": mean vertex error " + (sum / V).toFixed(1) + " mm";
+          return;
+        }
         if (!p.model || !future) {
           draw(p, gt, null, scale);
-          p.caption.textContent = p.name + (future ? "" : (p.model ? ": observed (input)" : ": observed"));
+          p.caption.textContent = p.name + (future ? "" : (p.model || p.still ? ": observed (input)" : ": observed"));
           return;
         }
         var pred = frameOf(preds[p.model], w, t - Tin, Tout), err = new Float32Array(V), total = 0;
@@ -96,7 +120,11 @@ var ZooViewer = (function () {
         draw(p, pred, err, scale);
         p.caption.textContent = p.name + ": mean vertex error " + (total / V).toFixed(1) + " mm";
       });
-      $("ramp-note").textContent = "Prediction colour: its vertex error, from grey (0 mm) through orange to red (" + Math.round(top) + " mm or more, a twentieth of the mesh's extent).";
+      var note = $("ramp-note");
+      note.textContent = " Prediction colour: its vertex error, from grey (0 mm) through orange to red (" + Math.round(top) + " mm or more: a twentieth of the largest body extent of these windows, the same scale for every window).";
+      var bar = document.createElement("span"); bar.className = "ramp";
+      bar.style.background = "linear-gradient(to right, " + RAMP.map(function (c) { return "rgb(" + c.join(",") + ")"; }).join(", ") + ")";
+      note.insertBefore(bar, note.firstChild);
       slider.value = String(t);
       $("frame-label").textContent = "frame " + (t + 1) + " of " + T + (future ? " (+" + Math.round((t - Tin + 1) * 1000 / clips.fps) + " ms)" : " (observed)");
       viewer.setAttribute("data-frame", String(t));
