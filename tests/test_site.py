@@ -338,3 +338,13 @@ def test_a_row_trained_short_of_its_recipe_says_so_where_its_number_is(tmp_path)
     assert _budget_note(record, 50) is None
     model = Model("ltd", None, "", [dict(record, label="ltd@last", benchmarks=["cmu"])])
     assert budget_notes([model], load_registry()) == {}
+
+
+def test_a_model_page_shows_its_card_once_and_every_horizon(tmp_path):
+    results = _copy_results(tmp_path, "cmu")
+    build_site(tmp_path / "site", results)
+    page = (tmp_path / "site" / "model-spgsn.html").read_text()
+    assert page.count("<h1>") == 1  # the page's title, not the card's again
+    assert "<h2>Rows</h2>" not in page and "<h2>Training curve</h2>" not in page
+    assert "<h2>Hyper-parameters</h2>" in page and "<h2>Architecture</h2>" in page
+    assert 'class="num wrap"' in page and "1000: " in page

@@ -367,3 +367,16 @@ def test_every_mesh_frame_fits_its_canvas_and_repeat_last_has_a_panel(browser, s
     assert panels[:2] == ["ground truth", "repeat_last"]
     captions = browser.find_elements("css selector", "#viewer figcaption")
     assert "repeat_last: mean vertex error" in captions[1].text
+
+
+def test_the_json_download_holds_the_rows_shown_with_the_protocol(browser, site):
+    import urllib.parse
+
+    summary = json.loads((site.parent / "results" / "cmu" / "all" / "summary.json").read_text())
+    _open(browser, site / "table-cmu-all.html")
+    href = browser.find_element("id", "download-json").get_attribute("href")
+    table = json.loads(urllib.parse.unquote(href.split(",", 1)[1]))
+    view = summary["views"][0]
+    assert table["protocol_id"] == summary["protocol_id"] and table["metric"] == view["metric"]
+    stored = {m["model"]: m["values"] for m in view["models"] if "@" not in m["model"]}
+    assert {r["model"]: r["values"] for r in table["rows"]} == stored

@@ -67,6 +67,19 @@ def _script_json(value: Any) -> str:
     return Markup(text.replace("</", "<\\/").replace("<!--", "<\\!--"))
 
 
+# a card's parts that its page shows itself, from the data (its title, rows and curves)
+PAGE_SHOWS = ("Training curve", "Rows")
+
+
+def _card_body(text: str) -> str:
+    """A card without what its model page already shows: the title line, and the sections
+    :data:`PAGE_SHOWS` (each up to the next section of its level or above)."""
+    text = re.sub(r"\A# [^\n]*\n", "", text)
+    for title in PAGE_SHOWS:
+        text = re.sub(rf"^## {re.escape(title)}\n.*?(?=^## |\Z)", "", text, flags=re.S | re.M)
+    return text
+
+
 def _markdown(text: str, model_pages: set[str], images: dict[str, Path], cards_dir: Path) -> str:
     """A card's Markdown as HTML: links to other cards point at their pages, pictures beside
     the card are copied into the site, any other relative link is kept as text."""
@@ -243,7 +256,9 @@ def build_site(
         notes = {label: note for (b, label), note in budgets.items() if b == bench.name}
         _benchmark_pages(render, bench, model_names, sorted(model_pages), pages, extra, notes)
     for model in models:
-        card = _markdown(model.card, model_pages, images, cards_dir) if model.card else ""
+        card = (
+            _markdown(_card_body(model.card), model_pages, images, cards_dir) if model.card else ""
+        )
         pages[model.page] = _model_page(render, model, card, benchmarks, model_names)
     pages["index.html"] = render("index.html", title="motion-zoo", problems=weight_problems)
 

@@ -293,9 +293,15 @@ var ZooSite = (function () {
         body.appendChild(tr);
       });
       board.appendChild(body);
+      var stem = (summary.benchmark || "table") + "-" + v.metric + "-" + v.averaging + "-" + v.joints + "-" + state.action;
       var download = $("download");
       download.href = "data:text/csv;charset=utf-8," + encodeURIComponent(csv(rows));
-      download.setAttribute("download", (summary.benchmark || "table") + "-" + v.metric + "-" + v.averaging + "-" + v.joints + "-" + state.action + ".csv");
+      download.setAttribute("download", stem + ".csv");
+      var json = {protocol_id: summary.protocol_id, benchmark: summary.benchmark, metric: v.metric, unit: v.unit,
+                  averaging: v.averaging, joints: v.joints, action: state.action, horizons_ms: v.horizons_ms,
+                  rows: rows.map(function (r) { return {model: r.model, values: v.horizons_ms.map(function (h, i) { return cell(r, i).value; })}; })};
+      $("download-json").href = "data:application/json;charset=utf-8," + encodeURIComponent(JSON.stringify(json, null, 1));
+      $("download-json").setAttribute("download", stem + ".json");
       writeFragment();
       var machines = unique(Object.keys(costs).map(function (m) {
         return (costs[m].device || "a machine not recorded") + (costs[m].date ? " (" + costs[m].date + ")" : "");
