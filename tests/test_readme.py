@@ -56,3 +56,24 @@ def test_zoo_cards_rewrites_a_stale_headline(tmp_path):
     assert main([*argv, "--check"]) == 1
     assert main(argv) == 0
     assert readme.read_text() == text
+
+
+def test_the_readmes_table_picture_shows_the_committed_numbers():
+    """docs/site/table-cmu.png is taken by the browser tests from the committed results
+    (ZOO_SITE_SCREENSHOTS=docs/site), which write the numbers it shows beside it: they must be
+    the committed table's, or the picture is stale."""
+    import json
+
+    assert "docs/site/table-cmu.png" in (REPO_ROOT / "README.md").read_text()
+    pictured = json.loads((REPO_ROOT / "docs" / "site" / "table-cmu.json").read_text())
+    summary = json.loads((REPO_ROOT / pictured["table"] / "summary.json").read_text())
+    view = summary["views"][0]  # the view a table page opens on
+    stored = {m["model"]: dict(zip(view["horizons_ms"], m["values"])) for m in view["models"]}
+    assert pictured["rows"], "no row pictured"
+    stale = [
+        f"{model} at {h} ms: pictured {value}, committed {stored.get(model, {}).get(int(h))}"
+        for model, cells in pictured["rows"].items()
+        for h, value in cells.items()
+        if stored.get(model, {}).get(int(h)) != value
+    ]
+    assert not stale, "the README's picture is stale: " + "; ".join(stale[:5])
