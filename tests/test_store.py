@@ -630,3 +630,16 @@ def test_a_wrapper_imports_the_file_beside_it_and_its_fingerprint_follows_that_f
     assert relu != before
     # a name imported from the file: only what it reaches; the module itself: all of it
     assert (unused == before) == import_line.startswith("from")
+
+
+def test_identity_differences_are_decided_on_by_field_not_by_their_words():
+    from zoo.store import Difference, identity_differences, only_code_changed
+
+    code = identity_differences({"code": {"evaluator": "a"}}, {"code": {"evaluator": "b"}})
+    assert only_code_changed(code) and code == ['code.evaluator: stored "a", now "b"']
+    assert code[0].field == "code.evaluator"
+    unreadable = identity_differences({"code": {}}, {"code": {"model": None}})
+    assert not only_code_changed(unreadable) and "no result is its twin" in "; ".join(unreadable)
+    # the words no longer decide: a code difference that happens to say them is still code
+    assert only_code_changed([Difference("code.model", "so no result is its twin")])
+    assert not only_code_changed([Difference("weights.sha256", "stored 1, now 2")])

@@ -520,29 +520,48 @@ def restamp_record(protocol: dict, identity: dict, verification: dict | None = N
     stamp_record(protocol, identity)
 
 
-def only_code_changed(differences: list[str]) -> bool:
+class Difference(str):
+    """One field in which two identities differ: its text (``field: stored X, now Y``) is what
+    messages print; ``field`` and ``comparable`` are what code decides on."""
+
+    field: str
+    comparable: bool  # False: no result can be its twin (a model whose source cannot be read)
+
+    def __new__(cls, field: str, text: str, comparable: bool = True) -> Difference:
+        difference = super().__new__(cls, f"{field}: {text}")
+        difference.field, difference.comparable = field, comparable
+        return difference
+
+
+def only_code_changed(differences: list[Difference]) -> bool:
     """Whether identity differences (:func:`identity_differences`) are of code alone: the same
     data, protocol, hyper-parameters and weights, so a sample can verify the stored numbers."""
     return bool(differences) and all(
-        d.startswith("code.") and "no result is its twin" not in d for d in differences
+        d.field.startswith("code.") and d.comparable for d in differences
     )
 
 
-def identity_differences(stored: dict[str, Any] | None, new: dict[str, Any]) -> list[str]:
+def identity_differences(stored: dict[str, Any] | None, new: dict[str, Any]) -> list[Difference]:
     """The fields in which two identities differ, as ``field: stored X, now Y``; one line for
     a result that records none (written by an older zoo)."""
     if not stored:
-        return ["identity: none recorded (written by an older zoo)"]
-    out: list[str] = []
+        return [Difference("identity", "none recorded (written by an older zoo)")]
+    out: list[Difference] = []
     if (new.get("code") or {}).get("model", "") is None:
-        out.append("code.model: the model's source cannot be read, so no result is its twin")
+        out.append(
+            Difference(
+                "code.model",
+                "the model's source cannot be read, so no result is its twin",
+                comparable=False,
+            )
+        )
 
     def walk(a, b, path):
         if isinstance(a, dict) and isinstance(b, dict):
             for key in sorted(set(a) | set(b), key=str):
                 walk(a.get(key), b.get(key), f"{path}.{key}" if path else str(key))
         elif a != b:
-            out.append(f"{path}: stored {_short(a)}, now {_short(b)}")
+            out.append(Difference(path, f"stored {_short(a)}, now {_short(b)}"))
 
     walk(stored, new, "")
     return out
