@@ -161,13 +161,18 @@ def test_a_user_model_that_raises_keeps_its_traceback_after_one_line(capsys, roo
     registry.write_text(
         "models:\n  broken: {class: mine.py:Broken, representation: joints, reference: mine}\n"
     )
-    with pytest.raises(ValueError, match="my own bug"):
-        main(["eval", "--registry", str(registry), "--model", "broken", "--data-root", str(root)])
+    code = main(
+        ["eval", "--registry", str(registry), "--model", "broken", "--data-root", str(root)]
+    )
     err = capsys.readouterr().err
+    assert code == 1
     assert (
         f"zoo: model 'broken' (mine.py:Broken, registry {registry}) raised while being "
         f"built:" in err
     )
+    # then its own frames only, as for a raise in its forward
+    assert "your code raised ValueError: my own bug" in err
+    assert 'mine.py", line 6, in __init__' in err and "zoo/registry.py" not in err
 
 
 def test_model_names_cannot_escape_the_results_folder(capsys, tmp_path):
