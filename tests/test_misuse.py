@@ -146,7 +146,7 @@ def test_ctrl_c_ends_in_one_line(capsys, monkeypatch, root, tmp_path):
     assert code == 130 and last.startswith("zoo eval: interrupted")
 
 
-def test_a_user_model_that_raises_keeps_its_traceback_after_one_line(capsys, root, tmp_path):
+def test_a_user_model_raising_while_built_gets_one_line_then_its_own_frames(capsys, root, tmp_path):
     (tmp_path / "mine.py").write_text(
         textwrap.dedent("""\
         import torch
