@@ -402,3 +402,20 @@ def test_the_json_download_holds_the_rows_shown_with_the_protocol(browser, site)
     assert table["protocol_id"] == summary["protocol_id"] and table["metric"] == view["metric"]
     stored = {m["model"]: m["values"] for m in view["models"] if "@" not in m["model"]}
     assert {r["model"]: r["values"] for r in table["rows"]} == stored
+
+
+def test_each_row_says_when_it_was_computed_and_how_to_compute_it_again(browser, site):
+    _open(browser, site / "table-cmu-all.html")
+    cell = browser.find_element("css selector", "#board tr[data-model='pgbig'] td.source")
+    assert not cell.is_displayed()  # on demand
+    browser.find_element("id", "show-sources").click()
+    cell = browser.find_element("css selector", "#board tr[data-model='pgbig'] td.source")
+    command = cell.find_element("css selector", "code").text
+    assert (
+        command == "zoo eval --weights weights/cmu/pgbig.safetensors --benchmark cmu --sampler all"
+    )
+    stored = json.loads((RESULTS / "cmu" / "all" / "pgbig" / "protocol.json").read_text())
+    assert cell.text.startswith(stored["provenance"]["created"][:10])
+    baseline = browser.find_element("css selector", "#board tr[data-model='repeat_last'] td.source")
+    assert "zoo eval --model repeat_last --benchmark cmu --sampler all" in baseline.text
+    assert "src=1" in browser.execute_script("return location.hash")

@@ -308,6 +308,7 @@ def _benchmark_pages(
                 "models": model_names,
                 "pages": model_pages,
                 "budgets": budgets,
+                "sources": table.sources,
             },
         )
     clips = None

@@ -25,6 +25,7 @@ class Table:
     summary: dict[str, Any] | None = None
     costs: dict[str, dict[str, str]] = field(default_factory=dict)
     problems: list[str] = field(default_factory=list)
+    sources: dict[str, dict[str, str]] = field(default_factory=dict)  # per row: see row_source
 
     @property
     def page(self) -> str:
@@ -202,6 +203,27 @@ def summary_fault(summary: dict[str, Any]) -> str | None:
     return None
 
 
+def row_source(folder: Path, benchmark: str, protocol: dict[str, Any]) -> dict[str, str]:
+    """Where a row's numbers come from, from its ``protocol.json``: when and at which code
+    version they were computed, and the command that computes them again from the shipped
+    weights (none for a row without them, whose command is its own registry's)."""
+    try:
+        provenance = json.loads((folder / "protocol.json").read_text()).get("provenance") or {}
+    except (OSError, ValueError):
+        return {}
+    weights, sampler = provenance.get("weights"), protocol.get("sampler")
+    model = provenance.get("model") or folder.name
+    how = f"--weights {weights}" if weights else f"--model {model}"
+    source = {
+        "created": str(provenance.get("created", ""))[:10],
+        "code": str(provenance.get("code_version", "")),
+        "command": f"zoo eval {how} --benchmark {benchmark} --sampler {sampler}",
+    }
+    if weights is None and provenance.get("training"):
+        source["command"] = ""  # a checkpoint's row: not from shipped weights
+    return source
+
+
 def read_table(benchmark: str, folder: Path) -> Table:
     table = Table(benchmark, folder.name)
     table.protocol = _read_json(folder / "protocol.json", table.problems, "the table's protocol")
@@ -230,6 +252,9 @@ def read_table(benchmark: str, folder: Path) -> Table:
                     table.problems.append(
                         f"{folder / label / 'results.csv'}: missing (a row the table lists)"
                     )
+                source = row_source(folder / label, benchmark, table.protocol)
+                if source:
+                    table.sources[label] = source
     table.costs = _costs(folder, table.problems)
     return table
 

@@ -132,7 +132,7 @@ var ZooSite = (function () {
     if (!summary || !summary.views || !summary.views.length) { return; }
     var views = summary.views, costs = data.costs || {};
     var state = {view: views[0], action: "average", sort: null, descending: false, last: false,
-                 horizons: "key", costs: false};
+                 horizons: "key", costs: false, sources: false};
     // a view lives in the page's fragment (#metric=...&sort=7), so that it can be sent and reopened
     function readFragment() {
       var f = {};
@@ -147,13 +147,14 @@ var ZooSite = (function () {
       if (f.sort === "model") { state.sort = "model"; }
       else if (f.sort !== undefined && /^\d+$/.test(f.sort) && +f.sort < state.view.horizons_ms.length) { state.sort = +f.sort; }
       state.descending = f.desc === "1"; state.last = f.last === "1";
-      state.horizons = f.h === "all" ? "all" : "key"; state.costs = f.costs === "1";
+      state.horizons = f.h === "all" ? "all" : "key"; state.costs = f.costs === "1"; state.sources = f.src === "1";
     }
     function writeFragment() {
       var v = state.view;
       var parts = {metric: v.metric, averaging: v.averaging, joints: v.joints, action: state.action,
                    sort: state.sort === null ? "" : String(state.sort), desc: state.descending ? "1" : "0",
-                   last: state.last ? "1" : "0", h: state.horizons, costs: state.costs ? "1" : "0"};
+                   last: state.last ? "1" : "0", h: state.horizons, costs: state.costs ? "1" : "0",
+                   src: state.sources ? "1" : "0"};
       var text = Object.keys(parts).map(function (k) { return k + "=" + encodeURIComponent(parts[k]); }).join("&");
       if (history.replaceState) { history.replaceState(null, "", "#" + text); } else { location.hash = text; }
     }
@@ -190,7 +191,7 @@ var ZooSite = (function () {
       fill($("averaging"), unique(views.filter(function (x) { return x.metric === v.metric; }).map(function (x) { return x.averaging; })), v.averaging);
       fill($("joints"), unique(views.filter(function (x) { return x.metric === v.metric && x.averaging === v.averaging; }).map(function (x) { return x.joints; })), v.joints);
       fill($("action"), ["average"].concat(summary.actions), state.action);
-      $("show-last").checked = state.last; $("show-costs").checked = state.costs;
+      $("show-last").checked = state.last; $("show-costs").checked = state.costs; $("show-sources").checked = state.sources;
       var keys = keyHorizons(v).map(function (i) { return v.horizons_ms[i]; }).join(", ");
       fill($("horizons"), ["key", "all"], state.horizons);
       $("horizons").options[0].textContent = keys + " ms"; $("horizons").options[1].textContent = "all " + v.horizons_ms.length;
@@ -237,6 +238,7 @@ var ZooSite = (function () {
       var th = el("th", {"data-key": "model", "class": "sortable model"}, "model"); head.appendChild(th);
       v.horizons_ms.forEach(function (h, i) { head.appendChild(el("th", {"data-key": String(i), "class": "sortable num" + (shown(i) ? "" : " off")}, h + " ms")); });
       ["parameters", "GFLOP / window", "latency (ms)", "training windows / s"].forEach(function (c) { head.appendChild(el("th", {"class": "num cost" + (state.costs ? "" : " off")}, c)); });
+      head.appendChild(el("th", {"class": "source" + (state.sources ? "" : " off")}, "computed · to compute it again"));
       var thead = el("thead"); thead.appendChild(head); board.appendChild(thead);
       Array.prototype.forEach.call(head.querySelectorAll("th.sortable"), function (t) {
         var key = t.getAttribute("data-key");
@@ -279,6 +281,10 @@ var ZooSite = (function () {
         [k.parameters === "0" ? "0" : k.parameters ? (k.parameters / 1e6).toFixed(3) + " M" : "",
          k.gflop ? (+k.gflop).toPrecision(3) : "", k.latency_ms ? (+k.latency_ms).toPrecision(3) : "",
          k.train_per_s ? (+k.train_per_s).toPrecision(3) : ""].forEach(function (t) { tr.appendChild(el("td", {"class": "num cost" + (state.costs ? "" : " off")}, t)); });
+        var src = (data.sources || {})[r.model] || {}, where = el("td", {"class": "source" + (state.sources ? "" : " off")});
+        where.appendChild(document.createTextNode((src.created || "") + (src.code ? " · " + src.code : "") + " "));
+        if (src.command) { where.appendChild(el("code", {}, src.command)); }
+        tr.appendChild(where);
         body.appendChild(tr);
       });
       (v.reported || []).forEach(function (p) {
@@ -290,6 +296,7 @@ var ZooSite = (function () {
         label.appendChild(el("span", {"class": "source"}, p.source)); tr.appendChild(label);
         v.horizons_ms.forEach(function (h, i) { tr.appendChild(el("td", {"class": "num" + (shown(i) ? "" : " off")}, format(values[i], fmt))); });
         for (var c = 0; c < 4; c++) { tr.appendChild(el("td", {"class": "num cost" + (state.costs ? "" : " off")}, "–")); }
+        tr.appendChild(el("td", {"class": "source" + (state.sources ? "" : " off")}, ""));
         body.appendChild(tr);
       });
       board.appendChild(body);
@@ -328,6 +335,7 @@ var ZooSite = (function () {
     $("action").addEventListener("change", function () { state.action = $("action").value; render(); });
     $("show-last").addEventListener("change", function () { state.last = $("show-last").checked; render(); });
     $("show-costs").addEventListener("change", function () { state.costs = $("show-costs").checked; render(); });
+    $("show-sources").addEventListener("change", function () { state.sources = $("show-sources").checked; render(); });
     $("horizons").addEventListener("change", function () { state.horizons = $("horizons").value; render(); });
     window.addEventListener("hashchange", function () { readFragment(); render(); });
     readFragment();
