@@ -412,3 +412,23 @@ def test_a_longer_history_is_padded_with_the_oldest_frame():
     assert torch.equal(pad_history(history, 2), history[:, 1:])
     with pytest.raises(ValueError, match="frames must be a positive integer"):
         pad_history(history, 0)
+
+
+def test_a_class_that_cannot_load_fails_before_any_data_is_read(tmp_path, capsys):
+    """zoo eval, zoo leaderboard --model and zoo train name the class file's fault at once: the
+    data root given does not exist, and the error is about the class, not the data."""
+    (tmp_path / "still.py").write_text(STILL)
+    reg = tmp_path / "my_registry.yaml"
+    reg.write_text(
+        "models:\n  typo:\n    class: still.py:Stil\n    representation: joints\n"
+        "    trainable: true\n"
+    )
+    nowhere = str(tmp_path / "no data here")
+    for argv in (
+        ["eval", "--model", "typo"],
+        ["leaderboard", "--benchmark", "cmu", "--model", "typo"],
+        ["train", "--model", "typo"],
+    ):
+        assert main([*argv, "--registry", str(reg), "--data-root", nowhere]) == 2, argv
+        err = capsys.readouterr().err
+        assert "defines no class 'Stil'; it defines Still" in err, (argv, err)

@@ -161,6 +161,8 @@ def run(args) -> int:
         for name in names:
             copied = copy_benchmark_tables(base, args.results, name)
             print(f"{name}: {len(copied)} table(s) copied from {base}", file=sys.stderr)
+    for model in args.model or ():  # a misspelt name or a class that cannot load: before any data
+        registry.get(model).load_class()
     started = time.perf_counter()
     for bench, name in zip(args.benchmark, names):
         plan = Plan(

@@ -96,6 +96,7 @@ def train(
     bench = get_benchmark(benchmark) if isinstance(benchmark, (str, Path)) else benchmark
     entry = registry.get(model_name)
     _check_arguments(entry, seed, max_batches, init_from, resume)
+    entry.load_class()  # a class that cannot load fails here, before the data is read
     recipe = training_recipe(
         {**({"val_split": bench.val_split} if bench.val_split else {}), **entry.train},
         {**(train_overrides or {}), **({"epochs": epochs} if epochs is not None else {})},
