@@ -419,3 +419,18 @@ def test_each_row_says_when_it_was_computed_and_how_to_compute_it_again(browser,
     baseline = browser.find_element("css selector", "#board tr[data-model='repeat_last'] td.source")
     assert "zoo eval --model repeat_last --benchmark cmu --sampler all" in baseline.text
     assert "src=1" in browser.execute_script("return location.hash")
+
+
+def test_curves_take_a_log_scale_and_hide_the_baselines(browser, site):
+    _open(browser, site / "table-cmu-all.html")
+    ticks = (
+        "return [...document.querySelectorAll('#curves text.tick[text-anchor=end]')]"
+        ".map(t => t.textContent)"
+    )
+    browser.find_element("id", "log-scale").click()
+    assert {"1", "10", "100"} <= set(browser.execute_script(ticks))
+    browser.find_element("id", "hide-baselines").click()
+    assert not browser.find_elements("css selector", "#curves g.series[data-series='repeat_last']")
+    assert browser.find_elements("css selector", "#curves g.series[data-series='pgbig']")
+    browser.find_element("id", "hide-baselines").click()
+    assert browser.find_elements("css selector", "#curves g.series[data-series='repeat_last']")

@@ -252,9 +252,15 @@ def build_site(
     extra: dict[str, str] = {}
     render = partial(_render, env, common)
     budgets = budget_notes(models, registry)
+    # what every model must beat: the registered models that learn nothing
+    baselines = [
+        n for n in known if not registry.get(n).trainable and not registry.get(n).weights_of
+    ]
     for bench in benchmarks:
         notes = {label: note for (b, label), note in budgets.items() if b == bench.name}
-        _benchmark_pages(render, bench, model_names, sorted(model_pages), pages, extra, notes)
+        _benchmark_pages(
+            render, bench, model_names, sorted(model_pages), pages, extra, notes, baselines
+        )
     for model in models:
         card = (
             _markdown(_card_body(model.card), model_pages, images, cards_dir) if model.card else ""
@@ -288,7 +294,7 @@ def _render(env, common: dict, template: str, **context) -> str:
 
 
 def _benchmark_pages(
-    render, bench, model_names, model_pages, pages: dict, extra: dict, budgets: dict
+    render, bench, model_names, model_pages, pages: dict, extra: dict, budgets: dict, baselines
 ) -> None:
     """A benchmark's pages: one per table, its mesh page (with its clips' script), its
     comparisons page and its own page."""
@@ -302,6 +308,7 @@ def _benchmark_pages(
             bench=bench,
             table=table,
             protocol_rows=_readable_protocol(table.protocol),
+            baselines=baselines,
             data={
                 "summary": _for_script(table.summary),
                 "costs": _cost_rows(table),
@@ -309,6 +316,7 @@ def _benchmark_pages(
                 "pages": model_pages,
                 "budgets": budgets,
                 "sources": table.sources,
+                "baselines": baselines,
             },
         )
     clips = None

@@ -73,6 +73,11 @@ var ZooSite = (function () {
      Clicking a legend entry hides or shows its curve (kept across redraws of the container),
      and the y range follows the curves shown. */
   var chartCount = 0;
+  function logTicks(lo, hi) {  // 1, 2, 5 times each power of ten from 10^lo to 10^hi
+    var ticks = [];
+    for (var k = lo; k <= hi; k++) { [1, 2, 5].forEach(function (m) { var v = m * Math.pow(10, k); if (Math.log10(v) <= hi + 1e-9) { ticks.push(+v.toPrecision(6)); } }); }
+    return ticks;
+  }
   function lineChart(container, series, xLabel, yLabel, title) {
     container.textContent = "";
     var hidden = container.hiddenSeries || (container.hiddenSeries = {});
@@ -83,12 +88,17 @@ var ZooSite = (function () {
     (drawn.length ? drawn : series).forEach(function (s) { s.points.forEach(function (p) { if (p[1] !== null) { xs.push(p[0]); ys.push(p[1]); } }); });
     if (!xs.length) { container.appendChild(el("p", {"class": "note"}, "No values to draw.")); return; }
     var x0 = Math.min.apply(null, xs), x1 = Math.max.apply(null, xs);
-    var y0 = Math.min(0, Math.min.apply(null, ys)), y1 = Math.max.apply(null, ys) * 1.05;
+    // a log scale where the container asks for one and every value is positive
+    var log = container.logScale && Math.min.apply(null, ys) > 0;
+    var f = log ? Math.log10 : function (y) { return y; };
+    var y0 = log ? Math.floor(f(Math.min.apply(null, ys))) : Math.min(0, Math.min.apply(null, ys));
+    var y1 = log ? Math.ceil(f(Math.max.apply(null, ys))) : Math.max.apply(null, ys) * 1.05;
     var sx = function (x) { return L + (x - x0) / ((x1 - x0) || 1) * (W - L - R); };
-    var sy = function (y) { return H - B - (y - y0) / ((y1 - y0) || 1) * (H - T - B); };
+    var sy = function (y) { return H - B - (f(y) - y0) / ((y1 - y0) || 1) * (H - T - B); };
+    var yTicks = log ? logTicks(y0, y1) : niceTicks(y0, y1, 6);
     var svg = svgEl("svg", {viewBox: "0 0 " + W + " " + H, width: "100%", role: "img", "aria-label": title});
     var t = svgEl("text", {x: L, y: 18, "class": "title"}); t.textContent = title; svg.appendChild(t);
-    niceTicks(y0, y1, 6).forEach(function (v) {
+    yTicks.forEach(function (v) {
       svg.appendChild(svgEl("line", {x1: L, x2: W - R, y1: sy(v), y2: sy(v), "class": "grid"}));
       var lab = svgEl("text", {x: L - 6, y: sy(v) + 4, "text-anchor": "end", "class": "tick"}); lab.textContent = String(v); svg.appendChild(lab);
     });
@@ -318,7 +328,13 @@ var ZooSite = (function () {
         var points = state.action === "average" ? r.curve : v.horizons_ms.map(function (h, i) { return [h, cell(r, i).value]; });
         return {label: r.model, points: points, style: style(r)};
       });
-      lineChart($("curves"), series, "horizon (ms)", v.metric.toUpperCase() + " (" + v.unit + ")",
+      var curves = $("curves");
+      curves.logScale = $("log-scale").checked;
+      curves.hiddenSeries = curves.hiddenSeries || {};
+      (data.baselines || []).forEach(function (b) {
+        series.forEach(function (s) { if (s.label.split("@")[0] === b) { curves.hiddenSeries[s.label] = $("hide-baselines").checked; } });
+      });
+      lineChart(curves, series, "horizon (ms)", v.metric.toUpperCase() + " (" + v.unit + ")",
                 v.metric.toUpperCase() + ", " + v.averaging + " averaging, joints " + v.joints + ", " + (state.action === "average" ? "mean over actions" : state.action));
       var others = $("reported"); others.textContent = "";
       if ((v.other_protocols || []).length) {
@@ -336,6 +352,8 @@ var ZooSite = (function () {
     $("show-last").addEventListener("change", function () { state.last = $("show-last").checked; render(); });
     $("show-costs").addEventListener("change", function () { state.costs = $("show-costs").checked; render(); });
     $("show-sources").addEventListener("change", function () { state.sources = $("show-sources").checked; render(); });
+    $("log-scale").addEventListener("change", render);
+    $("hide-baselines").addEventListener("change", render);
     $("horizons").addEventListener("change", function () { state.horizons = $("horizons").value; render(); });
     window.addEventListener("hashchange", function () { readFragment(); render(); });
     readFragment();
