@@ -434,3 +434,20 @@ def test_curves_take_a_log_scale_and_hide_the_baselines(browser, site):
     assert browser.find_elements("css selector", "#curves g.series[data-series='pgbig']")
     browser.find_element("id", "hide-baselines").click()
     assert browser.find_elements("css selector", "#curves g.series[data-series='repeat_last']")
+
+
+def test_every_action_is_printed_beside_every_other_as_papers_do(browser, site):
+    summary = json.loads((site.parent / "results" / "cmu" / "all" / "summary.json").read_text())
+    view = summary["views"][0]
+    _open(browser, site / "table-cmu-all.html")
+    pgbig = next(m for m in view["models"] if m["model"] == "pgbig")
+    last = view["horizons_ms"][-1]
+    for action in summary["actions"]:
+        cell = browser.find_element(
+            "css selector",
+            f"#per-action tr[data-model='pgbig'] td[data-action='{action}'][data-horizon='{last}']",
+        )
+        assert cell.text == f"{pgbig['per_action'][action][-1]:.2f}"
+    headers = browser.find_elements("css selector", "#per-action th.action")
+    assert [h.text for h in headers] == summary["actions"]
+    assert browser.find_elements("css selector", "#per-action tr.reported")

@@ -206,6 +206,34 @@ var ZooSite = (function () {
       fill($("horizons"), ["key", "all"], state.horizons);
       $("horizons").options[0].textContent = keys + " ms"; $("horizons").options[1].textContent = "all " + v.horizons_ms.length;
     }
+    // every action beside every other, as papers print them: the rows of the table above, in
+    // its order, an action's shown horizons side by side
+    function perAction(rows, v) {
+      var box = $("per-action"); box.textContent = "";
+      var hs = v.horizons_ms.map(function (h, i) { return i; }).filter(shown), fmt = v.format;
+      var table = el("table", {"class": "board per-action"}), thead = el("thead");
+      var top = el("tr"); top.appendChild(el("th", {"class": "model", rowspan: "2"}, "model"));
+      summary.actions.forEach(function (a) { top.appendChild(el("th", {colspan: String(hs.length), "class": "action"}, a)); });
+      var second = el("tr");
+      summary.actions.forEach(function () { hs.forEach(function (i) { second.appendChild(el("th", {"class": "num"}, v.horizons_ms[i] + " ms")); }); });
+      thead.appendChild(top); thead.appendChild(second); table.appendChild(thead);
+      var body = el("tbody");
+      function line(name, perAction, cls) {
+        var tr = el("tr", {"data-model": name, "class": cls || ""});
+        tr.appendChild(el("td", {"class": "model"}, name));
+        summary.actions.forEach(function (a) {
+          var values = (perAction || {})[a] || [];
+          hs.forEach(function (i) {
+            var value = values[i] === undefined ? null : values[i];
+            tr.appendChild(el("td", {"class": "num", "data-action": a, "data-horizon": String(v.horizons_ms[i])}, format(value, fmt)));
+          });
+        });
+        body.appendChild(tr);
+      }
+      rows.forEach(function (r) { line(r.model, r.per_action); });
+      (v.reported || []).forEach(function (p) { if (p.per_action) { line(p.label, p.per_action, "reported"); } });
+      table.appendChild(body); box.appendChild(table);
+    }
     function csv(rows) {
       // the rows shown, every horizon of the view, with the table's protocol id
       var v = state.view, head = ["protocol_id", "metric", "averaging", "joints", "action", "model"];
@@ -310,6 +338,7 @@ var ZooSite = (function () {
         body.appendChild(tr);
       });
       board.appendChild(body);
+      perAction(rows, v);
       var stem = (summary.benchmark || "table") + "-" + v.metric + "-" + v.averaging + "-" + v.joints + "-" + state.action;
       var download = $("download");
       download.href = "data:text/csv;charset=utf-8," + encodeURIComponent(csv(rows));
