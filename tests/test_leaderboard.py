@@ -339,3 +339,16 @@ def test_base_shows_ones_rows_beside_the_committed_ones_and_never_writes_them(tm
     assert {"tiny", "repeat_last"} <= labels
     assert {p: p.read_bytes() for p in base.rglob("*") if p.is_file()} == before
     assert main(["leaderboard", *common, "--base", str(mine), "--results", str(mine)]) == 2
+
+
+def test_base_with_an_unknown_model_writes_nothing(tmp_path, capsys):
+    from zoo.cli import main
+
+    root, _ = cmu_and_registry(tmp_path)
+    (tmp_path / "committed" / "cmu" / "all").mkdir(parents=True)
+    code = main(
+        ["leaderboard", "--benchmark", "cmu", "--model", "nosuch", "--data-root", str(root),
+         "--base", str(tmp_path / "committed"), "--results", str(tmp_path / "mine")]
+    )  # fmt: skip
+    assert code == 2 and "unknown model 'nosuch'" in capsys.readouterr().err
+    assert not (tmp_path / "mine").exists()

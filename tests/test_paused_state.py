@@ -4,6 +4,7 @@ on resume."""
 
 import importlib.util
 import json
+import shutil
 import time
 from pathlib import Path
 
@@ -151,7 +152,7 @@ def test_the_gpu_command_resumes_a_paused_state_and_brings_it_back(setup, tmp_pa
     log = (out / "log.txt").read_text()
     assert "tiny: 2 of 2 epochs" in log and "done in" in log
     parts = sorted((out / "tiny").iterdir())
-    assert [p.name for p in parts] == ["state.tar.00"]
+    assert [p.name for p in parts] == ["state.tar.00", "state.tar.sha256"]
     assert script.main(["unpack", str(out), "--weights-dir", str(weights_root)]) == 0
     summary = zoo.weights.paused_runs(weights_root)[("cmu", "tiny")]
     assert summary["epochs_run"] == 2 and len(summary["epochs"]) == 2
@@ -164,9 +165,18 @@ def test_the_gpu_command_resumes_a_paused_state_and_brings_it_back(setup, tmp_pa
     assert "tiny: finished (2 epochs); nothing to do" in (out2 / "log.txt").read_text()
 
 
-def test_unpack_of_a_folder_without_states_says_so(tmp_path, capsys):
-    assert _gpu_script().main(["unpack", str(tmp_path)]) == 1
+def test_unpack_of_a_folder_without_states_or_with_a_part_cut_short_says_so(tmp_path, capsys):
+    script = _gpu_script()
+    assert script.main(["unpack", str(tmp_path)]) == 1
     assert "no <model>/state.tar.00 to unpack" in capsys.readouterr().err
+    state = tmp_path / "state"
+    state.mkdir()
+    (state / "last.pt").write_bytes(b"x" * 1000)
+    parts = script._split_state(state, tmp_path / "OUT" / "tiny")
+    assert [p.name for p in parts] == ["state.tar.00", "state.tar.sha256"]
+    parts[0].write_bytes(parts[0].read_bytes()[:100])  # the device's time ran out mid-write
+    assert script.main(["unpack", str(tmp_path / "OUT")]) == 1
+    assert "cut short or missing; nothing unpacked" in capsys.readouterr().err
 
 
 def _gpu_script():
@@ -202,3 +212,45 @@ def test_patience_stops_a_run_that_no_longer_improves_and_its_state_says_finishe
     assert read_checkpoint(out / "last.pt")["epoch"] == 2  # resuming adds no epoch
     with pytest.raises(TrainingError, match="patience must be a positive integer"):
         run(setup, tmp_path / "bad", train_overrides={"patience": 0})
+
+
+def test_a_resumed_run_does_not_begin_an_epoch_its_history_here_says_cannot_finish(
+    setup, tmp_path, capsys
+):
+    out = tmp_path / "run"
+    run(setup, out, epochs=3, max_batches=2, stop_after_epoch=1)
+    last = read_checkpoint(out / "last.pt")
+    last["history"][0]["seconds"] = 3600.0  # an epoch of an hour on this very machine
+    torch.save(last, out / "last.pt")
+    run(setup, out, epochs=3, max_batches=2, resume=True, stop_by=time.time() + 60)
+    assert read_checkpoint(out / "last.pt")["epoch"] == 0  # no epoch begun
+    assert "stopped before epoch 2" in capsys.readouterr().out
+    # the same hour recorded on another machine says nothing of this one
+    last["history"][0]["device"] = "NVIDIA H200"
+    torch.save(last, out / "last.pt")
+    run(setup, out, epochs=2, max_batches=2, resume=True, stop_by=time.time() + 60)
+    assert read_checkpoint(out / "last.pt")["epoch"] == 1
+
+
+def test_the_paused_moments_are_restored_not_reset(setup, tmp_path, weights_root):
+    """Resumed from the paused state, the run continues as from the full one, far closer to it
+    than a resume whose Adam moments are thrown away."""
+    run(setup, tmp_path / "a", epochs=3, stop_after_epoch=1)
+    shutil.copytree(tmp_path / "a", tmp_path / "full")
+    pause_run(tmp_path / "a", root=weights_root)
+    run(setup, tmp_path / "paused", epochs=3, resume=True)  # from weights/in_progress
+    fresh = read_checkpoint(tmp_path / "full" / "last.pt")
+    fresh["optimizer"]["state"] = {}  # Adam starting again
+    shutil.copytree(tmp_path / "full", tmp_path / "reset")
+    torch.save(fresh, tmp_path / "reset" / "last.pt")
+    run(setup, tmp_path / "reset", epochs=3, resume=True)
+    run(setup, tmp_path / "full", epochs=3, resume=True)
+    weights = {
+        name: read_checkpoint(tmp_path / name / "last.pt")["state_dict"]
+        for name in ("full", "paused", "reset")
+    }
+
+    def gap(other):
+        return max((weights[other][k] - w).abs().max().item() for k, w in weights["full"].items())
+
+    assert gap("paused") < gap("reset") / 5, (gap("paused"), gap("reset"))

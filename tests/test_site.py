@@ -348,3 +348,18 @@ def test_a_model_page_shows_its_card_once_and_every_horizon(tmp_path):
     assert "<h2>Rows</h2>" not in page and "<h2>Training curve</h2>" not in page
     assert "<h2>Hyper-parameters</h2>" in page and "<h2>Architecture</h2>" in page
     assert 'class="num wrap"' in page and "1000: " in page
+
+
+def test_a_run_stopped_by_its_patience_is_not_short_and_a_tiny_split_does_not_crash():
+    from zoo.site.collect import _budget_note
+
+    run = {
+        "training": {"samples_seen": 25 * 14_368, "epochs_run": 25, "best": {"epoch": 15}},
+        "validation": {"training_windows": 14_389},
+        "recipe": {"batch_size": 16, "epochs": 58, "patience": 10},
+    }
+    assert _budget_note(run, 58) is None  # finished by its recipe's patience
+    run["recipe"]["patience"] = None
+    assert _budget_note(run, 58).startswith("its run saw")
+    run["validation"]["training_windows"] = 3  # fewer windows than a batch
+    assert _budget_note(run, 58) is None or "training windows" in _budget_note(run, 58)

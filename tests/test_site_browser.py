@@ -451,3 +451,12 @@ def test_every_action_is_printed_beside_every_other_as_papers_do(browser, site):
     headers = browser.find_elements("css selector", "#per-action th.action")
     assert [h.text for h in headers] == summary["actions"]
     assert browser.find_elements("css selector", "#per-action tr.reported")
+
+
+def test_ranks_count_from_the_lowest_whatever_the_order_shown(browser, site):
+    _open(browser, site / "table-cmu-all.html")
+    header = browser.find_element("css selector", "#board th[data-key='7']")
+    header.click()  # the longest horizon is the default sort: this click turns it descending
+    rows = browser.find_elements("css selector", "#board tbody tr[data-model]")
+    ranks = [r.find_element("css selector", "td.rank").text for r in rows]
+    assert ranks[0] != "1" and ranks[-1] == "1"

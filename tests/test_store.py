@@ -600,6 +600,8 @@ class Wrapper(nn.Module):
         ("from authors import AuthorsNet", "AuthorsNet()"),
         ("import authors", "authors.AuthorsNet()"),
         ("import authors as au", "au.AuthorsNet()"),
+        ("import pkg.authors", "pkg.authors.AuthorsNet()"),
+        ("from pkg import authors", "authors.AuthorsNet()"),
     ],
 )
 def test_a_wrapper_imports_the_file_beside_it_and_its_fingerprint_follows_that_file(
@@ -614,11 +616,15 @@ def test_a_wrapper_imports_the_file_beside_it_and_its_fingerprint_follows_that_f
     def fingerprint(folder: Path, authors: str) -> str:
         folder.mkdir()
         (folder / "authors.py").write_text(authors)
+        (folder / "pkg").mkdir()  # the same file in a package beside the wrapper
+        (folder / "pkg" / "__init__.py").write_text("")
+        (folder / "pkg" / "authors.py").write_text(authors)
         (folder / "wrapper.py").write_text(WRAPPER_FILE.format(import_line=import_line, use=use))
         (folder / "my.yaml").write_text(
             "models:\n  mine:\n    class: wrapper.py:Wrapper\n    representation: joints\n"
         )
-        sys.modules.pop("authors", None)  # each folder's own authors.py
+        for name in ("authors", "pkg", "pkg.authors"):
+            sys.modules.pop(name, None)  # each folder's own files
         cls = Registry.from_files(folder / "my.yaml").get("mine").load_class()
         assert cls()(torch.zeros(2)).shape == (2,)
         return model_fingerprint(cls)
@@ -629,7 +635,7 @@ def test_a_wrapper_imports_the_file_beside_it_and_its_fingerprint_follows_that_f
     unused = fingerprint(tmp_path / "d", AUTHORS_FILE.replace("    pass", "    x = 1"))
     assert relu != before
     # a name imported from the file: only what it reaches; the module itself: all of it
-    assert (unused == before) == import_line.startswith("from")
+    assert (unused == before) == (import_line == "from authors import AuthorsNet")
 
 
 def test_identity_differences_are_decided_on_by_field_not_by_their_words():
@@ -643,3 +649,28 @@ def test_identity_differences_are_decided_on_by_field_not_by_their_words():
     # the words no longer decide: a code difference that happens to say them is still code
     assert only_code_changed([Difference("code.model", "so no result is its twin")])
     assert not only_code_changed([Difference("weights.sha256", "stored 1, now 2")])
+
+
+def test_a_second_folder_whose_sibling_module_is_shadowed_is_refused(tmp_path):
+    """Two registries' class files, each with its own authors.py: the second would import the
+    first one's module (Python keeps one per name), so it is refused, naming both files."""
+    from zoo.registry import Registry, RegistryError
+
+    entries = {}
+    for folder in ("first", "second"):
+        (tmp_path / folder).mkdir()
+        (tmp_path / folder / "authors.py").write_text(AUTHORS_FILE)
+        (tmp_path / folder / "wrapper.py").write_text(
+            WRAPPER_FILE.format(import_line="from authors import AuthorsNet", use="AuthorsNet()")
+        )
+        (tmp_path / folder / "my.yaml").write_text(
+            f"models:\n  {folder}:\n    class: wrapper.py:Wrapper\n    representation: joints\n"
+        )
+        entries[folder] = Registry.from_files(tmp_path / folder / "my.yaml").get(folder)
+    sys.modules.pop("authors", None)
+    try:
+        entries["first"].load_class()
+        with pytest.raises(RegistryError, match=r"second/authors.py would not be what its class"):
+            entries["second"].load_class()
+    finally:
+        sys.modules.pop("authors", None)

@@ -117,6 +117,7 @@ class ModelEntry:
                 module = sys.modules.get(module_name)
                 if module is None:
                     # as Python runs a script: the files beside it import by their names
+                    _check_siblings(file, self.source, self.name)
                     if str(file.parent) not in sys.path:
                         sys.path.insert(0, str(file.parent))
                     spec = importlib.util.spec_from_file_location(module_name, file)
@@ -147,6 +148,39 @@ class ModelEntry:
             raise RegistryError(
                 f"{self.source}: model {self.name!r}: cannot load class {path!r} ({e})"
             ) from e
+
+
+def _check_siblings(file: Path, source: Path, model: str) -> None:
+    """Refuse a class file that imports a module of its folder that Python would not import
+    from there: one of that name is loaded already from elsewhere (another registry's folder, or an
+    installed package), so the class would run other code than its folder's, which its row's
+    identity covers."""
+    import ast
+
+    try:
+        tree = ast.parse(file.read_text())
+    except (OSError, SyntaxError, ValueError):
+        return  # running the file says what is wrong with it
+    imported = {
+        a.name.split(".")[0] for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names
+    }
+    imported |= {
+        n.module.split(".")[0]
+        for n in ast.walk(tree)
+        if isinstance(n, ast.ImportFrom) and n.module and not n.level
+    }
+    siblings = [p for p in file.parent.glob("*.py") if p != file and p.stem in imported]
+    siblings += [p.parent for p in file.parent.glob("*/__init__.py") if p.parent.name in imported]
+    for sibling in siblings:
+        loaded = sys.modules.get(sibling.stem if sibling.suffix == ".py" else sibling.name)
+        origin = getattr(loaded, "__file__", None)
+        expected = sibling if sibling.suffix == ".py" else sibling / "__init__.py"
+        if origin and Path(origin).resolve() != expected.resolve():
+            raise RegistryError(
+                f"{source}: model {model!r}: {expected} would not be what its class file "
+                f"imports: a module {loaded.__name__!r} is loaded already from {origin}; "
+                f"rename one of them"
+            )
 
 
 class Registry:

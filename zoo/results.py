@@ -202,16 +202,21 @@ def copy_benchmark_tables(base: str | Path, out: str | Path, benchmark: str) -> 
     ``base``. Returns the tables copied."""
     import shutil
 
+    from zoo.efficiency import COSTS_FILE
+
     source, target = Path(base) / benchmark, Path(out) / benchmark
     copied = []
     for table in table_files(source):
         folder = target / table.parent.name
-        if not folder.exists():
-            shutil.copytree(table.parent, folder)
+        if not folder.exists():  # whole or not at all: a copy cut short is never taken for one
+            with replace_folder(folder) as tmp:
+                shutil.copytree(table.parent, tmp, dirs_exist_ok=True)
             copied.append(folder)
-    costs = source / "costs.json"
-    if costs.is_file() and not (target / "costs.json").exists():
-        shutil.copy2(costs, target / "costs.json")
+    costs = source / COSTS_FILE
+    if costs.is_file() and not (target / COSTS_FILE).exists():
+        target.mkdir(parents=True, exist_ok=True)
+        with atomic_path(target / COSTS_FILE) as tmp:
+            shutil.copy2(costs, tmp)
     return copied
 
 

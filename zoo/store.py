@@ -279,20 +279,23 @@ def _beside(path: Path | None, module: str) -> Path | None:
 
 def _import_bindings(node, package: str, path: Path | None = None) -> dict[str, tuple]:
     """The names an import statement binds: ``("zoo", module, attribute or None)`` for a zoo
-    module or one of its names, ``("beside", file, attribute or None)`` for a module beside a
+    module or one of its names, ``("beside", module, attribute or None)`` for a module beside a
     model file outside zoo (:func:`_beside`), ``("outside", text)`` for anything else."""
     bindings: dict[str, tuple] = {}
     if isinstance(node, ast.Import):
         for alias in node.names:
-            beside = _beside(path, alias.name) if alias.asname else None
-            if beside is not None:
-                bindings[alias.asname] = ("beside", beside, None)
-            elif alias.name.split(".")[0] == "zoo":
+            top = alias.name.split(".")[0]
+            if _beside(path, alias.name if alias.asname else top) is not None:
+                # import a.b as m binds the module a.b; import a.b binds a (a.b reached by name)
+                bindings[alias.asname or top] = (
+                    "beside",
+                    alias.name if alias.asname else top,
+                    None,
+                )
+            elif top == "zoo":
                 # import zoo.a.b binds zoo; import zoo.a.b as m binds the module itself
                 bound = alias.asname or "zoo"
                 bindings[bound] = ("zoo", alias.name if alias.asname else "zoo", None)
-            elif _beside(path, alias.name.split(".")[0]) is not None and "." not in alias.name:
-                bindings[alias.name] = ("beside", _beside(path, alias.name), None)
             else:
                 bindings[alias.asname or alias.name.split(".")[0]] = (
                     "outside",
@@ -300,13 +303,15 @@ def _import_bindings(node, package: str, path: Path | None = None) -> dict[str, 
                 )
         return bindings
     base = _import_base(node, package)
-    beside = _beside(path, base) if not node.level else None
+    beside = not node.level and _beside(path, base) is not None
     for alias in node.names:
         bound = alias.asname or alias.name
-        if beside is not None and alias.name != "*":
-            submodule = _beside(path, f"{base}.{alias.name}")
+        if beside and alias.name != "*":
+            submodule = f"{base}.{alias.name}"
             bindings[bound] = (
-                ("beside", submodule, None) if submodule else ("beside", beside, alias.name)
+                ("beside", submodule, None)
+                if _beside(path, submodule)
+                else ("beside", base, alias.name)
             )
         elif base.split(".")[0] == "zoo" and alias.name != "*":
             submodule = f"{base}.{alias.name}"
@@ -394,8 +399,15 @@ def reachable_code(cls: type) -> list[str] | None:
                     pieces.add(f"{label(path)}::import::{target[0]}")
                     continue
                 if kind == "beside":  # a researcher's own module: followed as zoo's are
-                    target_file, attribute = target
-                    attribute = attribute or (used[1] if len(used) > 1 else None)
+                    module, attribute = target
+                    rest = list(used[1:])
+                    if attribute is None:  # a module: its submodules, then a definition
+                        while rest and _beside(path, f"{module}.{rest[0]}"):
+                            module = f"{module}.{rest.pop(0)}"
+                        attribute = rest[0] if rest else None
+                    target_file = _beside(path, module)
+                    if target_file is None:
+                        continue
                     parts = _module_parts(str(target_file), target_file.stat().st_mtime_ns)
                     if attribute is None or (
                         attribute not in parts[0] and attribute not in parts[1]
@@ -531,6 +543,9 @@ class Difference(str):
         difference = super().__new__(cls, f"{field}: {text}")
         difference.field, difference.comparable = field, comparable
         return difference
+
+    def __reduce__(self):  # copy and pickle keep the field and the flag
+        return (Difference, (self.field, self[len(self.field) + 2 :], self.comparable))
 
 
 def only_code_changed(differences: list[Difference]) -> bool:

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import argparse
 import io
+import shutil
 import sys
 import tarfile
 import tempfile
@@ -70,7 +71,13 @@ def _log(out: Path, text: str) -> None:
 
 
 def _split_state(folder: Path, dest: Path) -> list[Path]:
-    """A paused state's folder as one tar in parts of at most ``PART_BYTES``."""
+    """A paused state's folder as one tar in parts of at most ``PART_BYTES``, each written
+    whole (temporary name, then renamed), the tar's size and sha256 in the first part's name
+    list (``state.tar.sha256``), so that ``unpack`` takes no part cut short."""
+    import hashlib
+
+    from zoo.io import atomic_path
+
     buffer = io.BytesIO()
     with tarfile.open(fileobj=buffer, mode="w") as tar:
         for path in sorted(folder.iterdir()):
@@ -80,18 +87,15 @@ def _split_state(folder: Path, dest: Path) -> list[Path]:
     parts = []
     for i, start in enumerate(range(0, len(data), PART_BYTES)):
         parts.append(dest / f"state.tar.{i:02d}")
-        parts[-1].write_bytes(data[start : start + PART_BYTES])
-    return parts
+        with atomic_path(parts[-1]) as tmp:
+            tmp.write_bytes(data[start : start + PART_BYTES])
+    with atomic_path(dest / "state.tar.sha256") as tmp:
+        tmp.write_text(f"{hashlib.sha256(data).hexdigest()} {len(data)} {len(parts)}\n")
+    return [*parts, dest / "state.tar.sha256"]
 
 
 def run(args) -> int:
     import torch
-
-    from zoo.checkpoints import pause_run
-    from zoo.errors import TrainingError
-    from zoo.registry import load_registry
-    from zoo.train.loop import train
-    from zoo.weights import paused_dir, paused_runs
 
     started = time.time()
     stop_by = started + 60 * args.minutes - WRITE_SECONDS
@@ -101,6 +105,19 @@ def run(args) -> int:
     name = torch.cuda.get_device_name() if device.startswith("cuda") else "CPU"
     _log(out, f"device {device} ({name}), torch {torch.__version__}, {args.minutes} min")
     work = Path(tempfile.mkdtemp(prefix="train_pending."))
+    try:
+        return _run_models(args, out, device, stop_by, started, work)
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+
+
+def _run_models(args, out: Path, device: str, stop_by: float, started: float, work: Path) -> int:
+    from zoo.checkpoints import pause_run
+    from zoo.errors import TrainingError
+    from zoo.registry import load_registry
+    from zoo.train.loop import train
+    from zoo.weights import paused_dir, paused_runs
+
     data = Path(args.data)
     if data.is_file():
         with tarfile.open(data) as tar:
@@ -115,7 +132,7 @@ def run(args) -> int:
             continue
         # what its state will weigh when it comes back: the committed one's, or a guess
         expected = sum(summary["files"].values()) if summary else 48e6
-        if files + int(expected // PART_BYTES) + 1 > RETURN_FILES or size + expected > RETURN_BYTES:
+        if files + int(expected // PART_BYTES) + 2 > RETURN_FILES or size + expected > RETURN_BYTES:
             _log(out, f"{model}: not begun, its state would not fit what comes back")
             continue
         if time.time() > stop_by:
@@ -163,6 +180,8 @@ def run(args) -> int:
 
 def unpack(args) -> int:
     """Each ``<model>/state.tar.NN`` under ``args.folder`` into its committed paused state."""
+    import hashlib
+
     from zoo.io import replace_folder
     from zoo.weights import PAUSED_SUMMARY, paused_dir
 
@@ -172,6 +191,15 @@ def unpack(args) -> int:
         return 1
     for folder in found:
         data = b"".join(p.read_bytes() for p in sorted(folder.glob("state.tar.[0-9][0-9]")))
+        check = folder / "state.tar.sha256"
+        digest, size, _ = check.read_text().split() if check.is_file() else ("", "0", "0")
+        if hashlib.sha256(data).hexdigest() != digest:
+            print(
+                f"error: {folder}: its parts ({len(data)} bytes) are not the state written "
+                f"({size} bytes, {check.name}): cut short or missing; nothing unpacked",
+                file=sys.stderr,
+            )
+            return 1
         with tarfile.open(fileobj=io.BytesIO(data)) as tar:
             summary = json_of(tar, PAUSED_SUMMARY)
             dest = paused_dir(summary["benchmark"], summary["model"], args.weights_dir)

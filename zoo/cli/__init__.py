@@ -115,14 +115,14 @@ def _user_frames(error: BaseException) -> list:
     import traceback
 
     skip = [
-        str(Path(__file__).resolve().parents[1]),
-        *{sysconfig.get_paths()[k] for k in ("stdlib", "purelib", "platlib")},
+        Path(__file__).resolve().parents[1],
+        *{Path(sysconfig.get_paths()[k]).resolve() for k in ("stdlib", "purelib", "platlib")},
     ]
     return [
         frame
         for frame in traceback.extract_tb(error.__traceback__)
-        if not any(str(Path(frame.filename).resolve()).startswith(s) for s in skip)
-        and not frame.filename.startswith("<")
+        if not frame.filename.startswith("<")
+        and not any(Path(frame.filename).resolve().is_relative_to(s) for s in skip)
     ]
 
 

@@ -148,6 +148,8 @@ def run(args) -> int:
                     f"--check: no committed table of {name} under {args.results} "
                     f"(expected {args.results}/{name}/<sampler>/{TABLE_FILE})"
                 )
+    for model in args.model or ():  # a misspelt name or a class that cannot load: before any data
+        registry.get(model).load_class()
     if args.base is not None:
         if check:
             raise UsageError("--base starts a rebuild elsewhere; --check writes nothing")
@@ -161,8 +163,6 @@ def run(args) -> int:
         for name in names:
             copied = copy_benchmark_tables(base, args.results, name)
             print(f"{name}: {len(copied)} table(s) copied from {base}", file=sys.stderr)
-    for model in args.model or ():  # a misspelt name or a class that cannot load: before any data
-        registry.get(model).load_class()
     started = time.perf_counter()
     for bench, name in zip(args.benchmark, names):
         plan = Plan(

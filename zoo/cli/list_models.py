@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import sys
+
 from zoo.cli.common import add_command, registry_of, registry_option
 
 
@@ -19,10 +21,15 @@ def run(args) -> int:
     import shutil
     import textwrap
 
+    from zoo.errors import ZooError
     from zoo.weights import unshipped_models
 
     registry = registry_of(args)
-    unshipped = unshipped_models(registry)
+    try:
+        unshipped = unshipped_models(registry)
+    except (ZooError, KeyError, TypeError, ValueError) as exc:  # as the site takes it
+        print(f"warning: training status not shown: {exc}", file=sys.stderr)
+        unshipped = {}
     width = min(100, shutil.get_terminal_size((100, 24)).columns)
     blocks = []
     for name in registry.list_models(args.representation):

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import csv
 import json
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -56,7 +57,8 @@ class Table:
             return []
         rows = [m for m in view["models"] if "@" not in m["model"] and not m.get("floor")]
         out = []
-        for i, horizon in enumerate(view["horizons_ms"]):
+        for i in key_horizons(view["horizons_ms"]):
+            horizon = view["horizons_ms"][i]
             valued = [m for m in rows if m["values"][i] is not None]
             best = min(valued, key=lambda m: m["values"][i], default=None)
             bold = sum(1 for m in valued if (m.get("bold") or [False] * (i + 1))[i])
@@ -213,11 +215,20 @@ def row_source(folder: Path, benchmark: str, protocol: dict[str, Any]) -> dict[s
         return {}
     weights, sampler = provenance.get("weights"), protocol.get("sampler")
     model = provenance.get("model") or folder.name
-    how = f"--weights {weights}" if weights else f"--model {model}"
+    options = [f"--weights {weights}" if weights else f"--model {model}"]
+    options += ["--benchmark", benchmark, "--sampler", str(sampler)]
+    task = protocol.get("task", "prediction")
+    if task != "prediction":
+        options += ["--task", task]
+        if task == "longterm":
+            options += ["--horizon-frames", str(protocol.get("predicted_frames"))]
+    truth = str(protocol.get("ground_truth") or "raw")
+    if truth != "raw":  # spectral256: the CLI's --ground-truth spectral
+        options += ["--ground-truth", re.sub(r"\d+$", "", truth)]
     source = {
         "created": str(provenance.get("created", ""))[:10],
         "code": str(provenance.get("code_version", "")),
-        "command": f"zoo eval {how} --benchmark {benchmark} --sampler {sampler}",
+        "command": "zoo eval " + " ".join(options),
     }
     if weights is None and provenance.get("training"):
         source["command"] = ""  # a checkpoint's row: not from shipped weights
@@ -283,11 +294,17 @@ def budget_notes(models: list[Model], registry) -> dict[tuple[str, str], str]:
 
 
 def _budget_note(run: dict[str, Any], planned: int | None) -> str | None:
-    seen = (run.get("training") or {}).get("samples_seen")
+    from zoo.train.recipe import Recipe, patience_spent
+
+    training = run.get("training") or {}
+    seen = training.get("samples_seen")
     windows = (run.get("validation") or {}).get("training_windows")
     batch = (run.get("recipe") or {}).get("batch_size")
+    best = (training.get("best") or {}).get("epoch", -1)
+    if patience_spent(Recipe.of(run.get("recipe") or {}), training.get("epochs_run", 0), best):
+        return None  # stopped by its recipe's patience: finished, not short
     if seen and windows and batch and planned:
-        full = planned * (windows // batch) * batch
+        full = planned * max(1, windows // batch) * batch
         share = seen / full
         if share < 0.95:
             return (
@@ -300,6 +317,13 @@ def _budget_note(run: dict[str, Any], planned: int | None) -> str | None:
             f"windows in all)"
         )
     return None
+
+
+def key_horizons(horizons: list[int]) -> list[int]:
+    """The horizons a table shows on load, as indices: the first, the one nearest 400 ms and
+    the last (site.js's keyHorizons picks the same)."""
+    middle = min(range(len(horizons)), key=lambda i: abs(horizons[i] - 400))
+    return sorted({0, middle, len(horizons) - 1})
 
 
 def benchmark_about(name: str) -> str:

@@ -142,6 +142,9 @@ def train(
         run.recipe_changes += resume_changes(
             out_dir / "last.pt", run.state, recipe, seed, max_batches
         )
+        # a resumed run knows how long its epochs take on this machine (not on another one)
+        here = device_name(device)
+        longest = [h["seconds"] for h in run.history if h.get("device") == here]
         optimizer_for_device(optimizer, device, graphed)
         if "cuda_rng" in run.state and torch.device(device).type == "cuda":
             torch.cuda.set_rng_state(run.state["cuda_rng"], torch.device(device))
@@ -152,6 +155,8 @@ def train(
         fps=getattr(dataset, "mesh", dataset).fps,  # a JointsView: its mesh's rate
         mesh=bench.representation == "mesh" and view == "mesh", stop_by=stop_by,
     )  # fmt: skip
+    if resume:
+        epochs.longest_epoch = max(longest, default=0.0)
     record = run_record(
         entry, hparams, bench, dataset, recipe, seed, dist_info, view,
         max_batches=max_batches,
@@ -181,7 +186,8 @@ def train(
         try:
             line = epochs.run(epoch)
         except OutOfTime as e:
-            print(f"{model_name}: {e}", flush=True)
+            if dist_info.rank == 0:
+                print(f"{model_name}: {e}", flush=True)
             break
         run.history.append(line)
         if dist_info.rank == 0:

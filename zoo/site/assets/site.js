@@ -260,7 +260,7 @@ var ZooSite = (function () {
       richText($("bold-note"), state.action === "average" ? v.interval_words + "." : "Per action: the mean over that action's windows; intervals and bold are computed for the mean over actions only.");
       var rows = v.models.filter(function (r) { return state.last || r.model.indexOf("@") < 0; });
       if (state.sort === null) { state.sort = v.horizons_ms.length - 1; }  // ranked at the longest horizon
-      if (state.sort !== null) {
+      {
         rows = rows.slice().sort(function (a, b) {
           var x = state.sort === "model" ? a.model : cell(a, state.sort).value;
           var y = state.sort === "model" ? b.model : cell(b, state.sort).value;
@@ -289,13 +289,14 @@ var ZooSite = (function () {
         });
       });
       var body = el("tbody");
-      var place = 0, previous = null, rank = 0;
+      // rank: 1 + how many rows are lower at the sorted horizon (ties share), whatever the order shown
+      var scores = ranked ? rows.filter(function (r) { return !r.floor; }).map(function (r) { return cell(r, state.sort).value; }).filter(function (x) { return x !== null; }) : [];
       rows.forEach(function (r) {
         var tr = el("tr", {"data-model": r.model});
         if (r.floor) { tr.classList.add("floor"); }
         var score = ranked ? cell(r, state.sort).value : null;
-        if (ranked && score !== null && !r.floor) { place += 1; if (score !== previous) { rank = place; previous = score; } }
-        tr.appendChild(el("td", {"class": "rank num"}, ranked && score !== null && !r.floor ? String(rank) : ""));
+        var rank = score === null || r.floor ? "" : String(1 + scores.filter(function (x) { return x < score; }).length);
+        tr.appendChild(el("td", {"class": "rank num"}, rank));
         var name = el("td", {"class": "model"});
         var swatch = el("span", {"class": "swatch"}); swatch.style.background = style(r).colour; name.appendChild(swatch);
         var card = (data.pages || []).indexOf("model-" + r.base + ".html") >= 0 ? "model-" + r.base + ".html" : null;
