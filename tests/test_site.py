@@ -363,3 +363,16 @@ def test_a_run_stopped_by_its_patience_is_not_short_and_a_tiny_split_does_not_cr
     assert _budget_note(run, 58).startswith("its run saw")
     run["validation"]["training_windows"] = 3  # fewer windows than a batch
     assert _budget_note(run, 58) is None or "training windows" in _budget_note(run, 58)
+
+
+def test_a_model_being_retrained_says_so_beside_its_shipped_rows(tmp_path):
+    weights = tmp_path / "weights"
+    shutil.copytree(REPO_ROOT / "weights" / "cmu", weights / "cmu")
+    paused = weights / "in_progress" / "cmu" / "spgsn"
+    paused.mkdir(parents=True)
+    summary = {"epochs_run": 6, "epochs_planned": 50, "finished": False}
+    (paused / "state.json").write_text(json.dumps(summary))
+    status = unshipped_models(load_registry(), weights)["spgsn"]
+    assert status.startswith("retraining: 6 of 50 epochs done")
+    (paused / "state.json").write_text(json.dumps({**summary, "finished": True}))
+    assert "spgsn" not in unshipped_models(load_registry(), weights)

@@ -163,7 +163,8 @@ def training_status(paused: dict[str, Any] | None, epochs_planned: int | None) -
 
 def unshipped_models(registry, root: str | Path | None = None) -> dict[str, str]:
     """``{model: training status}`` of each trainable registered model with no shipped weights
-    on any benchmark (a model running another's weights counts as that one)."""
+    on any benchmark (a model running another's weights counts as that one), and of each whose
+    shipped weights a paused retraining will replace."""
     shipped = {
         read_weights_record(weights_file(b, label, root))["model"]
         for b, label in available_weights(root)
@@ -174,6 +175,12 @@ def unshipped_models(registry, root: str | Path | None = None) -> dict[str, str]
         entry = registry.get(name)
         if entry.trainable and (entry.weights_of or name) not in shipped:
             out[name] = training_status(paused.get(name), (entry.train or {}).get("epochs"))
+        elif entry.trainable and name in paused and not paused[name].get("finished"):
+            run = paused[name]
+            out[name] = (
+                f"retraining: {run['epochs_run']} of {run['epochs_planned']} epochs done (its "
+                f"rows are the earlier weights' until this run ships)"
+            )
     return out
 
 
