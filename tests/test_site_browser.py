@@ -460,3 +460,20 @@ def test_ranks_count_from_the_lowest_whatever_the_order_shown(browser, site):
     rows = browser.find_elements("css selector", "#board tbody tr[data-model]")
     ranks = [r.find_element("css selector", "td.rank").text for r in rows]
     assert ranks[0] != "1" and ranks[-1] == "1"
+
+
+def test_timings_of_two_machines_in_one_column_name_their_machine(browser, site):
+    """CMU's costs were timed on the Xeon (2 threads) and, for pgbig, on an AMD EPYC (1
+    thread): each latency names its machine, whose list the note gives."""
+    costs = json.loads((site.parent / "results" / "cmu" / "costs.json").read_text())
+    _open(browser, site / "table-cmu-all.html")
+    browser.find_element("id", "show-costs").click()
+    note = browser.find_element("id", "cost-note").text
+    latency = {
+        r.get_attribute("data-model"): r.find_elements("css selector", "td.cost")[2].text
+        for r in browser.find_elements("css selector", "#board tbody tr[data-model]")
+    }
+    marks = {m: v[-1] for m, v in latency.items() if v and v[-1] in "¹²³⁴⁵⁶⁷⁸⁹"}
+    assert len(set(marks.values())) >= 2, latency  # two machines, two marks
+    assert "do not compare" in note and note.count("¹") == 1 and note.count("²") == 1
+    assert costs  # the committed cost cells this is about

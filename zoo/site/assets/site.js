@@ -288,6 +288,8 @@ var ZooSite = (function () {
           state.sort = k; render();
         });
       });
+      function machineOf(k) { return (k.device || "a machine not recorded") + (k.date ? " (" + k.date + ")" : ""); }
+      var machines = unique(Object.keys(costs).map(function (m) { return machineOf(costs[m]); }));
       var body = el("tbody");
       // rank: 1 + how many rows are lower at the sorted horizon (ties share), whatever the order shown
       var scores = ranked ? rows.filter(function (r) { return !r.floor; }).map(function (r) { return cell(r, state.sort).value; }).filter(function (x) { return x !== null; }) : [];
@@ -317,9 +319,11 @@ var ZooSite = (function () {
           tr.appendChild(td);
         });
         var k = costs[r.model] || {};
+        // timings of more than one machine in a column: each timed cell names its machine
+        var mark = machines.length > 1 && k.device ? " " + "¹²³⁴⁵⁶⁷⁸⁹"[machines.indexOf(machineOf(k))] : "";
         [k.parameters === "0" ? "0" : k.parameters ? (k.parameters / 1e6).toFixed(3) + " M" : "",
-         k.gflop ? (+k.gflop).toPrecision(3) : "", k.latency_ms ? (+k.latency_ms).toPrecision(3) : "",
-         k.train_per_s ? (+k.train_per_s).toPrecision(3) : ""].forEach(function (t) { tr.appendChild(el("td", {"class": "num cost" + (state.costs ? "" : " off")}, t)); });
+         k.gflop ? (+k.gflop).toPrecision(3) : "", k.latency_ms ? (+k.latency_ms).toPrecision(3) + mark : "",
+         k.train_per_s ? (+k.train_per_s).toPrecision(3) + mark : ""].forEach(function (t) { tr.appendChild(el("td", {"class": "num cost" + (state.costs ? "" : " off")}, t)); });
         var src = (data.sources || {})[r.model] || {}, where = el("td", {"class": "source" + (state.sources ? "" : " off")});
         where.appendChild(document.createTextNode((src.created || "") + (src.code ? " · " + src.code : "") + " "));
         if (src.command) { where.appendChild(el("code", {}, src.command)); }
@@ -350,10 +354,7 @@ var ZooSite = (function () {
       $("download-json").href = "data:application/json;charset=utf-8," + encodeURIComponent(JSON.stringify(json, null, 1));
       $("download-json").setAttribute("download", stem + ".json");
       writeFragment();
-      var machines = unique(Object.keys(costs).map(function (m) {
-        return (costs[m].device || "a machine not recorded") + (costs[m].date ? " (" + costs[m].date + ")" : "");
-      }));
-      $("cost-note").textContent = machines.length ? "Cost columns measured by zoo costs on " + machines.join("; ") + ": parameters, forward GFLOPs per window, median latency of one window, training windows per second." : "No costs stored for this table (zoo costs fills them).";
+      $("cost-note").textContent = machines.length ? "Cost columns measured by zoo costs on " + machines.map(function (m, i) { return (machines.length > 1 ? "¹²³⁴⁵⁶⁷⁸⁹"[i] + " " : "") + m; }).join("; ") + ": parameters, forward GFLOPs per window, median latency of one window, training windows per second" + (machines.length > 1 ? "; latencies and training speeds of different machines do not compare" : "") + "." : "No costs stored for this table (zoo costs fills them).";
       var series = rows.filter(function (r) { return !r.floor; }).map(function (r) {
         var points = state.action === "average" ? r.curve : v.horizons_ms.map(function (h, i) { return [h, cell(r, i).value]; });
         return {label: r.model, points: points, style: style(r)};
