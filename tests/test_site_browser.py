@@ -477,3 +477,14 @@ def test_timings_of_two_machines_in_one_column_name_their_machine(browser, site)
     assert len(set(marks.values())) >= 2, latency  # two machines, two marks
     assert "do not compare" in note and note.count("¹") == 1 and note.count("²") == 1
     assert costs  # the committed cost cells this is about
+
+
+def test_a_long_y_label_fits_beside_its_axis(browser, site):
+    _open(browser, site / "table-cmu_anny_oi_low-stride5_strict.html")
+    label = browser.find_element("css selector", "#curves text.label[transform]")
+    box = browser.execute_script("return arguments[0].getBBox()", label)
+    svg = browser.execute_script(
+        "return document.querySelector('#curves svg').viewBox.baseVal.height"
+    )
+    assert box["width"] < svg  # rotated: its length runs along the axis's height
+    assert label.get_attribute("textContent").startswith("RMSE")

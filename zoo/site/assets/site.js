@@ -108,7 +108,10 @@ var ZooSite = (function () {
     svg.appendChild(svgEl("line", {x1: L, x2: W - R, y1: H - B, y2: H - B, "class": "axis"}));
     svg.appendChild(svgEl("line", {x1: L, x2: L, y1: T, y2: H - B, "class": "axis"}));
     var xl = svgEl("text", {x: (L + W - R) / 2, y: H - 8, "text-anchor": "middle", "class": "label"}); xl.textContent = xLabel; svg.appendChild(xl);
-    var yl = svgEl("text", {x: 14, y: (T + H - B) / 2, transform: "rotate(-90 14 " + (T + H - B) / 2 + ")", "text-anchor": "middle", "class": "label"}); yl.textContent = yLabel; svg.appendChild(yl);
+    // a long unit (RMSE's) does not fit beside the axis: the metric there, the whole in a tooltip
+    var shortY = yLabel.length > 40 ? yLabel.split(" (")[0] : yLabel;
+    var yl = svgEl("text", {x: 14, y: (T + H - B) / 2, transform: "rotate(-90 14 " + (T + H - B) / 2 + ")", "text-anchor": "middle", "class": "label"}); yl.textContent = shortY;
+    var yTip = svgEl("title"); yTip.textContent = yLabel; yl.appendChild(yTip); svg.appendChild(yl);
     var clip = "plot-area-" + (chartCount += 1);  // curves stay inside the axes
     svg.appendChild(svgEl("clipPath", {id: clip})).appendChild(svgEl("rect", {x: L, y: T - 4, width: W - L - R, height: H - T - B + 8}));
     series.forEach(function (s, i) {
