@@ -488,3 +488,26 @@ def test_a_long_y_label_fits_beside_its_axis(browser, site):
     )
     assert box["width"] < svg  # rotated: its length runs along the axis's height
     assert label.get_attribute("textContent").startswith("RMSE")
+
+
+def test_the_index_filters_its_models(browser, site):
+    from selenium.webdriver.support.ui import Select
+
+    _open(browser, site / "index.html")
+
+    def shown():
+        items = browser.find_elements("css selector", "ul.models li")
+        return {li.get_attribute("data-model") for li in items if li.is_displayed()}
+
+    everything = shown()
+    Select(browser.find_element("id", "filter-representation")).select_by_value("mesh")
+    assert "spectrhums" in shown() and "pgbig" not in shown()
+    Select(browser.find_element("id", "filter-representation")).select_by_value("")
+    Select(browser.find_element("id", "filter-kind")).select_by_value("baseline")
+    baselines = {"repeat_last", "constant_velocity", "interpolate"}
+    assert shown() <= baselines  # a baseline has a card only where it has published figures
+    Select(browser.find_element("id", "filter-kind")).select_by_value("trained")
+    assert shown() and not shown() & baselines
+    Select(browser.find_element("id", "filter-kind")).select_by_value("")
+    browser.find_element("id", "filter-name").send_keys("spgsn")
+    assert shown() == {m for m in everything if "spgsn" in m}

@@ -100,6 +100,8 @@ class Model:
     shipped: list[dict[str, Any]] = field(default_factory=list)  # weights records
     problems: list[str] = field(default_factory=list)
     training: str | None = None  # a trainable model without shipped weights: where it stands
+    representation: tuple[str, ...] = ()  # joints, mesh
+    kind: str = ""  # trained (it learns), baseline (it learns nothing)
 
     @property
     def page(self) -> str:
@@ -391,6 +393,8 @@ def read_models(
             " ".join(str(getattr(entry, "description", "") or "").split()),
             [dict(s.record, benchmarks=list(s.benchmarks)) for s in files],
             training=unshipped.get(name),
+            representation=tuple(entry.representation),
+            kind="trained" if entry.trainable or entry.weights_of else "baseline",
         )
         if card is None:
             model.problems.append(f"{card_path}: missing (the model's card); zoo cards writes it")

@@ -404,5 +404,22 @@ var ZooSite = (function () {
     lineChart(node, series, "optimizer steps", "validation error (mm)", "validation error while training, per shipped weights file");
   }
 
-  return {table: table, training: training, style: style, lineChart: lineChart};
+  /* the index's models list, filtered by representation, kind and name */
+  function modelFilter() {
+    var rep = document.getElementById("filter-representation"), kind = document.getElementById("filter-kind");
+    var name = document.getElementById("filter-name");
+    if (!rep) { return; }
+    function apply() {
+      Array.prototype.forEach.call(document.querySelectorAll("ul.models li"), function (li) {
+        var ok = (!rep.value || li.getAttribute("data-representation").split(" ").indexOf(rep.value) >= 0) &&
+                 (!kind.value || li.getAttribute("data-kind") === kind.value) &&
+                 li.getAttribute("data-model").indexOf(name.value.trim().toLowerCase()) >= 0;
+        li.style.display = ok ? "" : "none";
+      });
+    }
+    [rep, kind].forEach(function (x) { x.addEventListener("change", apply); });
+    name.addEventListener("input", apply);
+  }
+
+  return {table: table, training: training, style: style, lineChart: lineChart, modelFilter: modelFilter};
 })();
