@@ -346,7 +346,14 @@ def paused_summary(last: dict[str, Any]) -> dict[str, Any]:
         "recipe": recipe,
         "seed": last.get("seed"),
         "resume": f"zoo train --model {last['model']} --benchmark "
-        f"{last['protocol']['benchmark']} --seed {last.get('seed')} --resume",
+        f"{last['protocol']['benchmark']} --seed {last.get('seed')} --resume"
+        # the precision it ran in (on a CPU without native bfloat16, or a GPU, drop it)
+        + (
+            f" --train-set precision={recipe['precision']}"
+            if recipe.get("precision", "float32") != "float32"
+            else ""
+        )
+        + (f" --max-batches {last['max_batches']}" if last.get("max_batches") else ""),
     }
 
 
