@@ -26,7 +26,7 @@ from zoo.check import (
     verification_record,
 )
 from zoo.efficiency import COSTS_FILE, Costs, architecture, cost_key
-from zoo.io import atomic_write_json, replace_folder, repo_relative
+from zoo.io import atomic_path, atomic_write_json, replace_folder, repo_relative
 from zoo.model_source import ModelSource
 from zoo.pipeline import Subject, compute_all
 from zoo.protocol import plan_protocol
@@ -807,3 +807,26 @@ def _no_further_than_best(checkpoint: Path) -> bool:
     except Exception:  # noqa: BLE001 - unreadable: shown as its own row, which then says why
         return False
     return training.get("best", {}).get("epoch") == training.get("epochs_run")
+
+
+def copy_benchmark_tables(base: str | Path, out: str | Path, benchmark: str) -> list[Path]:
+    """The tables of ``benchmark`` under the results folder ``base`` (e.g. the repository's
+    ``results/``) copied to ``out`` where ``out`` has none of its own, with the benchmark's cost
+    cells: a rebuild under ``out`` then reuses their rows beside the user's and never writes
+    ``base``. Returns the tables copied."""
+    import shutil
+
+    source, target = Path(base) / benchmark, Path(out) / benchmark
+    copied = []
+    for table in table_files(source):
+        folder = target / table.parent.name
+        if not folder.exists():  # whole or not at all: a copy cut short is never taken for one
+            with replace_folder(folder) as tmp:
+                shutil.copytree(table.parent, tmp, dirs_exist_ok=True)
+            copied.append(folder)
+    costs = source / COSTS_FILE
+    if costs.is_file() and not (target / COSTS_FILE).exists():
+        target.mkdir(parents=True, exist_ok=True)
+        with atomic_path(target / COSTS_FILE) as tmp:
+            shutil.copy2(costs, tmp)
+    return copied

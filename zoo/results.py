@@ -195,31 +195,6 @@ def table_files(root: str | Path, depth: int = 1) -> list[Path]:
     )
 
 
-def copy_benchmark_tables(base: str | Path, out: str | Path, benchmark: str) -> list[Path]:
-    """The tables of ``benchmark`` under the results folder ``base`` (e.g. the repository's
-    ``results/``) copied to ``out`` where ``out`` has none of its own, with the benchmark's cost
-    cells: a rebuild under ``out`` then reuses their rows beside the user's and never writes
-    ``base``. Returns the tables copied."""
-    import shutil
-
-    from zoo.efficiency import COSTS_FILE
-
-    source, target = Path(base) / benchmark, Path(out) / benchmark
-    copied = []
-    for table in table_files(source):
-        folder = target / table.parent.name
-        if not folder.exists():  # whole or not at all: a copy cut short is never taken for one
-            with replace_folder(folder) as tmp:
-                shutil.copytree(table.parent, tmp, dirs_exist_ok=True)
-            copied.append(folder)
-    costs = source / COSTS_FILE
-    if costs.is_file() and not (target / COSTS_FILE).exists():
-        target.mkdir(parents=True, exist_ok=True)
-        with atomic_path(target / COSTS_FILE) as tmp:
-            shutil.copy2(costs, tmp)
-    return copied
-
-
 def table_labels(folder: str | Path) -> list[str]:
     """The labels of a leaderboard table's rows (``<folder>/<label>/``), in the table's order,
     as its ``protocol.json`` lists them."""

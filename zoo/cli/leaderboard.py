@@ -158,7 +158,7 @@ def run(args) -> int:
             raise UsageError(f"--base {base}: no such results folder")
         if base.resolve() == Path(args.results).resolve():
             raise UsageError(f"--base {base} is --results itself: name another --results")
-        from zoo.results import copy_benchmark_tables
+        from zoo.leaderboard import copy_benchmark_tables
 
         for name in names:
             copied = copy_benchmark_tables(base, args.results, name)
