@@ -254,3 +254,16 @@ def test_the_paused_moments_are_restored_not_reset(setup, tmp_path, weights_root
         return max((weights[other][k] - w).abs().max().item() for k, w in weights["full"].items())
 
     assert gap("paused") < gap("reset") / 5, (gap("paused"), gap("reset"))
+
+
+def test_a_pilot_paused_with_a_larger_budget_resumes_to_it(setup, tmp_path, weights_root):
+    run(setup, tmp_path / "pilot", epochs=1)  # a one-epoch pilot, finished as it was planned
+    with pytest.raises(CheckpointError, match="its budget can only grow"):
+        pause_run(tmp_path / "pilot", root=weights_root, epochs=0)
+    dest = pause_run(tmp_path / "pilot", root=weights_root, epochs=3)
+    summary = json.loads((dest / "state.json").read_text())
+    assert (summary["epochs_run"], summary["epochs_planned"], summary["finished"]) == (1, 3, False)
+    run(setup, tmp_path / "long", epochs=3, resume=True)
+    ckpt = read_checkpoint(tmp_path / "long" / "last.pt")
+    assert [h["epoch"] for h in ckpt["history"]] == [1, 2, 3]
+    assert ckpt["recipe_changes"] == [{"field": "epochs", "from": 1, "to": 3, "from_epoch": 2}]

@@ -286,15 +286,21 @@ def save_checkpoint(path: Path, payload: dict[str, Any]) -> None:
         torch.save(payload, tmp)
 
 
-def pause_run(run_dir: str | Path, root: str | Path | None = None) -> Path:
+def pause_run(
+    run_dir: str | Path, root: str | Path | None = None, epochs: int | None = None
+) -> Path:
     """Store the paused training of ``run_dir`` (its ``last.pt`` and ``best.pt``) as the one
     committed state of its model (:func:`zoo.weights.paused_dir`), in the paused storage
     (:func:`compact_payload`), with a ``state.json`` summary; the previous state of that model is
-    replaced as a whole. Returns the folder."""
+    replaced as a whole. ``epochs``: the run's budget from here, larger than its recipe's (a run
+    begun as a pilot), recorded as ``--epochs`` on resume records it. Returns the folder."""
     run_dir = Path(run_dir)
     last = read_checkpoint(run_dir / "last.pt")
     best_path = run_dir / "best.pt"
     best = read_checkpoint(best_path) if best_path.is_file() else None
+    if epochs is not None:
+        for state in (last, best) if best is not None else (last,):
+            _grow_budget(state, epochs, last["epoch"] + 1, run_dir / "last.pt")
     benchmark, model = last["protocol"]["benchmark"], last["model"]
     if best is not None and best["model"] != model:
         raise CheckpointError(
@@ -309,6 +315,25 @@ def pause_run(run_dir: str | Path, root: str | Path | None = None) -> Path:
         summary["files"] = {p.name: p.stat().st_size for p in sorted(tmp.glob("*.pt"))}
         atomic_write_json(tmp / PAUSED_SUMMARY, summary)
     return dest
+
+
+def _grow_budget(state: dict[str, Any], epochs: int, done: int, path: Path) -> None:
+    planned = (state.get("recipe") or {}).get("epochs")
+    if isinstance(epochs, bool) or not isinstance(epochs, int) or epochs < max(done, planned or 0):
+        raise CheckpointError(
+            f"epochs: {path} has run {done} of {planned} epochs; its budget can only grow "
+            f"(got {epochs!r})",
+            parameter="epochs",
+        )
+    if epochs == planned:
+        return
+    state["recipe"] = {**state["recipe"], "epochs": epochs}
+    state["recipe_changes"] = [
+        *(state.get("recipe_changes") or []),
+        {"field": "epochs", "from": planned, "to": epochs, "from_epoch": done + 1},
+    ]
+    if state.get("training"):
+        state["training"] = {**state["training"], "epochs_planned": epochs}
 
 
 def paused_summary(last: dict[str, Any]) -> dict[str, Any]:

@@ -35,6 +35,12 @@ def add(sub) -> None:
         pause_run,
     )
     pause.add_argument("run", help="the run's folder (e.g. checkpoints/cmu/spgsn)")
+    pause.add_argument(
+        "--epochs",
+        type=int,
+        help="the run's budget from here, larger than its recipe's (a run begun as a pilot); "
+        "recorded as a recipe change, as zoo train --epochs on resume records it",
+    )
     weights_dir_option(pause, "weights folder whose in_progress/ holds the paused states")
     listing = add_command(actions, "list", "the shipped weights, with their training budgets", show)
     weights_dir_option(listing, "weights folder")
@@ -54,7 +60,7 @@ def export(args) -> int:
 def pause_run(args) -> int:
     from zoo.checkpoints import pause_run
 
-    dest = pause_run(args.run, root=Path(args.weights_dir))
+    dest = pause_run(args.run, root=Path(args.weights_dir), epochs=args.epochs)
     summary = json.loads((dest / "state.json").read_text())
     sizes = ", ".join(f"{name} {size / 1e6:.1f} MB" for name, size in summary["files"].items())
     print(
