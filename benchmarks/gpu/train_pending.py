@@ -130,8 +130,9 @@ def _run_models(args, out: Path, device: str, stop_by: float, started: float, wo
         if summary and summary.get("finished"):
             _log(out, f"{model}: finished ({summary['epochs_run']} epochs); nothing to do")
             continue
-        # what its state will weigh when it comes back: the committed one's, or a guess
-        expected = sum(summary["files"].values()) if summary else 48e6
+        # what its state will weigh when it comes back: the committed one's, or its parameters'
+        # (a paused state is about 5 bytes a parameter in last.pt and 2 in best.pt)
+        expected = sum(summary["files"].values()) if summary else 8 * _parameters(model, args)
         if files + int(expected // PART_BYTES) + 2 > RETURN_FILES or size + expected > RETURN_BYTES:
             _log(out, f"{model}: not begun, its state would not fit what comes back")
             continue
@@ -166,6 +167,7 @@ def _run_models(args, out: Path, device: str, stop_by: float, started: float, wo
         parts = _split_state(state, out / model)
         files += len(parts)
         size += sum(p.stat().st_size for p in parts)
+        parts = [p for p in parts if p.suffix != ".sha256"]
         done = paused_runs(work / "weights")[("cmu", model)]
         _log(
             out,
@@ -176,6 +178,16 @@ def _run_models(args, out: Path, device: str, stop_by: float, started: float, wo
         assert paused_dir("cmu", model, work / "weights") == state
     _log(out, f"done in {time.time() - started:.0f} s")
     return 0
+
+
+def _parameters(model: str, args) -> int:
+    from zoo.registry import load_registry
+
+    registry = load_registry(*(args.registry or ()))
+    import zoo
+
+    built = zoo.create_model(model, benchmark="cmu", registry=registry)
+    return sum(p.numel() for p in built.parameters())
 
 
 def unpack(args) -> int:
