@@ -349,6 +349,7 @@ def test_a_short_trained_row_links_its_note_to_the_card(browser, site):
     assert not browser.find_elements("css selector", "#board tr[data-model='pgbig'] .short")
 
 
+@pytest.mark.slow  # every frame of every window at two turns: .ci/run runs it after the rest
 def test_every_mesh_frame_fits_its_canvas_and_repeat_last_has_a_panel(browser, site):
     """Every frame of every window of the clips, at the default turn and turned a quarter:
     no pixel but the background on any canvas's edge; repeat_last drawn beside the models."""
