@@ -161,14 +161,18 @@ def training_status(paused: dict[str, Any] | None, epochs_planned: int | None) -
     return f"training: no weights shipped yet ({done} of {planned or '?'} epochs done)"
 
 
-def unshipped_models(registry, root: str | Path | None = None) -> dict[str, str]:
+def unshipped_models(
+    registry, root: str | Path | None = None, shipped: set[str] | None = None
+) -> dict[str, str]:
     """``{model: training status}`` of each trainable registered model with no shipped weights
     on any benchmark (a model running another's weights counts as that one), and of each whose
-    shipped weights a paused retraining will replace."""
-    shipped = {
-        read_weights_record(weights_file(b, label, root))["model"]
-        for b, label in available_weights(root)
-    }
+    shipped weights a paused retraining will replace. ``shipped``: the models with weights,
+    where the caller has read the records already."""
+    if shipped is None:
+        shipped = {
+            read_weights_record(weights_file(b, label, root))["model"]
+            for b, label in available_weights(root)
+        }
     paused = {model: summary for (_, model), summary in paused_runs(root).items()}
     out = {}
     for name in registry.list_models():

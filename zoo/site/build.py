@@ -25,7 +25,14 @@ from zoo.errors import ZooError
 from zoo.io import replace_folder
 from zoo.metrics import FLOOR_SUFFIX
 from zoo.report import PALETTE
-from zoo.site.collect import Benchmark, Table, budget_notes, read_benchmarks, read_models
+from zoo.site.collect import (
+    Benchmark,
+    Table,
+    budget_notes,
+    key_horizons,
+    read_benchmarks,
+    read_models,
+)
 
 HERE = Path(__file__).parent
 # In every built site: a folder that holds anything else is never replaced.
@@ -160,7 +167,7 @@ def _for_script(summary: dict[str, Any] | None) -> dict[str, Any] | None:
             )
             for row in view["models"]
         ]
-        views.append(dict(view, models=rows))
+        views.append(dict(view, models=rows, key_horizons=key_horizons(view["horizons_ms"])))
     return dict(summary, views=views)
 
 

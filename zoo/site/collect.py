@@ -323,7 +323,7 @@ def _budget_note(run: dict[str, Any], planned: int | None) -> str | None:
 
 def key_horizons(horizons: list[int]) -> list[int]:
     """The horizons a table shows on load, as indices: the first, the one nearest 400 ms and
-    the last (site.js's keyHorizons picks the same)."""
+    the last (the page's script reads them from each view)."""
     middle = min(range(len(horizons)), key=lambda i: abs(horizons[i] - 400))
     return sorted({0, middle, len(horizons) - 1})
 
@@ -368,14 +368,15 @@ def read_models(
     from zoo.errors import ZooError
     from zoo.weights import unshipped_models
 
+    readable = True
     try:
         shipped = shipped_weights(weights_root)
     except (ZooError, KeyError, TypeError, ValueError) as exc:
         where = weights_root or "weights/"
         problems.append(f"{where}: the shipped weights' records cannot be read ({exc})")
-        shipped = {}
-    try:
-        unshipped = unshipped_models(registry, weights_root)
+        shipped, readable = {}, False
+    try:  # no status where the records could not be read: "no weights" would be untrue
+        unshipped = unshipped_models(registry, weights_root, set(shipped)) if readable else {}
     except (ZooError, KeyError, TypeError, ValueError) as exc:
         problems.append(f"{weights_root or 'weights/'}: paused trainings cannot be read ({exc})")
         unshipped = {}

@@ -142,9 +142,6 @@ def train(
         run.recipe_changes += resume_changes(
             out_dir / "last.pt", run.state, recipe, seed, max_batches
         )
-        # a resumed run knows how long its epochs take on this machine (not on another one)
-        here = device_name(device)
-        longest = [h["seconds"] for h in run.history if h.get("device") == here]
         optimizer_for_device(optimizer, device, graphed)
         if "cuda_rng" in run.state and torch.device(device).type == "cuda":
             torch.cuda.set_rng_state(run.state["cuda_rng"], torch.device(device))
@@ -155,8 +152,11 @@ def train(
         fps=getattr(dataset, "mesh", dataset).fps,  # a JointsView: its mesh's rate
         mesh=bench.representation == "mesh" and view == "mesh", stop_by=stop_by,
     )  # fmt: skip
-    if resume:
-        epochs.longest_epoch = max(longest, default=0.0)
+    # a resumed run knows how long its epochs take on this machine (not on another one)
+    here = device_name(device)
+    epochs.longest_epoch = max(
+        (h["seconds"] for h in run.history if h.get("device") == here), default=0.0
+    )
     record = run_record(
         entry, hparams, bench, dataset, recipe, seed, dist_info, view,
         max_batches=max_batches,

@@ -172,11 +172,7 @@ var ZooSite = (function () {
       if (history.replaceState) { history.replaceState(null, "", "#" + text); } else { location.hash = text; }
     }
     // the horizons shown by default: the first, the one nearest 400 ms and the last
-    function keyHorizons(v) {
-      var hs = v.horizons_ms, mid = 0;
-      hs.forEach(function (h, i) { if (Math.abs(h - 400) < Math.abs(hs[mid] - 400)) { mid = i; } });
-      return unique([0, mid, hs.length - 1]);
-    }
+    function keyHorizons(v) { return v.key_horizons; }  // zoo.site.collect.key_horizons
     function shown(i) { return state.horizons === "all" || keyHorizons(state.view).indexOf(i) >= 0; }
     var $ = function (id) { return document.getElementById(id); };
     function unique(list) { return list.filter(function (v, i) { return list.indexOf(v) === i; }); }
