@@ -8,9 +8,10 @@ from __future__ import annotations
 import json
 
 from zoo.benchmark import get_benchmark
+from zoo.fingerprint import model_fingerprint
 from zoo.paths import REPO_ROOT
 from zoo.registry import load_registry
-from zoo.store import evaluation_code, model_fingerprint
+from zoo.store import evaluation_code
 
 
 def test_committed_rows_carry_the_current_code_fingerprints():

@@ -24,7 +24,7 @@ from torch import nn
 from zoo.benchmark import Benchmark, get_benchmark
 from zoo.errors import NamesParameter, ZooError
 from zoo.io import atomic_path, atomic_write_json, replace_folder, repo_relative, sha256_file
-from zoo.registry import ModelEntry, Registry, load_registry
+from zoo.registry import ModelEntry, Registry, class_name, load_registry
 from zoo.weights import (
     PAUSED_SUMMARY,
     RECORD_FORMAT,
@@ -79,7 +79,8 @@ def recorded_entry(meta: dict[str, Any], registry: Registry, source: str) -> Mod
             f"registries you trust"
         )
     entry = registry.get(name)
-    if origin.get("class") and origin["class"] != entry.class_path:
+    # by the class's name: a class moved to another module is the same class
+    if origin.get("class") and class_name(origin["class"]) != entry.class_name:
         raise CheckpointError(
             f"{source} holds model {name!r} of class {origin['class']} "
             f"(registry {origin.get('registry')}), but the loaded registry's "

@@ -217,7 +217,7 @@ def cost_key(loaded, bench, dataset, task: str) -> dict[str, Any]:
 
     recipe = loaded.recipe or {}
     key = {
-        "class": loaded.entry.class_path,
+        "class": loaded.entry.class_name,
         "hparams": loaded.hparams,
         "view": loaded.view,
         "task": task,

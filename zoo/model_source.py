@@ -209,7 +209,7 @@ class LoadedModel:
 
         return {
             "name": self.entry.name,
-            "class": self.entry.class_path,
+            "class": self.entry.class_name,
             "registry": registry_record(self.entry.source),
             **({"replaces": self.entry.replaces} if self.entry.replaces else {}),
             "hparams": self.hparams,
@@ -260,7 +260,7 @@ def object_identity(model: nn.Module, label: str, bench, protocol_id: str) -> di
         label=label,
         model={
             "name": None,
-            "class": f"{cls.__module__}.{cls.__qualname__}",
+            "class": cls.__qualname__,
             "registry": None,
             "hparams": {"repr": repr(model), "attributes": settings},
         },

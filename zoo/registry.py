@@ -100,6 +100,12 @@ class ModelEntry:
         }
 
     @property
+    def class_name(self) -> str:
+        """The class's own name, without the module or file that holds it: what an identity
+        records, so that moving the class re-stamps nothing (its code is fingerprinted)."""
+        return class_name(self.class_path)
+
+    @property
     def valid_args(self) -> list[str]:
         return sorted(set(self.hparams) | set(SHAPE_ARGS) | set(self.context))
 
@@ -148,6 +154,11 @@ class ModelEntry:
             raise RegistryError(
                 f"{self.source}: model {self.name!r}: cannot load class {path!r} ({e})"
             ) from e
+
+
+def class_name(class_path: str) -> str:
+    """``SPGSN`` of ``zoo.models.spgsn.SPGSN`` or ``wrapper.py:Wrapper``."""
+    return re.split(r"[.:]", class_path)[-1]
 
 
 def _check_siblings(file: Path, source: Path, model: str) -> None:
