@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
+import torch
 from conftest import write_cmu_file
 from tiny_models import REGISTRY
 
@@ -272,3 +273,93 @@ def test_a_row_whose_results_csv_is_not_its_windows_is_recomputed_not_re_stamped
     assert "its results.csv is not what its windows.npz gives" in err
     assert "recomputing tiny: code changed; a sample disagreed" in err
     assert main(["leaderboard", "--check", "--full", *_common(board)]) == 0
+
+
+def _rippled(forward, moved_by: int | None = None):
+    """repeat_last with a ripple of 1 mm at a period of 6 µm: a forward pass that turns the
+    rounding of its inputs into differences far beyond the a-priori tolerance. ``moved_by``: its
+    inputs first moved by that many units in the last place (another CPU's data)."""
+    generator = torch.Generator().manual_seed(99)
+
+    def rippled(self, x):
+        if moved_by is not None:
+            steps = torch.randint(-moved_by, moved_by + 1, x.shape, generator=generator)
+            x = (x.double() * (1 + steps.double() * 2.0**-23)).float()
+        y = forward(self, x)
+        return y + torch.sin(1000.0 * y)
+
+    return rippled
+
+
+def test_windows_moved_by_rounding_alone_are_held_to_their_measured_sensitivity(
+    board, capsys, monkeypatch
+):
+    """Rows written where the data's last bits differed (inputs moved by 2 units in the last
+    place), by a model that amplifies rounding: the a-priori tolerance would name them, their
+    measured rounding sensitivity does not; a change well beyond that sensitivity is named."""
+    from zoo.models.repeat_last import RepeatLast
+
+    forward = RepeatLast.forward
+    monkeypatch.setattr(RepeatLast, "forward", _rippled(forward, moved_by=2))
+    assert main(["leaderboard", "--recompute", "cmu", *_common(board)]) == 0
+    monkeypatch.setattr(RepeatLast, "forward", _rippled(forward))
+    capsys.readouterr()
+    assert main(["leaderboard", "--check", "--seed", "3", *_common(board)]) == 0
+    out = capsys.readouterr().out
+    said = out.split("per-window value(s) in ")[1]
+    held, largest = (
+        int(out.split(" per-window value(s)")[0].split()[-1]),
+        float(said.split("(up to ")[1].split(" of it)")[0]),
+    )
+    assert held > 0 and largest > 1  # beyond the a-priori tolerance, within the measured one
+    assert "within 8x their measured rounding sensitivity" in out
+
+    # the ripple's rounding sensitivity is some 0.03 mm: 0.5 mm more is named
+    _add_to_sampled_windows(board, 0.5)
+    assert main(["leaderboard", "--check", "--seed", "3", *_common(board)]) == 1
+    err = capsys.readouterr().err
+    assert "repeat_last/mpjpe/used25: per-window errors differ beyond tolerance" in err
+    assert "or of 8x its measured rounding sensitivity, whichever is larger" in err
+
+
+def _add_to_sampled_windows(board, mm: float) -> None:
+    path = board / "results" / "cmu" / "all" / "repeat_last" / "windows.npz"
+    stored = WindowErrors.read(path)
+    sample = draw_sample(stored.action, 32, seed=3)
+    for key in stored.errors:
+        stored.errors[key][sample] += mm
+    stored.write(path)
+
+
+def test_check_names_per_window_errors_moved_by_a_hundredth_of_a_millimetre(board, capsys):
+    """A model of ordinary rounding: its measured sensitivity leaves 0.01 mm far outside."""
+    _add_to_sampled_windows(board, 0.01)
+    assert main(["leaderboard", "--check", "--seed", "3", *_common(board)]) == 1
+    err = capsys.readouterr().err
+    assert "repeat_last/mpjpe/used25: per-window errors differ beyond tolerance" in err
+
+
+def test_a_full_check_says_how_often_a_sample_would_have_failed(board, capsys):
+    """One window damaged: --full names it and works out, from its per-window differences, the
+    share of 2,000 seeds whose sample of 32 holds that window."""
+    path = board / "results" / "cmu" / "all" / "repeat_last" / "windows.npz"
+    stored = WindowErrors.read(path)
+    for key in stored.errors:
+        stored.errors[key][100] *= 1.01
+    stored.write(path)
+    assert main(["leaderboard", "--check", "--full", *_common(board)]) == 1
+    out = capsys.readouterr().out
+    held = sum(100 in draw_sample(stored.action, 32, seed) for seed in range(2000))
+    expected = f"would fail for {held / 2000:.1%} of seeds 0-1999 ({held / 2000:.1%} against"
+    assert 0 < held < 2000 and expected in out
+
+
+def test_check_names_an_edited_recording(board, capsys):
+    """A test recording changed after the rows were made: its hash is in the protocol."""
+    recording = board / "cmu" / "test" / "walking" / "walking_1.txt"
+    lines = recording.read_text().splitlines()
+    lines[5] = lines[5].replace("0", "1", 1)
+    recording.write_text("\n".join(lines) + "\n")
+    assert main(["leaderboard", "--check", "--seed", "3", *_common(board)]) == 1
+    out = capsys.readouterr().out
+    assert "cmu/all: repeat_last: recorded identity differs: protocol_id: stored" in out

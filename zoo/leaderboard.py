@@ -32,6 +32,7 @@ from zoo.pipeline import Subject, compute_all
 from zoo.protocol import plan_protocol
 from zoo.report import plot_training_curves, training_curves, write_leaderboard
 from zoo.results import TABLE_FILE, table_files
+from zoo.rounding import rounding_margins
 from zoo.store import (
     RESULTS_DIR,
     StoreError,
@@ -515,19 +516,26 @@ class Leaderboard:
             elif r.stored is not None:
                 check_identity(r.row.label, stored_identity(r.stored), r.identity, check)
         pending = [r for r in table.rows if r.action == "compute"]
-        fresh = []
+        fresh, computed = [], []
         for r, result in zip(pending, self._compute(table, pending, "checking")):
             if isinstance(result, Exception):
                 check.problem(f"{where}: {r.row.label}: not recomputed: {result}")
                 failed.add(r.row.label)
             else:
                 fresh.append(result)
+                computed.append((r.row.label, r.loaded.model, r.loaded.view, result))
         for p in table.foreign:
             check.problem(f"{p}: cannot be recomputed ({_why_not_planned(p, self)})")
         if fresh:
             # a row not recomputed is named once, above, not once per committed value
             unplanned = {p.name for p in table.foreign} | failed
-            check_table(fresh, table.path, check, unplanned=unplanned, rows=table.sample)
+            # windows beyond the a-priori tolerance: held to their rounding sensitivity too
+            margins = rounding_margins(
+                computed, table.path, table.sample, table.protocol, self.device
+            )
+            check_table(
+                fresh, table.path, check, unplanned=unplanned, rows=table.sample, margins=margins
+            )
         return True if fresh or table.foreign or table.rows else None
 
     def _compute(self, table: TablePlan, pending: list[RowPlan], verb: str) -> list:

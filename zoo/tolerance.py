@@ -144,19 +144,28 @@ class Incomparable(ValueError):
 @dataclass
 class WindowGap:
     """The largest difference of one series of per-window errors from the stored one: as a
-    share of its tolerance, relative, absolute, and at which window (its stored position)."""
+    share of what it is held to, relative, absolute, and at which window (its stored position);
+    ``held_to_rounding``: how many of its values exceed the a-priori tolerance but not the
+    margin their measured rounding sensitivity gives them (:mod:`zoo.rounding`), and the largest
+    of those as a share of the a-priori tolerance (``a_priori``)."""
 
     key: tuple[str, str, str]
     share: float
     relative: float
     absolute: float
     window: int
+    held_to_rounding: int = 0
+    a_priori: float = 0.0
+    # the stored positions of the windows beyond what they are held to, and beyond the a-priori
+    # tolerance alone (what a sampled check would name, with and without rounding margins)
+    beyond: tuple = ()
+    beyond_a_priori: tuple = ()
 
 
-def window_gaps(fresh, stored, rows: np.ndarray | None = None) -> list[WindowGap]:
-    """Each series of ``fresh`` per-window errors against ``stored``'s at its windows'
-    positions ``rows`` (None: every window, in order); :class:`Incomparable` where the windows
-    are not the same ones or a series is missing from ``stored``."""
+def _window_shares(fresh, stored, rows: np.ndarray | None):
+    """Each series: its key, the stored positions, the absolute differences and their shares
+    of the a-priori tolerance (a NaN on one side only: infinite); :class:`Incomparable` where
+    the windows are not the same ones or a series is missing from ``stored``."""
     rows = np.arange(len(stored.start)) if rows is None else np.asarray(rows)
     if len(rows) != len(fresh.start) or (len(rows) and rows.max() >= len(stored.start)):
         raise Incomparable(f"other windows ({len(stored.start)} stored)")
@@ -168,28 +177,70 @@ def window_gaps(fresh, stored, rows: np.ndarray | None = None) -> list[WindowGap
     if set(fresh.errors) != set(stored.errors):
         missing = sorted("/".join(k) for k in set(fresh.errors) ^ set(stored.errors))
         raise Incomparable(f"other per-window error series ({', '.join(missing)} on one side)")
-    gaps = []
     for key, values in fresh.errors.items():
         before = stored.errors[key][rows].astype(np.float64)
         if values.shape != before.shape:
             raise Incomparable(f"{'/'.join(key)}: another shape")
-        if not before.size:
-            continue
         after = values.astype(np.float64)
         gap = np.abs(after - before)
+        limit = allowed(key[1], before)
         with np.errstate(invalid="ignore", divide="ignore"):
-            share = np.nan_to_num(gap / allowed(key[1], before), nan=0.0, posinf=np.inf)
+            share = np.nan_to_num(gap / limit, nan=0.0, posinf=np.inf)
         # a NaN on one side only is a difference; on both sides, the same value
         one, both = np.isnan(after) != np.isnan(before), np.isnan(after) & np.isnan(before)
         share = np.where(one, np.inf, np.where(both, 0.0, share))
+        yield key, rows, before, np.where(both, 0.0, gap), limit, share
+
+
+def windows_beyond(fresh, stored, rows: np.ndarray | None = None) -> np.ndarray:
+    """The positions in ``fresh`` of the windows with any error beyond the a-priori tolerance
+    (finite: a NaN on one side is a difference no rounding explains)."""
+    beyond = np.zeros(len(fresh.start), bool)
+    for *_, share in _window_shares(fresh, stored, rows):
+        if share.size:
+            finite = np.isfinite(share) & (share > 1)
+            beyond |= finite.reshape(len(beyond), -1).any(axis=1)
+    return np.flatnonzero(beyond)
+
+
+def window_gaps(
+    fresh, stored, rows: np.ndarray | None = None, margins: dict | None = None
+) -> list[WindowGap]:
+    """Each series of ``fresh`` per-window errors against ``stored``'s at its windows'
+    positions ``rows`` (None: every window, in order); :class:`Incomparable` where the windows
+    are not the same ones or a series is missing from ``stored``. ``margins`` (per series, an
+    array shaped like its errors): what a value may differ by beyond the a-priori tolerance,
+    where its rounding sensitivity was measured (:mod:`zoo.rounding`); each value is held to
+    the larger of the two."""
+    gaps = []
+    for key, at, before, gap, limit, a_priori in _window_shares(fresh, stored, rows):
+        if not before.size:
+            continue
+        margin = (margins or {}).get(key)
+        share = a_priori
+        if margin is not None:
+            with np.errstate(invalid="ignore", divide="ignore"):
+                widened = np.nan_to_num(gap / np.maximum(limit, margin), nan=0.0, posinf=np.inf)
+            share = np.where(np.isfinite(a_priori), widened, a_priori)
+        held = (a_priori > 1) & (share <= 1)
         i = int(np.argmax(share))
+
         gaps.append(
             WindowGap(
                 key,
                 float(share.flat[i]),
                 float(gap.flat[i] / max(abs(before.flat[i]), 1e-12)),
                 float(gap.flat[i]),
-                int(rows[i // before.shape[1]]) if before.ndim == 2 else int(rows[i]),
+                int(at[i // before.shape[1]]) if before.ndim == 2 else int(at[i]),
+                held_to_rounding=int(held.sum()),
+                a_priori=float(a_priori[held].max()) if held.any() else 0.0,
+                beyond=_positions(at, share > 1),
+                beyond_a_priori=_positions(at, a_priori > 1),
             )
         )
     return gaps
+
+
+def _positions(at: np.ndarray, flags: np.ndarray) -> tuple[int, ...]:
+    """The stored positions ``at`` of the windows with any flagged value."""
+    return tuple(int(p) for p in at[flags.reshape(len(at), -1).any(axis=1)])
