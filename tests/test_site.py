@@ -320,7 +320,7 @@ def test_a_row_trained_short_of_its_recipe_says_so_where_its_number_is(tmp_path)
     """spgsn's shipped run capped its epochs at 50 batches (22% of the recipe's windows): its
     rows carry a note in the table's data; a record with the epoch's window count gives the
     share; a full run gives none."""
-    from zoo.site.collect import Model, _budget_note, budget_notes
+    from zoo.cards import Shipped, _budget_note, short_training_notes
 
     results = _copy_results(tmp_path, "cmu")
     build_site(tmp_path / "site", results)
@@ -336,8 +336,8 @@ def test_a_row_trained_short_of_its_recipe_says_so_where_its_number_is(tmp_path)
     )
     record["training"]["samples_seen"] = 718_400
     assert _budget_note(record, 50) is None
-    model = Model("ltd", None, "", [dict(record, label="ltd@last", benchmarks=["cmu"])])
-    assert budget_notes([model], load_registry()) == {}
+    shipped = {"ltd": [Shipped("ltd@last", ("cmu",), Path(), dict(record, label="ltd@last"))]}
+    assert short_training_notes(load_registry(), shipped) == {}
 
 
 def test_a_model_page_shows_its_card_once_and_every_horizon(tmp_path):
@@ -351,7 +351,7 @@ def test_a_model_page_shows_its_card_once_and_every_horizon(tmp_path):
 
 
 def test_a_run_stopped_by_its_patience_is_not_short_and_a_tiny_split_does_not_crash():
-    from zoo.site.collect import _budget_note
+    from zoo.cards import _budget_note
 
     run = {
         "training": {"samples_seen": 25 * 14_368, "epochs_run": 25, "best": {"epoch": 15}},

@@ -87,6 +87,58 @@ def shipped_weights(weights_root: str | Path | None = None) -> dict[str, list[Sh
     return out
 
 
+def short_training_notes(
+    registry: Registry, shipped: dict[str, list[Shipped]]
+) -> dict[tuple[str, str], str]:
+    """``{(benchmark, row label): note}`` for each shipped row whose training run stopped short
+    of its registry recipe (``shipped``: :func:`shipped_weights`): the share of the recipe's
+    training windows the run saw (its @last record where there is one: a best-validation row
+    is one epoch of a run), or, for records that predate the epoch's window count, the cap on
+    batches an epoch. A registry entry running another's weights gets their note."""
+    notes = {}
+    for name in registry.list_models():
+        entry = registry.get(name)
+        trained = registry.get(entry.weights_of) if entry.weights_of else entry
+        planned = (trained.train or {}).get("epochs")
+        records = {
+            (bench, s.record["label"]): s.record
+            for s in shipped.get(entry.weights_of or name, [])
+            for bench in s.benchmarks
+        }
+        for (bench, label), record in records.items():
+            last = records.get((bench, label.partition("@")[0] + "@last"), record)
+            note = _budget_note(last, planned)
+            if note:  # the row is named after this model (an entry running another's weights)
+                notes[bench, name + ("@last" if label.endswith("@last") else "")] = note
+    return notes
+
+
+def _budget_note(run: dict[str, Any], planned: int | None) -> str | None:
+    from zoo.train.recipe import Recipe, patience_spent
+
+    training = run.get("training") or {}
+    seen = training.get("samples_seen")
+    windows = (run.get("validation") or {}).get("training_windows")
+    batch = (run.get("recipe") or {}).get("batch_size")
+    best = (training.get("best") or {}).get("epoch", -1)
+    if patience_spent(Recipe.of(run.get("recipe") or {}), training.get("epochs_run", 0), best):
+        return None  # stopped by its recipe's patience: finished, not short
+    if seen and windows and batch and planned:
+        full = planned * max(1, windows // batch) * batch
+        share = seen / full
+        if share < 0.95:
+            return (
+                f"its run saw {share:.0%} of its recipe's training windows ({seen:,} of {full:,})"
+            )
+        return None
+    if run.get("max_batches") and seen:
+        return (
+            f"its run capped each epoch at {run['max_batches']} batches ({seen:,} training "
+            f"windows in all)"
+        )
+    return None
+
+
 def card_models(registry: Registry, shipped: dict[str, list[Shipped]]) -> list[str]:
     """Models with a card: every registered model with shipped weights or published figures,
     in registry order."""

@@ -28,6 +28,7 @@ from zoo.check import (
 from zoo.efficiency import COSTS_FILE, Costs, architecture, cost_key
 from zoo.io import atomic_path, atomic_write_json, replace_folder, repo_relative
 from zoo.model_source import ModelSource
+from zoo.paths import REPO_ROOT
 from zoo.pipeline import Subject, compute_all
 from zoo.protocol import plan_protocol
 from zoo.report import plot_training_curves, training_curves, write_leaderboard
@@ -161,6 +162,7 @@ class Leaderboard:
         }
         self.loaded: dict = {}
         self.protocols: dict = {}  # each table's protocol, planned once: {(sampler, task, truth)}
+        self._short_training: dict | None = None  # read once: zoo.cards.short_training_notes
         unknown = sorted(set(plan.models) - set(registry.list_models()))
         if unknown:
             raise StoreError(
@@ -679,7 +681,8 @@ class Leaderboard:
                 record = json.loads((tmp / label / "protocol.json").read_text())
                 restamp_record(record, identity, verification)
                 atomic_write_json(tmp / label / "protocol.json", record)
-            write_leaderboard(results, tmp, bench.horizons_ms, efficiency)
+            notes = self.short_training(path)
+            write_leaderboard(results, tmp, bench.horizons_ms, efficiency, notes)
             if not fresh and not dropped and not refreshed and _same_files(path, tmp):
                 raise _Unchanged
         gone = f", dropped {', '.join(p.name for p in dropped)}" if dropped else ""
@@ -742,6 +745,26 @@ class Leaderboard:
             out.append(
                 (r, verification_record(before, r.identity, len(sample), self.plan.seed, agreed))
             )
+        return out
+
+    def short_training(self, table: Path) -> dict[str, tuple[str, str | None]]:
+        """Per row label of this benchmark whose shipped weights were trained short of their
+        recipe: what its run saw (:func:`zoo.cards.short_training_notes`) and the path of its
+        model's card from ``table``'s folder (None where it has none)."""
+        from zoo.cards import shipped_weights, short_training_notes
+
+        if self.weights is None or not self.weights.is_dir():
+            return {}
+        if self._short_training is None:
+            self._short_training = short_training_notes(
+                self.registry, shipped_weights(self.weights)
+            )
+        out = {}
+        for (bench, label), note in self._short_training.items():
+            if bench == self.bench.name:
+                card = REPO_ROOT / "docs" / "models" / f"{label.partition('@')[0]}.md"
+                link = os.path.relpath(card, table) if card.is_file() else None
+                out[label] = (note, link)
         return out
 
     def stored_cost(self, efficiency: dict, label: str, loaded, task: str) -> None:

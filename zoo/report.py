@@ -28,6 +28,7 @@ def write_leaderboard(
     out_dir: str | Path,
     horizons_ms: Iterable[int] | None = None,
     efficiency: dict[str, dict] | None = None,
+    short_training: dict[str, tuple[str, str | None]] | None = None,
 ) -> Path:
     """Combine :class:`zoo.results.EvalResult` objects of one protocol into ``out_dir``:
     ``leaderboard.md``, ``summary.json`` (the same table as data,
@@ -36,7 +37,8 @@ def write_leaderboard(
     them, holds its ``results.csv``). ``efficiency`` (per row label, the costs
     ``zoo costs`` stored: :class:`zoo.efficiency.Costs`) fills the headline's cost columns and
     ``efficiency.csv`` (a dict without a row's label: its cost cells stay empty, and the table
-    says how to fill them)."""
+    says how to fill them). ``short_training``: per row label trained short of its recipe, what
+    its run saw and a link to its model's card, marked in the headline."""
     out_dir = Path(out_dir)
     # Rows and runs in model order, whichever models were evaluated now and which were stored:
     # regenerating then rewrites no unchanged table.
@@ -45,7 +47,10 @@ def write_leaderboard(
     check_comparable(records)
     frame = pd.concat([r.frame for r in results], ignore_index=True)
     tables = markdown_tables(
-        frame, records, horizons_ms, headline=headline_table(results, horizons_ms, efficiency)
+        frame,
+        records,
+        horizons_ms,
+        headline=headline_table(results, horizons_ms, efficiency, short_training=short_training),
     )
     protocol = dict(results[0].protocol)
     protocol["provenance"] = {"runs": [r.protocol.get("provenance", {}) for r in results]}

@@ -198,6 +198,23 @@ def is_floor(model: str) -> bool:
     return model.endswith(FLOOR_SUFFIX)
 
 
+TRUTH_ROW = "ground_truth"  # the ground truth's own MELV (zoo.evaluation): a reference
+
+
+def unranked_reason(model: str, values: pd.Series) -> str | None:
+    """Why a row of a view is no prediction to rank or bold: ``floor`` (an autoencoder floor,
+    which sees the future), ``truth`` (the ground truth's own value) or ``zero`` (exactly 0 at
+    every horizon: a held frame keeps every edge's length, so its MELV is 0 by construction);
+    None for a predictor."""
+    if is_floor(model):
+        return "floor"
+    if model == TRUTH_ROW:
+        return "truth"
+    if len(values) and (values.to_numpy(float) == 0).all():
+        return "zero"
+    return None
+
+
 def block_frames_default(windows) -> int:
     """Blocks of ``zoo.intervals.BLOCK_WINDOWS`` window lengths (:func:`zoo.intervals.block_length`
     keeps them at least one window long and at most half a recording)."""
@@ -328,8 +345,11 @@ class TableView:
     tied: dict[tuple[str, int], bool]
     windows: Any  # the table's WindowErrors, None where no row stored them
     contenders: int  # rows with per-window errors that are predictors (bold compares these)
+    unranked: dict[str, str]  # rows that are no prediction to rank: why (unranked_reason)
 
     def is_bold(self, model: str, horizon: int) -> bool:
+        if model in self.unranked:
+            return False
         return self.tied.get((model, horizon), model == self.best[horizon])
 
 
@@ -376,11 +396,15 @@ def table_view(
     }
     windows = next((r.windows for r in results if r.windows is not None), None)
     half: dict[str, np.ndarray] = {}
-    # An autoencoder floor sees the future: a bound beside its model, never the best.
-    predictors = [m for m in values.index if not is_floor(m)]
+    # An autoencoder floor sees the future, the truth's own MELV is a reference, a held frame's
+    # MELV is 0 by construction: none of them is a prediction to rank.
+    unranked = {
+        m: why for m in values.index if (why := unranked_reason(m, values.loc[m])) is not None
+    }
+    predictors = [m for m in values.index if m not in unranked]
     best = values.loc[predictors].idxmin() if predictors else values.idxmin()
     tied: dict[tuple[str, int], bool] = {}
-    contenders = {m: e for m, e in errors.items() if not is_floor(m)}
+    contenders = {m: e for m, e in errors.items() if m not in unranked}
     if windows is not None:
         for m, e in errors.items():
             half[m] = interval(e, windows).half
@@ -388,7 +412,17 @@ def table_view(
             bold = best_set(contenders, windows)
             tied = {(m, h): bool(bold[m][i]) for m in contenders for i, h in enumerate(horizons)}
     return TableView(
-        metric, averaging, joints, horizons, values, half, best, tied, windows, len(contenders)
+        metric,
+        averaging,
+        joints,
+        horizons,
+        values,
+        half,
+        best,
+        tied,
+        windows,
+        len(contenders),
+        unranked,
     )
 
 
@@ -399,12 +433,26 @@ def view_words(view: TableView, reported: bool) -> str:
         how = "no per-window errors stored, so no intervals"
     else:
         how = interval_words(view.windows, models=view.contenders)
-    floors = [m for m in view.values.index if is_floor(m)]
-    if floors:
+
+    def named(why: str) -> str:
+        return ", ".join(f"`{m}`" for m, w in view.unranked.items() if w == why)
+
+    reasons = set(view.unranked.values())
+    if "floor" in reasons:
         how += (
-            f". {', '.join(f'`{m}`' for m in floors)}: the ground-truth future through the "
-            f"model's autoencoder alone (it sees the future): the error left with a perfect "
-            f"transformer, a bound, never bold"
+            f". {named('floor')}: the ground-truth future through the model's autoencoder alone "
+            f"(it sees the future): the error left with a perfect transformer, a bound, never "
+            f"bold"
+        )
+    if "truth" in reasons:
+        how += (
+            f". {named('truth')}: the ground truth's own value (how much the real motion "
+            f"stretches edges), a reference: unranked, never bold"
+        )
+    if "zero" in reasons:
+        how += (
+            f". {named('zero')}: 0 at every horizon by construction (it holds a frame, so every "
+            f"edge keeps its length): unranked, never bold"
         )
     if reported:
         how += (
@@ -448,6 +496,7 @@ def table_summary(results: list, horizons_ms: Iterable[int] | None = None) -> di
                 {
                     "model": m,
                     "floor": is_floor(m),
+                    "unranked": m in view.unranked,
                     "values": [json_number(view.values.loc[m, h]) for h in horizons],
                     "half": [json_number(x) for x in view.half[m]] if m in view.half else None,
                     "bold": [view.is_bold(m, h) for h in horizons],
@@ -521,6 +570,7 @@ def headline_table(
     horizons_ms: Iterable[int] | None = None,
     efficiency: dict[str, dict[str, Any]] | None = None,
     published: list | None = None,
+    short_training: dict[str, tuple[str, str | None]] | None = None,
 ) -> str:
     """Models as rows, horizons as columns: the benchmark's headline metric (frame averaging,
     action average) with half its 95% interval (:func:`interval_words` says which kind), in bold
@@ -531,7 +581,9 @@ def headline_table(
     named with the machine that measured them under the table; a model left out of a given
     dict gets empty cost cells and the way to fill them (None: no costs at all). ``published``:
     :func:`zoo.published.place` of this table (default: from ``zoo/published.yaml``); matching
-    figures become ``reported`` rows, the others are listed below with their differences."""
+    figures become ``reported`` rows, the others are listed below with their differences.
+    ``short_training``: per row label whose weights were trained short of their recipe, what
+    its run saw and a link to its card: the row is marked (†) and the note is under the table."""
     from zoo.published import place
 
     record = results[0].protocol
@@ -548,7 +600,8 @@ def headline_table(
         for i, h in enumerate(horizons):
             text = f"{values.loc[m, h]:{fmt}}" + (f" ±{half[m][i]:{fmt}}" if m in half else "")
             cells.append(f"**{text}**" if view.is_bold(m, h) else text)
-        table.append([m, *cells, *_cost_cells(m, efficiency, costs)])
+        marked = f"{m} {SHORT_MARK}" if m in (short_training or {}) else m
+        table.append([marked, *cells, *_cost_cells(m, efficiency, costs)])
     placed = place(record, metric, "frame", joints) if published is None else published
     for p in placed:
         if not p.differences:
@@ -576,6 +629,9 @@ def headline_table(
     ]
     if costs:
         out += _cost_line(efficiency, record["benchmark"], values.index)
+    shown = {m: v for m, v in (short_training or {}).items() if m in values.index}
+    if shown:
+        out += ["", short_training_line(shown)]
     for p in placed:
         if not p.differences and p.entry.per_action:
             actions = list(record["actions_present"])
@@ -613,6 +669,25 @@ def headline_table(
 
 
 COST_HEADERS = ["parameters", "GFLOP / window", "latency (ms)", "training windows / s"]
+SHORT_MARK = "†"  # a row whose weights were trained short of their recipe
+
+
+def short_training_line(notes: dict[str, tuple[str, str | None]]) -> str:
+    """The paragraph under a headline naming its rows trained short of their recipe."""
+    rows: dict[tuple[str, str | None], list[str]] = {}  # rows of one run share its note
+    for m, said in sorted(notes.items()):
+        rows.setdefault(said, []).append(f"`{m}`")
+    parts = [
+        f"{', '.join(ms)}: {note}" + (f" ([card]({link}))" if link else "")
+        for (note, link), ms in rows.items()
+    ]
+    return (
+        f"{SHORT_MARK} Trained short of its recipe, so not the paper's budget: "
+        + "; ".join(parts)
+        + "."
+    )
+
+
 # How tables written before ``zoo costs`` named their machine, inside the paragraph above.
 _OLD_COST_WORDS = re.compile(
     r"\. Costs measured once per architecture on .*?at the recipe's batch size and precision\)"
@@ -623,8 +698,11 @@ def _cost_line(efficiency: dict[str, dict[str, Any]], benchmark: str, models) ->
     """The paragraph under a headline table (as lines, after a blank one): which machine
     measured its cost columns, and when; how; and how to fill the empty cells of ``models``
     (the table's rows) left out of ``efficiency``."""
-    machines = sorted({f"{e['device']} ({e['date']})" for e in efficiency.values()})
+    marks = machine_marks(efficiency)
+    machines = sorted({_machine(e) for e in efficiency.values()})
     text = ""
+    if len(machines) > 1:  # timings of two machines in one column: each cell says whose
+        machines = [f"({marks[m]}) {m}" for m in machines]
     if machines:
         text = (
             f"Costs measured by `zoo costs` on {'; '.join(machines)}, every model in "
@@ -634,6 +712,11 @@ def _cost_line(efficiency: dict[str, dict[str, Any]], benchmark: str, models) ->
             f"(forward, backward, clip and Adam at the recipe's batch size; fewer latency calls "
             f"and training steps for a slow model, counted in efficiency.csv)."
         )
+        if marks:
+            text += (
+                " Latency and training cells carry their machine's letter: timings of "
+                "different machines are not comparable."
+            )
     blank = [m for m in models if m not in efficiency and not is_floor(m)]
     if blank:
         text += (
@@ -669,7 +752,9 @@ def with_costs(
         )
     models = set(models)
     rows = [
-        row[:-4] + _cost_cells(row[0], efficiency, True) if row[0] in models else row
+        row[:-4] + _cost_cells(_label(row[0]), efficiency, True)
+        if _label(row[0]) in models
+        else row
         for row in rows
     ]
     table = tabulate(rows, headers=header, tablefmt="github", disable_numparse=True).split("\n")
@@ -681,24 +766,43 @@ def with_costs(
     ):
         below = end + 2  # the paragraph this writes
     above = [_OLD_COST_WORDS.sub("", line) for line in lines[start:top]]
-    shown = [row[0] for row in rows if row[0] in models]
+    shown = [_label(row[0]) for row in rows if _label(row[0]) in models]
     return "\n".join(
         lines[:start] + above + table + _cost_line(efficiency, benchmark, shown) + lines[below:]
     )
 
 
+def _label(cell: str) -> str:
+    """A headline's model cell without its mark (a reported row's cell is left whole)."""
+    return cell.removesuffix(f" {SHORT_MARK}")
+
+
+def _machine(entry: dict[str, Any]) -> str:
+    return f"{entry['device']} ({entry['date']})"
+
+
+def machine_marks(efficiency: dict[str, dict[str, Any]]) -> dict[str, str]:
+    """A letter per machine whose timings ``efficiency`` holds, where there is more than one
+    (a column of one machine's timings needs none)."""
+    machines = sorted({_machine(e) for e in efficiency.values()})
+    return {m: "abcdefghij"[i] for i, m in enumerate(machines)} if len(machines) > 1 else {}
+
+
 def _cost_cells(model: str | None, efficiency: dict[str, dict[str, Any]], costs: bool) -> list[str]:
     """A row's cost cells: its stored costs; else empty where costs are shown and ``model`` is
-    one that ``zoo costs`` measures, "–" where none apply (a floor, a reported row)."""
+    one that ``zoo costs`` measures, "–" where none apply (a floor, a reported row). Timings of
+    a table measured on several machines carry their machine's letter (:func:`machine_marks`)."""
     row = efficiency.get(model) if model is not None else None
     if not row:
         return ["" if costs and model is not None and not is_floor(model) else "–"] * 4
     gflop, latency, train = (
         row.get(k) for k in ("gflop_per_sample", "latency_ms", "train_samples_per_s")
     )
+    mark = machine_marks(efficiency).get(_machine(row))
+    timed = f" ({mark})" if mark else ""
     return [
         f"{row['parameters'] / 1e6:.3f} M" if row["parameters"] else "0",
         "–" if gflop is None else f"{gflop:.3g}",
-        "–" if latency is None else f"{latency:.3g}",
-        "–" if train is None else f"{train:.3g}",
+        "–" if latency is None else f"{latency:.3g}{timed}",
+        "–" if train is None else f"{train:.3g}{timed}",
     ]

@@ -21,6 +21,7 @@ from typing import Any
 
 import numpy as np
 
+from zoo.cards import Shipped, short_training_notes
 from zoo.errors import ZooError
 from zoo.io import replace_folder
 from zoo.metrics import FLOOR_SUFFIX
@@ -28,7 +29,6 @@ from zoo.report import PALETTE
 from zoo.site.collect import (
     Benchmark,
     Table,
-    budget_notes,
     key_horizons,
     read_benchmarks,
     read_models,
@@ -258,7 +258,13 @@ def build_site(
     pages: dict[str, str] = {}
     extra: dict[str, str] = {}
     render = partial(_render, env, common)
-    budgets = budget_notes(models, registry)
+    budgets = short_training_notes(
+        registry,
+        {
+            m.name: [Shipped(r["label"], tuple(r["benchmarks"]), Path(), r) for r in m.shipped]
+            for m in models
+        },
+    )
     # what every model must beat: the registered models that learn nothing
     baselines = [
         n for n in known if not registry.get(n).trainable and not registry.get(n).weights_of

@@ -50,12 +50,17 @@ class Table:
 
     def leaders(self) -> list[dict[str, Any]]:
         """Per horizon of the headline view, what the table shows on load: the lowest of its
-        rows (no ``@last`` row, no floor) and how many of them are bold (not distinguishable
-        from the table's best), so the index says no more than the table does."""
+        rows (no ``@last`` row, no floor or other unranked row) and how many of them are bold
+        (not distinguishable from the table's best), so the index says no more than the table
+        does."""
         view = self.headline
         if view is None:
             return []
-        rows = [m for m in view["models"] if "@" not in m["model"] and not m.get("floor")]
+        rows = [
+            m
+            for m in view["models"]
+            if "@" not in m["model"] and not m.get("floor") and not m.get("unranked")
+        ]
         out = []
         for i in key_horizons(view["horizons_ms"]):
             horizon = view["horizons_ms"][i]
@@ -154,7 +159,7 @@ _VIEW_KEYS = (
     "reported",
     "other_protocols",
 )
-_ROW_KEYS = ("model", "floor", "values", "half", "bold", "per_action", "curve")
+_ROW_KEYS = ("model", "floor", "unranked", "values", "half", "bold", "per_action", "curve")
 _COMPARISON_KEYS = ("a", "b", "metric", "joints", "averaging", "kind", "units", "design", "rows")
 _COMPARISON_ROW_KEYS = (
     "horizon_ms",
@@ -270,55 +275,6 @@ def read_table(benchmark: str, folder: Path) -> Table:
                     table.sources[label] = source
     table.costs = _costs(folder, table.problems)
     return table
-
-
-def budget_notes(models: list[Model], registry) -> dict[tuple[str, str], str]:
-    """``{(benchmark, row label): note}`` for each shipped row whose training run stopped short
-    of its registry recipe: the share of the recipe's training windows the run saw (its @last
-    record where there is one: a best-validation row is one epoch of a run), or, for records
-    that predate the epoch's window count, the cap on batches an epoch."""
-    notes = {}
-    for model in models:
-        entry = registry.get(model.name)
-        trained = registry.get(entry.weights_of) if entry.weights_of else entry
-        planned = (trained.train or {}).get("epochs")
-        records = {
-            (bench, r["label"]): r
-            for r in model.shipped
-            for bench in r.get("benchmarks") or [r.get("benchmark")]
-        }
-        for (bench, label), record in records.items():
-            last = records.get((bench, label.partition("@")[0] + "@last"), record)
-            note = _budget_note(last, planned)
-            if note:  # the row is named after this model (an entry running another's weights)
-                notes[bench, model.name + ("@last" if label.endswith("@last") else "")] = note
-    return notes
-
-
-def _budget_note(run: dict[str, Any], planned: int | None) -> str | None:
-    from zoo.train.recipe import Recipe, patience_spent
-
-    training = run.get("training") or {}
-    seen = training.get("samples_seen")
-    windows = (run.get("validation") or {}).get("training_windows")
-    batch = (run.get("recipe") or {}).get("batch_size")
-    best = (training.get("best") or {}).get("epoch", -1)
-    if patience_spent(Recipe.of(run.get("recipe") or {}), training.get("epochs_run", 0), best):
-        return None  # stopped by its recipe's patience: finished, not short
-    if seen and windows and batch and planned:
-        full = planned * max(1, windows // batch) * batch
-        share = seen / full
-        if share < 0.95:
-            return (
-                f"its run saw {share:.0%} of its recipe's training windows ({seen:,} of {full:,})"
-            )
-        return None
-    if run.get("max_batches") and seen:
-        return (
-            f"its run capped each epoch at {run['max_batches']} batches ({seen:,} training "
-            f"windows in all)"
-        )
-    return None
 
 
 def key_horizons(horizons: list[int]) -> list[int]:

@@ -291,12 +291,12 @@ var ZooSite = (function () {
       var machines = unique(Object.keys(costs).map(function (m) { return machineOf(costs[m]); }));
       var body = el("tbody");
       // rank: 1 + how many rows are lower at the sorted horizon (ties share), whatever the order shown
-      var scores = ranked ? rows.filter(function (r) { return !r.floor; }).map(function (r) { return cell(r, state.sort).value; }).filter(function (x) { return x !== null; }) : [];
+      var scores = ranked ? rows.filter(function (r) { return !r.floor && !r.unranked; }).map(function (r) { return cell(r, state.sort).value; }).filter(function (x) { return x !== null; }) : [];
       rows.forEach(function (r) {
         var tr = el("tr", {"data-model": r.model});
         if (r.floor) { tr.classList.add("floor"); }
         var score = ranked ? cell(r, state.sort).value : null;
-        var rank = score === null || r.floor ? "" : String(1 + scores.filter(function (x) { return x < score; }).length);
+        var rank = score === null || r.floor || r.unranked ? "" : String(1 + scores.filter(function (x) { return x < score; }).length);
         tr.appendChild(el("td", {"class": "rank num"}, rank));
         var name = el("td", {"class": "model"});
         var swatch = el("span", {"class": "swatch"}); swatch.style.background = style(r).colour; name.appendChild(swatch);
