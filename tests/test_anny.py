@@ -6,6 +6,7 @@ anny cache the first model build takes a few minutes; afterwards loading takes s
 """
 
 import importlib.util
+import os
 import shutil
 from pathlib import Path
 
@@ -235,6 +236,48 @@ def test_built_meshes_do_not_depend_on_the_thread_count(low_model, tmp_path):
     assert hashes[0] == hashes[1]
 
 
+# Skins the short trial in each precision and prints the hashes of the float32 vertices.
+KERNELS_SCRIPT = """
+import hashlib, sys, torch
+from zoo.data import anny
+from zoo.data.bvh import CMU_BVH_JOINTS, read_bvh
+bvh = read_bvh(sys.argv[1], CMU_BVH_JOINTS)
+rots = anny.motion_rotations(bvh)
+for dtype in (torch.float64, torch.float32):
+    model = anny.load_anny_model("low", dtype=dtype)
+    params = anny.retarget(model, bvh).pose_parameters(rots)
+    vertices = anny.skin(model, params)["vertices"]
+    print(dtype, vertices.dtype, hashlib.sha256(vertices.tobytes()).hexdigest())
+"""
+
+
+@needs_anny
+@needs_data
+def test_meshes_skinned_in_float64_do_not_depend_on_the_cpus_kernels(tmp_path):
+    """torch's kernels for another CPU kind (ATEN_CPU_CAPABILITY: the generic and the AVX2
+    ones exist on every x86 machine) give float32 skinning other last bits; float64 skinning
+    rounded once gives the same bytes."""
+    import subprocess
+    import sys
+
+    runs = [
+        subprocess.Popen(
+            [sys.executable, "-c", KERNELS_SCRIPT, str(bvh_path(SHORT))],
+            env={**os.environ, "ATEN_CPU_CAPABILITY": kernels, "OMP_NUM_THREADS": "1"},
+            stdout=subprocess.PIPE,
+            text=True,
+        )
+        for kernels in ("default", "avx2")
+    ]
+    (generic, _), (avx2, _) = (run.communicate(timeout=300) for run in runs)
+    assert all(run.returncode == 0 for run in runs)
+    f64, f32 = (line.split() for line in generic.splitlines()[-2:])
+    f64_avx2, f32_avx2 = (line.split() for line in avx2.splitlines()[-2:])
+    assert f64[:2] == ["torch.float64", "float32"] and f32[0] == "torch.float32"
+    assert f64 == f64_avx2
+    assert f32 != f32_avx2  # the comparison can fail: float32 skinning follows the kernels
+
+
 def build_low(cache, identities="one", seed=0, split="train", trials=(SHORT,)):
     """A low-resolution CMU-on-Anny dataset of a few trials, in the session's cache."""
     return anny.build_cmu_anny(
@@ -259,6 +302,7 @@ def test_build_one_identity_low(low_model, cache):
     assert seq.action == "run" and seq.identity == "default"
     assert seq.meta["source_frames"] == 128 and seq.meta["source_fps"] == 120.0
     assert seq.meta["phenotype"] == anny.DEFAULT_PHENOTYPE
+    assert seq.meta["skinning"] == anny.SKINNING == "float64, rounded once to float32"
     # Millimetres, Z up, about 1.6 m tall (the default body), root at the origin.
     height = np.ptp(seq.vertices[0, :, 2])
     assert 1400 < height < 1800
@@ -290,6 +334,14 @@ def test_build_one_identity_low(low_model, cache):
     reloaded = build_low(cache)
     assert (abs(reloaded.joint_regressor - shipped) > 0).nnz == 0
     reloaded.save(folder)  # the session's cache as it was
+    # A cache skinned otherwise (in float32, before SKINNING) is built again, not loaded.
+    older = MeshDataset.load(folder)
+    older.sequences[0].meta.pop("skinning")
+    older.sequences[0].vertices[0, 0, 0] += 1.0
+    older.save(folder)
+    rebuilt = build_low(cache)
+    assert rebuilt.content_hash() == ds.content_hash()
+    assert MeshDataset.load(folder).sequences[0].meta["skinning"] == anny.SKINNING
 
 
 @needs_anny

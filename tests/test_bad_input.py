@@ -135,9 +135,12 @@ def test_an_absent_or_extra_action_folder_is_a_warning_and_a_declared_one_is_not
     (root / "MISSING.txt").write_text("MISSING cmu/test/running/running_1.txt\n")
     write_cmu_file(root / "test" / "walking_extra" / "walking_extra_1.txt", np.zeros(200))
     assert load_cmu(root, "test", actions).actions_present == ("walking",)
+    assert capsys.readouterr().err == ""  # the release's own extra folder: nothing to say
+    write_cmu_file(root / "test" / "walking_old" / "walking_old_1.txt", np.zeros(200))
+    assert load_cmu(root, "test", actions).actions_present == ("walking",)
     (only,) = capsys.readouterr().err.splitlines()
     assert only == (
-        f"warning: {root / 'test'}: folder(s) walking_extra are no action of the benchmark "
+        f"warning: {root / 'test'}: folder(s) walking_old are no action of the benchmark "
         "(walking, running); their files are not read"
     )
 

@@ -13,7 +13,7 @@ import torch
 from conftest import write_cmu_file
 from tiny_models import REGISTRY
 
-from zoo.check import draw_sample, escape_sentence
+from zoo.check import data_hash_of, draw_sample, escape_sentence, verification_record
 from zoo.cli import main
 from zoo.registry import Registry
 from zoo.results import WindowErrors
@@ -230,6 +230,26 @@ def test_a_code_change_that_moves_no_number_re_stamps_rows_on_a_sample(board, ca
     assert "cmu: 4 row(s) reused" in capsys.readouterr().err
     assert main(["leaderboard", "--check", "--full", *_common(board)]) == 0
     assert "stamped by older code" not in capsys.readouterr().out
+
+
+def test_a_row_re_stamped_on_rebuilt_data_records_the_bytes_it_held_on():
+    """A generated dataset rebuilt (CMU-on-Anny skinned in float64) re-stamps its rows on a
+    sample: the verification records the new bytes, and the check compares the data it builds
+    with those, not with the bytes the row was first computed on."""
+    from zoo.tolerance import Agreement
+
+    code = {"evaluator": "0123456789abcdef", "model": "fedcba9876543210"}
+    before = {"code": code}
+    after = {"code": {**code, "evaluator": "1111111111111111"}}
+    agreed = Agreement(True, 0.25, "")
+    record = verification_record(before, after, 32, 5, agreed, data_hash="new")
+    assert record["data_hash"] == "new" and record["after"] == "code change"
+    assert "data_hash" not in verification_record(before, after, 32, 5, agreed)  # files' data
+    row = {"provenance": {"data_hash": "first", "verified": [record]}}
+    assert data_hash_of(row) == "new"
+    row["provenance"]["verified"].append(verification_record(after, after, 32, 6, agreed))
+    assert data_hash_of(row) == "new"  # a later verification on files records none
+    assert data_hash_of({"provenance": {"data_hash": "first"}}) == "first"
 
 
 def test_a_code_change_that_moves_numbers_recomputes_the_row_in_full(board, capsys):

@@ -343,10 +343,24 @@ def _data_note(stored: dict, fresh: dict, label: str, check: CheckReport) -> Non
     """A generated dataset's bytes (``data_hash``) against those the row was computed on: the
     same, or built with other last bits (another CPU's float kernels), which the per-window
     comparison then judges. A skeleton dataset's files are in the protocol, checked with it."""
-    before = (stored.get("provenance") or {}).get("data_hash")
+    before = data_hash_of(stored)
     now = (fresh.get("provenance") or {}).get("data_hash")
     if before is not None and now is not None and check.current:
         check.tables[check.current].data[label] = before == now
+
+
+def data_hash_of(protocol: dict) -> str | None:
+    """The bytes a row's numbers last held on: the data of its latest verification that
+    records them (a re-stamp on rebuilt data), else the data it was computed on."""
+    provenance = protocol.get("provenance") or {}
+    verified = [v["data_hash"] for v in provenance.get("verified") or [] if "data_hash" in v]
+    return verified[-1] if verified else provenance.get("data_hash")
+
+
+def generated_data_hash(result) -> str | None:
+    """The bytes of the generated data a fresh ``EvalResult`` was computed on (None for data
+    read from files, which its protocol names)."""
+    return (result.protocol.get("provenance") or {}).get("data_hash")
 
 
 def _read(row: Path, check: CheckReport):
@@ -473,10 +487,18 @@ def self_consistent(stored, folder: Path):
     return replace(agreed, why=f"its results.csv is not what its windows.npz gives: {agreed.why}")
 
 
-def verification_record(before: dict | None, after: dict, windows: int, seed: int | None, agreed):
+def verification_record(
+    before: dict | None,
+    after: dict,
+    windows: int,
+    seed: int | None,
+    agreed,
+    data_hash: str | None = None,
+):
     """How a row's stored numbers were verified under its new identity: why it was stale (a
     code change, or the identity differences), on ``windows`` windows (``seed``: of a sample;
-    None: every window), the code identities before and after, the largest difference."""
+    None: every window), the code identities before and after, the largest difference, and the
+    generated data's bytes it was verified on (``data_hash``, where the data are generated)."""
     import datetime
 
     from zoo.io import code_version
@@ -489,6 +511,7 @@ def verification_record(before: dict | None, after: dict, windows: int, seed: in
         "largest_difference": f"{agreed.share:.3f} of the tolerance",
         "code_before": (before or {}).get("code"),
         "code_after": after.get("code"),
+        **({"data_hash": data_hash} if data_hash is not None else {}),
         "zoo": code_version(),
         "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
     }

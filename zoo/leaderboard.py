@@ -22,6 +22,7 @@ from zoo.check import (
     check_table,
     draw_sample,
     fresh_seed,
+    generated_data_hash,
     self_consistent,
     verification_record,
 )
@@ -601,7 +602,12 @@ class Leaderboard:
                         refreshed[r.row.label] = (
                             r.identity,
                             verification_record(
-                                before, r.identity, len(table.protocol.index), None, agreed
+                                before,
+                                r.identity,
+                                len(table.protocol.index),
+                                None,
+                                agreed,
+                                generated_data_hash(result),
                             ),
                         )
                     reused.append(r.stored)
@@ -742,9 +748,10 @@ class Leaderboard:
                 f"difference {agreed.share:.2f} of the tolerance): numbers kept, re-stamped",
                 file=sys.stderr,
             )
-            out.append(
-                (r, verification_record(before, r.identity, len(sample), self.plan.seed, agreed))
+            record = verification_record(
+                before, r.identity, len(sample), self.plan.seed, agreed, generated_data_hash(result)
             )
+            out.append((r, record))
         return out
 
     def short_training(self, table: Path) -> dict[str, tuple[str, str | None]]:

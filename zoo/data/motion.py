@@ -28,6 +28,9 @@ CMU_ACTIONS = (
     "walking",
     "washwindow",
 )
+# Folders of the CMU release (convSeq2Seq's, which LTD and PGBIG read) beside its 8 actions that
+# the protocol never reads: skipped without a warning, still listed by `zoo data list`.
+CMU_RELEASE_EXTRAS = ("walking_extra",)
 H36M_ACTIONS = (
     "walking",
     "eating",
@@ -172,10 +175,15 @@ def check_cmu_root(root: Path, split: str, actions: tuple[str, ...]) -> None:
     action without either, where the split holds a folder that looks like its name (another
     case, a near spelling), is an error naming the folder expected and the folders found;
     with nothing like it in its place, a warning (the action is scored without: partial copies
-    are common). A folder that is no action is a warning too: its files are not read."""
+    are common). A folder that is no action is a warning too (its files are not read), unless
+    the release ships it (``CMU_RELEASE_EXTRAS``)."""
     split_dir = root / split
     declared = declared_missing(root)
-    extra = sorted(p.name for p in split_dir.iterdir() if p.is_dir() and p.name not in actions)
+    extra = sorted(
+        p.name
+        for p in split_dir.iterdir()
+        if p.is_dir() and p.name not in actions and p.name not in CMU_RELEASE_EXTRAS
+    )
     absent = [
         a
         for a in actions

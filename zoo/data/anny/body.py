@@ -104,10 +104,13 @@ def _quiet_warp():
 def load_anny_model(
     topology: Literal["full", "low"] = "low",
     *,
-    dtype: torch.dtype = torch.float32,
+    dtype: torch.dtype = torch.float64,
     anny_cache_dir: str | Path | None = None,
 ):
     """``anny.Anny(rig="cmu_mb")`` at the ``full`` (13,718 vertices) or ``low`` (1,229) topology.
+
+    In float64 by default: meshes skinned with it and rounded once to float32 have the same bytes
+    on every CPU kind, where float32 skinning follows each CPU's kernels (docs/datasets.md).
 
     The first build of a topology is slow; anny caches it (``ANNY_CACHE_DIR``, or
     ``anny_cache_dir``) and later loads read the cache (docs/datasets.md gives the times).

@@ -49,6 +49,11 @@ MAPPING_ID = (
 )
 
 
+# How each sequence's vertices were computed (its meta): the bytes, not the recipe, so not in the
+# protocol; a cache built otherwise (float32 skinning, before) is rebuilt.
+SKINNING = "float64, rounded once to float32"
+
+
 def dataset_name(identities: str, topology: str, split: str, root: str = "identity") -> str:
     tag = {"one": "oi", "many": "mi"}[identities]
     suffix = "" if root == "identity" else "-noheading"
@@ -126,7 +131,9 @@ def _load_cached(folder: Path, key: str, regressor: JointRegressor) -> MeshDatas
     if not ((folder / "dataset.json").is_file() and (folder / "meshes.npz").is_file()):
         return None
     cached = MeshDataset.load(folder)
-    if cached.recipe_hash != key:
+    if cached.recipe_hash != key or any(
+        s.meta.get("skinning") != SKINNING for s in cached.sequences
+    ):
         return None
     # A dataset cached before its regressor shipped carries this machine's fit.
     if cached.joint_regressor is None or (abs(cached.joint_regressor - regressor.matrix) > 0).nnz:
@@ -177,6 +184,7 @@ def _skin_trials(
                     "source_fps": snapped_fps(bvh.frame_time),
                     "phenotype": dict(pheno),
                     "root": root,
+                    "skinning": SKINNING,
                 },
             )
         )

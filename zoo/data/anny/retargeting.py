@@ -231,7 +231,8 @@ def skin(
     batch_size: int = SKIN_BATCH,
     return_bone_ends: bool = False,
 ) -> dict[str, np.ndarray]:
-    """Skinned vertices ``(F, V, 3)`` in millimetres (float32), batch by batch.
+    """Skinned vertices ``(F, V, 3)`` in millimetres (float32), batch by batch: computed in the
+    model's precision (float64 from ``load_anny_model``) and rounded to float32 once, at the end.
 
     With ``return_bone_ends``, also the posed bone ``heads`` and ``tails`` ``(F, 31, 3)`` (mm).
     """

@@ -1,0 +1,111 @@
+"""Whether a CMU-on-Anny mesh has the same bytes under every CPU kind's float kernels.
+
+Skins the first ``--trials`` test trials on the Anny body in float32 and in float64 (rounded once
+to float32, as ``zoo.data.anny`` builds its datasets), once per kernel set a CPU kind would run:
+torch's generic, AVX2 and AVX-512 kernels (``ATEN_CPU_CAPABILITY``), with numpy's vector code and
+OpenBLAS's kernels narrowed to match (``NPY_DISABLE_CPU_FEATURES``, ``OPENBLAS_CORETYPE``). Prints,
+per precision and pair of kernel sets, how many coordinates differ and by how much.
+
+    python benchmarks/check/skinning_kernels.py --topology low --trials 3
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from zoo.paths import REPO_ROOT
+
+# Each kernel set: torch's capability, numpy's features switched off, OpenBLAS's core type.
+KERNEL_SETS = {
+    "generic": ("default", "X86_V3 X86_V4 AVX512_ICL AVX512_SPR", "Prescott"),
+    "avx2": ("avx2", "X86_V4 AVX512_ICL AVX512_SPR", "Haswell"),
+    "avx512": ("avx512", "", ""),
+}
+
+SKIN = """
+import sys, numpy as np, torch
+from zoo.data import anny
+from zoo.data.bvh import CMU_BVH_JOINTS, read_bvh
+out = {}
+for dtype in (torch.float32, torch.float64):
+    model = anny.load_anny_model(sys.argv[2], dtype=dtype)
+    vertices = []
+    for path in sys.argv[3:]:
+        bvh = read_bvh(path, CMU_BVH_JOINTS)
+        params = anny.retarget(model, bvh).pose_parameters(anny.motion_rotations(bvh))
+        vertices.append(anny.skin(model, params)["vertices"])
+    out[str(dtype).removeprefix("torch.")] = np.concatenate(vertices)
+np.savez(sys.argv[1], **out)
+print(torch.backends.cpu.get_cpu_capability())
+"""
+
+
+def _supported(features: str) -> str:
+    """``features`` less those this numpy does not know or this CPU lacks (numpy refuses to
+    switch off a feature it does not have)."""
+    import numpy._core._multiarray_umath as umath
+
+    known = umath.__cpu_features__
+    return " ".join(f for f in features.split() if known.get(f))
+
+
+def skin_under(kernels: str, topology: str, paths: list[Path], out: Path) -> str:
+    torch_cap, numpy_off, blas = KERNEL_SETS[kernels]
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "ATEN_CPU_CAPABILITY": torch_cap}
+    if _supported(numpy_off):
+        env["NPY_DISABLE_CPU_FEATURES"] = _supported(numpy_off)
+    if blas:
+        env["OPENBLAS_CORETYPE"] = blas
+    run = subprocess.run(
+        [sys.executable, "-c", SKIN, str(out), topology, *map(str, paths)],
+        env=env,
+        capture_output=True,
+        text=True,
+    )
+    if run.returncode != 0:
+        raise SystemExit(f"skinning under the {kernels} kernels failed:\n{run.stderr}")
+    return run.stdout.split()[-1]
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--topology", choices=("low", "full"), default="low")
+    parser.add_argument("--trials", type=int, default=3, help="test trials skinned (first N)")
+    parser.add_argument(
+        "--bvh-root", type=Path, default=REPO_ROOT.parent / "shared" / "data" / "cmu_bvh"
+    )
+    args = parser.parse_args(argv)
+    from zoo.data.anny import select_trials
+
+    paths = [t.path for t in select_trials(args.bvh_root, "test")[: args.trials]]
+    start = time.perf_counter()
+    arrays = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for kernels in KERNEL_SETS:
+            out = Path(tmp) / f"{kernels}.npz"
+            ran = skin_under(kernels, args.topology, paths, out)
+            with np.load(out) as z:
+                arrays[kernels] = {k: z[k] for k in z.files}
+            print(f"{kernels}: torch ran its {ran} kernels")
+    for dtype in ("float32", "float64"):
+        for a, b in itertools.combinations(KERNEL_SETS, 2):
+            x, y = arrays[a][dtype], arrays[b][dtype]
+            print(
+                f"skinned in {dtype}: {a} vs {b}: {int((x != y).sum()):,} of {x.size:,} "
+                f"coordinates differ, by at most {float(np.abs(x - y).max()):.2g} mm"
+            )
+    print(f"{args.trials} trials, {args.topology} body, {time.perf_counter() - start:.0f} s")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
