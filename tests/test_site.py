@@ -348,6 +348,10 @@ def test_a_model_page_shows_its_card_once_and_every_horizon(tmp_path):
     assert "<h2>Rows</h2>" not in page and "<h2>Training curve</h2>" not in page
     assert "<h2>Hyper-parameters</h2>" in page and "<h2>Architecture</h2>" in page
     assert 'class="num wrap"' in page and "1000: " in page
+    # its paper, its authors' code and the BibTeX of its paper, once (not again in the card)
+    assert '<a href="https://arxiv.org/abs/2208.00368" rel="noopener noreferrer">Paper</a>' in page
+    assert '<a href="https://github.com/MediaBrain-SJTU/SPGSN"' in page
+    assert page.count("@inproceedings{li2022skeleton,") == 1
 
 
 def test_a_run_stopped_by_its_patience_is_not_short_and_a_tiny_split_does_not_crash():

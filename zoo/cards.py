@@ -472,7 +472,8 @@ def generated_card(
     if entry.description:
         out += [entry.description, ""]
     out += [
-        f"- **Paper**: {entry.reference}",
+        f"- **Paper**: {entry.reference}" + (f" <{entry.paper.url}>" if entry.paper else ""),
+        *([f"- **Authors' code**: <{entry.code}>"] if entry.code else []),
         f"- **Class**: `{entry.class_path}` ({repo_relative(entry.source)}); representation "
         f"{', '.join(entry.representation)}; task {entry.task}; "
         + (
@@ -529,6 +530,8 @@ def generated_card(
     out += ["## Training curve", "", *_curve_lines(name, files)]
     out += ["## Rows", "", *_row_tables(name, results_root)]
     out += ["## Published figures", "", *_published_lines(name)]
+    if entry.paper:
+        out += ["## Citation", "", "```bibtex", entry.paper.bibtex(), "```", ""]
     return "\n".join(out) + END_MARKER + "\n"
 
 

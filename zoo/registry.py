@@ -22,6 +22,7 @@ from typing import Any
 
 import yaml
 
+from zoo.citation import CitationError, Paper, parse_paper, parse_url
 from zoo.errors import ZooError
 from zoo.paths import REPO_ROOT
 
@@ -42,6 +43,8 @@ _ENTRY_KEYS = {
     "override",
     "leaderboard",
     "weights_of",
+    "paper",
+    "code",
 }
 # What a model's forward does: prediction ``forward(history)``, or completion
 # ``forward(history, final_frame)`` (the window's last frame given). Tables keep them apart.
@@ -88,6 +91,8 @@ class ModelEntry:
     # An inference-only variant: runs the trained weights of that entry (shipped or in
     # checkpoints/) through its own class, with that entry's hyper-parameters.
     weights_of: str = ""
+    paper: Paper | None = None  # the paper it reproduces (links and BibTeX: zoo.citation)
+    code: str = ""  # the address of its authors' public code
 
     def provenance(self) -> dict[str, str]:
         """What every result of this model records about where it came from."""
@@ -387,6 +392,11 @@ def _parse_entry(path: Path, name: str, raw: Any) -> ModelEntry:
             f"{where}: weights_of {weights_of!r} and trainable: true: an entry that runs "
             f"another's weights is trained as that one (zoo train --model {weights_of})"
         )
+    try:
+        paper = parse_paper(raw.get("paper"), where)
+        code = parse_url(raw["code"], f"{where}: field 'code'") if "code" in raw else ""
+    except CitationError as e:
+        raise RegistryError(str(e)) from None
     return ModelEntry(
         name=name,
         class_path=raw["class"],
@@ -401,6 +411,8 @@ def _parse_entry(path: Path, name: str, raw: Any) -> ModelEntry:
         train=dict(raw.get("train") or {}),
         leaderboard=_flag(raw, "leaderboard", where),
         weights_of=weights_of,
+        paper=paper,
+        code=code,
     )
 
 

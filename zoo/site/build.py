@@ -75,7 +75,7 @@ def _script_json(value: Any) -> str:
 
 
 # a card's parts that its page shows itself, from the data (its title, rows and curves)
-PAGE_SHOWS = ("Training curve", "Rows")
+PAGE_SHOWS = ("Training curve", "Rows", "Citation")
 
 
 def _card_body(text: str) -> str:

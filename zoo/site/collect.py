@@ -107,6 +107,9 @@ class Model:
     training: str | None = None  # a trainable model without shipped weights: where it stands
     representation: tuple[str, ...] = ()  # joints, mesh
     kind: str = ""  # trained (it learns), baseline (it learns nothing)
+    paper_url: str = ""  # its paper (arXiv, DOI or open archive) and its authors' code
+    code_url: str = ""
+    bibtex: str = ""
 
     @property
     def page(self) -> str:
@@ -352,6 +355,9 @@ def read_models(
             training=unshipped.get(name),
             representation=tuple(entry.representation),
             kind="trained" if entry.trainable or entry.weights_of else "baseline",
+            paper_url=entry.paper.url if entry.paper else "",
+            code_url=entry.code,
+            bibtex=entry.paper.bibtex() if entry.paper else "",
         )
         if card is None:
             model.problems.append(f"{card_path}: missing (the model's card); zoo cards writes it")
