@@ -314,6 +314,37 @@ def test_the_compare_page_says_which_model_is_lower_in_the_tables_digits(tmp_pat
         in page
     )
     assert "no difference detectable" not in page
+    # every other pair is on the page too, hidden until picked (site.js, tested in a browser)
+    assert (
+        '<section class="pair" data-table="all" data-a="spgsn" data-b="spgsn_1body" '
+        'data-reader="no" hidden>' in page
+    )
+
+
+@pytest.mark.parametrize("table", ["cmu/all", "cloth/all"])
+def test_every_two_predictions_of_a_table_are_compared_once_the_readers_first(table):
+    """spgsn against its ablation spgsn_1body, or any other two rows: a floor (the autoencoder
+    seeing the future) and the ground truth are no prediction and pair with nothing."""
+    from itertools import combinations
+
+    from zoo.tables import is_floor
+
+    summary = json.loads((RESULTS / table / "summary.json").read_text())
+    rows = sorted(
+        m["model"]
+        for m in summary["views"][0]["models"]
+        if not is_floor(m["model"]) and m["model"] != "ground_truth"
+    )
+    pairs = [(c["a"], c["b"]) for c in summary["comparisons"]]
+    assert sorted(map(frozenset, pairs), key=sorted) == sorted(
+        map(frozenset, combinations(rows, 2)), key=sorted
+    )
+    readers = [c["reader"] for c in summary["comparisons"]]
+    assert readers == sorted(readers, reverse=True) and any(readers)  # the readers' first
+    if table == "cmu/all":
+        assert ("spgsn", "spgsn_1body") in pairs and not readers[
+            pairs.index(("spgsn", "spgsn_1body"))
+        ]
 
 
 def test_a_row_trained_short_of_its_recipe_says_so_where_its_number_is(tmp_path):

@@ -388,15 +388,29 @@ def reader_pairs(results: list[EvalResult]) -> list[tuple[str, str]]:
 
 
 def table_comparisons(results: list[EvalResult]) -> list[dict[str, Any]]:
-    """:func:`compare` of every :func:`reader_pairs` pair, as data (``summary.json``)."""
+    """:func:`compare` of every pair of a table's predictions, as data (``summary.json``): the
+    :func:`reader_pairs` first (``reader``: true), then every other pair once, in label order,
+    so a reader can put any row against any other. Floors and the ground truth are no
+    prediction and pair with nothing."""
+    from zoo.tables import TRUTH_ROW, is_floor
+
     by_label = {_label(r): r for r in results}
+    first = reader_pairs(results)
+    rows = sorted(
+        m
+        for m, r in by_label.items()
+        if r.windows is not None and not is_floor(m) and m != TRUTH_ROW
+    )
+    seen = {frozenset(p) for p in first}
+    others = [(a, b) for i, a in enumerate(rows) for b in rows[i + 1 :]]
     out = []
-    for a, b in reader_pairs(results):
+    for a, b in first + [p for p in others if frozenset(p) not in seen]:
         c = compare(by_label[a], by_label[b])
         out.append(
             {
                 "a": a,
                 "b": b,
+                "reader": (a, b) in first,
                 "metric": c.metric,
                 "joints": c.joints,
                 "averaging": c.averaging,
@@ -408,7 +422,6 @@ def table_comparisons(results: list[EvalResult]) -> list[dict[str, Any]]:
                     {k: _json_value(v) for k, v in row.items()}
                     for row in c.table.to_dict("records")
                 ],
-                "sentences": c.sentences(),
             }
         )
     return out

@@ -417,5 +417,47 @@ var ZooSite = (function () {
     name.addEventListener("input", apply);
   }
 
-  return {table: table, training: training, style: style, lineChart: lineChart, modelFilter: modelFilter};
+  /* the compare page: any two rows of a table against each other (every pair is on the page,
+     the pairs a reader asks about first shown on load); the choice lives in the URL fragment */
+  function pairs() {
+    var forms = document.querySelectorAll("form.pair-pick");
+    function sections(table) {
+      return Array.prototype.filter.call(document.querySelectorAll("section.pair"), function (s) { return s.getAttribute("data-table") === table; });
+    }
+    function show(form, a, b) {
+      var table = form.getAttribute("data-table"), status = form.querySelector("[role=status]"), found = false;
+      sections(table).forEach(function (s) {
+        var sa = s.getAttribute("data-a"), sb = s.getAttribute("data-b");
+        var on = a === null ? s.getAttribute("data-reader") === "yes" : (sa === a && sb === b) || (sa === b && sb === a);
+        s.hidden = !on;
+        found = found || on;
+      });
+      status.textContent = a === null ? "" : a === b ? "pick two different rows" : found ? "" : "no comparison of " + a + " and " + b + " is stored";
+    }
+    function fromFragment() {
+      var m = /^#pair=([^:]*):([^:]*):(.*)$/.exec(decodeURIComponent(location.hash));
+      Array.prototype.forEach.call(forms, function (form) {
+        if (m && form.getAttribute("data-table") === m[1]) {
+          form.a.value = m[2]; form.b.value = m[3]; show(form, m[2], m[3]);
+        } else { show(form, null, null); }
+      });
+    }
+    Array.prototype.forEach.call(forms, function (form) {
+      function picked() {
+        var text = "pair=" + [form.getAttribute("data-table"), form.a.value, form.b.value].join(":");
+        if (history.replaceState) { history.replaceState(null, "", "#" + encodeURIComponent(text)); } else { location.hash = text; }
+        fromFragment();
+      }
+      form.a.addEventListener("change", picked);
+      form.b.addEventListener("change", picked);
+      form.reader.addEventListener("click", function () {
+        if (history.replaceState) { history.replaceState(null, "", location.pathname); } else { location.hash = ""; }
+        fromFragment();
+      });
+    });
+    window.addEventListener("hashchange", fromFragment);
+    fromFragment();
+  }
+
+  return {table: table, training: training, style: style, lineChart: lineChart, modelFilter: modelFilter, pairs: pairs};
 })();
