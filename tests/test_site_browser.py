@@ -544,3 +544,39 @@ def test_any_two_rows_are_compared_and_the_choice_reopens(browser, site):
     assert "pick two different rows" in form.text and shown("all") == []
     form.find_element("name", "reader").click()
     assert shown("all") == first
+
+
+def test_the_viewer_overlays_the_truth_plays_at_a_chosen_speed_and_groups_windows(browser, site):
+    from selenium.webdriver.support.ui import Select
+
+    from zoo.clips import Clips
+
+    _open(browser, site / "meshes-cmu_anny_oi_low.html")
+    clips = Clips.read(site.parent / "results" / "cmu_anny_oi_low" / "clips.npz")
+    groups = [
+        g.get_attribute("label")
+        for g in browser.find_elements("css selector", "#clip-window optgroup")
+    ]
+    assert groups == list(dict.fromkeys(clips.actions or clips.sequences))
+    last = int(browser.find_element("id", "frame").get_attribute("max"))
+    browser.execute_script(
+        f"var s = document.getElementById('frame'); s.value = {last};"
+        "s.dispatchEvent(new Event('input'));"
+    )
+    pixels = "return [...document.querySelectorAll('#viewer canvas')].map(c => c.toDataURL());"
+    before = browser.execute_script(pixels)
+    browser.find_element("id", "overlay").click()
+    after = browser.execute_script(pixels)
+    overlaid = [
+        c.get_attribute("data-panel")
+        for c in browser.find_elements("css selector", "#viewer canvas[data-overlay='1']")
+    ]
+    assert overlaid == ["repeat_last", *sorted(clips.predictions)]  # not the truth's own panel
+    assert after[0] == before[0] and all(a != b for a, b in zip(after[1:], before[1:]))
+    browser.find_element("id", "play").click()
+    viewer = browser.find_element("id", "viewer")
+    normal = float(viewer.get_attribute("data-interval-ms"))
+    Select(browser.find_element("id", "speed")).select_by_value("2")
+    assert float(viewer.get_attribute("data-interval-ms")) == pytest.approx(normal / 2)
+    assert normal == pytest.approx(1000 / clips.fps)
+    browser.find_element("id", "play").click()

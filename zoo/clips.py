@@ -7,7 +7,7 @@ weights), read by ``zoo site`` (it needs neither)."""
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -41,6 +41,7 @@ class Clips:
     truth: np.ndarray
     predictions: dict[str, np.ndarray]
     mesh_vertices: int = 0  # the benchmark mesh's (0: as many as kept)
+    actions: list[str] = field(default_factory=list)  # each window's action (older files: none)
 
     @property
     def centre(self) -> np.ndarray:
@@ -70,6 +71,7 @@ class Clips:
             "mesh_vertices": np.asarray(self.mesh_vertices or len(self.vertices)),
             "centre": centre[:, 0, 0],
             "truth": _changes(self.steps(self.truth)),
+            **({"actions": np.asarray(self.actions, dtype=str)} if self.actions else {}),
         }
         for label, pred in self.predictions.items():
             arrays[f"pred/{label}"] = _changes(self.steps(pred))
@@ -99,6 +101,7 @@ class Clips:
                     faces=data["faces"].astype(np.int64),
                     vertices=data["vertices"].astype(np.int64),
                     mesh_vertices=int(data["mesh_vertices"]),
+                    actions=[str(a) for a in data["actions"]] if "actions" in data.files else [],
                     truth=mm("truth"),
                     predictions={
                         k.split("/", 1)[1]: mm(k) for k in data.files if k.startswith("pred/")
@@ -118,8 +121,13 @@ class Clips:
         w, t, v = self.truth.shape[:3] if self.truth.ndim == 4 else (0, 0, 0)
         if self.truth.ndim != 4 or self.truth.shape[3] != 3 or not 0 < self.input_frames < t:
             return f"ground truth of shape {self.truth.shape} with {self.input_frames} observed"
-        if len(self.windows) != w or len(self.sequences) != w or len(self.vertices) != v:
-            return "windows, sequences or kept vertices do not match the ground truth"
+        if (
+            len(self.windows) != w
+            or len(self.sequences) != w
+            or len(self.actions) not in (0, w)
+            or len(self.vertices) != v
+        ):
+            return "windows, sequences, actions or kept vertices do not match the ground truth"
         if self.faces.ndim != 2 or self.faces.shape[1] != 3 or self.faces.size == 0:
             return f"faces of shape {self.faces.shape}, not (F, 3)"
         if self.faces.min() < 0 or self.faces.max() >= v:
@@ -205,6 +213,7 @@ def make_clips(bench, dataset, models: dict[str, object], windows: Sequence[int]
         input_frames=bench.input_frames,
         windows=np.asarray(windows),
         sequences=[dataset.sequences[int(r[0])].name for r in rows],
+        actions=[str(dataset.sequences[int(r[0])].action) for r in rows],
         faces=faces,
         vertices=kept,
         truth=truth[:, :, kept].astype(np.float64),

@@ -135,6 +135,7 @@ def _clips_script(path: Path) -> tuple[str, dict[str, Any]]:
         "input_frames": clips.input_frames,
         "windows": [int(w) for w in clips.windows],
         "sequences": clips.sequences,
+        "actions": clips.actions or clips.sequences,
         "vertices": int(clips.truth.shape[2]),
         "frames": int(clips.truth.shape[1]),
         "faces": pack(clips.faces, "<i4"),
@@ -144,7 +145,7 @@ def _clips_script(path: Path) -> tuple[str, dict[str, Any]]:
         "predictions": {k: pack(clips.steps(v)) for k, v in sorted(clips.predictions.items())},
     }
     script = "window.ZOO_CLIPS = " + json.dumps(data, separators=(",", ":")) + ";\n"
-    shown = ("windows", "sequences", "models", "vertices")
+    shown = ("windows", "sequences", "actions", "models", "vertices", "fps")
     return script, {
         **{k: data[k] for k in shown},
         "faces": data["face_count"],

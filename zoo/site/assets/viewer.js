@@ -48,7 +48,8 @@ var ZooViewer = (function () {
     // one colour scale for the benchmark: a twentieth of the largest body extent of any window
     var top = 1;
     for (var w0 = 0; w0 < clips.windows.length; w0++) { measure(w0); top = Math.max(top, 0.05 * Math.max(ext[0], ext[1], ext[2])); }
-    measure(0);
+    state.window = +$("clip-window").value || 0;  // the first window listed: grouped by action
+    measure(state.window);
     // repeat_last: the last observed frame held, the baseline every model must beat
     var panels = [{name: "ground truth", model: null}, {name: "repeat_last", model: null, still: true}].concat(clips.models.map(function (m) { return {name: m, model: m}; }));
     var viewer = $("viewer"); viewer.textContent = "";
@@ -90,13 +91,33 @@ var ZooViewer = (function () {
       }
     }
 
+    // the ground truth's edges over a prediction, faint blue: where the two bodies part
+    function overlay(p, pos, scale) {
+      var ctx = p.canvas.getContext("2d"), W = p.canvas.width, H = p.canvas.height;
+      var h1 = (up + 1) % 3, h2 = (up + 2) % 3, c = Math.cos(state.turn), s = Math.sin(state.turn);
+      var px = new Float32Array(V), py = new Float32Array(V);
+      for (var v = 0; v < V; v++) {
+        var a = pos[v * 3 + h1] - mid[h1], b = pos[v * 3 + h2] - mid[h2], u = pos[v * 3 + up] - mid[up];
+        px[v] = W / 2 + (c * a - s * b) * scale; py[v] = H / 2 - u * scale;
+      }
+      ctx.strokeStyle = "rgba(30, 70, 200, 0.18)"; ctx.lineWidth = 0.6; ctx.beginPath();
+      for (var f = 0; f < F; f++) {
+        var i0 = faces[3 * f], i1 = faces[3 * f + 1], i2 = faces[3 * f + 2];
+        ctx.moveTo(px[i0], py[i0]); ctx.lineTo(px[i1], py[i1]); ctx.lineTo(px[i2], py[i2]); ctx.closePath();
+      }
+      ctx.stroke(); ctx.lineWidth = 1;
+      p.canvas.setAttribute("data-overlay", "1");
+    }
+
     function render() {
       var w = state.window, t = state.frame, future = t >= Tin;
       var gt = frameOf(truth, w, t, T);
       // the box's horizontal diagonal: what any turn can span across the canvas
       var across = Math.max(Math.sqrt(ext[(up + 1) % 3] * ext[(up + 1) % 3] + ext[(up + 2) % 3] * ext[(up + 2) % 3]), 1);
       var scale = 0.9 * Math.min(200 / across, 280 / Math.max(ext[up], 1));
+      var over = $("overlay").checked;
       panels.forEach(function (p) {
+        p.canvas.removeAttribute("data-overlay");
         if (p.still && future) {
           var held = frameOf(truth, w, Tin - 1, T), errs = new Float32Array(V), sum = 0;
           for (var q = 0; q < V; q++) {
@@ -104,6 +125,7 @@ var ZooViewer = (function () {
             var d = Math.sqrt(ex * ex + ey * ey + ez * ez); sum += d; errs[q] = d / top;
           }
           draw(p, held, errs, scale);
+          if (over) { overlay(p, gt, scale); }
           p.caption.textContent = p.name + ": mean vertex error " + (sum / V).toFixed(1) + " mm";
           return;
         }
@@ -118,6 +140,7 @@ var ZooViewer = (function () {
           var e = Math.sqrt(dx * dx + dy * dy + dz * dz); total += e; err[v] = e / top;
         }
         draw(p, pred, err, scale);
+        if (over) { overlay(p, gt, scale); }
         p.caption.textContent = p.name + ": mean vertex error " + (total / V).toFixed(1) + " mm";
       });
       var note = $("ramp-note");
@@ -134,10 +157,14 @@ var ZooViewer = (function () {
     function play(on) {
       state.playing = on; $("play").textContent = on ? "pause" : "play";
       if (timer) { clearInterval(timer); timer = null; }
-      if (on) { timer = setInterval(function () { state.frame = (state.frame + 1) % T; render(); }, 1000 / clips.fps); }
+      var every = 1000 / (clips.fps * +$("speed").value);
+      viewer.setAttribute("data-interval-ms", on ? String(every) : "");
+      if (on) { timer = setInterval(function () { state.frame = (state.frame + 1) % T; render(); }, every); }
     }
     $("play").addEventListener("click", function () { play(!state.playing); });
     slider.addEventListener("input", function () { play(false); state.frame = +slider.value; render(); });
+    $("speed").addEventListener("change", function () { if (state.playing) { play(true); } });
+    $("overlay").addEventListener("change", render);
     $("turn").addEventListener("input", function () { state.turn = +$("turn").value * Math.PI / 180; render(); });
     $("clip-window").addEventListener("change", function () { state.window = +$("clip-window").value; measure(state.window); render(); });
     render();
