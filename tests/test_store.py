@@ -655,6 +655,58 @@ def test_a_wrapper_imports_the_file_beside_it_and_its_fingerprint_follows_that_f
     assert unused == before
 
 
+CHECKOUT_WRAPPER = """
+import sys
+from pathlib import Path
+
+from torch import nn
+
+sys.path.insert(0, str(Path(__file__).parent / "Checkout"))  # the authors' code, by its names
+from module.model import AuthorsNet  # noqa: E402
+
+
+class Wrapper(nn.Module):
+    def __init__(self, **_):
+        super().__init__()
+        self.net = AuthorsNet()
+
+    def forward(self, history):
+        return self.net(history)
+"""
+
+
+def test_a_wrapper_that_puts_the_authors_checkout_on_sys_path_is_followed_into_it(
+    tmp_path, monkeypatch
+):
+    """As docs/adding-a-model.md's GGMotion wrapper does: the authors' checkout in a folder
+    beside the wrapper, put on sys.path by the wrapper, its packages imported by their names.
+    A change in a file of the checkout that the model reaches makes its rows stale."""
+    from zoo.fingerprint import model_fingerprint, reachable_code
+    from zoo.registry import Registry
+
+    monkeypatch.setattr(sys, "path", list(sys.path))
+
+    def fingerprint(folder: Path, authors: str):
+        (folder / "Checkout" / "module").mkdir(parents=True)
+        (folder / "Checkout" / "module" / "__init__.py").write_text("")
+        (folder / "Checkout" / "module" / "model.py").write_text(authors)
+        (folder / "wrapper.py").write_text(CHECKOUT_WRAPPER)
+        (folder / "my.yaml").write_text(
+            "models:\n  mine:\n    class: wrapper.py:Wrapper\n    representation: joints\n"
+        )
+        for name in ("module", "module.model"):
+            sys.modules.pop(name, None)
+        cls = Registry.from_files(folder / "my.yaml").get("mine").load_class()
+        return model_fingerprint(cls), {p.split("::")[0] for p in reachable_code(cls)}
+
+    before, files = fingerprint(tmp_path / "a", AUTHORS_FILE)
+    assert files == {"wrapper.py", "model.py"}
+    assert fingerprint(tmp_path / "b", AUTHORS_FILE)[0] == before
+    assert fingerprint(tmp_path / "c", AUTHORS_FILE.replace("nn.Tanh()", "nn.ReLU()"))[0] != before
+    for name in ("module", "module.model"):
+        sys.modules.pop(name, None)
+
+
 def test_identity_differences_are_decided_on_by_field_not_by_their_words():
     from zoo.store import Difference, identity_differences, only_code_changed
 

@@ -95,19 +95,42 @@ def _package_of(path: Path) -> str:
 
 
 def _beside(path: Path | None, module: str) -> Path | None:
-    """The file of ``module`` where it lies beside ``path``, a model file outside the zoo
-    package (a researcher's wrapper importing the authors' code from its folder, which the
-    registry puts on ``sys.path``); None for zoo's own files and for installed modules."""
+    """The file of ``module`` where it is a researcher's code that ``path``, a model file outside
+    the zoo package, reaches: beside it (the registry puts its folder on ``sys.path``), or in a
+    folder of ``sys.path`` that is neither the standard library nor installed packages (where a
+    wrapper puts the authors' checkout). None for zoo's own files and for installed modules."""
     if path is None or not module or path.is_relative_to(REPO_ROOT / "zoo"):
         return None
     parts = module.split(".")
-    for candidate in (
-        path.parent.joinpath(*parts).with_suffix(".py"),
-        path.parent.joinpath(*parts, "__init__.py"),
-    ):
-        if candidate.is_file():
-            return candidate.resolve()
+    for root in (path.parent, *_researcher_folders()):
+        for candidate in (
+            root.joinpath(*parts).with_suffix(".py"),
+            root.joinpath(*parts, "__init__.py"),
+        ):
+            if candidate.is_file() and not candidate.resolve().is_relative_to(REPO_ROOT / "zoo"):
+                return candidate.resolve()
     return None
+
+
+def _researcher_folders() -> list[Path]:
+    """The folders of ``sys.path`` (as it is now: after a wrapper has added its own) that hold
+    neither the standard library nor installed packages, nor the zoo's own code."""
+    import site
+    import sys
+    import sysconfig
+
+    installed = {Path(p).resolve() for p in sysconfig.get_paths().values()}
+    installed |= {Path(p).resolve() for p in site.getsitepackages()}
+    installed |= {Path(p).resolve() for p in (sys.prefix, sys.base_prefix, sys.exec_prefix)}
+    folders = []
+    for entry in sys.path:
+        folder = Path(entry or ".").resolve()
+        if not folder.is_dir() or folder == REPO_ROOT or folder in folders:
+            continue
+        if any(folder == p or folder.is_relative_to(p) for p in installed):
+            continue
+        folders.append(folder)
+    return folders
 
 
 def _import_bindings(node, package: str, path: Path | None = None) -> dict[str, tuple]:
