@@ -117,6 +117,40 @@ def test_fully_trained_checkpoint_joins_as_model_at_last(tmp_path):
     assert record["provenance"]["hparams"]["hidden"] == 16  # as zoo eval --checkpoint records
 
 
+def test_a_row_from_a_run_short_of_its_recipe_is_marked_where_its_number_is(tmp_path):
+    """A researcher's row scored from zoo train's checkpoint after one capped epoch of a
+    2-epoch recipe: the Markdown table and the site mark it, saying what its run saw."""
+    from zoo.site import build_site
+
+    root, registry = cmu_and_registry(tmp_path)
+    checkpoints = tmp_path / "checkpoints"
+    train(
+        "tiny",
+        "cmu",
+        registry=registry,
+        data_root=root,
+        epochs=1,
+        max_batches=1,
+        progress=False,
+        out_dir=checkpoints / "cmu" / "tiny",
+    )
+    out = tmp_path / "results"
+    regenerate("cmu", registry=registry, data_root=root, out_root=out, checkpoints=checkpoints)
+    board = (out / "cmu" / "all" / "leaderboard.md").read_text()
+    record = json.loads((out / "cmu" / "all" / "tiny" / "protocol.json").read_text())
+    run = record["provenance"]
+    assert run["max_batches"] == 1 and run["recipe"]["epochs"] == 1  # the run's own, as it ran
+    seen = run["training"]["samples_seen"]
+    assert seen == 8  # one batch of 8
+    windows = run["validation"]["training_windows"]
+    full = 2 * (windows // 8) * 8  # the registry's recipe: 2 epochs of batch 8
+    said = f"its run saw {seen / full:.2%} of its recipe's training windows ({seen:,} of {full:,})"
+    assert seen / full < 0.01  # under 1%: shown to two decimals, not as "0%"
+    assert "| tiny †" in board and said in board and "| repeat_last †" not in board
+    site = build_site(tmp_path / "site", out, registry=registry).out
+    assert said in (site / "table-cmu-all.html").read_text()
+
+
 def test_completion_models_get_their_own_tables(tmp_path, capsys):
     root, registry = cmu_and_registry(tmp_path)
     checkpoints, out = tmp_path / "checkpoints", tmp_path / "results"

@@ -351,7 +351,7 @@ def test_a_row_trained_short_of_its_recipe_says_so_where_its_number_is(tmp_path)
     """spgsn's shipped run capped its epochs at 50 batches (22% of the recipe's windows): its
     rows carry a note in the table's data; a record with the epoch's window count gives the
     share; a full run gives none."""
-    from zoo.cards import Shipped, _budget_note, short_training_notes
+    from zoo.cards import Shipped, budget_note, short_training_notes
 
     results = _copy_results(tmp_path, "cmu")
     build_site(tmp_path / "site", results)
@@ -362,11 +362,11 @@ def test_a_row_trained_short_of_its_recipe_says_so_where_its_number_is(tmp_path)
         "validation": {"training_windows": 14_389},
         "recipe": {"batch_size": 32},
     }
-    assert _budget_note(record, 50) == (
+    assert budget_note(record, 50) == (
         "its run saw 23% of its recipe's training windows (161,920 of 718,400)"
     )
     record["training"]["samples_seen"] = 718_400
-    assert _budget_note(record, 50) is None
+    assert budget_note(record, 50) is None
     shipped = {"ltd": [Shipped("ltd@last", ("cmu",), Path(), dict(record, label="ltd@last"))]}
     assert short_training_notes(load_registry(), shipped) == {}
 
@@ -386,18 +386,18 @@ def test_a_model_page_shows_its_card_once_and_every_horizon(tmp_path):
 
 
 def test_a_run_stopped_by_its_patience_is_not_short_and_a_tiny_split_does_not_crash():
-    from zoo.cards import _budget_note
+    from zoo.cards import budget_note
 
     run = {
         "training": {"samples_seen": 25 * 14_368, "epochs_run": 25, "best": {"epoch": 15}},
         "validation": {"training_windows": 14_389},
         "recipe": {"batch_size": 16, "epochs": 58, "patience": 10},
     }
-    assert _budget_note(run, 58) is None  # finished by its recipe's patience
+    assert budget_note(run, 58) is None  # finished by its recipe's patience
     run["recipe"]["patience"] = None
-    assert _budget_note(run, 58).startswith("its run saw")
+    assert budget_note(run, 58).startswith("its run saw")
     run["validation"]["training_windows"] = 3  # fewer windows than a batch
-    assert _budget_note(run, 58) is None or "training windows" in _budget_note(run, 58)
+    assert budget_note(run, 58) is None or "training windows" in budget_note(run, 58)
 
 
 def test_a_model_being_retrained_says_so_beside_its_shipped_rows(tmp_path):

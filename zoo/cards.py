@@ -107,13 +107,35 @@ def short_training_notes(
         }
         for (bench, label), record in records.items():
             last = records.get((bench, label.partition("@")[0] + "@last"), record)
-            note = _budget_note(last, planned)
+            note = budget_note(last, planned)
             if note:  # the row is named after this model (an entry running another's weights)
                 notes[bench, name + ("@last" if label.endswith("@last") else "")] = note
     return notes
 
 
-def _budget_note(run: dict[str, Any], planned: int | None) -> str | None:
+def checkpoint_budget_notes(registry: Registry, runs: dict[str, dict[str, Any]]) -> dict[str, str]:
+    """``{row label: note}`` for rows scored from a checkpoint (a run of ``zoo train``, not
+    shipped weights) whose run stopped short of its registry recipe, from what each row records
+    of that run (``runs``: each row's provenance); a row of an unknown model gets none."""
+    notes = {}
+    for label, provenance in runs.items():
+        if "checkpoint" not in provenance:
+            continue
+        name = label.partition("@")[0]
+        if name not in registry.list_models():
+            continue
+        entry = registry.get(name)
+        trained = registry.get(entry.weights_of) if entry.weights_of else entry
+        note = budget_note(provenance, (trained.train or {}).get("epochs"))
+        if note:
+            notes[label] = note
+    return notes
+
+
+def budget_note(run: dict[str, Any], planned: int | None) -> str | None:
+    """What a run saw, where it stopped short of ``planned`` epochs of its recipe (``run``: a
+    weights record, or a row's provenance of the checkpoint it was scored from); None where it
+    did not."""
     from zoo.train.recipe import Recipe, patience_spent
 
     training = run.get("training") or {}
@@ -127,8 +149,9 @@ def _budget_note(run: dict[str, Any], planned: int | None) -> str | None:
         full = planned * max(1, windows // batch) * batch
         share = seen / full
         if share < 0.95:
+            seen_share = f"{share:.0%}" if share >= 0.01 else f"{share:.2%}"
             return (
-                f"its run saw {share:.0%} of its recipe's training windows ({seen:,} of {full:,})"
+                f"its run saw {seen_share} of its recipe's training windows ({seen:,} of {full:,})"
             )
         return None
     if run.get("max_batches") and seen:

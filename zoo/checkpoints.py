@@ -408,11 +408,16 @@ def read_checkpoint(path: str | Path) -> dict[str, Any]:
 def checkpoint_provenance(path: str | Path, checkpoint: dict[str, Any]) -> dict[str, Any]:
     """What a result computed from ``checkpoint`` records about it: the file (relative to the
     repository when inside it, so stored results name no machine's folders), the
-    hyper-parameters and the training summary."""
+    hyper-parameters, the training summary and the budget it had."""
     return {
         "checkpoint": repo_relative(path),
         "hparams": checkpoint["hparams"],
         "training": checkpoint.get("training", {}),
+        # what its budget is measured against (zoo.cards.budget_note): a run short of its
+        # recipe is marked where its rows are shown
+        "recipe": checkpoint.get("recipe"),
+        "validation": checkpoint.get("validation"),
+        "max_batches": checkpoint.get("max_batches"),
     }
 
 

@@ -687,7 +687,7 @@ class Leaderboard:
                 record = json.loads((tmp / label / "protocol.json").read_text())
                 restamp_record(record, identity, verification)
                 atomic_write_json(tmp / label / "protocol.json", record)
-            notes = self.short_training(path)
+            notes = self.short_training(path, results)
             write_leaderboard(results, tmp, bench.horizons_ms, efficiency, notes)
             if not fresh and not dropped and not refreshed and _same_files(path, tmp):
                 raise _Unchanged
@@ -754,24 +754,32 @@ class Leaderboard:
             out.append((r, record))
         return out
 
-    def short_training(self, table: Path) -> dict[str, tuple[str, str | None]]:
-        """Per row label of this benchmark whose shipped weights were trained short of their
-        recipe: what its run saw (:func:`zoo.cards.short_training_notes`) and the path of its
-        model's card from ``table``'s folder (None where it has none)."""
-        from zoo.cards import shipped_weights, short_training_notes
+    def short_training(self, table: Path, results=()) -> dict[str, tuple[str, str | None]]:
+        """Per row label of this benchmark trained short of its recipe, by its shipped weights
+        (:func:`zoo.cards.short_training_notes`) or by the checkpoint it was scored from (what
+        ``results``, the table's rows, record of their run): what its run saw and the path of
+        its model's card from ``table``'s folder (None where it has none)."""
+        from zoo.cards import checkpoint_budget_notes, shipped_weights, short_training_notes
 
-        if self.weights is None or not self.weights.is_dir():
-            return {}
         if self._short_training is None:
-            self._short_training = short_training_notes(
-                self.registry, shipped_weights(self.weights)
+            shipped = (
+                shipped_weights(self.weights)
+                if self.weights is not None and self.weights.is_dir()
+                else {}
             )
+            self._short_training = short_training_notes(self.registry, shipped)
+        notes = {
+            label: n
+            for (bench, label), n in self._short_training.items()
+            if bench == self.bench.name
+        }
+        runs = {str(r.frame["model"].iloc[0]): r.protocol.get("provenance") or {} for r in results}
+        notes.update(checkpoint_budget_notes(self.registry, runs))
         out = {}
-        for (bench, label), note in self._short_training.items():
-            if bench == self.bench.name:
-                card = REPO_ROOT / "docs" / "models" / f"{label.partition('@')[0]}.md"
-                link = os.path.relpath(card, table) if card.is_file() else None
-                out[label] = (note, link)
+        for label, note in notes.items():
+            card = REPO_ROOT / "docs" / "models" / f"{label.partition('@')[0]}.md"
+            link = os.path.relpath(card, table) if card.is_file() else None
+            out[label] = (note, link)
         return out
 
     def stored_cost(self, efficiency: dict, label: str, loaded, task: str) -> None:

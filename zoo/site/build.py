@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from zoo.cards import Shipped, short_training_notes
+from zoo.cards import Shipped, checkpoint_budget_notes, short_training_notes
 from zoo.errors import ZooError
 from zoo.io import replace_folder
 from zoo.metrics import FLOOR_SUFFIX
@@ -272,6 +272,8 @@ def build_site(
     ]
     for bench in benchmarks:
         notes = {label: note for (b, label), note in budgets.items() if b == bench.name}
+        for table in bench.tables:  # rows scored from a run of zoo train, not shipped weights
+            notes.update(checkpoint_budget_notes(registry, table.runs))
         _benchmark_pages(
             render, bench, model_names, sorted(model_pages), pages, extra, notes, baselines
         )

@@ -27,6 +27,7 @@ class Table:
     costs: dict[str, dict[str, str]] = field(default_factory=dict)
     problems: list[str] = field(default_factory=list)
     sources: dict[str, dict[str, str]] = field(default_factory=dict)  # per row: see row_source
+    runs: dict[str, dict[str, Any]] = field(default_factory=dict)  # a checkpoint row's provenance
 
     @property
     def page(self) -> str:
@@ -215,13 +216,20 @@ def summary_fault(summary: dict[str, Any]) -> str | None:
     return None
 
 
+def row_provenance(folder: Path) -> dict[str, Any]:
+    """A row's provenance, from its ``protocol.json`` (empty where it cannot be read)."""
+    try:
+        return json.loads((folder / "protocol.json").read_text()).get("provenance") or {}
+    except (OSError, ValueError):
+        return {}
+
+
 def row_source(folder: Path, benchmark: str, protocol: dict[str, Any]) -> dict[str, str]:
     """Where a row's numbers come from, from its ``protocol.json``: when and at which code
     version they were computed, and the command that computes them again from the shipped
     weights (none for a row without them, whose command is its own registry's)."""
-    try:
-        provenance = json.loads((folder / "protocol.json").read_text()).get("provenance") or {}
-    except (OSError, ValueError):
+    provenance = row_provenance(folder)
+    if not provenance:
         return {}
     weights, sampler = provenance.get("weights"), protocol.get("sampler")
     model = provenance.get("model") or folder.name
@@ -276,6 +284,9 @@ def read_table(benchmark: str, folder: Path) -> Table:
                 source = row_source(folder / label, benchmark, table.protocol)
                 if source:
                     table.sources[label] = source
+                provenance = row_provenance(folder / label)
+                if "checkpoint" in provenance:
+                    table.runs[label] = provenance
     table.costs = _costs(folder, table.problems)
     return table
 
