@@ -1,10 +1,13 @@
 """Whether a CMU-on-Anny mesh has the same bytes under every CPU kind's float kernels.
 
 Skins the first ``--trials`` test trials on the Anny body in float32 and in float64 (rounded once
-to float32, as ``zoo.data.anny`` builds its datasets), once per kernel set a CPU kind would run:
-torch's generic, AVX2 and AVX-512 kernels (``ATEN_CPU_CAPABILITY``), with numpy's vector code and
-OpenBLAS's kernels narrowed to match (``NPY_DISABLE_CPU_FEATURES``, ``OPENBLAS_CORETYPE``). Prints,
-per precision and pair of kernel sets, how many coordinates differ and by how much.
+to float32, as ``zoo.data.anny`` builds its datasets, and before rounding), once per kernel set a
+CPU kind would run: torch's generic, AVX2 and AVX-512 kernels (``ATEN_CPU_CAPABILITY``) with
+MKL's, which carry Anny's einsum, narrowed to match (``MKL_ENABLE_INSTRUCTIONS``; and MKL's
+conditional numerical reproducibility off, ``MKL_CBWR=COMPATIBLE``, in a fourth set), and
+numpy's vector code and OpenBLAS's kernels narrowed too (``NPY_DISABLE_CPU_FEATURES``,
+``OPENBLAS_CORETYPE``). Prints, per precision and pair of kernel sets, how many coordinates
+differ and by how much.
 
     python benchmarks/check/skinning_kernels.py --topology low --trials 3
 """
@@ -24,11 +27,23 @@ import numpy as np
 
 from zoo.paths import REPO_ROOT
 
-# Each kernel set: torch's capability, numpy's features switched off, OpenBLAS's core type.
+# Each kernel set: torch's capability, numpy's features switched off, OpenBLAS's core type, and
+# the environment MKL reads.
 KERNEL_SETS = {
-    "generic": ("default", "X86_V3 X86_V4 AVX512_ICL AVX512_SPR", "Prescott"),
-    "avx2": ("avx2", "X86_V4 AVX512_ICL AVX512_SPR", "Haswell"),
-    "avx512": ("avx512", "", ""),
+    "generic": (
+        "default",
+        "X86_V3 X86_V4 AVX512_ICL AVX512_SPR",
+        "Prescott",
+        {"MKL_ENABLE_INSTRUCTIONS": "SSE4_2"},
+    ),
+    "avx2": (
+        "avx2",
+        "X86_V4 AVX512_ICL AVX512_SPR",
+        "Haswell",
+        {"MKL_ENABLE_INSTRUCTIONS": "AVX2"},
+    ),
+    "avx512": ("avx512", "", "", {"MKL_ENABLE_INSTRUCTIONS": "AVX512"}),
+    "mkl_compatible": ("avx512", "", "", {"MKL_CBWR": "COMPATIBLE"}),
 }
 
 SKIN = """
@@ -38,12 +53,21 @@ from zoo.data.bvh import CMU_BVH_JOINTS, read_bvh
 out = {}
 for dtype in (torch.float32, torch.float64):
     model = anny.load_anny_model(sys.argv[2], dtype=dtype)
-    vertices = []
+    rounded, unrounded = [], []
     for path in sys.argv[3:]:
         bvh = read_bvh(path, CMU_BVH_JOINTS)
         params = anny.retarget(model, bvh).pose_parameters(anny.motion_rotations(bvh))
-        vertices.append(anny.skin(model, params)["vertices"])
-    out[str(dtype).removeprefix("torch.")] = np.concatenate(vertices)
+        rounded.append(anny.skin(model, params)["vertices"])
+        with torch.no_grad():  # what skin computes before it rounds
+            posed = model(
+                pose_parameters=torch.as_tensor(params).to(dtype),
+                phenotype_kwargs=anny.phenotype_tensor(model, None),
+            )
+        unrounded.append((posed["vertices"] * 1000.0).numpy())
+    name = str(dtype).removeprefix("torch.")
+    out[name] = np.concatenate(rounded)
+    if dtype == torch.float64:
+        out["float64, before rounding"] = np.concatenate(unrounded)
 np.savez(sys.argv[1], **out)
 print(torch.backends.cpu.get_cpu_capability())
 """
@@ -59,8 +83,8 @@ def _supported(features: str) -> str:
 
 
 def skin_under(kernels: str, topology: str, paths: list[Path], out: Path) -> str:
-    torch_cap, numpy_off, blas = KERNEL_SETS[kernels]
-    env = {**os.environ, "OMP_NUM_THREADS": "1", "ATEN_CPU_CAPABILITY": torch_cap}
+    torch_cap, numpy_off, blas, mkl = KERNEL_SETS[kernels]
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "ATEN_CPU_CAPABILITY": torch_cap, **mkl}
     if _supported(numpy_off):
         env["NPY_DISABLE_CPU_FEATURES"] = _supported(numpy_off)
     if blas:
@@ -96,7 +120,7 @@ def main(argv: list[str] | None = None) -> int:
             with np.load(out) as z:
                 arrays[kernels] = {k: z[k] for k in z.files}
             print(f"{kernels}: torch ran its {ran} kernels")
-    for dtype in ("float32", "float64"):
+    for dtype in ("float32", "float64", "float64, before rounding"):
         for a, b in itertools.combinations(KERNEL_SETS, 2):
             x, y = arrays[a][dtype], arrays[b][dtype]
             print(

@@ -5,7 +5,8 @@
     python benchmarks/speed/speed_anny.py --frames 2000 --batch 1000 --batch 256
 
 Loads run in a fresh Python process each (the model is built or read from anny's cache there);
-the figures leave out importing torch and anny. Skinning figures are float32 on this machine's CPU,
+the figures leave out importing torch and anny. Skinning figures are in the model's precision
+(float64, as the datasets are built) on this machine's CPU,
 after one warm-up batch; "end to end" adds reading the BVH, resampling to 25 Hz and the
 retargeting of one trial.
 """
@@ -124,7 +125,7 @@ def main(argv: list[str] | None = None) -> None:
         )
     print(tabulate(rows, headers=["topology", "vertices", "batch", "frames/s", "ms/frame"]))
     print(
-        f"\n{args.frames} frames of {trial.key} per figure, float32, torch threads "
+        f"\n{args.frames} frames of {trial.key} per figure, float64 skinning, torch threads "
         f"{torch.get_num_threads()}, anny {zoo_anny.anny_version()}"
     )
 

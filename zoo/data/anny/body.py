@@ -109,8 +109,9 @@ def load_anny_model(
 ):
     """``anny.Anny(rig="cmu_mb")`` at the ``full`` (13,718 vertices) or ``low`` (1,229) topology.
 
-    In float64 by default: meshes skinned with it and rounded once to float32 have the same bytes
-    on every CPU kind, where float32 skinning follows each CPU's kernels (docs/datasets.md).
+    In float64 by default: meshes skinned with it and rounded once to float32 had the same bytes
+    under every CPU kind's kernels measured, where float32 skinning follows each CPU's kernels
+    (docs/reproducibility.md).
 
     The first build of a topology is slow; anny caches it (``ANNY_CACHE_DIR``, or
     ``anny_cache_dir``) and later loads read the cache (docs/datasets.md gives the times).

@@ -435,7 +435,9 @@ var ZooSite = (function () {
       status.textContent = a === null ? "" : a === b ? "pick two different rows" : found ? "" : "no comparison of " + a + " and " + b + " is stored";
     }
     function fromFragment() {
-      var m = /^#pair=([^:]*):([^:]*):(.*)$/.exec(decodeURIComponent(location.hash));
+      var hash = "";
+      try { hash = decodeURIComponent(location.hash); } catch (e) { hash = ""; }  // not ours
+      var m = /^#pair=([^:]*):([^:]*):(.*)$/.exec(hash);
       Array.prototype.forEach.call(forms, function (form) {
         if (m && form.getAttribute("data-table") === m[1]) {
           form.a.value = m[2]; form.b.value = m[3]; show(form, m[2], m[3]);
@@ -451,7 +453,7 @@ var ZooSite = (function () {
       form.a.addEventListener("change", picked);
       form.b.addEventListener("change", picked);
       form.reader.addEventListener("click", function () {
-        if (history.replaceState) { history.replaceState(null, "", location.pathname); } else { location.hash = ""; }
+        if (history.replaceState) { history.replaceState(null, "", location.pathname + location.search); } else { location.hash = ""; }
         fromFragment();
       });
     });

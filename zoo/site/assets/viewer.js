@@ -64,15 +64,21 @@ var ZooViewer = (function () {
 
     function frameOf(array, w, t, frames) { return array.subarray(((w * frames) + t) * V * 3, ((w * frames) + t + 1) * V * 3); }
 
-    function draw(p, pos, err, scale) {
-      var ctx = p.canvas.getContext("2d"), W = p.canvas.width, H = p.canvas.height;
-      ctx.fillStyle = "#f6f6f4"; ctx.fillRect(0, 0, W, H);
+    // positions on a canvas W x H: turned about the vertical axis, scaled, centred on the box
+    function project(pos, W, H, scale) {
       var h1 = (up + 1) % 3, h2 = (up + 2) % 3, c = Math.cos(state.turn), s = Math.sin(state.turn);
       var px = new Float32Array(V), py = new Float32Array(V), pz = new Float32Array(V);
       for (var v = 0; v < V; v++) {
         var a = pos[v * 3 + h1] - mid[h1], b = pos[v * 3 + h2] - mid[h2], u = pos[v * 3 + up] - mid[up];
         px[v] = W / 2 + (c * a - s * b) * scale; pz[v] = s * a + c * b; py[v] = H / 2 - u * scale;
       }
+      return {x: px, y: py, z: pz};
+    }
+
+    function draw(p, pos, err, scale) {
+      var ctx = p.canvas.getContext("2d"), W = p.canvas.width, H = p.canvas.height;
+      ctx.fillStyle = "#f6f6f4"; ctx.fillRect(0, 0, W, H);
+      var at = project(pos, W, H, scale), px = at.x, py = at.y, pz = at.z;
       var order = new Array(F), depth = new Float32Array(F);
       for (var f = 0; f < F; f++) { order[f] = f; depth[f] = pz[faces[3 * f]] + pz[faces[3 * f + 1]] + pz[faces[3 * f + 2]]; }
       order.sort(function (i, j) { return depth[j] - depth[i]; });
@@ -93,13 +99,8 @@ var ZooViewer = (function () {
 
     // the ground truth's edges over a prediction, faint blue: where the two bodies part
     function overlay(p, pos, scale) {
-      var ctx = p.canvas.getContext("2d"), W = p.canvas.width, H = p.canvas.height;
-      var h1 = (up + 1) % 3, h2 = (up + 2) % 3, c = Math.cos(state.turn), s = Math.sin(state.turn);
-      var px = new Float32Array(V), py = new Float32Array(V);
-      for (var v = 0; v < V; v++) {
-        var a = pos[v * 3 + h1] - mid[h1], b = pos[v * 3 + h2] - mid[h2], u = pos[v * 3 + up] - mid[up];
-        px[v] = W / 2 + (c * a - s * b) * scale; py[v] = H / 2 - u * scale;
-      }
+      var ctx = p.canvas.getContext("2d"), at = project(pos, p.canvas.width, p.canvas.height, scale);
+      var px = at.x, py = at.y;
       ctx.strokeStyle = "rgba(30, 70, 200, 0.18)"; ctx.lineWidth = 0.6; ctx.beginPath();
       for (var f = 0; f < F; f++) {
         var i0 = faces[3 * f], i1 = faces[3 * f + 1], i2 = faces[3 * f + 2];
