@@ -32,7 +32,9 @@ def cmu_and_registry(tmp_path):
     return root, Registry.from_files(HERE.parent / "registry.yaml", tmp_path / "registry.yaml")
 
 
-def test_regenerate_with_checkpoint_and_stale_result(tmp_path, capsys):
+def trained_tiny(tmp_path, **options):
+    """The CMU copy and registry of :func:`cmu_and_registry`, and the checkpoints folder where
+    ``tiny`` was just trained for one epoch (``options``: more of ``train``'s)."""
     root, registry = cmu_and_registry(tmp_path)
     checkpoints = tmp_path / "checkpoints"
     train(
@@ -43,7 +45,13 @@ def test_regenerate_with_checkpoint_and_stale_result(tmp_path, capsys):
         epochs=1,
         progress=False,
         out_dir=checkpoints / "cmu" / "tiny",
+        **options,
     )
+    return root, registry, checkpoints
+
+
+def test_regenerate_with_checkpoint_and_stale_result(tmp_path, capsys):
+    root, registry, checkpoints = trained_tiny(tmp_path)
     out = tmp_path / "results"
     written = regenerate(
         "cmu", registry=registry, data_root=root, out_root=out, checkpoints=checkpoints
@@ -122,18 +130,7 @@ def test_a_row_from_a_run_short_of_its_recipe_is_marked_where_its_number_is(tmp_
     2-epoch recipe: the Markdown table and the site mark it, saying what its run saw."""
     from zoo.site import build_site
 
-    root, registry = cmu_and_registry(tmp_path)
-    checkpoints = tmp_path / "checkpoints"
-    train(
-        "tiny",
-        "cmu",
-        registry=registry,
-        data_root=root,
-        epochs=1,
-        max_batches=1,
-        progress=False,
-        out_dir=checkpoints / "cmu" / "tiny",
-    )
+    root, registry, checkpoints = trained_tiny(tmp_path, max_batches=1)
     out = tmp_path / "results"
     regenerate("cmu", registry=registry, data_root=root, out_root=out, checkpoints=checkpoints)
     board = (out / "cmu" / "all" / "leaderboard.md").read_text()
