@@ -167,7 +167,8 @@ class CheckReport:
                 f"data built here with other last bits than {other} of its rows record (a "
                 f"generated mesh follows the CPU's float kernels; compared within the tolerance)"
                 if other
-                else "data built here as its rows record"
+                else "data built here as its rows record (the bytes each was computed or last "
+                "verified on)"
             )
         if t.stale:
             notes.append(f"{len(t.stale)} of its rows stamped by older code")
