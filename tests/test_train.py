@@ -131,6 +131,9 @@ def test_checkpoint_provenance_names_repository_files_relative_to_it(tmp_path):
     }
     outside = checkpoint_provenance(tmp_path / "best.pt", meta)
     assert outside["checkpoint"] == str((tmp_path / "best.pt").resolve())
+    # with the run's budget, where the checkpoint records it (zoo.cards.budget_note reads it)
+    budget = {"recipe": {"epochs": 50}, "validation": {"training_windows": 9}, "max_batches": 2}
+    assert checkpoint_provenance(tmp_path / "best.pt", {**meta, **budget}).items() >= budget.items()
 
 
 def test_resume_reaches_the_same_weights(setup, tmp_path):

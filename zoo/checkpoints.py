@@ -415,9 +415,11 @@ def checkpoint_provenance(path: str | Path, checkpoint: dict[str, Any]) -> dict[
         "training": checkpoint.get("training", {}),
         # what its budget is measured against (zoo.cards.budget_note): a run short of its
         # recipe is marked where its rows are shown
-        "recipe": checkpoint.get("recipe"),
-        "validation": checkpoint.get("validation"),
-        "max_batches": checkpoint.get("max_batches"),
+        **{
+            key: checkpoint[key]
+            for key in ("recipe", "validation", "max_batches")
+            if checkpoint.get(key) is not None
+        },
     }
 
 
