@@ -6,9 +6,9 @@ import pytest
 from conftest import write_cmu_file
 
 from zoo.cli import main
+from zoo.core.errors import DataNotFoundError
 from zoo.data.expmap import DataFormatError
 from zoo.data.motion import load_cmu
-from zoo.errors import DataNotFoundError
 
 
 def run_eval(root, out, *extra):
@@ -99,7 +99,7 @@ def test_file_too_short_for_ltd8(tmp_path, capsys):
 
 
 def test_interrupted_write_leaves_no_partial_file(tmp_path, monkeypatch):
-    from zoo import io
+    from zoo.core import io
 
     target = tmp_path / "results.csv"
     with pytest.raises(RuntimeError):

@@ -8,7 +8,7 @@ import sys
 
 import pytest
 
-from zoo.version import __version__
+from zoo.core.version import __version__
 
 
 def test_version():
@@ -40,7 +40,7 @@ def test_help_and_import_zoo_load_no_torch():
 
 
 def test_no_progress_bars_when_stderr_is_not_a_terminal(capsys):
-    from zoo.io import progress_bar
+    from zoo.core.io import progress_bar
 
     # pytest captures stderr: no terminal, so no bar, whether or not one was asked for
     assert progress_bar(range(2)).disable and progress_bar(range(2), disable=False).disable
@@ -105,7 +105,7 @@ def test_nested_actions_take_only_their_own_options(capsys):
 
 def test_defaults_are_shown_by_the_formatter(capsys):
     from zoo.cli import main
-    from zoo.options import EVAL_BATCH
+    from zoo.core.options import EVAL_BATCH
 
     with pytest.raises(SystemExit):
         main(["eval", "--help"])

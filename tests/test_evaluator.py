@@ -219,7 +219,7 @@ def test_two_process_evaluation_equals_one_to_the_last_digit(tmp_path):
 
 
 def test_processes_score_disjoint_batches_that_cover_every_window():
-    from zoo.distributed import DistInfo
+    from zoo.core.distributed import DistInfo
     from zoo.evaluation import _my_batches
 
     shares = [list(_my_batches(100, 16, DistInfo(rank, 3))) for rank in range(3)]
@@ -230,7 +230,7 @@ def test_processes_score_disjoint_batches_that_cover_every_window():
 def test_result_folders_are_replaced_whole_and_refuse_a_second_writer(
     swinging_cmu, tmp_path, monkeypatch
 ):
-    from zoo.io import FolderBusyError, folder_lock
+    from zoo.core.io import FolderBusyError, folder_lock
     from zoo.results import EvalResult
 
     root, _ = swinging_cmu

@@ -6,10 +6,10 @@ import pytest
 import zoo
 from zoo import create_model
 from zoo.benchmark import get_benchmark
+from zoo.core.errors import DataNotFoundError
 from zoo.data.expmap import DataFormatError
 from zoo.data.motion import load_h36m
 from zoo.data.windows import window_sampler
-from zoo.errors import DataNotFoundError
 
 ACTIONS = ("walking", "eating")
 

@@ -10,7 +10,7 @@ import pytest
 from conftest import write_cmu_file
 from tiny_models import REGISTRY
 
-from zoo.errors import EvaluationError
+from zoo.core.errors import EvaluationError
 from zoo.leaderboard import Plan, regenerate
 from zoo.registry import Registry
 from zoo.report import write_leaderboard

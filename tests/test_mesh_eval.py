@@ -488,7 +488,7 @@ def test_a_model_failing_on_another_process_fails_on_every_process(toy_bench, mo
     """Under torchrun each process scores its share of the batches; a model that failed on
     another process must not give this one a result missing that process's windows."""
     import zoo.evaluation as evaluator
-    from zoo.distributed import DistInfo
+    from zoo.core.distributed import DistInfo
     from zoo.protocol import plan_protocol
 
     bench = toy_bench()

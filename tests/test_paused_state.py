@@ -17,7 +17,7 @@ import zoo
 import zoo.weights
 from zoo.checkpoints import CheckpointError, pause_run, read_checkpoint
 from zoo.cli import main
-from zoo.errors import TrainingError
+from zoo.core.errors import TrainingError
 
 setup = test_train.setup  # the tiny CMU data and registry of the training tests
 

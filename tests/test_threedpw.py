@@ -134,7 +134,7 @@ def test_damaged_files_are_named(tmp_path):
 
 
 def test_missing_data_is_named(tmp_path):
-    from zoo.errors import DataNotFoundError, ZooError
+    from zoo.core.errors import DataNotFoundError, ZooError
 
     with pytest.raises(DataNotFoundError, match="licensed per user"):
         load_3dpw(None)

@@ -17,7 +17,7 @@ import zoo.train as train_module
 import zoo.train.loop as train_loop
 from zoo.checkpoints import CheckpointError, load_checkpoint, read_checkpoint, weights_digest
 from zoo.cli import main
-from zoo.errors import TrainingError
+from zoo.core.errors import TrainingError
 from zoo.registry import Registry
 from zoo.train.loop import train
 

@@ -14,8 +14,8 @@ from tiny_models import MESH_REGISTRY
 import zoo
 from zoo import benchmark as benchmark_module
 from zoo.checkpoints import CheckpointError, load_checkpoint, read_checkpoint
+from zoo.core.io import sha256_file
 from zoo.data.mesh import MeshDataset, MeshSequence, MeshTopology
-from zoo.io import sha256_file
 from zoo.registry import Registry
 from zoo.results import read_table
 from zoo.train.loop import train
@@ -130,7 +130,7 @@ def test_skeleton_model_trains_on_a_mesh_benchmarks_regressed_joints(
 
 
 def test_a_training_sampler_that_finds_no_window_is_named(toy_mesh, tmp_path):
-    from zoo.errors import TrainingError
+    from zoo.core.errors import TrainingError
 
     bench, registry, _ = toy_mesh
     whole = tmp_path / "whole.yaml"  # the window is the whole 12-frame sequence, as on cloth

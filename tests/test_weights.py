@@ -81,7 +81,7 @@ def test_a_changed_weights_file_is_refused_naming_it(trained, tmp_path):
 def test_foreign_weights_are_refused_naming_what_differs(trained, tmp_path, setup):  # noqa: F811
     from safetensors.torch import save_file
 
-    from zoo.io import sha256_file
+    from zoo.core.io import sha256_file
 
     path = export_weights(trained / "best.pt", root=tmp_path / "w")
     # another model's tensors under this record, the record's checksum brought up to date

@@ -4,7 +4,7 @@ The API (:mod:`zoo.api`) is loaded on first use, so ``import zoo`` and the ``zoo
 help do not import torch.
 """
 
-from zoo.version import __version__
+from zoo.core.version import __version__
 
 _API = ("compare", "create_model", "evaluate", "list_models", "load_results")
 

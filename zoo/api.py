@@ -104,9 +104,9 @@ def evaluate(
     import torch
 
     from zoo.benchmark import get_benchmark
-    from zoo.errors import EvaluationError
+    from zoo.core.errors import EvaluationError
+    from zoo.core.options import EVAL_BATCH
     from zoo.model_source import ModelSource
-    from zoo.options import EVAL_BATCH
     from zoo.pipeline import Subject, compute, place
     from zoo.pipeline import store as store_result
     from zoo.protocol import plan_protocol

@@ -17,11 +17,11 @@ from typing import Any
 
 import yaml
 
+from zoo.core.errors import ZooError
 from zoo.data.motion import MotionDataset, load_cmu, load_h36m
 from zoo.data.skeleton import CMU, H36M, THREEDPW, Skeleton
 from zoo.data.threedpw import load_3dpw
 from zoo.data.windows import check_sampler
-from zoo.errors import ZooError
 from zoo.paths import REPO_ROOT
 
 BENCHMARK_DIR = REPO_ROOT / "benchmarks"

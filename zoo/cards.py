@@ -24,8 +24,8 @@ from typing import Any
 
 import pandas as pd
 
-from zoo.errors import ZooError
-from zoo.io import atomic_write_text, repo_relative
+from zoo.core.errors import ZooError
+from zoo.core.io import atomic_write_text, repo_relative
 from zoo.metrics import FLOOR_SUFFIX
 from zoo.paths import REPO_ROOT
 from zoo.published import load_published

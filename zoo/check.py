@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from zoo.budgets import CHECK_WINDOWS
+from zoo.core.budgets import CHECK_WINDOWS
 from zoo.rounding import INPUT_ULPS, SENSITIVITY_MULTIPLE
 from zoo.store import identity_differences, only_code_changed
 from zoo.tolerance import KEY_COLUMNS, agreement, tolerance_by_metric, window_gaps
@@ -502,7 +502,7 @@ def verification_record(
     generated data's bytes it was verified on (``data_hash``, where the data are generated)."""
     import datetime
 
-    from zoo.io import code_version
+    from zoo.core.io import code_version
 
     differences = identity_differences(before, after)
     return {

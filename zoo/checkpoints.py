@@ -22,8 +22,8 @@ import torch
 from torch import nn
 
 from zoo.benchmark import Benchmark, get_benchmark
-from zoo.errors import NamesParameter, ZooError
-from zoo.io import atomic_path, atomic_write_json, replace_folder, repo_relative, sha256_file
+from zoo.core.errors import NamesParameter, ZooError
+from zoo.core.io import atomic_path, atomic_write_json, replace_folder, repo_relative, sha256_file
 from zoo.registry import ModelEntry, Registry, class_name, load_registry
 from zoo.weights import (
     PAUSED_SUMMARY,

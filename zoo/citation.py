@@ -7,7 +7,7 @@ import re
 from dataclasses import dataclass
 from typing import Any
 
-from zoo.errors import ZooError
+from zoo.core.errors import ZooError
 
 _PAPER_KEYS = {"authors", "title", "year", "url", "booktitle", "journal", "eprint"}
 _URL = re.compile(r"https://[^\s]+")

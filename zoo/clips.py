@@ -12,8 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
-from zoo.errors import ZooError
-from zoo.io import atomic_path
+from zoo.core.errors import ZooError
+from zoo.core.io import atomic_path
 
 CLIPS_FILE = "clips.npz"
 CLIP_VERTICES = 1500  # a full-resolution body (13,718 vertices) is clustered down to about this

@@ -25,7 +25,7 @@ import numpy as np
 import pandas as pd
 from tabulate import tabulate
 
-from zoo.errors import ZooError
+from zoo.core.errors import ZooError
 from zoo.intervals import (
     CONFIDENCE,
     REPLICATES,
@@ -215,7 +215,7 @@ class Comparison:
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
 
-        from zoo.io import save_figure
+        from zoo.core.io import save_figure
 
         t = self.table
         fig, ax = plt.subplots(figsize=(6.5, 3.8))
@@ -241,7 +241,7 @@ class Comparison:
 
     def write(self, out_dir: str | Path) -> Path:
         """``comparison.md`` and ``comparison.png`` in ``out_dir``."""
-        from zoo.io import atomic_write_text
+        from zoo.core.io import atomic_write_text
 
         out_dir = Path(out_dir)
         atomic_write_text(out_dir / "comparison.md", self.markdown())

@@ -13,10 +13,10 @@ import time
 from collections.abc import Iterable
 from pathlib import Path
 
-from zoo.budgets import COST_SECONDS
+from zoo.core.budgets import COST_SECONDS
+from zoo.core.errors import ZooError
+from zoo.core.io import atomic_write_text, folder_lock
 from zoo.efficiency import architecture, cost_key, measure
-from zoo.errors import ZooError
-from zoo.io import atomic_write_text, folder_lock
 from zoo.leaderboard import Leaderboard, Plan
 from zoo.report import efficiency_csv
 from zoo.results import TABLE_FILE, read_table, table_labels

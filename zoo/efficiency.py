@@ -257,7 +257,7 @@ class Costs:
         return {k: v for k, v in entry.items() if k != "architecture"}
 
     def save(self) -> None:
-        from zoo.io import atomic_write_json
+        from zoo.core.io import atomic_write_json
 
         atomic_write_json(
             self.path, {"version": COSTS_VERSION, "rows": dict(sorted(self.rows.items()))}

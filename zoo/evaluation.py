@@ -21,10 +21,11 @@ import numpy as np
 import pandas as pd
 import torch
 
+from zoo.core.distributed import DistInfo, gather_shares, init_distributed
+from zoo.core.errors import EvaluationError
+from zoo.core.io import code_version, progress_bar
+from zoo.core.options import EVAL_BATCH
 from zoo.data.windows import gather_windows
-from zoo.distributed import DistInfo, gather_shares, init_distributed
-from zoo.errors import EvaluationError
-from zoo.io import code_version, progress_bar
 from zoo.metrics import (
     FLOOR_SUFFIX,
     FrameErrorMean,
@@ -36,7 +37,6 @@ from zoo.metrics import (
     vertex_rmse,
 )
 from zoo.models.hooks import Hooks, model_hooks
-from zoo.options import EVAL_BATCH
 from zoo.protocol import Protocol
 from zoo.results import RESULT_COLUMNS, EvalResult, WindowErrors
 

@@ -26,8 +26,8 @@ from zoo.check import (
     self_consistent,
     verification_record,
 )
+from zoo.core.io import atomic_path, atomic_write_json, replace_folder, repo_relative
 from zoo.efficiency import COSTS_FILE, Costs, architecture, cost_key
-from zoo.io import atomic_path, atomic_write_json, replace_folder, repo_relative
 from zoo.model_source import ModelSource
 from zoo.paths import REPO_ROOT
 from zoo.pipeline import Subject, compute_all
@@ -704,7 +704,7 @@ class Leaderboard:
         stored per-window errors, else with None (to be recomputed on every window)."""
         if not rows:
             return []
-        from zoo.errors import EvaluationError
+        from zoo.core.errors import EvaluationError
         from zoo.results import EvalResult
 
         where, planned = table.where, table.protocol
@@ -821,7 +821,7 @@ def _same_files(old: Path, new: Path) -> bool:
 
 
 def _why_not_planned(folder: Path, board: Leaderboard) -> str:
-    from zoo.io import registry_record
+    from zoo.core.io import registry_record
 
     recorded = recorded_registry(folder)
     entries = board.registry.entries.values()

@@ -16,7 +16,7 @@ from typing import Any
 
 from torch import nn
 
-from zoo.errors import ZooError
+from zoo.core.errors import ZooError
 from zoo.registry import ModelEntry, Registry
 
 
@@ -129,7 +129,7 @@ class ModelSource:
             load_weights,
             stored_hparams,
         )
-        from zoo.io import sha256_file
+        from zoo.core.io import sha256_file
         from zoo.weights import weights_provenance
 
         if self.kind == "registry":
@@ -205,7 +205,7 @@ class LoadedModel:
     trained: dict[str, Any] | None
 
     def model_identity(self) -> dict[str, Any]:
-        from zoo.io import registry_record
+        from zoo.core.io import registry_record
 
         return {
             "name": self.entry.name,

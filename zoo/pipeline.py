@@ -13,9 +13,9 @@ from typing import Any
 
 from torch import nn
 
+from zoo.core.io import check_output_folder
+from zoo.core.options import EVAL_BATCH
 from zoo.evaluation import Scored, evaluate_models
-from zoo.io import check_output_folder
-from zoo.options import EVAL_BATCH
 from zoo.protocol import Protocol
 from zoo.results import EvalResult
 from zoo.store import check_replace, stamp

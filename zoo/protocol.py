@@ -18,10 +18,11 @@ from typing import Any
 import numpy as np
 
 from zoo.benchmark import GROUND_TRUTHS, Benchmark
+from zoo.core.errors import EvaluationError
+from zoo.core.io import canonical_json
+from zoo.core.options import TASKS
 from zoo.data import windows as window_rules
 from zoo.data.motion import MotionDataset
-from zoo.errors import EvaluationError
-from zoo.io import canonical_json
 from zoo.metrics import (
     ACTION_AVERAGING,
     AVERAGING,
@@ -30,7 +31,6 @@ from zoo.metrics import (
     STD_DESCRIPTION,
     joint_protocols,
 )
-from zoo.options import TASKS
 
 
 @dataclass(frozen=True, eq=False)

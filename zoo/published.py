@@ -10,7 +10,7 @@ from typing import Any
 
 import yaml
 
-from zoo.errors import ZooError
+from zoo.core.errors import ZooError
 
 PUBLISHED_FILE = Path(__file__).with_name("published.yaml")
 FIELDS = ("label", "model", "source", "benchmark", "metric", "averaging", "joints", "protocol")

@@ -23,7 +23,7 @@ from typing import Any
 import yaml
 
 from zoo.citation import CitationError, Paper, parse_paper, parse_url
-from zoo.errors import ZooError
+from zoo.core.errors import ZooError
 from zoo.paths import REPO_ROOT
 
 DEFAULT_REGISTRY = REPO_ROOT / "registry.yaml"
@@ -96,7 +96,7 @@ class ModelEntry:
 
     def provenance(self) -> dict[str, str]:
         """What every result of this model records about where it came from."""
-        from zoo.io import registry_record
+        from zoo.core.io import registry_record
 
         return {
             "class": self.class_path,

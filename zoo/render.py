@@ -13,10 +13,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from zoo.core.io import atomic_path
 from zoo.data.catalog import mesh_windows
 from zoo.data.mesh import MeshDataset
 from zoo.evaluation import predict
-from zoo.io import atomic_path
 from zoo.protocol import check_task
 
 

@@ -12,7 +12,7 @@ from pathlib import Path
 import pandas as pd
 
 from zoo.comparison import table_comparisons
-from zoo.io import atomic_write_json, atomic_write_text, save_figure
+from zoo.core.io import atomic_write_json, atomic_write_text, save_figure
 from zoo.results import table_files
 from zoo.tables import (
     check_comparable,

@@ -15,8 +15,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from zoo.errors import EvaluationError
-from zoo.io import atomic_path, atomic_write_json, atomic_write_text, replace_folder
+from zoo.core.errors import EvaluationError
+from zoo.core.io import atomic_path, atomic_write_json, atomic_write_text, replace_folder
 from zoo.tables import markdown_tables
 
 RESULT_COLUMNS = [
@@ -186,7 +186,7 @@ class EvalResult:
 def table_files(root: str | Path, depth: int = 1) -> list[Path]:
     """Every ``leaderboard.md`` ``depth`` folders below ``root`` (1: a benchmark's tables, 2:
     every benchmark's), sorted; a table being written (a hidden folder,
-    :func:`zoo.io.replace_folder`) is none of them."""
+    :func:`zoo.core.io.replace_folder`) is none of them."""
     pattern = "/".join(["*"] * depth + [TABLE_FILE])
     return sorted(
         p

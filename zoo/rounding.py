@@ -21,7 +21,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from zoo.errors import ZooError
+from zoo.core.errors import ZooError
 from zoo.evaluation import Scored, evaluate_models
 from zoo.protocol import Protocol
 from zoo.results import WINDOWS_FILE, WindowErrors

@@ -112,7 +112,7 @@ class Sensitivity:
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
 
-        from zoo.io import save_figure
+        from zoo.core.io import save_figure
 
         fig, axes = plt.subplots(
             1, len(self.horizons), figsize=(4.2 * len(self.horizons), 4.2), squeeze=False
@@ -143,7 +143,7 @@ class Sensitivity:
     def write(self, folder: str | Path) -> bool:
         """``sensitivity.md`` and ``sensitivity.png`` in ``folder``, rewritten only when the
         table changed (or the plot is missing); True if anything was written."""
-        from zoo.io import atomic_write_text
+        from zoo.core.io import atomic_write_text
 
         folder = Path(folder)
         text, md, png = self.markdown(), folder / "sensitivity.md", folder / "sensitivity.png"

@@ -14,9 +14,9 @@ import re
 from pathlib import Path
 from typing import Any
 
-from zoo.errors import ZooError
+from zoo.core.errors import ZooError
+from zoo.core.io import canonical_json
 from zoo.fingerprint import code_closure, code_fingerprint, model_fingerprint, zoo_module_file
-from zoo.io import canonical_json
 from zoo.paths import REPO_ROOT
 
 RESULTS_DIR = REPO_ROOT / "results"
@@ -33,11 +33,11 @@ NOT_COMPUTING = frozenset(
         "zoo.results",
         "zoo.intervals",
         "zoo.published",
-        "zoo.io",
+        "zoo.core.io",
         "zoo.paths",
-        "zoo.errors",
-        "zoo.distributed",
-        "zoo.budgets",
+        "zoo.core.errors",
+        "zoo.core.distributed",
+        "zoo.core.budgets",
     }
 )
 LABEL_PATTERN = r"[A-Za-z0-9_][A-Za-z0-9_.@+=,-]*"
@@ -298,7 +298,7 @@ def recorded_registry(folder: Path) -> str | None:
 def refuse_foreign_registry(folder: Path, loaded, label: str) -> None:
     """A stored row of this label made with another registry's model is the user's: never
     replaced by a rebuild that does not load that registry."""
-    from zoo.io import registry_record, repo_relative
+    from zoo.core.io import registry_record, repo_relative
 
     recorded = recorded_registry(folder)
     # rows recorded before registry_record named an outside registry by its absolute path

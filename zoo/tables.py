@@ -17,7 +17,7 @@ import numpy as np
 import pandas as pd
 from tabulate import tabulate
 
-from zoo.errors import ZooError
+from zoo.core.errors import ZooError
 from zoo.metrics import FLOOR_SUFFIX, METRICS
 
 

@@ -78,7 +78,7 @@ class Agreement:
 def agreement(result, folder: str | Path) -> Agreement:
     """Compare ``result`` (a :class:`zoo.results.EvalResult`) with the result stored in
     ``folder``, value by value and window by window."""
-    from zoo.errors import EvaluationError
+    from zoo.core.errors import EvaluationError
     from zoo.results import EvalResult
 
     try:

@@ -21,8 +21,8 @@ from typing import Any
 
 import torch
 
-from zoo.errors import ZooError
-from zoo.io import repo_relative, sha256_file
+from zoo.core.errors import ZooError
+from zoo.core.io import repo_relative, sha256_file
 from zoo.paths import REPO_ROOT
 
 WEIGHTS_DIR = REPO_ROOT / "weights"

@@ -311,7 +311,7 @@ def main(argv=None) -> int:
     if args.write:
         import yaml
 
-        from zoo.io import atomic_write_text
+        from zoo.core.io import atomic_write_text
 
         path = root / "zoo" / "coverage.yaml"
         old = yaml.safe_load(path.read_text()) if path.is_file() else {}

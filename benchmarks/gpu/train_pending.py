@@ -48,7 +48,7 @@ WRITE_SECONDS = 30.0
 def pack(args) -> int:
     """The CMU training split as one xz tar (the files themselves, so every sha256 holds)."""
     from zoo.benchmark import get_benchmark
-    from zoo.io import atomic_path
+    from zoo.core.io import atomic_path
 
     bench = get_benchmark("cmu")
     root = bench.resolve_data_root(args.data_root)
@@ -76,7 +76,7 @@ def _split_state(folder: Path, dest: Path) -> list[Path]:
     list (``state.tar.sha256``), so that ``unpack`` takes no part cut short."""
     import hashlib
 
-    from zoo.io import atomic_path
+    from zoo.core.io import atomic_path
 
     buffer = io.BytesIO()
     with tarfile.open(fileobj=buffer, mode="w") as tar:
@@ -113,7 +113,7 @@ def run(args) -> int:
 
 def _run_models(args, out: Path, device: str, stop_by: float, started: float, work: Path) -> int:
     from zoo.checkpoints import pause_run
-    from zoo.errors import TrainingError
+    from zoo.core.errors import TrainingError
     from zoo.registry import load_registry
     from zoo.train.loop import train
     from zoo.weights import paused_dir, paused_runs
@@ -194,7 +194,7 @@ def unpack(args) -> int:
     """Each ``<model>/state.tar.NN`` under ``args.folder`` into its committed paused state."""
     import hashlib
 
-    from zoo.io import replace_folder
+    from zoo.core.io import replace_folder
     from zoo.weights import PAUSED_SUMMARY, paused_dir
 
     found = sorted({p.parent for p in Path(args.folder).glob("*/state.tar.00")})

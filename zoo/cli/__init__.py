@@ -35,7 +35,7 @@ from zoo.cli.common import (
     registry_hint,
     shape_overrides,
 )
-from zoo.errors import ZooError
+from zoo.core.errors import ZooError
 
 COMMANDS = (
     list_models,
@@ -53,7 +53,7 @@ COMMANDS = (
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from zoo.version import __version__
+    from zoo.core.version import __version__
 
     parser = argparse.ArgumentParser(
         prog="zoo",

@@ -11,7 +11,7 @@ from typing import Any
 
 import yaml
 
-from zoo.errors import ZooError
+from zoo.core.errors import ZooError
 from zoo.paths import REPO_ROOT
 from zoo.registry import load_registry
 
@@ -273,8 +273,8 @@ def positive_int(text: str) -> int:
 
 
 def task_options(p) -> None:
-    """``--task`` (one of the evaluator's tasks, ``zoo.options.TASKS``) and its horizon."""
-    from zoo.options import TASKS
+    """``--task`` (one of the evaluator's tasks, ``zoo.core.options.TASKS``) and its horizon."""
+    from zoo.core.options import TASKS
 
     p.add_argument(
         "--task",

@@ -5,7 +5,6 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from zoo.budgets import COST_SECONDS
 from zoo.cli.common import (
     Deprecated,
     UsageError,
@@ -16,6 +15,7 @@ from zoo.cli.common import (
     results_option,
     weights_dir_option,
 )
+from zoo.core.budgets import COST_SECONDS
 from zoo.paths import REPO_ROOT
 
 

@@ -18,7 +18,7 @@ from zoo.cli.common import (
     results_option,
     task_options,
 )
-from zoo.options import EVAL_BATCH
+from zoo.core.options import EVAL_BATCH
 
 
 def add(sub) -> None:
@@ -68,7 +68,7 @@ def add(sub) -> None:
 
 
 def run(args) -> int:
-    from zoo.distributed import init_distributed
+    from zoo.core.distributed import init_distributed
     from zoo.pipeline import Subject, compute, place, store
     from zoo.protocol import plan_protocol
     from zoo.store import result_path, table_folder

@@ -5,7 +5,6 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from zoo.budgets import CHECK_WINDOWS
 from zoo.cli.common import (
     Deprecated,
     UsageError,
@@ -17,6 +16,7 @@ from zoo.cli.common import (
     results_option,
     weights_dir_option,
 )
+from zoo.core.budgets import CHECK_WINDOWS
 from zoo.paths import REPO_ROOT
 
 

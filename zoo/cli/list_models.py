@@ -21,7 +21,7 @@ def run(args) -> int:
     import shutil
     import textwrap
 
-    from zoo.errors import ZooError
+    from zoo.core.errors import ZooError
     from zoo.weights import unshipped_models
 
     registry = registry_of(args)

@@ -47,7 +47,7 @@ def run(args) -> int:
     from zoo.train.loop import train
 
     if args.out:  # a file there, or an unwritable place, is refused before training
-        from zoo.io import check_writable
+        from zoo.core.io import check_writable
 
         check_writable(args.out, what=f"--out {args.out}")
     registry = registry_of(args)

@@ -27,10 +27,10 @@ import numpy as np
 import scipy.sparse as sp
 import torch
 
+from zoo.core.io import progress_bar, sha256_file
 from zoo.data.expmap import DataFormatError
 from zoo.data.mesh import MeshDataset, MeshSequence, MeshTopology, recipe_hash
 from zoo.data.skeleton import kinematic_chain, rodrigues
-from zoo.io import progress_bar, sha256_file
 
 AMASS_KEYS = ("poses", "betas", "trans", "gender", "mocap_framerate")
 MODEL_KEYS = ("v_template", "shapedirs", "posedirs", "J_regressor", "weights", "kintree_table", "f")

@@ -94,7 +94,7 @@ def export_window(
     the frames side by side (observed in grey, future in blue), or one ``.ply`` per frame."""
     import trimesh
 
-    from zoo.io import atomic_path
+    from zoo.core.io import atomic_path
 
     if not isinstance(dataset, MeshDataset):
         raise MeshError(f"{dataset.name} is a skeleton dataset: only mesh windows export")

@@ -22,6 +22,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
+from zoo.core.io import progress_bar
 from zoo.data.mesh import (
     MeshDataset,
     MeshError,
@@ -30,7 +31,6 @@ from zoo.data.mesh import (
     cache_root,
     quantise_vertices,
 )
-from zoo.io import progress_bar
 
 SPLITS = {"train": 0, "test": 1, "val": 2}
 ACTION = "fall"

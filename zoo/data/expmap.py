@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from zoo.core.errors import ZooError
 from zoo.data.skeleton import Skeleton, forward_kinematics
-from zoo.errors import ZooError
 
 
 class DataFormatError(ZooError, ValueError):

@@ -23,8 +23,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import scipy.sparse as sp
 
-from zoo.errors import ZooError
-from zoo.io import atomic_path, atomic_write_json, canonical_json
+from zoo.core.errors import ZooError
+from zoo.core.io import atomic_path, atomic_write_json, canonical_json
 from zoo.paths import REPO_ROOT
 
 if TYPE_CHECKING:

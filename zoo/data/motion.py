@@ -13,10 +13,10 @@ from pathlib import Path
 
 import numpy as np
 
+from zoo.core.errors import DataNotFoundError
+from zoo.core.io import sha256_file
 from zoo.data.expmap import DataFormatError, expmap_to_positions, read_expmap_file
 from zoo.data.skeleton import CMU, H36M, Skeleton
-from zoo.errors import DataNotFoundError
-from zoo.io import sha256_file
 
 CMU_ACTIONS = (
     "basketball",

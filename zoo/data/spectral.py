@@ -21,8 +21,8 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 import torch
 
+from zoo.core.io import atomic_path
 from zoo.data.mesh import MeshError, MeshTopology, cache_root
-from zoo.io import atomic_path
 from zoo.paths import REPO_ROOT
 
 # Shift of the shift-invert solver: slightly below the smallest eigenvalue (0) of a Laplacian,

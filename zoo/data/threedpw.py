@@ -18,11 +18,11 @@ from pathlib import Path
 
 import numpy as np
 
+from zoo.core.errors import DataNotFoundError, ZooError
+from zoo.core.io import sha256_file
 from zoo.data.expmap import DataFormatError
 from zoo.data.motion import MotionDataset, MotionSequence, _check_root, found_entries
 from zoo.data.skeleton import THREEDPW
-from zoo.errors import DataNotFoundError, ZooError
-from zoo.io import sha256_file
 
 SPLITS = ("train", "validation", "test")
 FPS = 30.0

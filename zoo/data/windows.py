@@ -20,7 +20,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from zoo.errors import ZooError
+from zoo.core.errors import ZooError
 
 LTD_SEED = 1234567890
 # The LTD test windows are fixed by a 50-frame source and a 25-frame target whatever T_in/T_out.

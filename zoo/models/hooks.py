@@ -14,7 +14,7 @@ from typing import Any, Protocol
 
 from torch import Tensor
 
-from zoo.errors import ZooError
+from zoo.core.errors import ZooError
 
 Frames = Callable[[], Iterable[tuple[Tensor, Tensor]]]
 

@@ -53,8 +53,8 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from zoo.core.errors import ZooError
 from zoo.data.spectral import probe_projections
-from zoo.errors import ZooError
 from zoo.models.latent_transformer import LatentTransformer
 from zoo.models.spectral_autoencoder import SpectralAutoencoder
 

@@ -22,8 +22,8 @@ from typing import Any
 import numpy as np
 
 from zoo.cards import Shipped, checkpoint_budget_notes, short_training_notes
-from zoo.errors import ZooError
-from zoo.io import replace_folder
+from zoo.core.errors import ZooError
+from zoo.core.io import replace_folder
 from zoo.metrics import FLOOR_SUFFIX
 from zoo.report import PALETTE
 from zoo.site.collect import (
@@ -231,9 +231,9 @@ def build_site(
     per table, per model, a comparison page per benchmark and a mesh page per mesh benchmark
     with clips. Problems (a damaged row, a missing card, a table with no rows) are shown on
     their page and returned as warnings."""
+    from zoo.core.version import __version__
     from zoo.paths import REPO_ROOT
     from zoo.registry import load_registry
-    from zoo.version import __version__
 
     start = time.perf_counter()
     results_root = Path(results_root)
@@ -314,7 +314,7 @@ def _benchmark_pages(
 ) -> None:
     """A benchmark's pages: one per table, its mesh page (with its clips' script), its
     comparisons page and its own page."""
-    from zoo.version import __version__
+    from zoo.core.version import __version__
 
     quoted = bench.quoted
     for table in bench.tables:

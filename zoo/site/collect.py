@@ -335,7 +335,7 @@ def read_models(
     card keeps a problem that says how to write it; weights records that cannot be read go to
     ``problems``."""
     from zoo.cards import shipped_weights
-    from zoo.errors import ZooError
+    from zoo.core.errors import ZooError
     from zoo.weights import unshipped_models
 
     readable = True

@@ -43,7 +43,7 @@ __all__ = sorted([*_EXPORTS, "TrainingError"])
 
 def __getattr__(name: str):
     if name == "TrainingError":
-        from zoo.errors import TrainingError
+        from zoo.core.errors import TrainingError
 
         return TrainingError
     if name in _EXPORTS:

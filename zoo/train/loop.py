@@ -16,10 +16,10 @@ from torch import nn
 
 from zoo.benchmark import Benchmark, get_benchmark
 from zoo.checkpoints import CheckpointError, read_checkpoint, stored_hparams
+from zoo.core.distributed import DistInfo, init_distributed
+from zoo.core.errors import TrainingError
+from zoo.core.io import progress_bar, repo_relative
 from zoo.data.windows import frame_counts, gather_windows
-from zoo.distributed import DistInfo, init_distributed
-from zoo.errors import TrainingError
-from zoo.io import progress_bar, repo_relative
 from zoo.models.hooks import Hooks, model_hooks
 from zoo.paths import REPO_ROOT
 from zoo.registry import ModelEntry, Registry, load_registry

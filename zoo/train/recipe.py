@@ -9,7 +9,7 @@ from typing import Any
 
 import torch
 
-from zoo.errors import TrainingError
+from zoo.core.errors import TrainingError
 
 
 @dataclass(frozen=True)

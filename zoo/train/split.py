@@ -10,9 +10,9 @@ from typing import Any
 import numpy as np
 import torch
 
+from zoo.core.errors import TrainingError
+from zoo.core.io import progress_bar
 from zoo.data.windows import window_sampler
-from zoo.errors import TrainingError
-from zoo.io import progress_bar
 from zoo.train.recipe import Recipe
 
 
@@ -159,8 +159,8 @@ def training_view_arrays(
     import hashlib
     import json
 
+    from zoo.core.io import atomic_path, canonical_json
     from zoo.data.mesh import cache_root
-    from zoo.io import atomic_path, canonical_json
 
     if not hasattr(dataset, "content_hash"):
         raise TrainingError(

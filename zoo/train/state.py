@@ -24,9 +24,9 @@ from zoo.checkpoints import (
     trained_model,
     weights_digest,
 )
-from zoo.distributed import DistInfo
-from zoo.errors import TrainingError
-from zoo.io import atomic_path, code_version, repo_relative, sha256_file
+from zoo.core.distributed import DistInfo
+from zoo.core.errors import TrainingError
+from zoo.core.io import atomic_path, code_version, repo_relative, sha256_file
 from zoo.registry import Registry
 from zoo.train.host import device_name, devices_text
 from zoo.train.recipe import DEFAULT_RECIPE, Recipe
@@ -254,7 +254,7 @@ def _training_summary(recipe, history, best, device) -> dict[str, Any]:
 
 
 def write_rank_digest(out_dir: Path, model: nn.Module, dist_info: DistInfo) -> None:
-    from zoo.io import atomic_write_text
+    from zoo.core.io import atomic_write_text
 
     atomic_write_text(
         out_dir / "ranks" / f"rank{dist_info.rank}.sha256", weights_digest(model) + "\n"

@@ -7,7 +7,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from zoo.errors import TrainingError
+from zoo.core.errors import TrainingError
 from zoo.evaluation import predict
 from zoo.metrics import mpjpe
 from zoo.models.hooks import model_hooks

@@ -7,11 +7,11 @@ from typing import Any
 
 import torch
 
+from zoo.core.errors import EvaluationError, TrainingError
+from zoo.core.options import EVAL_BATCH
 from zoo.data.windows import gather_windows
-from zoo.errors import EvaluationError, TrainingError
 from zoo.evaluation import checked_prediction, predict
 from zoo.metrics import mpjpe, vertex_rmse
-from zoo.options import EVAL_BATCH
 
 
 def check_output(model, model_name, positions, index, used, t_in, t_out, task, device) -> None:

@@ -11,6 +11,8 @@ from typing import Any, Literal
 
 import numpy as np
 
+from zoo.core.errors import DataNotFoundError
+from zoo.core.io import atomic_path, progress_bar, sha256_file
 from zoo.data.anny.body import (
     DEFAULT_PHENOTYPE,
     MI_PHENOTYPE_RANGES,
@@ -35,8 +37,6 @@ from zoo.data.anny.retargeting import (
 from zoo.data.anny.trials import SPLIT_RULE, Trial, select_trials
 from zoo.data.bvh import CMU_BVH_JOINTS, read_bvh
 from zoo.data.mesh import MeshDataset, MeshSequence, MeshTopology, cache_root, recipe_hash
-from zoo.errors import DataNotFoundError
-from zoo.io import atomic_path, progress_bar, sha256_file
 
 IDENTITY_MODES = ("one", "many")
 DATASET_FORMAT = 1

@@ -20,6 +20,8 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.optimize import nnls
 
+from zoo.core.errors import DataNotFoundError, ZooError
+from zoo.core.io import atomic_path, sha256_file
 from zoo.data.anny.body import (
     TOPOLOGIES,
     anny_version,
@@ -34,8 +36,6 @@ from zoo.data.anny.trials import list_trials
 from zoo.data.bvh import CMU_BVH_JOINTS, read_bvh
 from zoo.data.expmap import DataFormatError
 from zoo.data.mesh import cache_root, recipe_hash
-from zoo.errors import DataNotFoundError, ZooError
-from zoo.io import atomic_path, sha256_file
 from zoo.paths import REPO_ROOT
 
 # Training trials (trial numbers not divisible by 5) whose frames fit the regressor: walking,

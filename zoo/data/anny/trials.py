@@ -8,9 +8,9 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
+from zoo.core.errors import DataNotFoundError
 from zoo.data.expmap import DataFormatError
 from zoo.data.motion import found_entries
-from zoo.errors import DataNotFoundError
 
 TEST_EVERY = 5  # split rule: trial numbers divisible by 5 are test, the others train
 SPLITS = ("train", "test")

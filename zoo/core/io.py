@@ -12,9 +12,9 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-from zoo.errors import ZooError
+from zoo.core.errors import ZooError
+from zoo.core.version import __version__
 from zoo.paths import REPO_ROOT
-from zoo.version import __version__
 
 
 @contextmanager
