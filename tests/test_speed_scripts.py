@@ -138,6 +138,10 @@ def test_speed_check(swinging_cmu, tmp_path, capsys):
     assert "GFLOP/s" in lines[0] and lines[1] == "check: 32 windows a table, seed 1"
     assert "ratio" in lines[2] and "faster" in lines[2]
     assert lines[3].startswith("cmu") and lines[3].endswith("passed")
+    check, floor, ratio, full, faster = figures(lines[3])
+    assert all(math.isfinite(v) and v > 0 for v in (check, full, faster)), lines[3]
+    # against a floor of no arithmetic (repeat_last alone) the ratio is infinite, never NaN
+    assert ratio > 0 and (math.isfinite(ratio) or floor == 0), lines[3]
 
 
 def test_speed_pass(swinging_cmu, tmp_path, capsys):
@@ -147,6 +151,9 @@ def test_speed_pass(swinging_cmu, tmp_path, capsys):
     lines = capsys.readouterr().out.splitlines()
     assert "rows (" in lines[0] and "repeat_last" in lines[0]
     assert "ratio" in lines[1] and "per-window errors of both equal" in lines[1]
+    ratio = float(lines[1].split("ratio ", 1)[1].split("x", 1)[0])
+    assert math.isfinite(ratio) and ratio > 0, lines[1]  # a NaN timing would print nan here
+    assert_finite(lines[1], at_least=4)
 
 
 def test_speed_spectral(capsys):
