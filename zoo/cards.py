@@ -98,8 +98,7 @@ def short_training_notes(
     notes = {}
     for name in registry.list_models():
         entry = registry.get(name)
-        trained = registry.get(entry.weights_of) if entry.weights_of else entry
-        planned = (trained.train or {}).get("epochs")
+        planned = _planned_epochs(registry, name)
         records = {
             (bench, s.record["label"]): s.record
             for s in shipped.get(entry.weights_of or name, [])
@@ -124,12 +123,18 @@ def checkpoint_budget_notes(registry: Registry, runs: dict[str, dict[str, Any]])
         name = label.partition("@")[0]
         if name not in registry.list_models():
             continue
-        entry = registry.get(name)
-        trained = registry.get(entry.weights_of) if entry.weights_of else entry
-        note = budget_note(provenance, (trained.train or {}).get("epochs"))
+        note = budget_note(provenance, _planned_epochs(registry, name))
         if note:
             notes[label] = note
     return notes
+
+
+def _planned_epochs(registry: Registry, name: str) -> int | None:
+    """The epochs of the recipe that trains ``name`` (an entry running another's weights: that
+    entry's recipe)."""
+    entry = registry.get(name)
+    trained = registry.get(entry.weights_of) if entry.weights_of else entry
+    return (trained.train or {}).get("epochs")
 
 
 def budget_note(run: dict[str, Any], planned: int | None) -> str | None:

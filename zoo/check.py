@@ -345,7 +345,7 @@ def _data_note(stored: dict, fresh: dict, label: str, check: CheckReport) -> Non
     same, or built with other last bits (another CPU's float kernels), which the per-window
     comparison then judges. A skeleton dataset's files are in the protocol, checked with it."""
     before = data_hash_of(stored)
-    now = (fresh.get("provenance") or {}).get("data_hash")
+    now = generated_data_hash(fresh)
     if before is not None and now is not None and check.current:
         check.tables[check.current].data[label] = before == now
 
@@ -358,10 +358,10 @@ def data_hash_of(protocol: dict) -> str | None:
     return verified[-1] if verified else provenance.get("data_hash")
 
 
-def generated_data_hash(result) -> str | None:
-    """The bytes of the generated data a fresh ``EvalResult`` was computed on (None for data
-    read from files, which its protocol names)."""
-    return (result.protocol.get("provenance") or {}).get("data_hash")
+def generated_data_hash(protocol: dict) -> str | None:
+    """The bytes of the generated data a result (its ``protocol`` record) was computed on (None
+    for data read from files, which the protocol names)."""
+    return (protocol.get("provenance") or {}).get("data_hash")
 
 
 def _read(row: Path, check: CheckReport):

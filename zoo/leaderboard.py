@@ -607,7 +607,7 @@ class Leaderboard:
                                 len(table.protocol.index),
                                 None,
                                 agreed,
-                                generated_data_hash(result),
+                                generated_data_hash(result.protocol),
                             ),
                         )
                     reused.append(r.stored)
@@ -748,8 +748,9 @@ class Leaderboard:
                 f"difference {agreed.share:.2f} of the tolerance): numbers kept, re-stamped",
                 file=sys.stderr,
             )
+            data = generated_data_hash(result.protocol)
             record = verification_record(
-                before, r.identity, len(sample), self.plan.seed, agreed, generated_data_hash(result)
+                before, r.identity, len(sample), self.plan.seed, agreed, data
             )
             out.append((r, record))
         return out
