@@ -29,7 +29,7 @@ def load_with(tmp_path, script, **changes):
 
 
 def test_shipped_config_loads_and_every_budget_names_a_mesh_benchmark(script):
-    from zoo.benchmark import get_benchmark
+    from zoo.protocol.benchmark import get_benchmark
 
     cfg = script.load_config(ABLATION / "spectrhums_29.yaml")
     assert {"A", "B", "C", "D"} <= set(cfg["arms"])

@@ -1,4 +1,5 @@
-"""Model cards (zoo.cards): the committed cards match their sources, and a card goes stale when
+"""Model cards (zoo.report.cards): the committed cards match their sources, and a card goes stale
+when
 a shipped record changes; regenerating keeps what was written by hand."""
 
 from __future__ import annotations
@@ -9,9 +10,9 @@ from pathlib import Path
 
 import pytest
 
-from zoo.cards import CARDS_DIR, END_MARKER, CardError, build_cards
 from zoo.cli import main
 from zoo.paths import REPO_ROOT
+from zoo.report.cards import CARDS_DIR, END_MARKER, CardError, build_cards
 
 WEIGHTS = REPO_ROOT / "weights"
 
@@ -95,8 +96,8 @@ def test_a_card_without_its_end_marker_is_refused(tmp_path):
 
 
 def test_a_card_sets_its_rows_against_the_paper_per_action_under_the_same_protocol():
-    from zoo.published import load_published
-    from zoo.results import read_table
+    from zoo.evaluation.results import read_table
+    from zoo.protocol.published import load_published
 
     paper = next(p for p in load_published() if p.label == "spgsn (reported)")
     frame = read_table(REPO_ROOT / "results" / "cmu" / "all").frame
@@ -120,7 +121,7 @@ def test_a_card_sets_its_rows_against_the_paper_per_action_under_the_same_protoc
 def test_a_card_counts_every_stage_its_weights_were_trained_on_from():
     """Weights trained on from another checkpoint (``--init-from``) name each earlier stage's
     budget and what it set differently; the budget table holds the last stage only."""
-    from zoo.cards import Shipped, _earlier_stage_lines
+    from zoo.report.cards import Shipped, _earlier_stage_lines
 
     def stage(epochs, samples, seconds, ae, sampler, before=None):
         return {

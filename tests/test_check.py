@@ -13,10 +13,10 @@ import torch
 from conftest import write_cmu_file
 from tiny_models import REGISTRY
 
-from zoo.check import data_hash_of, draw_sample, escape_sentence, verification_record
 from zoo.cli import main
-from zoo.registry import Registry
-from zoo.results import WindowErrors
+from zoo.evaluation.results import WindowErrors
+from zoo.leaderboard.check import data_hash_of, draw_sample, escape_sentence, verification_record
+from zoo.models.registry import Registry
 from zoo.train.loop import train
 
 HERE = Path(__file__).resolve().parent
@@ -125,7 +125,7 @@ def test_sampled_check_passes_prints_each_table_once_and_says_what_it_can_miss(b
 
 
 def test_a_nan_a_missing_series_or_other_windows_never_agree():
-    from zoo.tolerance import sample_agreement
+    from zoo.evaluation.tolerance import sample_agreement
 
     def windows(values, series=("m", "mpjpe", "all")):
         errors = {series: np.array(values, np.float32).reshape(3, 1)}
@@ -236,7 +236,7 @@ def test_a_row_re_stamped_on_rebuilt_data_records_the_bytes_it_held_on():
     """A generated dataset rebuilt (CMU-on-Anny skinned in float64) re-stamps its rows on a
     sample: the verification records the new bytes, and the check compares the data it builds
     with those, not with the bytes the row was first computed on."""
-    from zoo.tolerance import Agreement
+    from zoo.evaluation.tolerance import Agreement
 
     code = {"evaluator": "0123456789abcdef", "model": "fedcba9876543210"}
     before = {"code": code}

@@ -4,8 +4,8 @@ import re
 
 import pytest
 
-from zoo.citation import Paper, parse_paper
-from zoo.registry import Registry, RegistryError, load_registry
+from zoo.models.citation import Paper, parse_paper
+from zoo.models.registry import Registry, RegistryError, load_registry
 
 
 def test_bibtex_of_a_conference_paper_a_journal_article_and_a_preprint():

@@ -60,7 +60,7 @@ def test_no_progress_bars_when_stderr_is_not_a_terminal(capsys):
 
 def test_list_shows_each_models_description_and_full_reference(capsys):
     from zoo.cli import main
-    from zoo.registry import load_registry
+    from zoo.models.registry import load_registry
 
     assert main(["list"]) == 0
     out = " ".join(capsys.readouterr().out.split())
@@ -199,7 +199,7 @@ def test_compare_help_states_the_block_length_the_bootstrap_uses(capsys):
     import re
 
     from zoo.cli import main
-    from zoo.intervals import BLOCK_WINDOWS
+    from zoo.stats.intervals import BLOCK_WINDOWS
 
     with pytest.raises(SystemExit):
         main(["compare", "--help"])

@@ -225,7 +225,7 @@ def test_int16_storage_refuses_what_it_cannot_hold(tmp_path):
 
 def test_cloth_full_and_weights_from(monkeypatch):
     """cloth_full is the paper-sized cloth; cloth scores cloth_full's trained models."""
-    from zoo.benchmark import get_benchmark
+    from zoo.protocol.benchmark import get_benchmark
 
     full, small = get_benchmark("cloth_full"), get_benchmark("cloth")
     assert cloth.CLOTH_FULL.train_sequences == 16000 and cloth.CLOTH_FULL.test_sequences == 4000
@@ -248,7 +248,7 @@ def test_cloth_full_and_weights_from(monkeypatch):
 def test_weights_from_must_fit(tmp_path):
     import yaml
 
-    from zoo.benchmark import BenchmarkError, get_benchmark
+    from zoo.protocol.benchmark import BenchmarkError, get_benchmark
 
     spec = yaml.safe_load(open(get_benchmark("cloth").source))
     for change, message in (

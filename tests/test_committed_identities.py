@@ -7,11 +7,11 @@ from __future__ import annotations
 
 import json
 
-from zoo.benchmark import get_benchmark
-from zoo.fingerprint import model_fingerprint
+from zoo.models.registry import load_registry
 from zoo.paths import REPO_ROOT
-from zoo.registry import load_registry
-from zoo.store import evaluation_code
+from zoo.protocol.benchmark import get_benchmark
+from zoo.store.fingerprint import model_fingerprint
+from zoo.store.identity import evaluation_code
 
 
 def test_committed_rows_carry_the_current_code_fingerprints():

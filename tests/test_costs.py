@@ -12,13 +12,13 @@ import pytest
 import torch
 from test_leaderboard import cmu_and_registry
 
-import zoo.costs
-import zoo.efficiency
+import zoo.leaderboard.costs
+import zoo.leaderboard.efficiency
 from zoo.cli import main
-from zoo.efficiency import LATENCY_REPEATS, TRAINING_STEPS, measure
-from zoo.leaderboard import Plan, regenerate
+from zoo.leaderboard.board import Plan, regenerate
+from zoo.leaderboard.efficiency import LATENCY_REPEATS, TRAINING_STEPS, measure
+from zoo.models.recipe import DEFAULT_RECIPE
 from zoo.train.loop import train
-from zoo.train.recipe import DEFAULT_RECIPE
 from zoo.train.step import forward_precision
 
 
@@ -59,8 +59,8 @@ def test_costs_are_measured_only_by_zoo_costs_and_shown_with_their_machine(
         progress=False,
         out_dir=checkpoints / "cmu" / "tiny",
     )
-    monkeypatch.setattr(zoo.efficiency, "measure", no_measuring)
-    monkeypatch.setattr(zoo.costs, "measure", no_measuring)
+    monkeypatch.setattr(zoo.leaderboard.efficiency, "measure", no_measuring)
+    monkeypatch.setattr(zoo.leaderboard.costs, "measure", no_measuring)
     # An older costs.json (timings in each recipe's precision) is not read, and not rewritten.
     old = {"entries": {"0123": {"key": {"machine": "elsewhere"}, "costs": {"parameters": 1}}}}
     (out / "cmu").mkdir(parents=True)
@@ -132,9 +132,9 @@ def test_costs_are_measured_only_by_zoo_costs_and_shown_with_their_machine(
     assert "## cmu" in (out / "README.md").read_text()
 
     # zoo leaderboard, here or on another machine: it measures nothing and rewrites nothing...
-    monkeypatch.setattr(zoo.efficiency, "measure", no_measuring)
-    monkeypatch.setattr(zoo.costs, "measure", no_measuring)
-    monkeypatch.setattr(zoo.efficiency, "device_name", lambda device: "CPU Another")
+    monkeypatch.setattr(zoo.leaderboard.efficiency, "measure", no_measuring)
+    monkeypatch.setattr(zoo.leaderboard.costs, "measure", no_measuring)
+    monkeypatch.setattr(zoo.leaderboard.efficiency, "device_name", lambda device: "CPU Another")
     written = files(out)
     mtimes = {p: p.stat().st_mtime_ns for p in out.rglob("*") if p.is_file()}
     regenerate("cmu", registry=registry, data_root=root, out_root=out, checkpoints=checkpoints)
@@ -269,7 +269,7 @@ def test_a_model_without_a_training_view_gets_its_last_epoch_on_the_windows_fram
 
 @pytest.mark.parametrize("version", [None, 2])
 def test_costs_file_of_another_format_is_not_read(tmp_path, version):
-    from zoo.efficiency import Costs
+    from zoo.leaderboard.efficiency import Costs
 
     path = tmp_path / "costs.json"
     entry = {"architecture": "a" * 16, "parameters": 3, "precision": "float32"}
@@ -292,11 +292,13 @@ def test_costs_of_some_models_skip_the_benchmarks_without_their_rows(tmp_path, m
 
     def measure_costs(bench, *, models, **options):
         if bench == "cmu":
-            raise zoo.costs.NoRowsError(f"{bench}: no row of {', '.join(models)} in its tables")
+            raise zoo.leaderboard.costs.NoRowsError(
+                f"{bench}: no row of {', '.join(models)} in its tables"
+            )
         measured.append(bench)
 
-    monkeypatch.setattr(zoo.costs, "measure_costs", measure_costs)
-    monkeypatch.setattr("zoo.report.write_index", lambda root: root / "README.md")
+    monkeypatch.setattr(zoo.leaderboard.costs, "measure_costs", measure_costs)
+    monkeypatch.setattr("zoo.report.outputs.write_index", lambda root: root / "README.md")
     monkeypatch.setattr(
         "zoo.cli.costs.committed_benchmarks", lambda root: ["cmu", "cloth"], raising=True
     )

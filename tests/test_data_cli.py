@@ -4,10 +4,10 @@ import numpy as np
 import pytest
 import trimesh
 
-from zoo.benchmark import get_benchmark
 from zoo.cli import main
 from zoo.data.catalog import describe, export_window
 from zoo.data.mesh import MeshDataset, MeshError, MeshSequence, MeshTopology
+from zoo.protocol.benchmark import get_benchmark
 
 
 def toy_dataset(frames=60):
@@ -64,7 +64,7 @@ def test_data_list_and_missing_benchmark(capsys):
 
 def test_render_writes_picture_and_meshes(tmp_path):
     from zoo import create_model
-    from zoo.render import render_windows
+    from zoo.report.render import render_windows
 
     ds, bench = toy_dataset(), get_benchmark("cloth")
     model = create_model("repeat_last", input_frames=25, output_frames=25, num_points=4)

@@ -9,11 +9,12 @@ from conftest import LEAF_OFFSET, write_cmu_file
 
 import zoo
 from zoo import create_model
-from zoo.benchmark import get_benchmark
 from zoo.cli import main
-from zoo.evaluation import EvaluationError
-from zoo.metrics import cumulative_mean
-from zoo.tables import ProtocolMismatchError, markdown_tables
+from zoo.evaluation.evaluator import EvaluationError
+from zoo.evaluation.markdown import markdown_tables
+from zoo.protocol.benchmark import get_benchmark
+from zoo.protocol.comparable import ProtocolMismatchError
+from zoo.protocol.metrics import cumulative_mean
 
 
 def expected_repeat_last(omega, t):
@@ -171,7 +172,7 @@ def test_two_process_evaluation_equals_one_to_the_last_digit(tmp_path):
     import sys
     from pathlib import Path
 
-    from zoo.results import EvalResult
+    from zoo.evaluation.results import EvalResult
 
     root = tmp_path / "cmu"
     for action, speed in (("walking", 0.01), ("running", 0.03)):
@@ -220,7 +221,7 @@ def test_two_process_evaluation_equals_one_to_the_last_digit(tmp_path):
 
 def test_processes_score_disjoint_batches_that_cover_every_window():
     from zoo.core.distributed import DistInfo
-    from zoo.evaluation import _my_batches
+    from zoo.evaluation.evaluator import _my_batches
 
     shares = [list(_my_batches(100, 16, DistInfo(rank, 3))) for rank in range(3)]
     assert shares == [[0, 48, 96], [16, 64], [32, 80]]
@@ -231,7 +232,7 @@ def test_result_folders_are_replaced_whole_and_refuse_a_second_writer(
     swinging_cmu, tmp_path, monkeypatch
 ):
     from zoo.core.io import FolderBusyError, folder_lock
-    from zoo.results import EvalResult
+    from zoo.evaluation.results import EvalResult
 
     root, _ = swinging_cmu
     bench = get_benchmark("cmu")
@@ -261,7 +262,7 @@ def test_result_folders_are_replaced_whole_and_refuse_a_second_writer(
     def broken(*args, **kwargs):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr("zoo.results.atomic_write_json", broken)
+    monkeypatch.setattr("zoo.evaluation.results.atomic_write_json", broken)
     with pytest.raises(KeyboardInterrupt):
         result.write(out)
     assert (out / "results.csv").read_bytes() == before

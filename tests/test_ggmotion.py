@@ -9,7 +9,7 @@ import torch
 
 import zoo
 from zoo.models.ggmotion import GGMotion, hop_edges, hop_embedding
-from zoo.registry import RegistryError
+from zoo.models.registry import RegistryError
 
 
 @pytest.fixture(scope="module")

@@ -5,11 +5,11 @@ import pytest
 
 import zoo
 from zoo import create_model
-from zoo.benchmark import get_benchmark
 from zoo.core.errors import DataNotFoundError
 from zoo.data.expmap import DataFormatError
 from zoo.data.motion import load_h36m
 from zoo.data.windows import window_sampler
+from zoo.protocol.benchmark import get_benchmark
 
 ACTIONS = ("walking", "eating")
 

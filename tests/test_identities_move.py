@@ -23,12 +23,12 @@ def probe(results: str | Path) -> dict:
     """What the imported tree says of the committed rows in ``results``: the rows whose
     recorded code fingerprints are not those of this code, and the CMU rows whose cost cells
     ``costs.json`` keeps for their model as it is now."""
-    from zoo.benchmark import get_benchmark
-    from zoo.costs import committed_tables
-    from zoo.fingerprint import model_fingerprint
-    from zoo.leaderboard import Leaderboard
-    from zoo.registry import load_registry
-    from zoo.store import evaluation_code
+    from zoo.leaderboard.board import Leaderboard
+    from zoo.leaderboard.costs import committed_tables
+    from zoo.models.registry import load_registry
+    from zoo.protocol.benchmark import get_benchmark
+    from zoo.store.fingerprint import model_fingerprint
+    from zoo.store.identity import evaluation_code
 
     registry = load_registry()
     evaluators: dict[str, str] = {}
@@ -161,12 +161,12 @@ def committed():
 
 def test_moving_code_re_stamps_no_row_and_empties_no_cost_cell(tmp_path, committed):
     tree = _copy_tree(tmp_path / "tree")
-    _rename_module(tree, "zoo.metrics", "zoo.scores")  # reached by every row's evaluator
+    _rename_module(tree, "zoo.protocol.metrics", "zoo.scores")  # reached by every row's evaluator
     # a trained model's own module: its shipped weights, which record the old path, still load
     _rename_module(tree, "zoo.models.ltd", "zoo.models.dct_gcn")
     _move_function(tree, "dct_matrix", "zoo.models.dct", "zoo.models.history")
-    _reverse_functions(tree / "zoo" / "evaluation.py")
-    assert not (tree / "zoo" / "metrics.py").exists()
+    _reverse_functions(tree / "zoo" / "evaluation" / "evaluator.py")
+    assert not (tree / "zoo" / "protocol" / "metrics.py").exists()
     assert "def dct_matrix" in (tree / "zoo" / "models" / "history.py").read_text()
 
     moved = _probe_copy(tree)
@@ -179,7 +179,7 @@ def test_moving_code_re_stamps_no_row_and_empties_no_cost_cell(tmp_path, committ
 
 def test_a_real_change_to_the_code_a_row_reaches_makes_it_stale(tmp_path, committed):
     tree = _copy_tree(tmp_path / "tree")
-    metrics = tree / "zoo" / "metrics.py"
+    metrics = tree / "zoo" / "protocol" / "metrics.py"
     text = metrics.read_text()
     changed = text.replace("dim=-1).mean(dim=-1)", "dim=-1).mean(dim=-1) * 1.001")
     assert changed != text

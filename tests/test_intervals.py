@@ -11,11 +11,14 @@ from conftest import write_cmu_file
 
 import zoo
 from zoo import create_model
-from zoo.benchmark import get_benchmark
 from zoo.cli import main
-from zoo.comparison import ComparisonError, compare
-from zoo.evaluation import EvaluationError
-from zoo.intervals import (
+from zoo.evaluation.evaluator import EvaluationError
+from zoo.evaluation.results import EvalResult, WindowErrors
+from zoo.protocol.benchmark import get_benchmark
+from zoo.protocol.comparable import ProtocolMismatchError
+from zoo.report.tables import headline_table
+from zoo.stats.comparison import ComparisonError, compare
+from zoo.stats.intervals import (
     block_replicates,
     coverage_record,
     design,
@@ -26,8 +29,6 @@ from zoo.intervals import (
     sign_test,
     window_sampling_interval,
 )
-from zoo.results import EvalResult, WindowErrors
-from zoo.tables import ProtocolMismatchError, headline_table
 
 WINDOW = 35  # CMU: 10 observed + 25 predicted frames
 
@@ -96,7 +97,7 @@ def _agrees(measured: float, repetitions: int, recorded: float, recorded_repetit
 
 @pytest.mark.parametrize("memory", ["short_memory", "long_memory"])
 def test_the_coverage_tables_print_is_the_coverage_measured(memory):
-    """Tables quote zoo/coverage.yaml; measured again here (fewer repetitions), single and
+    """Tables quote zoo/stats/coverage.yaml; measured again here (fewer repetitions), single and
     paired, on CMU's window counts with short memory and with long memory and heavy tails."""
     script = _coverage_script()
     recorded = coverage_record()["window_sampling"]["synthetic"]

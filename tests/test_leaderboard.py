@@ -11,10 +11,10 @@ from conftest import write_cmu_file
 from tiny_models import REGISTRY
 
 from zoo.core.errors import EvaluationError
-from zoo.leaderboard import Plan, regenerate
-from zoo.registry import Registry
-from zoo.report import write_leaderboard
-from zoo.results import EvalResult, read_table
+from zoo.evaluation.results import EvalResult, read_table
+from zoo.leaderboard.board import Plan, regenerate
+from zoo.models.registry import Registry
+from zoo.report.outputs import write_leaderboard
 from zoo.train.loop import train
 
 HERE = Path(__file__).resolve().parent
@@ -180,7 +180,7 @@ def test_completion_models_get_their_own_tables(tmp_path, capsys):
 
 
 def test_results_folder_names_sampler_task_and_ground_truth():
-    from zoo.store import table_folder
+    from zoo.store.layout import table_folder
 
     assert table_folder("all") == "all"
     assert table_folder("all", "completion", "spectral") == "all-completion-gt_spectral"
@@ -280,7 +280,7 @@ def test_check_recomputes_every_row_and_names_what_differs(tmp_path, capsys):
 
 
 def test_results_index_lists_every_table_with_its_headline(tmp_path):
-    from zoo.report import write_index
+    from zoo.report.outputs import write_index
 
     root, registry = cmu_and_registry(tmp_path)
     out = tmp_path / "results"
@@ -303,7 +303,7 @@ def test_an_interrupted_leaderboard_leaves_the_old_folder_whole(tmp_path, monkey
     def interrupted(*args, **kwargs):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr("zoo.report.plot_average", interrupted)
+    monkeypatch.setattr("zoo.report.outputs.plot_average", interrupted)
     with pytest.raises(KeyboardInterrupt):
         regenerate(
             "cmu", registry=registry, data_root=root, out_root=out, plan=Plan(recompute=True)
@@ -325,7 +325,7 @@ def test_a_model_asked_for_by_name_without_weights_is_an_error_naming_where_it_l
     reused, 0 recomputed' and exit 0, but one error naming the files it looked for; nothing
     written."""
     from zoo.cli import main
-    from zoo.store import StoreError
+    from zoo.store.layout import StoreError
 
     root, registry = cmu_and_registry(tmp_path)
     out = tmp_path / "results"

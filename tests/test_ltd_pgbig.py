@@ -267,8 +267,8 @@ def test_dropout_keeps_with_the_quantised_probability_and_rescales(p):
 def test_recipes_decay_the_rate_as_the_public_codes_do():
     """LTD's code multiplies the rate by 0.96 at the start of every second epoch from the
     second on; PGBIG's by 0.1^(1/50) at the start of every epoch, the first included."""
-    from zoo.registry import load_registry
-    from zoo.train.recipe import learning_rate, training_recipe
+    from zoo.models.recipe import learning_rate, training_recipe
+    from zoo.models.registry import load_registry
 
     registry = load_registry()
     ltd = training_recipe(registry.get("ltd").train)

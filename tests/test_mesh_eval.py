@@ -10,15 +10,15 @@ import torch
 import yaml
 
 import zoo
-from zoo import benchmark as benchmark_module
 from zoo import create_model
-from zoo.benchmark import BenchmarkError, get_benchmark
 from zoo.data.mesh import MeshDataset, MeshError, MeshSequence, MeshTopology, regress_joints
 from zoo.data.spectral import SpectralBasis, SpectralError
-from zoo.evaluation import EvaluationError
-from zoo.metrics import melv, mpjpe, vertex_rmse
+from zoo.evaluation.evaluator import EvaluationError
+from zoo.evaluation.markdown import markdown_tables
 from zoo.models.repeat_last import RepeatLast
-from zoo.tables import markdown_tables
+from zoo.protocol import benchmark as benchmark_module
+from zoo.protocol.benchmark import BenchmarkError, get_benchmark
+from zoo.protocol.metrics import melv, mpjpe, vertex_rmse
 
 # One 3-4-5 right triangle: its edges (0,1), (0,2), (1,2) have lengths 3, 4 and 5.
 TRIANGLE = torch.tensor([[0.0, 0, 0], [3, 0, 0], [0, 4, 0]])
@@ -387,7 +387,7 @@ def test_every_row_carries_its_standard_deviation_over_windows(toy_bench):
 def test_autoencoder_floor_rows_beside_the_model(toy_bench, tmp_path):
     """A model with ``autoencoder_floor`` gets ``<name>:autoencoder`` rows: the ground-truth
     future through it, scored like a prediction, shown in the headline but never the best."""
-    from zoo.report import write_leaderboard
+    from zoo.report.outputs import write_leaderboard
 
     class Blurred(RepeatLast):
         def autoencoder_floor(self, frames):
@@ -442,8 +442,8 @@ def test_one_pass_scores_every_model_as_alone_and_a_failure_leaves_only_its_mode
     """zoo leaderboard scores a table's rows in one pass (the ground truth prepared once): each
     model's result equals its evaluation alone, to the last bit, and a model that fails mid-way
     leaves the pass with its error while the others are scored to the end."""
-    from zoo.evaluation import Scored, evaluate_models
-    from zoo.protocol import plan_protocol
+    from zoo.evaluation.evaluator import Scored, evaluate_models
+    from zoo.protocol.plan import plan_protocol
 
     bench = toy_bench(spectral_k=2, ground_truths=["raw", "spectral"])
     dataset = toy_dataset()
@@ -487,9 +487,9 @@ def test_one_pass_scores_every_model_as_alone_and_a_failure_leaves_only_its_mode
 def test_a_model_failing_on_another_process_fails_on_every_process(toy_bench, monkeypatch):
     """Under torchrun each process scores its share of the batches; a model that failed on
     another process must not give this one a result missing that process's windows."""
-    import zoo.evaluation as evaluator
+    import zoo.evaluation.evaluator as evaluator
     from zoo.core.distributed import DistInfo
-    from zoo.protocol import plan_protocol
+    from zoo.protocol.plan import plan_protocol
 
     bench = toy_bench()
     protocol = plan_protocol(bench, toy_dataset())

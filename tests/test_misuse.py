@@ -132,7 +132,7 @@ def test_ctrl_c_ends_in_one_line(capsys, monkeypatch, root, tmp_path):
     def interrupted(*args, **kwargs):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr("zoo.pipeline.evaluate_models", interrupted)
+    monkeypatch.setattr("zoo.evaluation.pipeline.evaluate_models", interrupted)
     code, last = run(
         capsys,
         "eval",
@@ -172,7 +172,7 @@ def test_a_user_model_raising_while_built_gets_one_line_then_its_own_frames(caps
     )
     # then its own frames only, as for a raise in its forward
     assert "your code raised ValueError: my own bug" in err
-    assert 'mine.py", line 6, in __init__' in err and "zoo/registry.py" not in err
+    assert 'mine.py", line 6, in __init__' in err and "zoo/models/registry.py" not in err
 
 
 def test_model_names_cannot_escape_the_results_folder(capsys, tmp_path):

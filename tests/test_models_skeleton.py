@@ -10,9 +10,9 @@ import torch
 import zoo
 from zoo.models.dct import dct_matrix, idct_matrix
 from zoo.models.mlp import SiMLPe
+from zoo.models.registry import RegistryError
 from zoo.models.spgsn import SPGSN
 from zoo.paths import REPO_ROOT
-from zoo.registry import RegistryError
 
 CMU_ROOT = (REPO_ROOT / "../shared/data/cmu_mocap").resolve()
 SKELETON_MODELS = ["mlp", "spgsn", "spgsn_1body"]
@@ -439,7 +439,7 @@ def test_unknown_hyper_parameter_is_an_error(name):
 def cmu_test_data():
     if not (CMU_ROOT / "test").is_dir():
         pytest.skip(f"CMU Mocap test data not found at {CMU_ROOT}")
-    from zoo.benchmark import get_benchmark
+    from zoo.protocol.benchmark import get_benchmark
 
     return get_benchmark("cmu").load(CMU_ROOT)
 
@@ -480,8 +480,8 @@ def test_models_learn_on_cmu_training_windows(name, overrides, lr):
     """150 Adam steps on real CMU training windows take the model below repeat-last."""
     if not (CMU_ROOT / "train").is_dir():
         pytest.skip(f"CMU Mocap training data not found at {CMU_ROOT}")
-    from zoo.benchmark import get_benchmark
     from zoo.data.windows import gather_windows, window_sampler
+    from zoo.protocol.benchmark import get_benchmark
 
     data = get_benchmark("cmu").load(CMU_ROOT, split="train")
     index = window_sampler("stride5", [len(s) for s in data.sequences], 10, 25, data.ltd_rule)

@@ -10,7 +10,7 @@ import pytest
 import torch
 
 from zoo.models.msrgcn import MSRGCN
-from zoo.registry import load_registry
+from zoo.models.registry import load_registry
 
 T_IN, T_OUT, POINTS = 10, 25, 25
 
@@ -104,7 +104,7 @@ def test_bad_groups_and_shapes_are_refused_in_words():
 
 def test_recipe_decays_as_the_code_does():
     # the code: lr 2e-4, x 0.98 before epochs 2, 4, 6, ... (1-based)
-    from zoo.train.recipe import learning_rate, training_recipe
+    from zoo.models.recipe import learning_rate, training_recipe
 
     recipe = training_recipe(load_registry().get("msrgcn").train)
     rates = [learning_rate(recipe.schedule, recipe.lr, e, 50) for e in range(6)]

@@ -14,10 +14,10 @@ import torch
 from test_train import run
 
 import zoo
-import zoo.weights
-from zoo.checkpoints import CheckpointError, pause_run, read_checkpoint
+import zoo.hub.weights
 from zoo.cli import main
 from zoo.core.errors import TrainingError
+from zoo.hub.checkpoints import CheckpointError, pause_run, read_checkpoint
 
 setup = test_train.setup  # the tiny CMU data and registry of the training tests
 
@@ -25,7 +25,7 @@ setup = test_train.setup  # the tiny CMU data and registry of the training tests
 @pytest.fixture
 def weights_root(tmp_path, monkeypatch):
     root = tmp_path / "weights"
-    monkeypatch.setattr(zoo.weights, "WEIGHTS_DIR", root)
+    monkeypatch.setattr(zoo.hub.weights, "WEIGHTS_DIR", root)
     return root
 
 
@@ -84,7 +84,7 @@ def test_pausing_again_replaces_the_state_and_a_tensor_past_float16_stays_float3
     paused = read_checkpoint(dest / "last.pt")
     assert paused["state_dict"][name].dtype == torch.float32
     assert paused["stored_as"]["weights_kept_float32"] == [name]
-    assert zoo.weights.paused_runs(weights_root)[("cmu", "tiny")]["epochs_run"] == 1
+    assert zoo.hub.weights.paused_runs(weights_root)[("cmu", "tiny")]["epochs_run"] == 1
 
 
 def test_precision_may_change_on_resume_and_each_epoch_records_its_own(setup, tmp_path):
@@ -154,7 +154,7 @@ def test_the_gpu_command_resumes_a_paused_state_and_brings_it_back(setup, tmp_pa
     parts = sorted((out / "tiny").iterdir())
     assert [p.name for p in parts] == ["state.tar.00", "state.tar.sha256"]
     assert script.main(["unpack", str(out), "--weights-dir", str(weights_root)]) == 0
-    summary = zoo.weights.paused_runs(weights_root)[("cmu", "tiny")]
+    summary = zoo.hub.weights.paused_runs(weights_root)[("cmu", "tiny")]
     assert summary["epochs_run"] == 2 and len(summary["epochs"]) == 2
     # a finished model is passed over by the next run
     out2 = tmp_path / "OUT2"
@@ -198,7 +198,7 @@ def test_patience_stops_a_run_that_no_longer_improves_and_its_state_says_finishe
     assert "stopped after epoch 3: no better validation error for 2 epochs" in (
         capsys.readouterr().out
     )
-    from zoo.checkpoints import paused_summary
+    from zoo.hub.checkpoints import paused_summary
 
     assert paused_summary(ckpt)["finished"] is True
     run(

@@ -1,4 +1,5 @@
-"""One pipeline (zoo.pipeline) behind zoo eval, zoo.evaluate and zoo leaderboard: the same result
+"""One pipeline (zoo.evaluation.pipeline) behind zoo eval, zoo.evaluate and zoo leaderboard: the
+same result
 files from each, and one protocol planned per result whichever entry point."""
 
 from __future__ import annotations
@@ -14,8 +15,8 @@ from test_mesh_eval import toy_bench  # noqa: F401 (a fixture)
 import zoo
 from zoo.cli import main
 from zoo.data import windows as window_rules
-from zoo.leaderboard import regenerate
-from zoo.registry import load_registry
+from zoo.leaderboard.board import regenerate
+from zoo.models.registry import load_registry
 
 FILES = ("results.csv", "tables.md", "windows.npz")
 

@@ -3,8 +3,8 @@
 import pytest
 import torch
 
-from zoo.efficiency import forward_gflop, measure
-from zoo.published import PublishedError, load_published, place
+from zoo.leaderboard.efficiency import forward_gflop, measure
+from zoo.protocol.published import PublishedError, load_published, place
 
 
 def cmu_record(

@@ -5,9 +5,9 @@ from __future__ import annotations
 
 import re
 
+from zoo.evaluation.markdown import metric_unit
+from zoo.evaluation.results import read_table
 from zoo.paths import REPO_ROOT
-from zoo.results import read_table
-from zoo.tables import metric_unit
 
 BLOCK = re.compile(r"<!-- headline (\S+)/(\S+) (\S+) (\S+) -->\n(.*?)<!-- end headline -->", re.S)
 

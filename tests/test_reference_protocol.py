@@ -15,8 +15,8 @@ import pytest
 
 import zoo
 from zoo import create_model
-from zoo.benchmark import get_benchmark
 from zoo.data.skeleton import CMU
+from zoo.protocol.benchmark import get_benchmark
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "cmu_mocap"
 needs_cmu = pytest.mark.skipif(not DATA.is_dir(), reason=f"CMU data not found at {DATA}")

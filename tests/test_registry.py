@@ -7,7 +7,7 @@ import pytest
 
 import zoo
 from zoo.cli import main
-from zoo.registry import Registry, RegistryError
+from zoo.models.registry import Registry, RegistryError
 
 
 def test_list_and_create():
@@ -222,7 +222,7 @@ def test_command_line_overrides_read_numbers_as_numbers():
 
 
 def test_entry_task_is_checked(tmp_path):
-    from zoo.registry import Registry, RegistryError
+    from zoo.models.registry import Registry, RegistryError
 
     path = tmp_path / "r.yaml"
     path.write_text(
@@ -305,7 +305,7 @@ def test_a_known_name_needs_an_explicit_override_that_results_record(
 def test_a_model_kept_out_of_the_leaderboards_is_still_a_zoo_model():
     import torch
 
-    from zoo.registry import load_registry
+    from zoo.models.registry import load_registry
 
     registry = load_registry()
     entry = registry.get("constant_velocity")
@@ -339,7 +339,7 @@ def test_the_api_takes_a_registry_files_path(tmp_path):
     from conftest import write_cmu_file
 
     import zoo
-    from zoo.registry import RegistryError
+    from zoo.models.registry import RegistryError
 
     root = tmp_path / "cmu"
     write_cmu_file(root / "test" / "walking" / "walking_1.txt", 0.01 * np.arange(400))
@@ -378,7 +378,7 @@ def test_a_users_model_that_raises_in_its_forward_gets_a_short_headed_error(tmp_
     assert code == 1
     assert "zoo eval: error: your code raised RuntimeError: no CUDA here" in err
     assert "still.py" in err and "in forward" in err
-    assert "zoo/evaluation.py" not in err and "torch/nn" not in err
+    assert "zoo/evaluation/evaluator.py" not in err and "torch/nn" not in err
     assert "Traceback" not in err and len(err.strip().splitlines()) < 8
 
 

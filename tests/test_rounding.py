@@ -1,10 +1,11 @@
-"""The re-runs that measure a window's rounding sensitivity (zoo.rounding): a float64 copy that
+"""The re-runs that measure a window's rounding sensitivity (zoo.leaderboard.rounding): a float64
+copy that
 answers in float32, and copies whose inputs move by a few units in the last place."""
 
 import torch
 from torch import nn
 
-from zoo.rounding import INPUT_ULPS, in_float64, with_inputs_moved
+from zoo.leaderboard.rounding import INPUT_ULPS, in_float64, with_inputs_moved
 
 
 class Sum(nn.Module):

@@ -3,9 +3,9 @@
 import numpy as np
 import pandas as pd
 
-from zoo.report import write_leaderboard
-from zoo.results import EvalResult
-from zoo.sensitivity import protocol_sensitivity
+from zoo.evaluation.results import EvalResult
+from zoo.report.outputs import write_leaderboard
+from zoo.stats.sensitivity import protocol_sensitivity
 
 
 def table(folder, sampler, values):

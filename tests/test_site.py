@@ -14,13 +14,14 @@ import numpy as np
 import pytest
 
 from zoo.cli import main
-from zoo.clips import Clips, cluster_vertices
+from zoo.evaluation.markdown import headline_key
+from zoo.evaluation.results import EvalResult, table_labels
+from zoo.hub.weights import unshipped_models
+from zoo.models.registry import load_registry
 from zoo.paths import REPO_ROOT
-from zoo.registry import load_registry
-from zoo.results import EvalResult, table_labels
+from zoo.report.clips import Clips, cluster_vertices
+from zoo.report.tables import table_summary
 from zoo.site import build_site
-from zoo.tables import headline_key, table_summary
-from zoo.weights import unshipped_models
 
 RESULTS = REPO_ROOT / "results"
 TABLE = RESULTS / "cmu_anny_oi_low" / "stride5_strict"
@@ -327,7 +328,7 @@ def test_every_two_predictions_of_a_table_are_compared_once_the_readers_first(ta
     seeing the future) and the ground truth are no prediction and pair with nothing."""
     from itertools import combinations
 
-    from zoo.tables import is_floor
+    from zoo.stats.ranking import is_floor
 
     summary = json.loads((RESULTS / table / "summary.json").read_text())
     rows = sorted(
@@ -351,7 +352,7 @@ def test_a_row_trained_short_of_its_recipe_says_so_where_its_number_is(tmp_path)
     """spgsn's shipped run capped its epochs at 50 batches (22% of the recipe's windows): its
     rows carry a note in the table's data; a record with the epoch's window count gives the
     share; a full run gives none."""
-    from zoo.cards import Shipped, budget_note, short_training_notes
+    from zoo.report.cards import Shipped, budget_note, short_training_notes
 
     results = _copy_results(tmp_path, "cmu")
     build_site(tmp_path / "site", results)
@@ -386,7 +387,7 @@ def test_a_model_page_shows_its_card_once_and_every_horizon(tmp_path):
 
 
 def test_a_run_stopped_by_its_patience_is_not_short_and_a_tiny_split_does_not_crash():
-    from zoo.cards import budget_note
+    from zoo.report.cards import budget_note
 
     run = {
         "training": {"samples_seen": 25 * 14_368, "epochs_run": 25, "best": {"epoch": 15}},

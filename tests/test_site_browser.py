@@ -30,7 +30,7 @@ RESULTS = REPO_ROOT / "results"
 
 @pytest.fixture(scope="module")
 def site(tmp_path_factory) -> Path:
-    from zoo.clips import Clips
+    from zoo.report.clips import Clips
 
     tmp = tmp_path_factory.mktemp("site")
     results = tmp / "results"
@@ -549,7 +549,7 @@ def test_any_two_rows_are_compared_and_the_choice_reopens(browser, site):
 def test_the_viewer_overlays_the_truth_plays_at_a_chosen_speed_and_groups_windows(browser, site):
     from selenium.webdriver.support.ui import Select
 
-    from zoo.clips import Clips
+    from zoo.report.clips import Clips
 
     _open(browser, site / "meshes-cmu_anny_oi_low.html")
     clips = Clips.read(site.parent / "results" / "cmu_anny_oi_low" / "clips.npz")

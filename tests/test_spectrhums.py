@@ -15,10 +15,10 @@ from torch import nn
 
 from zoo.data.spectral import SpectralBasis
 from zoo.models.latent_transformer import EncoderLayer
+from zoo.models.recipe import learning_rate, training_recipe
+from zoo.models.registry import load_registry
 from zoo.models.spectral_autoencoder import SpectralAutoencoder
 from zoo.models.spectrhums import SpecTrHuMS, SpecTrHuMSConfig, SpecTrHuMSError, Welford
-from zoo.registry import load_registry
-from zoo.train.recipe import learning_rate, training_recipe
 
 T_IN, T_OUT = 6, 4
 W = T_IN + T_OUT
@@ -702,8 +702,9 @@ def test_training_on_coefficients_is_training_on_vertices():
 
 def test_cost_columns_time_the_step_the_engine_runs(monkeypatch):
     """The training throughput of a model with a training view is measured on windows of it
-    (zoo.efficiency), as zoo.train steps it: a trained model's coefficient statistics kept."""
-    from zoo.efficiency import measure
+    (zoo.leaderboard.efficiency), as zoo.train steps it: a trained model's coefficient statistics
+    kept."""
+    from zoo.leaderboard.efficiency import measure
 
     model = trained_stats(make())  # as loaded from a checkpoint: statistics, autoencoder phase
     model.phase = "autoencoder"

@@ -5,9 +5,9 @@ import pytest
 import torch
 from test_spectrhums import BASIS, SMALL, T_IN, T_OUT, V, motion, trained_stats
 
+from zoo.models.registry import Registry, RegistryError, load_registry
 from zoo.models.spectrhums import SpecTrHuMS, SpecTrHuMSError
 from zoo.models.spectrhums_anchored import AnchoredSpecTrHuMS
-from zoo.registry import Registry, RegistryError, load_registry
 
 
 def anchored(seed=0, **kw):
@@ -154,8 +154,8 @@ def test_weights_of_must_name_a_trainable_model_that_sees_the_same_data(tmp_path
 
 def test_pretrained_and_the_default_label_of_a_weights_of_entry(tmp_path, capsys):
     import zoo
-    from zoo.benchmark import get_benchmark
-    from zoo.model_source import ModelSource
+    from zoo.hub.model_source import ModelSource
+    from zoo.protocol.benchmark import get_benchmark
 
     registry = load_registry()
     weights = "weights/cmu_anny_oi_low/spectrhums@last.safetensors"
@@ -178,9 +178,9 @@ def test_pretrained_and_the_default_label_of_a_weights_of_entry(tmp_path, capsys
 def test_every_weights_of_row_ships_its_link_to_the_weights_it_runs():
     import os
 
-    from zoo.benchmark import get_benchmark
-    from zoo.model_source import ModelSource
+    from zoo.hub.model_source import ModelSource
     from zoo.paths import REPO_ROOT
+    from zoo.protocol.benchmark import get_benchmark
 
     registry = load_registry()
     runs = {n: e.weights_of for n, e in registry.entries.items() if e.weights_of}

@@ -16,8 +16,8 @@ from conftest import write_cmu_file
 from tiny_models import REGISTRY
 
 from zoo.cli import main
-from zoo.registry import Registry
-from zoo.results import read_table
+from zoo.evaluation.results import read_table
+from zoo.models.registry import Registry
 from zoo.train.loop import train
 
 HERE = Path(__file__).resolve().parent
@@ -97,7 +97,7 @@ def board_args(project, *registries):
 
 def shipped_tiny(project, epochs=1, seed=0):
     """The tiny model trained and exported as shipped weights (weights/cmu/tiny.*)."""
-    from zoo.checkpoints import export_weights
+    from zoo.hub.checkpoints import export_weights
 
     registry = Registry.from_files(
         HERE.parent / "registry.yaml", project / "tiny" / "registry.yaml"
@@ -256,7 +256,7 @@ def test_a_user_checkpoint_names_its_registry(project, capsys):
         progress=False,
         out_dir=project / "checkpoints" / "tiny",
     )
-    from zoo.checkpoints import read_checkpoint
+    from zoo.hub.checkpoints import read_checkpoint
 
     origin = read_checkpoint(best)["origin"]
     assert origin["class"] == "tiny_models.py:TinyTemporal"
@@ -343,7 +343,7 @@ def test_python_results_carry_the_command_lines_identity(project, capsys):
 
 
 def test_code_fingerprints_ignore_comments_and_docstrings(tmp_path):
-    from zoo.fingerprint import code_fingerprint
+    from zoo.store.fingerprint import code_fingerprint
 
     a, b, c = (tmp_path / f"{n}.py" for n in "abc")
     a.write_text('def f(x):\n    """Doc."""\n    return x + 1\n')
@@ -407,7 +407,7 @@ def test_a_users_row_under_a_planned_label_stops_the_rebuild(project, capsys):
 
 def test_a_model_objects_identity_holds_its_settings(project):
     import zoo
-    import zoo.store
+    import zoo.store.identity
 
     spec = {}
     exec(CONSTANT_VELOCITY, spec)  # a class with no source file, as typed into a REPL
@@ -418,7 +418,7 @@ def test_a_model_objects_identity_holds_its_settings(project):
     assert a.identity != b.identity and a.identity["code"]["model"] is None
     out = project / "cv"
     zoo.evaluate(spec["DampedVelocity"](10, 25, 25), "cmu", out=out, **run)
-    with pytest.raises(zoo.store.StoreError, match="source cannot be read"):
+    with pytest.raises(zoo.store.layout.StoreError, match="source cannot be read"):
         zoo.evaluate(spec["DampedVelocity"](10, 25, 25), "cmu", out=out, **run)
 
 
@@ -524,7 +524,7 @@ def _model_class(folder: Path, text: str) -> type:
     ],
 )
 def test_a_model_fingerprint_covers_the_code_its_class_reaches(tmp_path, change, stale):
-    from zoo.fingerprint import model_fingerprint, reachable_code
+    from zoo.store.fingerprint import model_fingerprint, reachable_code
 
     changed = {
         "a second class": MODEL_FILE + "\n\nclass Other(nn.Module):\n    pass\n",
@@ -561,15 +561,15 @@ def test_a_model_fingerprint_covers_the_code_its_class_reaches(tmp_path, change,
 
 
 def test_a_model_reaches_its_base_class_in_another_zoo_module():
-    from zoo.fingerprint import reachable_code
     from zoo.models.spectrhums_anchored import AnchoredSpecTrHuMS
+    from zoo.store.fingerprint import reachable_code
 
     names = {c.split("::")[1] for c in reachable_code(AnchoredSpecTrHuMS)}
     assert {"AnchoredSpecTrHuMS", "SpecTrHuMS", "probe_projections"} <= names
 
 
 def test_a_model_reaches_what_it_imports_inside_its_methods(tmp_path):
-    from zoo.fingerprint import reachable_code
+    from zoo.store.fingerprint import reachable_code
 
     local = MODEL_FILE.replace("from zoo.models.dct import dct_matrix\n", "").replace(
         "        return helper(x)",
@@ -627,8 +627,8 @@ def test_a_wrapper_imports_the_file_beside_it_and_its_fingerprint_follows_that_f
     """A researcher's class file imports the authors' code from a file beside it (the
     registry puts its folder on sys.path), and the model's fingerprint covers what it reaches
     there: an activation changed in that file makes its rows stale, wherever the folder is."""
-    from zoo.fingerprint import model_fingerprint
-    from zoo.registry import Registry
+    from zoo.models.registry import Registry
+    from zoo.store.fingerprint import model_fingerprint
 
     def fingerprint(folder: Path, authors: str) -> str:
         folder.mkdir()
@@ -681,8 +681,8 @@ def test_a_wrapper_that_puts_the_authors_checkout_on_sys_path_is_followed_into_i
     """As docs/adding-a-model.md's GGMotion wrapper does: the authors' checkout in a folder
     beside the wrapper, put on sys.path by the wrapper, its packages imported by their names.
     A change in a file of the checkout that the model reaches makes its rows stale."""
-    from zoo.fingerprint import model_fingerprint, reachable_code
-    from zoo.registry import Registry
+    from zoo.models.registry import Registry
+    from zoo.store.fingerprint import model_fingerprint, reachable_code
 
     monkeypatch.setattr(sys, "path", list(sys.path))
 
@@ -708,7 +708,7 @@ def test_a_wrapper_that_puts_the_authors_checkout_on_sys_path_is_followed_into_i
 
 
 def test_identity_differences_are_decided_on_by_field_not_by_their_words():
-    from zoo.store import Difference, identity_differences, only_code_changed
+    from zoo.store.identity import Difference, identity_differences, only_code_changed
 
     code = identity_differences({"code": {"evaluator": "a"}}, {"code": {"evaluator": "b"}})
     assert only_code_changed(code) and code == ['code.evaluator: stored "a", now "b"']
@@ -723,7 +723,7 @@ def test_identity_differences_are_decided_on_by_field_not_by_their_words():
 def test_a_second_folder_whose_sibling_module_is_shadowed_is_refused(tmp_path):
     """Two registries' class files, each with its own authors.py: the second would import the
     first one's module (Python keeps one per name), so it is refused, naming both files."""
-    from zoo.registry import Registry, RegistryError
+    from zoo.models.registry import Registry, RegistryError
 
     entries = {}
     for folder in ("first", "second"):

@@ -26,8 +26,8 @@ def test_rows_that_are_no_prediction_are_neither_ranked_nor_bold():
 def test_a_row_trained_short_and_timings_of_two_machines_are_marked_where_the_number_is():
     """CMU's SPGSN weights saw a capped run; its costs and PGBIG's came from other machines.
     Re-rendering the cost cells (zoo costs) keeps both marks and every other byte."""
-    from zoo.efficiency import Costs
-    from zoo.tables import with_costs
+    from zoo.leaderboard.efficiency import Costs
+    from zoo.report.tables import with_costs
 
     path = REPO_ROOT / "results" / "cmu" / "all" / "leaderboard.md"
     text = path.read_text()

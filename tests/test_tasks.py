@@ -7,10 +7,10 @@ from test_evaluator import expected_repeat_last
 
 import zoo
 from zoo import create_model
-from zoo.benchmark import get_benchmark
 from zoo.cli import main
-from zoo.evaluation import EvaluationError, predict
+from zoo.evaluation.evaluator import EvaluationError, predict
 from zoo.models.hooks import ModelContractError
+from zoo.protocol.benchmark import get_benchmark
 
 
 class LastTwoFramesModel(torch.nn.Module):

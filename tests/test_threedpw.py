@@ -10,10 +10,10 @@ import pytest
 
 import zoo
 from zoo import create_model
-from zoo.benchmark import get_benchmark
 from zoo.data.expmap import DataFormatError
 from zoo.data.threedpw import load_3dpw, read_3dpw_file
 from zoo.data.windows import window_sampler
+from zoo.protocol.benchmark import get_benchmark
 
 
 def track(frames, speed_m=0.0, offset_m=(1.0, 2.0, 3.0)):

@@ -15,10 +15,10 @@ from tiny_models import REGISTRY
 
 import zoo.train as train_module
 import zoo.train.loop as train_loop
-from zoo.checkpoints import CheckpointError, load_checkpoint, read_checkpoint, weights_digest
 from zoo.cli import main
 from zoo.core.errors import TrainingError
-from zoo.registry import Registry
+from zoo.hub.checkpoints import CheckpointError, load_checkpoint, read_checkpoint, weights_digest
+from zoo.models.registry import Registry
 from zoo.train.loop import train
 
 HERE = Path(__file__).resolve().parent
@@ -119,7 +119,7 @@ def test_the_training_device_names_the_cpu_model_and_its_kernels():
 
 
 def test_checkpoint_provenance_names_repository_files_relative_to_it(tmp_path):
-    from zoo.checkpoints import checkpoint_provenance
+    from zoo.hub.checkpoints import checkpoint_provenance
     from zoo.paths import REPO_ROOT
 
     meta = {"hparams": {"hidden": 16}, "training": {"epochs_run": 3}}
@@ -131,7 +131,7 @@ def test_checkpoint_provenance_names_repository_files_relative_to_it(tmp_path):
     }
     outside = checkpoint_provenance(tmp_path / "best.pt", meta)
     assert outside["checkpoint"] == str((tmp_path / "best.pt").resolve())
-    # with the run's budget, where the checkpoint records it (zoo.cards.budget_note reads it)
+    # with the run's budget, where the checkpoint records it (zoo.report.cards.budget_note reads it)
     budget = {"recipe": {"epochs": 50}, "validation": {"training_windows": 9}, "max_batches": 2}
     assert checkpoint_provenance(tmp_path / "best.pt", {**meta, **budget}).items() >= budget.items()
 
@@ -287,7 +287,7 @@ def test_two_process_ddp_ends_with_identical_weights(setup, tmp_path):
 
 
 def test_learning_rate_schedules():
-    from zoo.train.recipe import learning_rate
+    from zoo.models.recipe import learning_rate
 
     step = {"type": "step", "every_epochs": 2, "gamma": 0.96}
     assert [round(learning_rate(step, 1e-3, e, 50), 10) for e in range(5)] == [
@@ -407,7 +407,7 @@ def test_init_from_starts_a_new_stage_from_those_weights_and_records_them(setup,
 def test_init_from_shipped_weights_extends_a_published_row(setup, tmp_path):
     """Shipped weights (no checkpoint) start a new stage: anyone can extend a committed row's
     training from the repository alone; the record names the file, its kind and dtype."""
-    from zoo.checkpoints import export_weights
+    from zoo.hub.checkpoints import export_weights
 
     first = run(setup, tmp_path / "a", epochs=1)
     shipped = export_weights(first, root=tmp_path / "weights", dtype="float32")
@@ -518,7 +518,7 @@ def test_validation_by_recordings_holds_out_whole_recordings_and_records_them(tm
 
 
 def test_validation_by_tails_takes_the_end_of_long_recordings_and_trains_on_short_ones(tmp_path):
-    from zoo.benchmark import get_benchmark
+    from zoo.protocol.benchmark import get_benchmark
     from zoo.train.split import held_out_frames, split_train_val
 
     root = tmp_path / "cmu"
@@ -559,7 +559,7 @@ def test_validation_by_actions_gives_every_action_windows_and_holds_none_out_who
     """``actions``: tails where a recording can spare one; an action with no such recording
     (walking here, as on CMU) gives the last 10% of its frames, at least one window, from the
     end of its longest recording."""
-    from zoo.benchmark import get_benchmark
+    from zoo.protocol.benchmark import get_benchmark
     from zoo.train.split import held_out_frames
 
     root = tmp_path / "cmu"
@@ -651,7 +651,7 @@ def test_a_run_written_with_a_capturable_optimizer_resumes_on_the_cpu(setup, tmp
 
 def test_learning_rate_is_set_in_place_where_it_is_a_tensor():
     model = torch.nn.Linear(2, 2)
-    from zoo.train.recipe import Recipe
+    from zoo.models.recipe import Recipe
 
     recipe = Recipe(lr=0.01)
     graphed = train_module.make_optimizer(model, recipe, "cpu", graphed=True)

@@ -12,12 +12,12 @@ import torch
 from tiny_models import MESH_REGISTRY
 
 import zoo
-from zoo import benchmark as benchmark_module
-from zoo.checkpoints import CheckpointError, load_checkpoint, read_checkpoint
 from zoo.core.io import sha256_file
 from zoo.data.mesh import MeshDataset, MeshSequence, MeshTopology
-from zoo.registry import Registry
-from zoo.results import read_table
+from zoo.evaluation.results import read_table
+from zoo.hub.checkpoints import CheckpointError, load_checkpoint, read_checkpoint
+from zoo.models.registry import Registry
+from zoo.protocol import benchmark as benchmark_module
 from zoo.train.loop import train
 
 HERE = Path(__file__).resolve().parent
@@ -256,8 +256,8 @@ def test_spectrhums_trains_on_cached_coefficients(toy_mesh, tmp_path):
 
 def test_validation_logs_each_horizon_beside_repeat_last_on_the_same_windows(toy_mesh, tmp_path):
     from zoo.data.windows import window_sampler
-    from zoo.metrics import vertex_rmse
     from zoo.models.repeat_last import RepeatLast
+    from zoo.protocol.metrics import vertex_rmse
     from zoo.train.validation import validate, validation_frames
 
     # 25 fps: frame t at 40 t ms; 80 ms is the 2nd predicted frame, 400 ms the 10th, 1000 ms
@@ -312,8 +312,8 @@ def test_each_epoch_records_its_horizons_and_the_log_prints_them(toy_mesh, tmp_p
 
 
 def test_an_entry_with_weights_of_runs_that_models_weights_beside_its_rows(toy_mesh, tmp_path):
-    from zoo.leaderboard import regenerate
-    from zoo.model_source import ModelSource
+    from zoo.hub.model_source import ModelSource
+    from zoo.leaderboard.board import regenerate
 
     bench, registry, _ = toy_mesh
     checkpoints = tmp_path / "checkpoints"

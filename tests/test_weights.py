@@ -9,12 +9,12 @@ import torch
 from test_train import run, setup  # noqa: F401  (setup is a fixture)
 
 import zoo
-import zoo.weights
-from zoo.checkpoints import export_weights, load_weights, read_checkpoint
+import zoo.hub.weights
 from zoo.cli import main
-from zoo.leaderboard import regenerate
-from zoo.results import EvalResult, read_table
-from zoo.weights import WeightsError, read_weights
+from zoo.evaluation.results import EvalResult, read_table
+from zoo.hub.checkpoints import export_weights, load_weights, read_checkpoint
+from zoo.hub.weights import WeightsError, read_weights
+from zoo.leaderboard.board import regenerate
 
 
 @pytest.fixture
@@ -90,7 +90,7 @@ def test_foreign_weights_are_refused_naming_what_differs(trained, tmp_path, setu
     record["sha256"] = sha256_file(path)
     path.with_suffix(".json").write_text(json.dumps(record))
     with pytest.raises(
-        zoo.checkpoints.CheckpointError,
+        zoo.hub.checkpoints.CheckpointError,
         match=r"tiny\.safetensors: weights do not fit model 'tiny' "
         r"\(Error\(s\) in loading state_dict",
     ):
@@ -108,7 +108,7 @@ def test_weights_for_another_protocol_are_refused(trained, tmp_path, setup):  # 
     record["protocol"]["output_frames"] = 10
     path.with_suffix(".json").write_text(json.dumps(record))
     with pytest.raises(
-        zoo.checkpoints.CheckpointError, match="weights .* another protocol.*output_frames"
+        zoo.hub.checkpoints.CheckpointError, match="weights .* another protocol.*output_frames"
     ):
         load_weights(path, registry=setup[1], benchmark="cmu")
 
@@ -119,7 +119,7 @@ def test_pretrained_model_comes_from_the_shipped_weights(
     setup,  # noqa: F811
     monkeypatch,
 ):
-    monkeypatch.setattr(zoo.weights, "WEIGHTS_DIR", tmp_path / "weights")
+    monkeypatch.setattr(zoo.hub.weights, "WEIGHTS_DIR", tmp_path / "weights")
     export_weights(trained / "last.pt")
     model = zoo.create_model("tiny@last", benchmark="cmu", registry=setup[1], pretrained=True)
     expected = read_checkpoint(trained / "last.pt")["state_dict"]
@@ -132,7 +132,7 @@ def test_pretrained_model_comes_from_the_shipped_weights(
         r"shipped: cmu/tiny@last",
     ):
         zoo.create_model("tiny", benchmark="cmu", registry=setup[1], pretrained=True)
-    with pytest.raises(zoo.registry.RegistryError, match="needs benchmark"):
+    with pytest.raises(zoo.models.registry.RegistryError, match="needs benchmark"):
         zoo.create_model("tiny@last", registry=setup[1], pretrained=True)
 
 
@@ -196,8 +196,8 @@ def test_eval_and_leaderboard_compute_the_row_from_the_weights(
 def test_training_plot_draws_each_validation_horizon_beside_repeat_last(tmp_path, monkeypatch):
     import matplotlib.figure
 
-    from zoo.report import plot_training_curves
-    from zoo.weights import training_horizons
+    from zoo.hub.weights import training_horizons
+    from zoo.report.outputs import plot_training_curves
 
     horizons = lambda m: {  # noqa: E731
         "metric": "rmse",

@@ -17,7 +17,7 @@ def __getattr__(name: str):
 
         return getattr(zoo.api, name)
     if name == "load_registry":
-        from zoo.registry import load_registry
+        from zoo.models.registry import load_registry
 
         return load_registry
     raise AttributeError(f"module 'zoo' has no attribute {name!r}")

@@ -15,7 +15,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from zoo.registry import Registry, RegistryError, as_registry, load_registry
+from zoo.models.registry import Registry, RegistryError, as_registry, load_registry
 
 
 def list_models(representation: str | None = None) -> list[str]:
@@ -29,18 +29,19 @@ def create_model(
     pretrained: bool = False,
     **overrides: Any,
 ):
-    """A registered model. ``benchmark`` (a name or a :class:`zoo.benchmark.Benchmark`) supplies
+    """A registered model. ``benchmark`` (a name or a :class:`zoo.protocol.benchmark.Benchmark`)
+    supplies
     the shape arguments and context; ``overrides`` replace any hyper-parameter by name.
 
     ``pretrained=True`` returns the model trained on ``benchmark`` from the weights shipped in
     ``weights/<benchmark>/<name>.safetensors`` (``name`` may be ``<model>@last``; an entry with
     ``weights_of`` ships a link to that model's), in eval mode; the error lists the shipped ones
-    when there are none. ``registry``: a :class:`zoo.registry.Registry`, or the path of your
+    when there are none. ``registry``: a :class:`zoo.models.registry.Registry`, or the path of your
     registry file (or a list of them), added to the project's."""
     registry = as_registry(registry, "zoo.create_model")
     if pretrained:
-        from zoo.checkpoints import load_weights
-        from zoo.weights import pretrained_path
+        from zoo.hub.checkpoints import load_weights
+        from zoo.hub.weights import pretrained_path
 
         if benchmark is None:
             raise RegistryError(
@@ -61,7 +62,7 @@ def create_model(
             model_name=model if registry.get(model).weights_of else None,
         )[0]
     if benchmark is not None:
-        from zoo.benchmark import get_benchmark
+        from zoo.protocol.benchmark import get_benchmark
 
         bench = get_benchmark(benchmark) if isinstance(benchmark, (str, Path)) else benchmark
         entry = registry.get(name)
@@ -87,7 +88,8 @@ def evaluate(
     device: str = "cpu",
     **options: Any,
 ):
-    """Evaluate a model on a benchmark; an :class:`zoo.results.EvalResult` (``.frame``: every
+    """Evaluate a model on a benchmark; an :class:`zoo.evaluation.results.EvalResult` (``.frame``:
+    every
     row; ``.summary()``: the action average per horizon) carrying the same identity as
     ``zoo eval`` records.
 
@@ -97,20 +99,20 @@ def evaluate(
     ``results/<benchmark>/<table>/<label>/``, which refuses a stored result of another identity
     unless ``replace=True``. ``dataset``: the benchmark's test data already loaded
     (``get_benchmark(b).load(root)``), instead of loading it from ``data_root``. ``registry``:
-    a :class:`zoo.registry.Registry`, or the path of your registry file (or a list of them).
+    a :class:`zoo.models.registry.Registry`, or the path of your registry file (or a list of them).
     ``options``: ``task`` (``prediction``, ``completion`` or ``longterm`` with ``horizon``
     frames), ``ground_truth`` and ``melv_frames`` (mesh benchmarks: ``raw`` or ``spectral``),
     ``view`` (``joints`` for a skeleton module on a mesh benchmark), ``batch_size``."""
     import torch
 
-    from zoo.benchmark import get_benchmark
     from zoo.core.errors import EvaluationError
     from zoo.core.options import EVAL_BATCH
-    from zoo.model_source import ModelSource
-    from zoo.pipeline import Subject, compute, place
-    from zoo.pipeline import store as store_result
-    from zoo.protocol import plan_protocol
-    from zoo.store import check_label, result_path, table_folder
+    from zoo.evaluation.pipeline import Subject, compute, place
+    from zoo.evaluation.pipeline import store as store_result
+    from zoo.hub.model_source import ModelSource
+    from zoo.protocol.benchmark import get_benchmark
+    from zoo.protocol.plan import plan_protocol
+    from zoo.store.layout import check_label, result_path, table_folder
 
     bench = get_benchmark(benchmark) if isinstance(benchmark, (str, Path)) else benchmark
     if dataset is not None and data_root is not None:
@@ -184,9 +186,9 @@ def compare(
 ):
     """Is A better than B? ``a`` and ``b``: results (from :func:`evaluate` or
     :func:`load_results`), result folders, or labels of stored results of ``benchmark``;
-    ``options`` as :func:`zoo.comparison.compare` takes them. Returns a
-    :class:`zoo.comparison.Comparison` (``.markdown()``, ``.table``)."""
-    from zoo.comparison import compare as paired
+    ``options`` as :func:`zoo.stats.comparison.compare` takes them. Returns a
+    :class:`zoo.stats.comparison.Comparison` (``.markdown()``, ``.table``)."""
+    from zoo.stats.comparison import compare as paired
 
     def resolve(x):
         if isinstance(x, str) and not Path(x).is_dir():
@@ -214,9 +216,9 @@ def load_results(
 ) -> dict:
     """The stored results of one table, ``{label: EvalResult}`` (``results/<benchmark>/
     <table>/<label>/``), each with its protocol record and identity."""
-    from zoo.benchmark import get_benchmark
-    from zoo.results import EvalResult
-    from zoo.store import RESULTS_DIR, table_folder
+    from zoo.evaluation.results import EvalResult
+    from zoo.protocol.benchmark import get_benchmark
+    from zoo.store.layout import RESULTS_DIR, table_folder
 
     bench = get_benchmark(benchmark) if isinstance(benchmark, (str, Path)) else benchmark
     folder = (

@@ -47,7 +47,7 @@ def load_config(path: Path) -> dict:
             raise SystemExit(f"{path}: arm {arm}: field(s) {', '.join(missing)} required")
         if spec.get("pretrain") and "train_set" not in spec["pretrain"]:
             raise SystemExit(f"{path}: arm {arm}: pretrain needs its train_set (epochs at least)")
-    from zoo.benchmark import get_benchmark
+    from zoo.protocol.benchmark import get_benchmark
 
     for name, own in (cfg.get("per_benchmark") or {}).items():
         where = f"{path}: per_benchmark.{name}"
@@ -125,7 +125,7 @@ def _run(cfg, model, out: Path, seed: int, recipe: dict, hparams: dict, init_fro
     """One ``zoo train`` run into ``out``: resumed where it has a ``last.pt``, else started
     (from ``init_from`` where given); nothing to do when it has run its epochs."""
     if (out / "last.pt").is_file():
-        from zoo.checkpoints import read_checkpoint
+        from zoo.hub.checkpoints import read_checkpoint
 
         state = read_checkpoint(out / "last.pt")
         if state["epoch"] + 1 >= int(recipe["epochs"]):
@@ -155,7 +155,7 @@ def _test_rmse(model, bench, protocol, name: str) -> dict:
     actions), and MELV at 1000 ms as a multiple of the ground truth's: the model's
     (``melv``) and its autoencoder floor's (``floor``, a SpecTrHuMS model's)."""
 
-    from zoo.evaluation import Scored, evaluate_models
+    from zoo.evaluation.evaluator import Scored, evaluate_models
 
     (result,) = evaluate_models([Scored(model, name)], protocol, keep_going=False)
     frame = result.frame
@@ -173,12 +173,12 @@ def _test_rmse(model, bench, protocol, name: str) -> dict:
 def score(cfg: dict) -> str:
     import torch
 
-    from zoo.benchmark import get_benchmark
-    from zoo.checkpoints import read_checkpoint
-    from zoo.model_source import ModelSource
+    from zoo.hub.checkpoints import read_checkpoint
+    from zoo.hub.model_source import ModelSource
+    from zoo.models.registry import load_registry
     from zoo.models.repeat_last import RepeatLast
-    from zoo.protocol import plan_protocol
-    from zoo.registry import load_registry
+    from zoo.protocol.benchmark import get_benchmark
+    from zoo.protocol.plan import plan_protocol
     from zoo.train.split import split_train_val, usable_windows
     from zoo.train.validation import validate
 
@@ -283,7 +283,7 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     cfg = load_config(args.config)
     if args.benchmark and args.benchmark != cfg["benchmark"]:
-        from zoo.benchmark import get_benchmark
+        from zoo.protocol.benchmark import get_benchmark
 
         if get_benchmark(args.benchmark).representation != "mesh":
             raise SystemExit(f"--benchmark {args.benchmark}: not a mesh benchmark")

@@ -1,7 +1,8 @@
 """How many times its measured rounding sensitivity another machine's rounding moves a window.
 
 ``zoo leaderboard --check`` holds a window beyond the a-priori tolerance to
-``SENSITIVITY_MULTIPLE`` times its rounding sensitivity (:mod:`zoo.rounding`: the largest change
+``SENSITIVITY_MULTIPLE`` times its rounding sensitivity (:mod:`zoo.leaderboard.rounding`: the
+largest change
 of its errors over a float64 pass and two passes on inputs moved by two units in the last place).
 This measures, on committed rows and a sample of their windows, how far a stand-in for another
 CPU moves each window's errors (the row's model on inputs moved by two units in the last place
@@ -21,13 +22,13 @@ import time
 
 import numpy as np
 
-from zoo.check import CheckReport
-from zoo.evaluation import Scored, evaluate_models
-from zoo.leaderboard import Leaderboard, Plan
+from zoo.evaluation.evaluator import Scored, evaluate_models
+from zoo.evaluation.results import WINDOWS_FILE, WindowErrors
+from zoo.evaluation.tolerance import allowed
+from zoo.leaderboard.board import Leaderboard, Plan
+from zoo.leaderboard.check import CheckReport
+from zoo.leaderboard.rounding import SENSITIVITY_MULTIPLE, rounding_sensitivity, with_inputs_moved
 from zoo.paths import REPO_ROOT
-from zoo.results import WINDOWS_FILE, WindowErrors
-from zoo.rounding import SENSITIVITY_MULTIPLE, rounding_sensitivity, with_inputs_moved
-from zoo.tolerance import allowed
 
 OTHER_MACHINES = (98, 99)  # draws of the stand-in for another CPU, not the check's own
 

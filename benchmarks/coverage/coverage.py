@@ -1,7 +1,7 @@
 """Coverage of the intervals the tables print, measured: synthetic recordings (short memory;
 long memory with heavy tails), paired differences, the bold rule's family-wise error, and real
 data (CMU's training recordings as pseudo test sets of one recording per action; cloth_full's
-4,000 test recordings as pseudo test sets of cloth's 100). Writes ``zoo/coverage.yaml``, which
+4,000 test recordings as pseudo test sets of cloth's 100). Writes ``zoo/stats/coverage.yaml``, which
 the tables quote, with ``--write``.
 
     python benchmarks/coverage/coverage.py --write            # everything (minutes)
@@ -22,7 +22,7 @@ import numpy as np
 from scipy.signal import lfilter
 
 import zoo
-from zoo.intervals import (
+from zoo.stats.intervals import (
     BLOCK_WINDOWS,
     best_set,
     block_replicates,
@@ -40,7 +40,7 @@ REPLICATES = 1000
 
 @dataclass
 class Windows:
-    """Just what the intervals read of a :class:`zoo.results.WindowErrors`."""
+    """Just what the intervals read of a :class:`zoo.evaluation.results.WindowErrors`."""
 
     sequence: np.ndarray
     start: np.ndarray
@@ -144,7 +144,7 @@ def recording_coverage(repetitions: int, per_action: int, seed: int = 0) -> floa
 
 
 def _load_windows(folder: Path, model: str, metric: str, joints: str):
-    from zoo.results import EvalResult
+    from zoo.evaluation.results import EvalResult
 
     result = EvalResult.read(folder)
     return result.windows, result.windows.get(model, metric, joints).astype(np.float64)
@@ -181,7 +181,7 @@ def cmu_training_errors(data_root: Path):
     """repeat_last and constant_velocity scored on CMU's training recordings (sampler
     ``all``), actions with at least three recordings: per-window MPJPE at ``HORIZONS_MS``."""
     from zoo import create_model
-    from zoo.benchmark import get_benchmark
+    from zoo.protocol.benchmark import get_benchmark
 
     bench = get_benchmark("cmu")
     dataset = bench.load(data_root, split="train")
@@ -267,7 +267,7 @@ def main(argv=None) -> int:
     )
     p.add_argument("--data-root", default=None, help="CMU folder (default: the benchmark's)")
     p.add_argument("--root", default=str(Path(__file__).resolve().parents[2]))
-    p.add_argument("--write", action="store_true", help="write zoo/coverage.yaml")
+    p.add_argument("--write", action="store_true", help="write zoo/stats/coverage.yaml")
     args = p.parse_args(argv)
     root = Path(args.root)
     if args.lengths:

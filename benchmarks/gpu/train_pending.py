@@ -47,8 +47,8 @@ WRITE_SECONDS = 30.0
 
 def pack(args) -> int:
     """The CMU training split as one xz tar (the files themselves, so every sha256 holds)."""
-    from zoo.benchmark import get_benchmark
     from zoo.core.io import atomic_path
+    from zoo.protocol.benchmark import get_benchmark
 
     bench = get_benchmark("cmu")
     root = bench.resolve_data_root(args.data_root)
@@ -112,11 +112,11 @@ def run(args) -> int:
 
 
 def _run_models(args, out: Path, device: str, stop_by: float, started: float, work: Path) -> int:
-    from zoo.checkpoints import pause_run
     from zoo.core.errors import TrainingError
-    from zoo.registry import load_registry
+    from zoo.hub.checkpoints import pause_run
+    from zoo.hub.weights import paused_dir, paused_runs
+    from zoo.models.registry import load_registry
     from zoo.train.loop import train
-    from zoo.weights import paused_dir, paused_runs
 
     data = Path(args.data)
     if data.is_file():
@@ -181,7 +181,7 @@ def _run_models(args, out: Path, device: str, stop_by: float, started: float, wo
 
 
 def _parameters(model: str, args) -> int:
-    from zoo.registry import load_registry
+    from zoo.models.registry import load_registry
 
     registry = load_registry(*(args.registry or ()))
     import zoo
@@ -195,7 +195,7 @@ def unpack(args) -> int:
     import hashlib
 
     from zoo.core.io import replace_folder
-    from zoo.weights import PAUSED_SUMMARY, paused_dir
+    from zoo.hub.weights import PAUSED_SUMMARY, paused_dir
 
     found = sorted({p.parent for p in Path(args.folder).glob("*/state.tar.00")})
     if not found:

@@ -29,12 +29,12 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import speed_public_cmu as public_cmu  # noqa: E402
 
-from zoo.benchmark import get_benchmark  # noqa: E402
 from zoo.data.windows import gather_windows  # noqa: E402
 from zoo.models.dct import dct_matrix  # noqa: E402
+from zoo.models.recipe import training_recipe  # noqa: E402
+from zoo.models.registry import load_registry  # noqa: E402
 from zoo.paths import REPO_ROOT  # noqa: E402
-from zoo.registry import load_registry  # noqa: E402
-from zoo.train.recipe import training_recipe  # noqa: E402
+from zoo.protocol.benchmark import get_benchmark  # noqa: E402
 from zoo.train.split import split_train_val, usable_windows  # noqa: E402
 from zoo.train.step import make_optimizer, training_step  # noqa: E402
 

@@ -12,9 +12,9 @@ import time
 import torch
 
 import zoo
-from zoo.benchmark import get_benchmark
 from zoo.data.windows import gather_windows, window_sampler
-from zoo.metrics import skeleton_errors
+from zoo.protocol.benchmark import get_benchmark
+from zoo.protocol.metrics import skeleton_errors
 
 
 def per_window_loop(dataset, bench, model):

@@ -1,7 +1,8 @@
 """One evaluation pass for all of a table's rows against one pass per row, side by side.
 
 ``zoo leaderboard`` (and its ``--check``) scores every row of a table in one pass over the
-windows (:func:`zoo.evaluation.evaluate_models`): each batch of ground truth, with what it alone
+windows (:func:`zoo.evaluation.evaluator.evaluate_models`): each batch of ground truth, with what
+it alone
 gives (on a mesh benchmark its spectral reconstruction, the reference frame's edge lengths, its
 own MELV, its regressed joints), is made once for all the models. Here the same rows are timed
 both ways in one run, on the first ``--windows`` windows of a table, each way in turn and
@@ -23,18 +24,18 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from zoo.benchmark import get_benchmark
-from zoo.evaluation import Scored, evaluate_models
-from zoo.protocol import plan_protocol
+from zoo.evaluation.evaluator import Scored, evaluate_models
+from zoo.protocol.benchmark import get_benchmark
+from zoo.protocol.plan import plan_protocol
 
 
 def table_models(bench, data_root=None, weights=None) -> tuple[object, list[Scored]]:
     """The dataset and the rows of the benchmark's leaderboard (shipped weights from
     ``weights``, default the repository's; no checkpoints), as ``zoo leaderboard`` loads them."""
-    from zoo.leaderboard import Leaderboard, Plan
+    from zoo.evaluation.pipeline import Subject
+    from zoo.leaderboard.board import Leaderboard, Plan
+    from zoo.models.registry import load_registry
     from zoo.paths import REPO_ROOT
-    from zoo.pipeline import Subject
-    from zoo.registry import load_registry
 
     board = Leaderboard(
         bench=bench,

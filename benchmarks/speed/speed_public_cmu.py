@@ -40,9 +40,9 @@ import torch
 from torch import nn
 
 from zoo.models.dct import dct_matrix
+from zoo.models.recipe import training_recipe
+from zoo.models.registry import load_registry
 from zoo.paths import REPO_ROOT
-from zoo.registry import load_registry
-from zoo.train.recipe import training_recipe
 from zoo.train.step import make_optimizer, training_step
 
 BATCH, T_IN, T_OUT, POINTS = 16, 10, 25, 25

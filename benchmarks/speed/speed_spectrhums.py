@@ -47,7 +47,7 @@ from torch.utils.flop_counter import FlopCounterMode
 
 from zoo.data.spectral import SpectralBasis
 from zoo.data.windows import frame_counts, gather_windows, window_sampler
-from zoo.registry import load_registry
+from zoo.models.registry import load_registry
 from zoo.train.step import forward_precision
 
 V, K, T_IN, T_OUT, BATCH = 6890, 512, 50, 25, 32

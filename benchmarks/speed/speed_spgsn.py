@@ -35,8 +35,8 @@ import torch
 from torch.utils.flop_counter import FlopCounterMode
 
 import zoo
-from zoo.benchmark import get_benchmark
-from zoo.metrics import mpjpe
+from zoo.protocol.benchmark import get_benchmark
+from zoo.protocol.metrics import mpjpe
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # public_spgsn.py lies beside this file
 from public_spgsn import forward_gflop_per_sample, make_public_step, public_batch

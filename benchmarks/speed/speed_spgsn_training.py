@@ -28,9 +28,9 @@ from pathlib import Path
 import torch
 
 import zoo
-from zoo.benchmark import get_benchmark
+from zoo.models.recipe import training_recipe
+from zoo.protocol.benchmark import get_benchmark
 from zoo.train.host import cpu_has_native_bfloat16
-from zoo.train.recipe import training_recipe
 from zoo.train.step import TrainingObjective, make_optimizer, training_step
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # scripts beside this one

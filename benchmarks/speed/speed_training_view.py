@@ -28,7 +28,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))  # speed_spectrhums.py 
 from speed_spectrhums import TINY, random_basis
 
 from zoo.data.windows import gather_windows, window_sampler
-from zoo.registry import load_registry
+from zoo.models.registry import load_registry
 
 T_IN, T_OUT, BATCH = 50, 25, 32
 RESOLUTIONS = {"full": (13718, 512), "low": (1229, 256)}

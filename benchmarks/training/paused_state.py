@@ -26,7 +26,7 @@ from pathlib import Path
 
 import torch
 
-from zoo.checkpoints import compact_payload, read_checkpoint, save_checkpoint
+from zoo.hub.checkpoints import compact_payload, read_checkpoint, save_checkpoint
 from zoo.train.loop import train
 
 

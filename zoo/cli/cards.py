@@ -38,7 +38,7 @@ def add(sub) -> None:
 
 
 def run(args) -> int:
-    from zoo.cards import build_cards
+    from zoo.report.cards import build_cards
 
     statuses = build_cards(
         Path(args.out),

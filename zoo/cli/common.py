@@ -12,8 +12,8 @@ from typing import Any
 import yaml
 
 from zoo.core.errors import ZooError
+from zoo.models.registry import load_registry
 from zoo.paths import REPO_ROOT
-from zoo.registry import load_registry
 
 
 class UsageError(ZooError, ValueError):
@@ -61,7 +61,7 @@ def checked_sampler(name: str, bench=None) -> str:
 def registry_hint(error: ZooError, folder: Path | None = None) -> str:
     """For an unknown model: the registry files in ``folder`` (the working one) that define it,
     as the ``--registry`` to add; empty otherwise."""
-    from zoo.registry import UnknownModelError
+    from zoo.models.registry import UnknownModelError
 
     if not isinstance(error, UnknownModelError):
         return ""
@@ -200,7 +200,7 @@ def model_source_options(p, benchmark_help: str) -> None:
 
 def results_option(p, help: str = "results root") -> None:
     """``--results``: the results root (``--out``, its old spelling, where it meant that)."""
-    from zoo.store import RESULTS_DIR
+    from zoo.store.layout import RESULTS_DIR
 
     p.add_argument("--results", default=str(RESULTS_DIR), help=help)
 
@@ -243,7 +243,7 @@ def registry_of(args):
 
 
 def model_source(args):
-    from zoo.model_source import ModelSource
+    from zoo.hub.model_source import ModelSource
 
     return ModelSource.of(
         model=args.model,
@@ -257,7 +257,7 @@ def model_source(args):
 def benchmark_of(args, source, default: str):
     """The benchmark asked for, else the one a trained model was trained for, else
     ``default``."""
-    from zoo.benchmark import get_benchmark
+    from zoo.protocol.benchmark import get_benchmark
 
     return get_benchmark(args.benchmark or source.benchmark() or default)
 
@@ -305,7 +305,7 @@ def check_device(device: str) -> None:
 
 
 def shape_overrides(overrides: dict[str, Any], benchmark: str | None) -> None:
-    from zoo.registry import SHAPE_ARGS
+    from zoo.models.registry import SHAPE_ARGS
 
     fixed = sorted(set(overrides) & set(SHAPE_ARGS))
     if fixed:
@@ -318,8 +318,8 @@ def shape_overrides(overrides: dict[str, Any], benchmark: str | None) -> None:
 
 def committed_benchmarks(results: Path) -> list[str]:
     """Every benchmark with a table under ``results`` (what ``--check`` checks by default)."""
-    from zoo.benchmark import list_benchmarks
-    from zoo.results import table_files
+    from zoo.evaluation.results import table_files
+    from zoo.protocol.benchmark import list_benchmarks
 
     known = set(list_benchmarks())
     found = sorted(p.parent.parent.name for p in table_files(results, depth=2))
@@ -335,7 +335,7 @@ def committed_benchmarks(results: Path) -> list[str]:
 def default_benchmarks():
     """The main job: the embedded cloth benchmark (generated here, no download), plus CMU when
     its motion-capture files are present."""
-    from zoo.benchmark import get_benchmark
+    from zoo.protocol.benchmark import get_benchmark
 
     yield "cloth"
     cmu = get_benchmark("cmu")
@@ -352,7 +352,7 @@ def default_benchmarks():
 def print_average(frame, horizons) -> None:
     from tabulate import tabulate
 
-    from zoo.tables import default_horizons
+    from zoo.evaluation.markdown import default_horizons
 
     # a long-term run's horizons past the benchmark's last
     horizons = [*horizons, *(h for h in default_horizons(frame) if h > max(horizons))]

@@ -42,7 +42,7 @@ def add(sub) -> None:
         "--block-frames",
         type=positive_int,
         help="bootstrap block length in frames (default: 2 window lengths, BLOCK_WINDOWS in "
-        "zoo/intervals.py)",
+        "zoo/stats/intervals.py)",
     )
     p.add_argument("--confidence", type=float, default=0.95, help="level of the intervals")
     p.add_argument("--replicates", type=positive_int, default=2000, help="bootstrap replicates")
@@ -51,8 +51,8 @@ def add(sub) -> None:
 
 
 def run(args) -> int:
-    from zoo.benchmark import get_benchmark
-    from zoo.comparison import compare
+    from zoo.protocol.benchmark import get_benchmark
+    from zoo.stats.comparison import compare
 
     if args.sampler is not None:
         checked_sampler(args.sampler, get_benchmark(args.benchmark) if args.benchmark else None)
@@ -66,8 +66,8 @@ def run(args) -> int:
                 f"{name!r} is not a result folder; give --benchmark to find "
                 f"results/<benchmark>/<sampler>/{name}"
             )
-        from zoo.benchmark import get_benchmark
-        from zoo.store import result_path, table_folder
+        from zoo.protocol.benchmark import get_benchmark
+        from zoo.store.layout import result_path, table_folder
 
         bench = get_benchmark(args.benchmark)
         folder = result_path(

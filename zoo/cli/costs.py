@@ -61,8 +61,8 @@ def add(sub) -> None:
 def run(args) -> int:
     import time
 
-    from zoo.costs import NoRowsError, measure_costs
-    from zoo.report import write_index
+    from zoo.leaderboard.costs import NoRowsError, measure_costs
+    from zoo.report.outputs import write_index
 
     if not args.seconds > 0:
         raise UsageError(f"--seconds {args.seconds:g}: expected a positive time budget")

@@ -62,7 +62,7 @@ def _dataset_arguments(p) -> None:
 
 
 def _splits(args):
-    from zoo.benchmark import get_benchmark
+    from zoo.protocol.benchmark import get_benchmark
 
     bench = get_benchmark(args.benchmark)
     if args.split not in (None, "all", bench.split, bench.train_split):
@@ -79,7 +79,7 @@ def _splits(args):
 def show(args) -> int:
     from tabulate import tabulate
 
-    from zoo.benchmark import get_benchmark, list_benchmarks
+    from zoo.protocol.benchmark import get_benchmark, list_benchmarks
 
     rows = []
     for name in list_benchmarks():
@@ -132,13 +132,13 @@ def export(args) -> int:
 
 
 def basis(args) -> int:
-    from zoo.benchmark import get_benchmark
+    from zoo.protocol.benchmark import get_benchmark
 
     return _data_basis(get_benchmark(args.benchmark), args)
 
 
 def regressor(args) -> int:
-    from zoo.benchmark import get_benchmark
+    from zoo.protocol.benchmark import get_benchmark
 
     return _data_regressor(get_benchmark(args.benchmark), args)
 
@@ -179,8 +179,8 @@ def _data_regressor(bench, args) -> int:
     with the shipped one; ``--ship`` writes it for a recipe that has none yet."""
     import time
 
-    from zoo.benchmark import MESH_DATASETS
     from zoo.data import anny
+    from zoo.protocol.benchmark import MESH_DATASETS
 
     loader, options = MESH_DATASETS.get(bench.dataset, (None, {}))
     if not str(loader).endswith(":cmu_anny_dataset"):
@@ -229,8 +229,8 @@ def _data_regressor(bench, args) -> int:
 
 def _skipped_data(data_root) -> list[str]:
     """Files and folders in the CMU data roots that the loader passes over (each once)."""
-    from zoo.benchmark import get_benchmark, list_benchmarks
     from zoo.data.motion import CMU_ACTIONS, cmu_skipped
+    from zoo.protocol.benchmark import get_benchmark, list_benchmarks
 
     lines = []
     for name in list_benchmarks():

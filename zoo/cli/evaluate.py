@@ -69,10 +69,10 @@ def add(sub) -> None:
 
 def run(args) -> int:
     from zoo.core.distributed import init_distributed
-    from zoo.pipeline import Subject, compute, place, store
-    from zoo.protocol import plan_protocol
-    from zoo.store import result_path, table_folder
-    from zoo.tolerance import tolerance_text
+    from zoo.evaluation.pipeline import Subject, compute, place, store
+    from zoo.evaluation.tolerance import tolerance_text
+    from zoo.protocol.plan import plan_protocol
+    from zoo.store.layout import result_path, table_folder
 
     registry = registry_of(args)
     source = model_source(args)

@@ -99,8 +99,8 @@ def add(sub) -> None:
 def run(args) -> int:
     import time
 
-    from zoo.check import CheckReport, fresh_seed
-    from zoo.leaderboard import Plan, regenerate
+    from zoo.leaderboard.board import Plan, regenerate
+    from zoo.leaderboard.check import CheckReport, fresh_seed
 
     registry = registry_of(args)
     if args.windows is not None and args.windows < 1:
@@ -140,7 +140,7 @@ def run(args) -> int:
             f"({', '.join(names)})"
         )
     if check:
-        from zoo.results import TABLE_FILE, table_files
+        from zoo.evaluation.results import TABLE_FILE, table_files
 
         for name in names:
             if not table_files(Path(args.results) / name):
@@ -158,7 +158,7 @@ def run(args) -> int:
             raise UsageError(f"--base {base}: no such results folder")
         if base.resolve() == Path(args.results).resolve():
             raise UsageError(f"--base {base} is --results itself: name another --results")
-        from zoo.leaderboard import copy_benchmark_tables
+        from zoo.leaderboard.board import copy_benchmark_tables
 
         for name in names:
             copied = copy_benchmark_tables(base, args.results, name)
@@ -193,7 +193,7 @@ def run(args) -> int:
             check.start_table(f"{name} (not loaded, or a table not finished)")
             check.problem(f"{name}: not checked: {e}")
     if check is None:
-        from zoo.report import write_index
+        from zoo.report.outputs import write_index
 
         print(f"wrote {write_index(Path(args.results))} ({time.perf_counter() - started:.0f} s)")
         return 0

@@ -22,7 +22,7 @@ def run(args) -> int:
     import textwrap
 
     from zoo.core.errors import ZooError
-    from zoo.weights import unshipped_models
+    from zoo.hub.weights import unshipped_models
 
     registry = registry_of(args)
     try:

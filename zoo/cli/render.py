@@ -14,7 +14,7 @@ from zoo.cli.common import (
     registry_of,
     task_options,
 )
-from zoo.store import RESULTS_DIR
+from zoo.store.layout import RESULTS_DIR
 
 
 def add(sub) -> None:
@@ -30,7 +30,7 @@ def add(sub) -> None:
 
 
 def run(args) -> int:
-    from zoo.render import render_windows
+    from zoo.report.render import render_windows
 
     registry = registry_of(args)
     source = model_source(args)

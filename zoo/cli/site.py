@@ -55,7 +55,7 @@ def run(args) -> int:
 
     results = Path(args.results)
     if args.clips:
-        from zoo.clips import CLIPS_FILE, write_benchmark_clips
+        from zoo.report.clips import CLIPS_FILE, write_benchmark_clips
 
         registry = registry_of(args)
         for name in args.benchmark or _mesh_benchmarks(results):
@@ -81,7 +81,7 @@ def run(args) -> int:
 
 
 def _mesh_benchmarks(results: Path) -> list[str]:
-    from zoo.benchmark import get_benchmark
+    from zoo.protocol.benchmark import get_benchmark
 
     return [
         name

@@ -48,7 +48,7 @@ def add(sub) -> None:
 
 
 def export(args) -> int:
-    from zoo.checkpoints import export_weights
+    from zoo.hub.checkpoints import export_weights
 
     path = export_weights(
         args.checkpoint, label=args.label, root=Path(args.weights_dir), dtype=args.dtype
@@ -58,7 +58,7 @@ def export(args) -> int:
 
 
 def pause_run(args) -> int:
-    from zoo.checkpoints import pause_run
+    from zoo.hub.checkpoints import pause_run
 
     dest = pause_run(args.run, root=Path(args.weights_dir), epochs=args.epochs)
     summary = json.loads((dest / "state.json").read_text())
@@ -73,7 +73,7 @@ def pause_run(args) -> int:
 def show(args) -> int:
     from tabulate import tabulate
 
-    from zoo.weights import available_weights, read_weights_record, weights_file
+    from zoo.hub.weights import available_weights, read_weights_record, weights_file
 
     root = Path(args.weights_dir)
     rows = []

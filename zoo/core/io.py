@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 import os
 import subprocess
 import tempfile
@@ -220,3 +221,9 @@ def progress_bar(iterable=None, **options):
     from tqdm import tqdm
 
     return tqdm(iterable, **{**options, "disable": True if options.get("disable") else None})
+
+
+def json_number(x) -> float | None:
+    """A JSON number to 7 significant digits (what differs past them is CPU rounding, and a
+    rebuild on another CPU then rewrites no file); None for a missing or non-finite value."""
+    return float(f"{x:.7g}") if x is not None and math.isfinite(x) else None

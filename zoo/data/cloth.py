@@ -454,7 +454,8 @@ def load_cloth(
 
 
 def cloth_dataset(root: str | Path | None, split: str) -> MeshDataset:
-    """The benchmark loader (``zoo.benchmark.MESH_DATASETS``): the default recipe's ``split``,
+    """The benchmark loader (``zoo.protocol.benchmark.MESH_DATASETS``): the default recipe's
+    ``split``,
     cached under ``root`` (default ``<cache root>/datasets``), generated with a progress bar the
     first time."""
     return load_cloth(split, cache_dir=root, progress=True)

@@ -1,4 +1,6 @@
-"""Models of the zoo: plain ``torch.nn.Module`` classes, one file each.
+"""Models of the zoo: plain ``torch.nn.Module`` classes, one file each, and what names them:
+the registry (:mod:`.registry`, ``registry.yaml`` and a researcher's own), each entry's training
+recipe (:mod:`.recipe`) and its paper and code (:mod:`.citation`). It imports data and core.
 
 The common contract (all a model needs to be evaluated, trained and registered):
 

@@ -21,11 +21,11 @@ from typing import Any
 
 import numpy as np
 
-from zoo.cards import Shipped, checkpoint_budget_notes, short_training_notes
 from zoo.core.errors import ZooError
 from zoo.core.io import replace_folder
-from zoo.metrics import FLOOR_SUFFIX
-from zoo.report import PALETTE
+from zoo.protocol.metrics import FLOOR_SUFFIX
+from zoo.report.cards import Shipped, checkpoint_budget_notes, short_training_notes
+from zoo.report.outputs import PALETTE
 from zoo.site.collect import (
     Benchmark,
     Table,
@@ -122,7 +122,7 @@ def _markdown(text: str, model_pages: set[str], images: dict[str, Path], cards_d
 def _clips_script(path: Path) -> tuple[str, dict[str, Any]]:
     """The mesh clips as a script (``window.ZOO_CLIPS = {...}``) and what the page says of
     them; positions go as base64 little-endian int16 mm around each window's centre."""
-    from zoo.clips import Clips
+    from zoo.report.clips import Clips
 
     clips = Clips.read(path)
 
@@ -232,8 +232,8 @@ def build_site(
     with clips. Problems (a damaged row, a missing card, a table with no rows) are shown on
     their page and returned as warnings."""
     from zoo.core.version import __version__
+    from zoo.models.registry import load_registry
     from zoo.paths import REPO_ROOT
-    from zoo.registry import load_registry
 
     start = time.perf_counter()
     results_root = Path(results_root)
@@ -245,7 +245,7 @@ def build_site(
     env = _environment()
     build = SiteBuild(Path(out))
     model_pages = {m.page for m in models}
-    # registry order, as the leaderboards' PNG plots colour them (zoo.report.model_style)
+    # registry order, as the leaderboards' PNG plots colour them (zoo.report.outputs.model_style)
     known = registry.list_models()
     model_names = known + sorted(_row_models(benchmarks) - set(known))
     common = {
@@ -372,7 +372,7 @@ def _benchmark_pages(
 
 def _model_page(render, model, card: str, benchmarks, model_names) -> str:
     """A model's page: its card, its shipped weights' training curves, its rows everywhere."""
-    from zoo.weights import training_points
+    from zoo.hub.weights import training_points
 
     curves = {}
     for rec in model.shipped:

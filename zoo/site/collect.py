@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from zoo.results import TABLE_FILE, table_files, table_labels
+from zoo.evaluation.results import TABLE_FILE, table_files, table_labels
 
 SUMMARY_FILE = "summary.json"
 
@@ -146,7 +146,7 @@ def _costs(folder: Path, problems: list[str]) -> dict[str, dict[str, str]]:
         return {}
 
 
-# What the pages read of a summary.json (zoo.tables.table_summary), level by level.
+# What the pages read of a summary.json (zoo.report.tables.table_summary), level by level.
 _VIEW_KEYS = (
     "metric",
     "averaging",
@@ -180,7 +180,7 @@ _COMPARISON_ROW_KEYS = (
 
 
 def summary_fault(summary: dict[str, Any]) -> str | None:
-    """Where ``summary`` is not what :func:`zoo.tables.table_summary` writes, in words (None
+    """Where ``summary`` is not what :func:`zoo.report.tables.table_summary` writes, in words (None
     where it is)."""
 
     def missing(item, keys, where: str) -> str | None:
@@ -301,7 +301,7 @@ def key_horizons(horizons: list[int]) -> list[int]:
 def benchmark_about(name: str) -> str:
     """A benchmark's own words for what it is: the opening comment of its YAML file (up to the
     first blank comment line), or "" where there is none."""
-    from zoo.benchmark import BENCHMARK_DIR
+    from zoo.protocol.benchmark import BENCHMARK_DIR
 
     path = BENCHMARK_DIR / f"{name}.yaml"
     lines = []
@@ -334,9 +334,9 @@ def read_models(
     """Every registered model with a card or shipped weights; a model with weights and no
     card keeps a problem that says how to write it; weights records that cannot be read go to
     ``problems``."""
-    from zoo.cards import shipped_weights
     from zoo.core.errors import ZooError
-    from zoo.weights import unshipped_models
+    from zoo.hub.weights import unshipped_models
+    from zoo.report.cards import shipped_weights
 
     readable = True
     try:

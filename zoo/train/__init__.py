@@ -1,26 +1,27 @@
 """The one training engine, shared by every trainable model.
 
-A recipe (:mod:`.recipe`) says how to train; the split (:mod:`.split`) which frames train and
-which validate; a step (:mod:`.step`) is what the cost columns time too; validation
-(:mod:`.validation`) picks the best epoch; the state (:mod:`.state`) is what ``best.pt`` and
-``last.pt`` hold; the loop (:mod:`.loop`) runs them, seeded, so that a resumed run ends with
-the weights of an uninterrupted one. The model hooks it calls: :mod:`zoo.models.hooks`.
-docs/training.md says how to train and what each recipe ran.
+A recipe (:mod:`zoo.models.recipe`, a registry entry's ``train`` mapping) says how to train;
+the split (:mod:`.split`) which frames train and which validate; a step (:mod:`.step`) is what
+the cost columns time too; validation (:mod:`.validation`) picks the best epoch; the state
+(:mod:`.state`) is what ``best.pt`` and ``last.pt`` hold; the loop (:mod:`.loop`) runs them,
+seeded, so that a resumed run ends with the weights of an uninterrupted one. The model hooks
+it calls: :mod:`zoo.models.hooks`. docs/training.md says how to train and what each recipe
+ran. It imports the layers below it (evaluation, hub, store, models, protocol, data, core).
 """
 
 from __future__ import annotations
 
 import importlib
 
-# name -> the module of this package that defines it, loaded on first use (so that importing
-# zoo.train.step, as the cost columns do, does not load the loop)
+# name -> the module that defines it (of this package unless dotted), loaded on first use (so
+# that importing zoo.train.step, as the cost columns do, does not load the loop)
 _EXPORTS = {
     "train": "loop",
-    "DEFAULT_RECIPE": "recipe",
-    "PRECISIONS": "recipe",
-    "VAL_SPLITS": "recipe",
-    "learning_rate": "recipe",
-    "training_recipe": "recipe",
+    "DEFAULT_RECIPE": "zoo.models.recipe",
+    "PRECISIONS": "zoo.models.recipe",
+    "VAL_SPLITS": "zoo.models.recipe",
+    "learning_rate": "zoo.models.recipe",
+    "training_recipe": "zoo.models.recipe",
     "held_out_frames": "split",
     "held_out_recordings": "split",
     "split_train_val": "split",
@@ -47,5 +48,7 @@ def __getattr__(name: str):
 
         return TrainingError
     if name in _EXPORTS:
-        return getattr(importlib.import_module(f"{__name__}.{_EXPORTS[name]}"), name)
+        module = _EXPORTS[name]
+        module = module if "." in module else f"{__name__}.{module}"
+        return getattr(importlib.import_module(module), name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -14,17 +14,17 @@ import numpy as np
 import torch
 from torch import nn
 
-from zoo.benchmark import Benchmark, get_benchmark
-from zoo.checkpoints import CheckpointError, read_checkpoint, stored_hparams
 from zoo.core.distributed import DistInfo, init_distributed
 from zoo.core.errors import TrainingError
 from zoo.core.io import progress_bar, repo_relative
 from zoo.data.windows import frame_counts, gather_windows
+from zoo.hub.checkpoints import CheckpointError, read_checkpoint, stored_hparams
 from zoo.models.hooks import Hooks, model_hooks
+from zoo.models.recipe import Recipe, learning_rate, patience_spent, training_recipe
+from zoo.models.registry import ModelEntry, Registry, load_registry
 from zoo.paths import REPO_ROOT
-from zoo.registry import ModelEntry, Registry, load_registry
+from zoo.protocol.benchmark import Benchmark, get_benchmark
 from zoo.train.host import cpu_has_native_bfloat16, device_name
-from zoo.train.recipe import Recipe, learning_rate, patience_spent, training_recipe
 from zoo.train.split import (
     split_train_val,
     training_view_arrays,

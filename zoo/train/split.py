@@ -13,7 +13,7 @@ import torch
 from zoo.core.errors import TrainingError
 from zoo.core.io import progress_bar
 from zoo.data.windows import window_sampler
-from zoo.train.recipe import Recipe
+from zoo.models.recipe import Recipe
 
 
 def sequence_frames(sequence) -> np.ndarray:

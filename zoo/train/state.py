@@ -9,8 +9,10 @@ from typing import Any
 import torch
 from torch import nn
 
-from zoo.benchmark import Benchmark
-from zoo.checkpoints import (
+from zoo.core.distributed import DistInfo
+from zoo.core.errors import TrainingError
+from zoo.core.io import atomic_path, code_version, repo_relative, sha256_file
+from zoo.hub.checkpoints import (
     CheckpointError,
     ResumeState,
     RunRecord,
@@ -24,13 +26,11 @@ from zoo.checkpoints import (
     trained_model,
     weights_digest,
 )
-from zoo.core.distributed import DistInfo
-from zoo.core.errors import TrainingError
-from zoo.core.io import atomic_path, code_version, repo_relative, sha256_file
-from zoo.registry import Registry
+from zoo.hub.weights import read_weights
+from zoo.models.recipe import DEFAULT_RECIPE, Recipe
+from zoo.models.registry import Registry
+from zoo.protocol.benchmark import Benchmark
 from zoo.train.host import device_name, devices_text
-from zoo.train.recipe import DEFAULT_RECIPE, Recipe
-from zoo.weights import read_weights
 
 
 def save_epoch(
@@ -136,7 +136,7 @@ def restore_paused(out_dir: Path, benchmark: str, model: str, root=None) -> Path
     a new machine; returns the folder copied from, or None where there is none."""
     import shutil
 
-    from zoo.weights import paused_dir
+    from zoo.hub.weights import paused_dir
 
     source = paused_dir(benchmark, model, root)
     if (out_dir / "last.pt").is_file() or not (source / "last.pt").is_file():

@@ -8,10 +8,10 @@ import torch
 from torch import nn
 
 from zoo.core.errors import TrainingError
-from zoo.evaluation import predict
-from zoo.metrics import mpjpe
+from zoo.evaluation.evaluator import predict
 from zoo.models.hooks import model_hooks
-from zoo.train.recipe import PRECISIONS, Recipe
+from zoo.models.recipe import PRECISIONS, Recipe
+from zoo.protocol.metrics import mpjpe
 
 
 def forward_precision(precision: str, device) -> torch.autocast:

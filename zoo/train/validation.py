@@ -10,8 +10,8 @@ import torch
 from zoo.core.errors import EvaluationError, TrainingError
 from zoo.core.options import EVAL_BATCH
 from zoo.data.windows import gather_windows
-from zoo.evaluation import checked_prediction, predict
-from zoo.metrics import mpjpe, vertex_rmse
+from zoo.evaluation.evaluator import checked_prediction, predict
+from zoo.protocol.metrics import mpjpe, vertex_rmse
 
 
 def check_output(model, model_name, positions, index, used, t_in, t_out, task, device) -> None:

@@ -2,7 +2,7 @@
    curves, drawn as SVG from the numbers inlined in each page. No network, no library. */
 "use strict";
 var ZooSite = (function () {
-  // zoo.report.PALETTE, passed by the page: every model has its own colour, on every page and plot
+  // zoo.report.outputs.PALETTE, passed by the page: every model has its own colour, on every page and plot
   var COLOURS = window.ZOO_PALETTE_COLOURS || ["#1f77b4"];
   var MARKERS = ["circle", "square", "triangle", "diamond", "cross", "down"];
   var SVG = "http://www.w3.org/2000/svg";

@@ -1,0 +1,587 @@
+"""The one evaluator: models scored in one pass over a planned protocol's windows
+(:func:`evaluate_models`), every row carrying its protocol.
+
+Skeleton and mesh benchmarks share the long format of :class:`zoo.evaluation.results.EvalResult`
+(one row
+per model, action, metric, averaging, joint protocol and horizon). Users call
+:func:`zoo.evaluate` (:mod:`zoo.api`), which plans the protocol and stamps the identity.
+"""
+
+from __future__ import annotations
+
+import copy
+import datetime as _dt
+import inspect
+import sys
+import traceback
+from dataclasses import dataclass, field
+from functools import partial
+from typing import Any
+
+import numpy as np
+import pandas as pd
+import torch
+
+from zoo.core.distributed import DistInfo, gather_shares, init_distributed
+from zoo.core.errors import EvaluationError
+from zoo.core.io import code_version, progress_bar
+from zoo.core.options import EVAL_BATCH
+from zoo.data.windows import gather_windows
+from zoo.evaluation.results import RESULT_COLUMNS, EvalResult, WindowErrors
+from zoo.models.hooks import Hooks, model_hooks
+from zoo.protocol.metrics import (
+    FLOOR_SUFFIX,
+    FrameErrorMean,
+    cumulative_mean,
+    edge_lengths,
+    length_variation,
+    mpjpe,
+    skeleton_errors,
+    vertex_rmse,
+)
+from zoo.protocol.plan import Protocol
+
+MESH_BATCH_VALUES = 2**24  # float32 values of ground-truth windows held at once (64 MiB)
+
+
+@dataclass
+class Scored:
+    """A model in an evaluation pass: the module, its row name, what it is fed (``view``: mesh,
+    or joints for a skeleton model on a mesh benchmark) and what its results record about it."""
+
+    model: torch.nn.Module
+    name: str
+    view: str = "mesh"
+    provenance: dict[str, Any] | None = None
+    hooks: Hooks | None = field(default=None, init=False, repr=False)  # set by the pass
+
+
+def evaluate_models(
+    models: list[Scored],
+    protocol: Protocol,
+    *,
+    batch_size: int = EVAL_BATCH,
+    device: str | torch.device = "cpu",
+    keep_going: bool = True,
+) -> list[EvalResult | Exception]:
+    """Every model of ``models`` on the windows of ``protocol`` in one pass: each batch of
+    windows, and all that the ground truth alone gives (its spectral reconstruction, regressed
+    joints, edge lengths and MELV), is made once and every model scored on it. A model's result
+    is the one it gets evaluated alone (for models deterministic in eval mode, as every
+    registered one is: models that draw random numbers share the stream).
+
+    A model that fails (a broken contract, non-finite values, an error of its own, on any
+    process of a distributed run) leaves the pass and its error stands in its place; with
+    ``keep_going=False`` the first failure is raised at once instead."""
+    if not models:
+        return []
+    if protocol.benchmark.representation == "mesh":
+        return _evaluate_mesh(models, protocol, batch_size, device, keep_going)
+    return _evaluate_skeleton(models, protocol, batch_size, device, keep_going)
+
+
+class _Pass:
+    """The models of a pass: those still in it, the errors of those that left, and each
+    model's errors per batch (``batches[i]``: ``{first window: {(model, metric, joints):
+    errors}}``)."""
+
+    def __init__(self, models: list[Scored], device, keep_going: bool) -> None:
+        self.models, self.keep_going = models, keep_going
+        self.failed: dict[int, Exception] = {}
+        self.batches: list[dict[int, dict]] = [{} for _ in models]
+        for i, scored in enumerate(models):
+            model = self.attempt(i, lambda model=scored.model: model.to(device).eval())
+            if model is not None:
+                scored.model = model
+                # the optional hooks, read and checked once (zoo.models.hooks)
+                scored.hooks = self.attempt(i, partial(model_hooks, model, scored.name))
+
+    def live(self) -> list[tuple[int, Scored]]:
+        return [(i, m) for i, m in enumerate(self.models) if i not in self.failed]
+
+    def attempt(self, i: int, work) -> Any:
+        """``work()`` for model ``i``, or the model leaves the pass with the error (raised at
+        once without ``keep_going``). The error's frames are cleared: a failed model's
+        activations and batch are not kept for the rest of the pass."""
+        try:
+            return work()
+        except Exception as e:
+            if not self.keep_going:
+                raise
+            traceback.clear_frames(e.__traceback__)
+            self.failed[i] = e
+            return None
+
+    def score(self, i: int, start: int, compute) -> None:
+        """Model ``i``'s errors on the batch at ``start`` (``compute()``), or its leaving."""
+        errors = self.attempt(i, compute)
+        if i not in self.failed:
+            self.batches[i][start] = errors
+
+    def results(self, dist_info: DistInfo, finish) -> list[EvalResult | Exception]:
+        """Each model's result, ``finish(model, its batches in window order)``, or its error.
+        Under torchrun every process's batches and failures are gathered in one collective: a
+        model that failed on any process fails on all of them (none writes a result missing
+        that process's windows)."""
+        shares = gather_shares(
+            {
+                dist_info.rank: (
+                    {i: b for i, b in enumerate(self.batches) if i not in self.failed},
+                    {i: f"{type(e).__name__}: {e}" for i, e in self.failed.items()},
+                )
+            },
+            dist_info,
+        )
+        self.batches = [{} for _ in self.models]  # released: the gathered copies are used
+        merged: list[dict[int, dict]] = [{} for _ in self.models]
+        for rank, (batches, failures) in shares.items():
+            for i, message in failures.items():
+                if i not in self.failed:
+                    self.failed[i] = EvaluationError(
+                        f"model {self.models[i].name!r} failed on process {rank}: {message}"
+                    )
+            for i, theirs in batches.items():
+                merged[i].update(theirs)
+        out: list[EvalResult | Exception] = []
+        for i, scored in enumerate(self.models):
+            if i in self.failed:
+                out.append(self.failed[i])
+                continue
+            batches = dict(sorted(merged[i].items()))
+            result = self.attempt(i, lambda scored=scored, batches=batches: finish(scored, batches))
+            out.append(self.failed[i] if i in self.failed else result)
+        return out
+
+
+def _finished(
+    protocol: Protocol, scored: Scored, batches: dict, device, recorded: dict[str, Any]
+) -> EvalResult:
+    """A model's result from its errors per batch: per-action sums, the long-format rows of
+    both averagings, per-window errors, and the sealed protocol record (with ``recorded``
+    beside the model's own provenance)."""
+    accumulators, log = _accumulate(batches, protocol.actions)
+    record = _sealed(protocol, scored.name, device, {**recorded, **(scored.provenance or {})})
+    return EvalResult(
+        frame=_frame(accumulators, record, record["windows_per_action"]),
+        protocol=record,
+        windows=log.compute(
+            protocol.dataset.sequences,
+            protocol.index,
+            protocol.actions,
+            record["protocol_id"],
+            protocol.window_frames,
+        ),
+    )
+
+
+def frame_from_windows(windows: WindowErrors, record: dict[str, Any]) -> pd.DataFrame:
+    """The long-format rows that the per-window errors ``windows`` give under ``record`` (a
+    result's protocol record), summed as the evaluator sums them: a stored ``results.csv``
+    recomputed from its own ``windows.npz`` (which keeps the errors in float32, so the two
+    agree to that rounding, far inside :mod:`zoo.evaluation.tolerance`)."""
+    errors = {key: values.astype(np.float64) for key, values in windows.errors.items()}
+    accumulators, _ = _accumulate({0: errors}, windows.action)
+    return _frame(accumulators, record, record["windows_per_action"])
+
+
+def _progress(protocol: Protocol, models: list[Scored], dist_info: DistInfo):
+    """Windows scored so far, on stderr, for an evaluation that takes more than a few seconds
+    (nothing for a short one; the first process only under torchrun)."""
+
+    names = ", ".join(m.name for m in models) if len(models) <= 3 else f"{len(models)} rows"
+    return progress_bar(
+        total=len(protocol.index),
+        desc=f"{names} on {protocol.benchmark.name}/{protocol.sampler}",
+        unit="window",
+        delay=3,
+        mininterval=2,
+        leave=False,
+        dynamic_ncols=True,
+        file=sys.stderr,
+        disable=dist_info.rank != 0,
+    )
+
+
+def _evaluate_skeleton(
+    models: list[Scored], protocol: Protocol, batch_size: int, device, keep_going: bool
+) -> list[EvalResult | Exception]:
+    dataset, task = protocol.dataset, protocol.task
+    skeleton = dataset.skeleton
+    t_in, t_out = protocol.input_frames, protocol.predicted_frames
+    index = protocol.index
+    positions = [s.positions for s in dataset.sequences]
+    used = list(skeleton.used)
+    dist_info = init_distributed(device)
+    run = _Pass(models, device, keep_going)
+
+    def errors(scored: Scored, windows: torch.Tensor, start: int) -> dict:
+        history = windows[:, :t_in, used].to(device)
+        pred = predict(
+            scored.model, history, task, t_out, windows[:, -1, used].to(device), hooks=scored.hooks
+        )
+        pred = checked_prediction(pred, (len(history), t_out, len(used), 3), scored.name, start)
+        return {
+            (scored.name, "mpjpe", joints): _float64(e)
+            for joints, e in skeleton_errors(pred, windows[:, t_in:], skeleton).items()
+        }
+
+    with torch.no_grad(), _progress(protocol, models, dist_info) as bar:
+        for start in _my_batches(len(index), batch_size, dist_info):
+            bar.update(min(batch_size, len(index) - start) * dist_info.world)
+            if not run.live():
+                continue  # every model has left the pass: no window is worth reading
+            rows = slice(start, start + batch_size)
+            windows = torch.from_numpy(gather_windows(positions, index[rows], t_in + t_out))
+            for i, scored in run.live():
+                run.score(i, start, partial(errors, scored, windows, start))
+
+    return run.results(
+        dist_info, lambda scored, batches: _finished(protocol, scored, batches, device, {})
+    )
+
+
+class _WindowLog:
+    """Collects per-window errors batch by batch, in window order."""
+
+    def __init__(self) -> None:
+        self.errors: dict[tuple[str, str, str], list[np.ndarray]] = {}
+
+    def update(self, model: str, metric: str, joints: str, errors: np.ndarray) -> None:
+        self.errors.setdefault((model, metric, joints), []).append(errors.astype(np.float32))
+
+    def compute(
+        self,
+        sequences,
+        index: np.ndarray,
+        actions: np.ndarray,
+        protocol_id: str,
+        window_frames: int,
+    ) -> WindowErrors:
+        return WindowErrors(
+            sequences=[s.name for s in sequences],
+            sequence=index[:, 0],
+            start=index[:, 1],
+            action=actions,
+            errors={k: np.concatenate(v) for k, v in self.errors.items()},
+            protocol_id=protocol_id,
+            window_frames=window_frames,
+        )
+
+
+def predict(
+    model: torch.nn.Module,
+    history: torch.Tensor,
+    task: str,
+    frames: int,
+    final_frame: torch.Tensor | None = None,
+    *,
+    hooks: Hooks | None = None,
+) -> torch.Tensor:
+    """A model's prediction for one of the evaluator's tasks (see ``TASKS``); ``hooks``: the
+    model's, when already read (:func:`zoo.models.hooks.model_hooks`)."""
+    if task == "prediction":
+        return model(history)
+    if task == "completion":
+        if "final_frame" not in inspect.signature(model.forward).parameters:
+            raise EvaluationError(
+                f"{type(model).__name__} does no completion: its forward takes no final_frame"
+            )
+        return model(history, final_frame=final_frame)
+    if (hooks or model_hooks(model)).rollout:  # a model's own (cheaper) autoregression
+        return model.rollout(history, frames)
+    t_in, window, out, produced = history.shape[1], history, [], 0
+    while produced < frames:
+        step = model(window[:, -t_in:])
+        out.append(step)
+        produced += step.shape[1]
+        window = torch.cat([window, step], dim=1)
+    return torch.cat(out, dim=1)[:, :frames]
+
+
+def checked_prediction(pred, expected: tuple, model_name: str, start: int) -> torch.Tensor:
+    """A model's output on CPU in float32, or an error if it breaks the contract."""
+    if not isinstance(pred, torch.Tensor) or tuple(pred.shape) != expected:
+        got = tuple(pred.shape) if isinstance(pred, torch.Tensor) else type(pred).__name__
+        raise EvaluationError(
+            f"model {model_name!r} returned {got}; the contract (zoo.models) expects {expected}"
+        )
+    pred = pred.detach().to("cpu", torch.float32)
+    if not torch.isfinite(pred).all():
+        raise EvaluationError(
+            f"model {model_name!r} predicted non-finite values (windows "
+            f"{start}..{start + len(pred) - 1})"
+        )
+    return pred
+
+
+def _sealed(protocol: Protocol, model_name: str, device, provenance: dict | None) -> dict[str, Any]:
+    """The protocol's record (with its ``protocol_id``) and who measured it, when and how."""
+    record = copy.deepcopy(protocol.record)
+    record["provenance"] = {
+        "model": model_name,
+        "code_version": code_version(),
+        "torch": str(torch.__version__),
+        "device": str(device),
+        "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+        # float32 kernels round differently on other CPUs (summation order, fused
+        # multiply-adds): a re-run elsewhere agrees to rounding, not to the last bit
+        "exactness": "float32 evaluation: another CPU reproduces these values and per-window "
+        "errors to rounding (zoo leaderboard --check's tolerance), not bit for bit",
+        **(provenance or {}),
+    }
+    return record
+
+
+def _my_batches(windows: int, batch_size: int, dist_info: DistInfo) -> range:
+    """First windows of this process's batches: every ``world``-th batch (all of them alone)."""
+    return range(dist_info.rank * batch_size, windows, dist_info.world * batch_size)
+
+
+def _float64(errors: torch.Tensor) -> np.ndarray:
+    return errors.detach().to("cpu", torch.float64).numpy()
+
+
+def _accumulate(
+    scored: dict[int, dict[tuple[str, str, str], np.ndarray]], actions: np.ndarray
+) -> tuple[dict[tuple[str, str, str], FrameErrorMean], _WindowLog]:
+    """Per-action sums and per-window errors from ``{first window: {(model, metric, joints):
+    errors (B, T)}}``, batch after batch in window order: one process or several (each scoring
+    every ``world``-th batch), the sums are added in the same order, to the last digit."""
+    accumulators: dict[tuple[str, str, str], FrameErrorMean] = {}
+    log = _WindowLog()
+    for start, batch in scored.items():
+        for key, errors in batch.items():
+            groups = actions[start : start + len(errors)]
+            accumulators.setdefault(key, FrameErrorMean()).update(errors, groups)
+            log.update(*key, errors)
+    return accumulators, log
+
+
+def _frame(
+    accumulators: dict[tuple[str, str, str], FrameErrorMean],
+    record: dict[str, Any],
+    windows_per_action: dict[str, int],
+) -> pd.DataFrame:
+    """The long-format rows of every (model, metric, joints), both averagings."""
+    frame_ms = 1000.0 / record["fps"]
+    total = sum(windows_per_action.values())
+    rows = []
+    for (model, metric, joints), acc in accumulators.items():
+        spread = {averaging: acc.std(averaging) for averaging in ("frame", "cumulative")}
+        for action, per_frame in acc.compute().items():
+            for averaging, values in (
+                ("frame", per_frame),
+                ("cumulative", cumulative_mean(per_frame)),
+            ):
+                for t, value in enumerate(values, start=1):
+                    rows.append(
+                        (
+                            model,
+                            record["benchmark"],
+                            action,
+                            metric,
+                            averaging,
+                            joints,
+                            int(round(t * frame_ms)),
+                            t,
+                            float(value),
+                            float(spread[averaging][action][t - 1]),
+                            windows_per_action.get(action, total),
+                            record["dataset"],
+                            record["split"],
+                            record["sampler"],
+                            record["task"],
+                            record["input_frames"],
+                            record["output_frames"],
+                            record["fps"],
+                            record["protocol_id"],
+                        )
+                    )
+    return pd.DataFrame(rows, columns=RESULT_COLUMNS)
+
+
+# ---- mesh benchmarks ---------------------------------------------------------------------------
+
+
+def _evaluate_mesh(
+    models: list[Scored], protocol: Protocol, batch_size: int, device, keep_going: bool
+) -> list[EvalResult | Exception]:
+    """Models on a mesh benchmark: windows ``(B, T_in, V, 3)`` in, ``(B, T_out, V, 3)`` out,
+    rows for ``melv``, ``rmse`` and (with a joint regressor) ``mpjpe`` (:class:`_MeshScoring`).
+    What the ground truth alone gives (its spectral reconstruction, the reference frame's edge
+    lengths, its own MELV, its regressed joints) is computed once a batch for all the models."""
+    scoring = _MeshScoring(protocol, device)
+    run = _Pass(models, device, keep_going)
+    for i, scored in run.live():
+        run.attempt(i, partial(scoring.check_view, scored))
+    index, dist_info = protocol.index, init_distributed(device)
+    batch = scoring.batch_size(batch_size)
+    with torch.no_grad(), _progress(protocol, models, dist_info) as bar:
+        for start in _my_batches(len(index), batch, dist_info):
+            bar.update(min(batch, len(index) - start) * dist_info.world)
+            live = run.live()
+            if not live:
+                continue
+            truth = scoring.truth(
+                index[start : start + batch], any(s.view == "mesh" for _, s in live)
+            )
+            for i, scored in live:
+                errors = scoring.joint_errors if scored.view == "joints" else scoring.mesh_errors
+                run.score(i, start, partial(errors, scored, truth, start))
+    return run.results(dist_info, scoring.finish)
+
+
+class _MeshScoring:
+    """How one mesh protocol scores a model on a batch of windows.
+
+    ``melv_frames``: ``spectral`` (the default of benchmarks with a basis) measures MELV on the
+    k-coefficient reconstruction of the reference frame and of the scored frames, as SpecTrHuMS
+    does; ``raw`` on the frames as they are.
+
+    A model with the ``autoencoder_floor`` hook (SpecTrHuMS) also gets the rows of
+    ``<name>:autoencoder``: the ground-truth future passed through its autoencoder alone, scored
+    like a prediction; what the model could reach if its transformer were perfect.
+
+    ``view='joints'``: a skeleton model sees the regressed joints ``(B, T_in, J, 3)`` of the same
+    windows and predicts ``(B, T_out, J, 3)``; it gets the ``mpjpe`` rows only, under the very
+    protocol record of the mesh models, so both share one MPJPE table."""
+
+    def __init__(self, protocol: Protocol, device) -> None:
+        from zoo.data.mesh import regress_joints
+
+        self.protocol, self.device = protocol, device
+        self.regressor = protocol.dataset.joint_regressor
+        self.regress = partial(regress_joints, regressor=self.regressor)
+        self.t_in, self.t_out = protocol.input_frames, protocol.predicted_frames
+        self.num_vertices = protocol.dataset.topology.num_vertices
+        self.joint_column = (
+            f"regressor{self.regressor.shape[0]}" if self.regressor is not None else None
+        )
+        # once, not per call
+        self.edges = torch.as_tensor(np.asarray(protocol.dataset.topology.edges), dtype=torch.long)
+        self.vertices = [s.vertices for s in protocol.dataset.sequences]
+
+    def batch_size(self, asked: int) -> int:
+        """``asked``, or fewer windows where a batch would exceed ``MESH_BATCH_VALUES``."""
+        window_values = (self.t_in + self.t_out) * self.num_vertices * 3
+        return max(1, min(asked, MESH_BATCH_VALUES // window_values))
+
+    def truth(self, index: np.ndarray, mesh_rows: bool) -> _MeshTruth:
+        """The ground-truth windows of ``index`` (spectral truth: their reconstruction) and, for
+        ``mesh_rows``, the reference frame's edge lengths and the future's own MELV."""
+        windows = torch.from_numpy(gather_windows(self.vertices, index, self.t_in + self.t_out))
+        if self.protocol.ground_truth == "spectral":
+            basis = self.protocol.basis
+            windows = basis.reconstruct(basis.project(windows.double())).float()
+        truth = _MeshTruth(windows, self.t_in, self.regress)
+        if mesh_rows:
+            reference = windows[:, self.t_in - 1 : self.t_in]
+            truth.reference_lengths = self.melv_lengths(reference)[:, 0]
+            # the data's own MELV: the ground-truth rows of every mesh model
+            truth.melv = _float64(
+                length_variation(self.melv_lengths(truth.target), truth.reference_lengths)
+            )
+        return truth
+
+    def check_view(self, scored: Scored) -> None:
+        if scored.view not in ("mesh", "joints"):
+            raise EvaluationError(f"view must be mesh or joints, got {scored.view!r}")
+        if scored.view == "joints" and self.regressor is None:
+            raise EvaluationError(
+                f"benchmark {self.protocol.benchmark.name}: {self.protocol.dataset.name} has no "
+                f"joint regressor, so skeleton model {scored.name!r} cannot be evaluated on it"
+            )
+
+    def melv_lengths(self, frames: torch.Tensor) -> torch.Tensor:
+        """Edge lengths of the frames MELV is measured on."""
+        if self.protocol.melv_frames == "spectral":  # reconstructed from k coefficients
+            basis = self.protocol.basis
+            frames = basis.reconstruct(basis.project(frames.double())).float()
+        return edge_lengths(frames, self.edges)
+
+    def _predicted(self, scored: Scored, windows: torch.Tensor, start: int) -> torch.Tensor:
+        """The model's checked prediction from the first ``t_in`` frames of ``windows``."""
+        pred = predict(
+            scored.model,
+            windows[:, : self.t_in].to(self.device),
+            self.protocol.task,
+            self.t_out,
+            windows[:, -1].to(self.device),
+            hooks=scored.hooks,
+        )
+        expected = (len(windows), self.t_out, *windows.shape[2:])
+        return checked_prediction(pred, expected, scored.name, start)
+
+    def joint_errors(self, scored: Scored, truth: _MeshTruth, start: int) -> dict:
+        joints = truth.joints()
+        pred = self._predicted(scored, joints, start)
+        return {
+            (scored.name, "mpjpe", self.joint_column): _float64(mpjpe(pred, joints[:, self.t_in :]))
+        }
+
+    def mesh_errors(self, scored: Scored, truth: _MeshTruth, start: int) -> dict:
+        scored_frames = {scored.name: self._predicted(scored, truth.windows, start)}
+        if scored.hooks.autoencoder_floor:
+            name = scored.name + FLOOR_SUFFIX
+            rebuilt = scored.model.autoencoder_floor(truth.target.to(self.device))
+            scored_frames[name] = checked_prediction(
+                rebuilt, tuple(truth.target.shape), name, start
+            )
+        errors = {}
+        for name, frames in scored_frames.items():
+            errors[(name, "melv", "vertices")] = length_variation(
+                self.melv_lengths(frames), truth.reference_lengths
+            )
+            errors[(name, "rmse", "vertices")] = vertex_rmse(frames, truth.target)
+            if self.regressor is not None:
+                errors[(name, "mpjpe", self.joint_column)] = mpjpe(
+                    self.regress(frames), truth.joints()[:, self.t_in :]
+                )
+        errors = {key: _float64(value) for key, value in errors.items()}
+        errors[("ground_truth", "melv", "vertices")] = truth.melv
+        return errors
+
+    def finish(self, scored: Scored, batches: dict) -> EvalResult:
+        from zoo.data.spectral import SpectralBasis
+
+        basis, dataset = self.protocol.basis, self.protocol.dataset
+        model_basis = getattr(scored.model, "basis", None)
+        recorded = {
+            # The data are named by their recipe in the protocol; the bytes of a generated mesh
+            # follow the machine's float kernels (CMU-on-Anny's skinning: other bytes on another
+            # CPU), so their hash is this build's provenance, not the protocol's.
+            "data_hash": dataset.content_hash(),
+            "data_exactness": "generated from its recipe on this machine: another CPU's build "
+            "may differ in the last bits of its vertices (data_hash), and so may errors "
+            "computed from them (MELV most: a difference of edge lengths)",
+            **({"basis_checksum": basis.checksum} if isinstance(basis, SpectralBasis) else {}),
+            **(
+                {"model_basis": {"k": model_basis.k, "hash": model_basis.hash}}
+                if isinstance(model_basis, SpectralBasis)
+                else {}
+            ),
+            **(
+                {"model_input": f"regressed joints ({self.joint_column})"}
+                if scored.view == "joints"
+                else {}
+            ),
+        }
+        return _finished(self.protocol, scored, batches, self.device, recorded)
+
+
+class _MeshTruth:
+    """One batch of ground-truth windows and what is computed from them once for every model:
+    the reference frame's edge lengths and the future's own MELV (set by the pass), the
+    regressed joints (``regress(windows)``, on first use)."""
+
+    def __init__(self, windows: torch.Tensor, t_in: int, regress) -> None:
+        self.windows, self.regress = windows, regress
+        self.target = windows[:, t_in:]
+        self.reference_lengths: torch.Tensor | None = None
+        self.melv: np.ndarray | None = None
+        self._joints: torch.Tensor | None = None
+
+    def joints(self) -> torch.Tensor:
+        if self._joints is None:
+            self._joints = self.regress(self.windows)
+        return self._joints

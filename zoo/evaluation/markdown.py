@@ -1,0 +1,142 @@
+"""The Markdown of evaluator rows, refusing to mix protocols: a result's ``tables.md`` and a
+leaderboard's per-protocol tables (each table one protocol, horizons as columns), with each
+metric's unit and printed precision and the headline's metric (:func:`headline_key`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from typing import Any
+
+import pandas as pd
+from tabulate import tabulate
+
+from zoo.protocol.comparable import ProtocolMismatchError, check_comparable
+from zoo.protocol.metrics import METRICS
+
+# Metrics whose tables print the standard deviation over windows beside the mean.
+WITH_STD = tuple(name for name, m in METRICS.items() if m.with_std)
+
+
+def metric_unit(metric: str) -> tuple[str, str]:
+    """Unit and printed precision of ``metric`` (zoo.protocol.metrics.METRICS; unknown: none,
+    ``.4g``)."""
+    m = METRICS.get(metric)
+    return (m.unit, m.fmt) if m else ("", ".4g")
+
+
+def headline_key(protocol: dict[str, Any]) -> tuple[str, str]:
+    """The ``(metric, joints)`` a benchmark's headline reports: skeletons, MPJPE under the first
+    (official) joint protocol; meshes, the normalised vertex RMSE."""
+    if protocol.get("representation") == "mesh":
+        return "rmse", "vertices"
+    return "mpjpe", next(iter(protocol.get("joint_protocols") or {"all": ""}))
+
+
+def markdown_tables(
+    frame: pd.DataFrame,
+    records: dict[str, dict[str, Any]],
+    horizons_ms: Iterable[int] | None = None,
+    headline: str = "",
+) -> str:
+    """One Markdown table per (metric, averaging, joints), horizons as columns, after the
+    ``headline`` table if given."""
+    ids = sorted(frame["protocol_id"].unique())
+    missing = [i for i in ids if i not in records]
+    if missing:
+        raise ProtocolMismatchError(f"rows carry protocol ids {missing} with no protocol record")
+    check_comparable({i: records[i] for i in ids})
+    record = records[ids[0]]
+    horizons = list(horizons_ms or default_horizons(frame))
+    out = [
+        f"# {record['benchmark']}: {record['dataset']} {record['split']}, "
+        f"sampler {record['sampler']}, {_frames_text(record)} at {record['fps']:g} fps",
+        "",
+        f"Protocol {ids[0]}; actions present: {', '.join(record['actions_present'])}; "
+        f"{record['action_averaging']}.",
+        "",
+    ]
+    if headline:
+        out += [headline, ""]
+    # The headline's protocol first (per action), then the others.
+    headline_metric, headline_joints = headline_key(record)
+    first = (headline_metric, "frame", headline_joints)
+    groups = sorted(
+        frame.groupby(["metric", "averaging", "joints"], sort=True),
+        key=lambda item: item[0] != first,
+    )
+    order = _action_order(record)
+    for (metric, averaging, joints), group in groups:
+        group = group[group["horizon_ms"].isin(horizons)]
+
+        def pivot(values: str, group: pd.DataFrame = group) -> pd.DataFrame:
+            table = group.pivot_table(
+                index=["model", "action"],
+                columns="horizon_ms",
+                values=values,
+                sort=False,
+                dropna=False,
+            )
+            table = table.reindex(columns=[h for h in horizons if h in table.columns])
+            return table.sort_index(
+                level=["model", "action"],
+                key=lambda idx: idx.map(order) if idx.name == "action" else idx,
+            )
+
+        table = pivot("value")
+        description = record.get("joint_protocols", {}).get(joints, "")
+        unit, fmt = metric_unit(metric)
+        how = f"{record.get('averaging', {}).get(averaging, '')}. {description}."
+        if metric in WITH_STD and "std" in group and group["std"].notna().any():
+            spread = pivot("std")
+            table = table.astype(object)
+            for column in table.columns:
+                table[column] = [
+                    f"{m:{fmt}} ({s:{fmt}})" for m, s in zip(table[column], spread[column])
+                ]
+            how += " Each cell: mean (standard deviation over windows)."
+        out += [
+            f"## {metric.upper()} ({unit}), averaging `{averaging}`, joints `{joints}`",
+            "",
+            how,
+            "",
+            tabulate(
+                table.reset_index(),
+                headers=["model", "action"] + [f"{h} ms" for h in table.columns],
+                tablefmt="github",
+                floatfmt=fmt,
+                showindex=False,
+                disable_numparse=metric in WITH_STD,
+            ),
+            "",
+        ]
+    return "\n".join(out)
+
+
+def _frames_text(record: dict[str, Any]) -> str:
+    """``10 in / 25 out``; a long-term run says how many frames it predicted and in what steps."""
+    text = f"{record['input_frames']} in / {record['output_frames']} out"
+    if record.get("task") == "longterm":
+        text = (
+            f"{record['input_frames']} in / {record['predicted_frames']} out "
+            f"({record['output_frames']} per step, autoregressive)"
+        )
+    return text
+
+
+def default_horizons(frame: pd.DataFrame) -> list[int]:
+    """The standard columns up to 1000 ms, then (long-term runs) every 200 ms and the last
+    predicted frame."""
+    standard = [80, 160, 320, 400, 560, 720, 880, 1000]
+    present = set(frame["horizon_ms"])
+    chosen = [h for h in standard if h in present]
+    if not chosen:
+        return sorted(present)
+    longer = sorted(h for h in present if h > 1000)
+    return chosen + [h for h in longer if h % 200 == 0 or h == longer[-1]]
+
+
+def _action_order(record: dict[str, Any]) -> dict[str, int]:
+    order = {a: i for i, a in enumerate(record.get("actions_present", []))}
+    order["average"] = len(order)
+    return order

@@ -1,0 +1,171 @@
+"""One path from a model to a stored result, shared by ``zoo eval``, ``zoo.evaluate`` and
+``zoo leaderboard`` (nothing else orchestrates an evaluation): the subject (:class:`Subject`),
+its place checked (:func:`place`), the evaluation (:func:`compute`, :func:`compute_all`) and the
+result stored (:func:`store`). docs/architecture.md ("The path of one result") walks through it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from torch import nn
+
+from zoo.core.io import check_output_folder
+from zoo.core.options import EVAL_BATCH
+from zoo.evaluation.evaluator import Scored, evaluate_models
+from zoo.evaluation.results import EvalResult
+from zoo.evaluation.tolerance import Agreement, agreement
+from zoo.protocol.plan import Protocol
+from zoo.store.identity import check_replace, stamp
+
+
+@dataclass
+class Subject:
+    """The model a result is about: the module, its row label, what it is fed (``view``: mesh
+    or joints), what its results record about it, and its identity under a protocol."""
+
+    model: nn.Module
+    label: str
+    view: str
+    provenance: dict[str, Any]
+    identity_under: Callable[[Protocol], dict[str, Any]]
+
+    def scored(self) -> Scored:
+        """What the evaluator scores: the module, under its label, fed its view."""
+        return Scored(self.model, self.label, self.view, self.provenance)
+
+    @classmethod
+    def of_loaded(cls, loaded) -> Subject:
+        """A model from :meth:`zoo.hub.model_source.ModelSource.load`."""
+        return cls(
+            loaded.model,
+            loaded.label,
+            loaded.view,
+            _jsonable(loaded.provenance),
+            lambda protocol: loaded.identity(protocol.benchmark, protocol.id),
+        )
+
+    @classmethod
+    def of_module(cls, model: nn.Module, label: str, view: str) -> Subject:
+        """A module handed over from Python (no registry): its class, settings and weights."""
+        from zoo.hub.model_source import object_identity
+
+        return cls(
+            model,
+            label,
+            view,
+            {"class": f"{type(model).__module__}.{type(model).__qualname__}"},
+            lambda protocol: object_identity(model, label, protocol.benchmark, protocol.id),
+        )
+
+
+def _jsonable(value):
+    """``value`` as JSON holds it (anything else by its repr)."""
+    if isinstance(value, dict):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, (str, int, float, bool)) or value is None:
+        return value
+    return repr(value)
+
+
+@dataclass
+class Place:
+    """Where a result goes (or None: nothing written), the identity it will carry and what is
+    stored there now (:func:`zoo.store.identity.check_replace`: new, same or replace)."""
+
+    folder: Path | None
+    identity: dict[str, Any]
+    status: str = "new"
+
+
+def place(
+    subject: Subject, protocol: Protocol, folder: str | Path | None, replace: bool = False
+) -> Place:
+    """Check, before anything is evaluated, that ``folder`` may receive this result."""
+    identity = subject.identity_under(protocol)
+    if folder is None:
+        return Place(None, identity)
+    folder = Path(folder)
+    check_output_folder(folder)
+    return Place(folder, identity, check_replace(folder, identity, replace, protocol.record))
+
+
+def compute(
+    subject: Subject,
+    protocol: Protocol,
+    identity: dict[str, Any],
+    *,
+    made_by: str,
+    device: str = "cpu",
+    batch_size: int = EVAL_BATCH,
+) -> EvalResult:
+    """The subject evaluated on the protocol's windows, its identity and maker stamped."""
+    (result,) = compute_all(
+        [(subject, identity)],
+        protocol,
+        made_by=made_by,
+        device=device,
+        batch_size=batch_size,
+        keep_going=False,
+    )
+    return result
+
+
+def compute_all(
+    subjects: list[tuple[Subject, dict[str, Any]]],
+    protocol: Protocol,
+    *,
+    made_by: str,
+    device: str = "cpu",
+    batch_size: int = EVAL_BATCH,
+    keep_going: bool = True,
+) -> list[EvalResult | Exception]:
+    """Subjects (each with its identity) evaluated in one pass over the protocol's windows
+    (:func:`zoo.evaluation.evaluator.evaluate_models`: the ground truth prepared once for all),
+    each result
+    stamped as :func:`compute` stamps it; a subject that failed gets its error instead (or, with
+    ``keep_going=False``, the first failure is raised at once)."""
+    results = evaluate_models(
+        [subject.scored() for subject, _ in subjects],
+        protocol,
+        batch_size=batch_size,
+        device=device,
+        keep_going=keep_going,
+    )
+    for i, (result, (_, identity)) in enumerate(zip(results, subjects)):
+        if isinstance(result, Exception):
+            continue
+        try:
+            stamp(result, identity, made_by=made_by)
+        except Exception as e:
+            if not keep_going:
+                raise
+            results[i] = e
+    return results
+
+
+@dataclass
+class Stored:
+    """What :func:`store` did: ``written`` (nothing of this identity was there), ``kept`` (the
+    stored result agrees: its files untouched) or ``rewritten`` (it differed beyond tolerance,
+    or could not be read: ``agreed.why``)."""
+
+    action: str
+    agreed: Agreement | None = None
+
+
+def store(result: EvalResult, where: Place) -> Stored:
+    """Write ``result`` to ``where.folder``, unless the result stored there of the same
+    identity agrees with it within the tolerance."""
+    agreed = None
+    if where.status == "same":
+        agreed = agreement(result, where.folder)
+        if agreed.same:
+            return Stored("kept", agreed)
+    result.write(where.folder)
+    return Stored("rewritten" if agreed is not None else "written", agreed)

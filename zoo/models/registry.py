@@ -1,0 +1,447 @@
+"""The model registry: ``registry.yaml`` entries turned into models.
+
+``list_models()`` and ``create_model(name, **overrides)`` in the style of timm. Further registry
+files (a user's own baselines, outside ``zoo/``) join through ``load_registry(path, ...)``, the
+``ZOO_REGISTRY`` environment variable (paths separated by ``os.pathsep``) or ``--registry`` on the
+command line. A class is named ``package.module.Class`` or ``path/to/file.py:Class`` (a path
+relative to the registry file that names it).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib
+import importlib.util
+import inspect
+import os
+import re
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from zoo.core.errors import ZooError
+from zoo.models.citation import CitationError, Paper, parse_paper, parse_url
+from zoo.paths import REPO_ROOT
+
+DEFAULT_REGISTRY = REPO_ROOT / "registry.yaml"
+# Keywords every model receives from the benchmark (see zoo.models).
+SHAPE_ARGS = ("input_frames", "output_frames", "num_points")
+REPRESENTATIONS = ("joints", "mesh")
+_ENTRY_KEYS = {
+    "class",
+    "representation",
+    "trainable",
+    "hparams",
+    "reference",
+    "context",
+    "description",
+    "train",
+    "task",
+    "override",
+    "leaderboard",
+    "weights_of",
+    "paper",
+    "code",
+}
+# What a model's forward does: prediction ``forward(history)``, or completion
+# ``forward(history, final_frame)`` (the window's last frame given). Tables keep them apart.
+ENTRY_TASKS = ("prediction", "completion")
+
+
+def _flag(raw: dict, key: str, where: str) -> bool:
+    value = raw.get(key, True)
+    if not isinstance(value, bool):
+        raise RegistryError(f"{where}: field {key!r} must be true or false, got {value!r}")
+    return value
+
+
+class RegistryError(ZooError, KeyError):
+    def __str__(self) -> str:  # KeyError would quote the message
+        return str(self.args[0])
+
+
+class UnknownModelError(RegistryError):
+    """A model name no loaded registry defines (``model``: the name asked for)."""
+
+    def __init__(self, message: str, model: str) -> None:
+        super().__init__(message)
+        self.model = model
+
+
+@dataclass(frozen=True)
+class ModelEntry:
+    name: str
+    class_path: str
+    representation: tuple[str, ...]
+    trainable: bool
+    hparams: dict[str, Any]
+    reference: str
+    source: Path
+    context: tuple[str, ...] = ()
+    description: str = ""
+    train: dict[str, Any] = field(default_factory=dict)  # the training recipe (zoo.train)
+    task: str = "prediction"
+    # False: scored on demand (zoo eval, zoo.evaluate, the coverage benchmark), never a row of
+    # the committed leaderboards, whose untrained rows are the protocol's own baselines.
+    leaderboard: bool = True
+    replaces: str = ""  # the registry file whose entry of this name it overrides, if any
+    # An inference-only variant: runs the trained weights of that entry (shipped or in
+    # checkpoints/) through its own class, with that entry's hyper-parameters.
+    weights_of: str = ""
+    paper: Paper | None = None  # the paper it reproduces (links and BibTeX: zoo.models.citation)
+    code: str = ""  # the address of its authors' public code
+
+    def provenance(self) -> dict[str, str]:
+        """What every result of this model records about where it came from."""
+        from zoo.core.io import registry_record
+
+        return {
+            "class": self.class_path,
+            "registry": registry_record(self.source),
+            **({"replaces": self.replaces} if self.replaces else {}),
+        }
+
+    @property
+    def class_name(self) -> str:
+        """The class's own name, without the module or file that holds it: what an identity
+        records, so that moving the class re-stamps nothing (its code is fingerprinted)."""
+        return class_name(self.class_path)
+
+    @property
+    def valid_args(self) -> list[str]:
+        return sorted(set(self.hparams) | set(SHAPE_ARGS) | set(self.context))
+
+    def load_class(self) -> type:
+        path = self.class_path
+        try:
+            if ":" in path:
+                file_part, cls_name = path.rsplit(":", 1)
+                file = (self.source.parent / file_part).resolve()
+                if not file.is_file():
+                    raise RegistryError(
+                        f"{self.source}: model {self.name!r}: class file {file} does not exist"
+                    )
+                module_name = f"zoo_user_{abs(hash(str(file)))}"
+                module = sys.modules.get(module_name)
+                if module is None:
+                    # as Python runs a script: the files beside it import by their names
+                    _check_siblings(file, self.source, self.name)
+                    if str(file.parent) not in sys.path:
+                        sys.path.insert(0, str(file.parent))
+                    spec = importlib.util.spec_from_file_location(module_name, file)
+                    module = importlib.util.module_from_spec(spec)
+                    sys.modules[module_name] = module
+                    try:
+                        spec.loader.exec_module(module)
+                    except BaseException:
+                        del sys.modules[module_name]  # a half-run file is not loaded
+                        raise
+            else:
+                file = None
+                module_name, cls_name = path.rsplit(".", 1)
+                module = importlib.import_module(module_name)
+            if not hasattr(module, cls_name):
+                where = file if file is not None else f"module {module_name}"
+                defined = sorted(
+                    name
+                    for name, value in vars(module).items()
+                    if isinstance(value, type) and value.__module__ == module.__name__
+                )
+                raise RegistryError(
+                    f"{self.source}: model {self.name!r}: {where} defines no class "
+                    f"{cls_name!r}; it defines {', '.join(defined) or 'no class'}"
+                )
+            return getattr(module, cls_name)
+        except (ImportError, AttributeError, ValueError) as e:
+            raise RegistryError(
+                f"{self.source}: model {self.name!r}: cannot load class {path!r} ({e})"
+            ) from e
+
+
+def class_name(class_path: str) -> str:
+    """``SPGSN`` of ``zoo.models.spgsn.SPGSN`` or ``wrapper.py:Wrapper``."""
+    return re.split(r"[.:]", class_path)[-1]
+
+
+def _check_siblings(file: Path, source: Path, model: str) -> None:
+    """Refuse a class file that imports a module of its folder that Python would not import
+    from there: one of that name is loaded already from elsewhere (another registry's folder, or an
+    installed package), so the class would run other code than its folder's, which its row's
+    identity covers."""
+    import ast
+
+    try:
+        tree = ast.parse(file.read_text())
+    except (OSError, SyntaxError, ValueError):
+        return  # running the file says what is wrong with it
+    imported = {
+        a.name.split(".")[0] for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names
+    }
+    imported |= {
+        n.module.split(".")[0]
+        for n in ast.walk(tree)
+        if isinstance(n, ast.ImportFrom) and n.module and not n.level
+    }
+    siblings = [p for p in file.parent.glob("*.py") if p != file and p.stem in imported]
+    siblings += [p.parent for p in file.parent.glob("*/__init__.py") if p.parent.name in imported]
+    for sibling in siblings:
+        loaded = sys.modules.get(sibling.stem if sibling.suffix == ".py" else sibling.name)
+        origin = getattr(loaded, "__file__", None)
+        expected = sibling if sibling.suffix == ".py" else sibling / "__init__.py"
+        if origin and Path(origin).resolve() != expected.resolve():
+            raise RegistryError(
+                f"{source}: model {model!r}: {expected} would not be what its class file "
+                f"imports: a module {loaded.__name__!r} is loaded already from {origin}; "
+                f"rename one of them"
+            )
+
+
+class Registry:
+    def __init__(self, entries: dict[str, ModelEntry] | None = None) -> None:
+        self.entries: dict[str, ModelEntry] = dict(entries or {})
+
+    @classmethod
+    def from_files(cls, *paths: str | Path) -> Registry:
+        registry = cls()
+        for path in paths:
+            registry.add_file(path)
+        return registry
+
+    def add_file(self, path: str | Path) -> None:
+        path = Path(path)
+        if not path.is_file():
+            raise RegistryError(f"registry file {path} does not exist")
+        try:
+            data = yaml.safe_load(path.read_text()) or {}
+        except yaml.YAMLError as e:
+            raise RegistryError(f"{path}: not valid YAML ({e})") from e
+        models = data.get("models") if isinstance(data, dict) else None
+        if not isinstance(models, dict):
+            raise RegistryError(f"{path}: expected a top-level mapping 'models: {{name: entry}}'")
+        for name, raw in models.items():
+            entry = _parse_entry(path, name, raw)
+            previous = self.entries.get(name)
+            if previous is not None:
+                # A second model under a known name would publish rows under the first one's
+                # name and protocol: only an explicit override may, and its results say so.
+                if not (isinstance(raw, dict) and raw.get("override") is True):
+                    raise RegistryError(
+                        f"{path}: model {name!r} is already defined in "
+                        f"{previous.source}; choose another name, or add "
+                        f"'override: true' to this entry to replace it"
+                    )
+                entry = dataclasses.replace(entry, replaces=str(previous.source))
+            self.entries[name] = entry
+        for entry in self.entries.values():
+            if entry.weights_of and entry.source == path:
+                self._check_weights_of(entry)
+
+    def _check_weights_of(self, entry: ModelEntry) -> None:
+        """An entry that runs another's weights names a trainable model defined before it (in
+        its file or an earlier one) that sees the same data: task, representation, context."""
+        where = f"{entry.source}: model {entry.name!r}: field 'weights_of'"
+        target = self.entries.get(entry.weights_of)
+        if target is None:
+            raise RegistryError(
+                f"{where}: {entry.weights_of!r} is not a registered model (it must be defined "
+                f"in this registry file or an earlier one)"
+            )
+        if not target.trainable:
+            raise RegistryError(
+                f"{where}: {entry.weights_of!r} is not trainable, so it has no weights to run"
+            )
+        for field_name in ("task", "representation", "context"):
+            if getattr(entry, field_name) != getattr(target, field_name):
+                raise RegistryError(
+                    f"{where}: its {field_name} {getattr(entry, field_name)!r} differs from "
+                    f"{entry.weights_of!r}'s {getattr(target, field_name)!r}; an entry runs only "
+                    f"weights trained for what it sees"
+                )
+
+    def list_models(self, representation: str | None = None) -> list[str]:
+        return sorted(
+            n
+            for n, e in self.entries.items()
+            if representation is None or representation in e.representation
+        )
+
+    def get(self, name: str) -> ModelEntry:
+        if name not in self.entries:
+            import difflib
+
+            close = difflib.get_close_matches(str(name), self.list_models(), n=3, cutoff=0.6)
+            hint = f"did you mean {' or '.join(close)}? " if close else ""
+            raise UnknownModelError(
+                f"unknown model {name!r}; {hint}registered models: {', '.join(self.list_models())}",
+                str(name),
+            )
+        return self.entries[name]
+
+    def model_args(self, name: str, **overrides: Any) -> dict[str, Any]:
+        """The full constructor keywords: registry defaults updated by ``overrides``."""
+        entry = self.get(name)
+        unknown = sorted(set(overrides) - set(entry.valid_args))
+        if unknown:
+            supplied = [*SHAPE_ARGS, *entry.context]
+            raise RegistryError(
+                f"model {name!r} has no hyper-parameter "
+                f"{', '.join(map(repr, unknown))}; its hyper-parameters: "
+                f"{', '.join(sorted(entry.hparams)) or 'none'} ({', '.join(supplied)} come from "
+                f"the benchmark)"
+            )
+        args = {**entry.hparams, **overrides}
+        missing = [a for a in (*SHAPE_ARGS, *entry.context) if a not in args]
+        if missing:
+            raise RegistryError(
+                f"model {name!r} needs {', '.join(missing)}, which a benchmark "
+                f"supplies: create_model({name!r}, benchmark='cmu') or pass them"
+            )
+        return args
+
+    def create_model(self, name: str, **overrides: Any):
+        entry = self.get(name)
+        args = self.model_args(name, **overrides)
+        cls = entry.load_class()
+        params = inspect.signature(cls).parameters
+        takes_any = any(p.kind is p.VAR_KEYWORD for p in params.values())
+        unused = [a for a in args if a not in params and not takes_any]
+        if unused:
+            raise RegistryError(
+                f"{entry.source}: model {name!r}: class {entry.class_path} does "
+                f"not accept {', '.join(unused)}"
+            )
+        try:
+            return cls(**args)
+        except (ValueError, TypeError) as e:
+            if cls.__module__.split(".")[0] == "zoo":
+                # the zoo's own models check their arguments: the message is the answer
+                raise RegistryError(f"model {name!r}: {e}") from e
+            # a user's model keeps its traceback (it is their code), introduced by one line
+            print(
+                f"zoo: model {name!r} ({entry.class_path}, registry {entry.source}) raised "
+                f"while being built:",
+                file=sys.stderr,
+            )
+            raise
+
+
+def _parse_entry(path: Path, name: str, raw: Any) -> ModelEntry:
+    where = f"{path}: model {name!r}"
+    # Names become folder and file names (results/<benchmark>/<sampler>/<name>/).
+    if not isinstance(name, str) or not re.fullmatch(r"[A-Za-z0-9_][A-Za-z0-9_.-]*", name):
+        raise RegistryError(
+            f"{where}: a model name is letters, digits, '_', '.' and '-', not "
+            f"starting with '.' or '-' (it names result folders)"
+        )
+    if not isinstance(raw, dict):
+        raise RegistryError(f"{where}: entry must be a mapping")
+    unknown = sorted(set(raw) - _ENTRY_KEYS)
+    if unknown:
+        import difflib
+
+        named = [
+            f"{field} (did you mean {close[0]}?)"
+            if (close := difflib.get_close_matches(str(field), _ENTRY_KEYS, n=1, cutoff=0.6))
+            else str(field)
+            for field in unknown
+        ]
+        raise RegistryError(
+            f"{where}: unknown field(s) {', '.join(named)}; valid fields: "
+            f"{', '.join(sorted(_ENTRY_KEYS))}"
+        )
+    if not isinstance(raw.get("class"), str):
+        raise RegistryError(f"{where}: field 'class' (module.Class or file.py:Class) is required")
+    rep = raw.get("representation")
+    rep = (rep,) if isinstance(rep, str) else tuple(rep or ())
+    if not rep or any(r not in REPRESENTATIONS for r in rep):
+        raise RegistryError(
+            f"{where}: field 'representation' must be one or more of "
+            f"{', '.join(REPRESENTATIONS)}, got {raw.get('representation')!r}"
+        )
+    hparams = raw.get("hparams") or {}
+    if not isinstance(hparams, dict):
+        raise RegistryError(f"{where}: field 'hparams' must be a mapping")
+    clash = sorted(set(hparams) & set(SHAPE_ARGS))
+    if clash:
+        raise RegistryError(f"{where}: {', '.join(clash)} come from the benchmark, not hparams")
+    if "override" in raw and not isinstance(raw["override"], bool):
+        raise RegistryError(
+            f"{where}: field 'override' must be true or false, got {raw['override']!r}"
+        )
+    task = raw.get("task", "prediction")
+    if task not in ENTRY_TASKS:
+        raise RegistryError(
+            f"{where}: field 'task' must be one of {', '.join(ENTRY_TASKS)}, got {task!r}"
+        )
+    if "task" in hparams and hparams["task"] != task:
+        raise RegistryError(
+            f"{where}: hparams task {hparams['task']!r} but the entry's task is "
+            f"{task!r} (field 'task', default prediction); they must agree"
+        )
+    weights_of = raw.get("weights_of", "")
+    if not isinstance(weights_of, str) or weights_of == name:
+        raise RegistryError(
+            f"{where}: field 'weights_of' names another model whose trained weights this one "
+            f"runs, got {weights_of!r}"
+        )
+    if weights_of and raw.get("trainable"):
+        raise RegistryError(
+            f"{where}: weights_of {weights_of!r} and trainable: true: an entry that runs "
+            f"another's weights is trained as that one (zoo train --model {weights_of})"
+        )
+    try:
+        paper = parse_paper(raw.get("paper"), where)
+        code = parse_url(raw["code"], f"{where}: field 'code'") if "code" in raw else ""
+    except CitationError as e:
+        raise RegistryError(str(e)) from None
+    return ModelEntry(
+        name=name,
+        class_path=raw["class"],
+        representation=rep,
+        task=task,
+        trainable=bool(raw.get("trainable", False)),
+        hparams=dict(hparams),
+        reference=str(raw.get("reference", "")).strip(),
+        source=path,
+        context=tuple(raw.get("context") or ()),
+        description=str(raw.get("description", "")).strip(),
+        train=dict(raw.get("train") or {}),
+        leaderboard=_flag(raw, "leaderboard", where),
+        weights_of=weights_of,
+        paper=paper,
+        code=code,
+    )
+
+
+def load_registry(*extra: str | Path) -> Registry:
+    """The project's registry plus ``ZOO_REGISTRY`` files plus ``extra`` (later ones win)."""
+    if not DEFAULT_REGISTRY.is_file():
+        raise RegistryError(
+            f"{DEFAULT_REGISTRY} not found: install motion-zoo from its source "
+            f"tree (pip install -e .) so the registry travels with the code"
+        )
+    env = [p for p in os.environ.get("ZOO_REGISTRY", "").split(os.pathsep) if p]
+    return Registry.from_files(DEFAULT_REGISTRY, *env, *extra)
+
+
+def as_registry(registry: Registry | str | Path | list | tuple | None, what: str) -> Registry:
+    """What an API function's ``registry=`` may be: a :class:`Registry`, the path of a registry
+    file or a list of them (added to the project's, as ``--registry`` adds them), or None (the
+    project's); anything else is refused naming ``what``."""
+    if registry is None:
+        return load_registry()
+    if isinstance(registry, Registry):
+        return registry
+    files = [registry] if isinstance(registry, (str, Path)) else registry
+    if not isinstance(files, (list, tuple)) or not all(isinstance(f, (str, Path)) for f in files):
+        raise RegistryError(
+            f"{what}: registry must be a zoo.Registry or the path of a registry file (or a list "
+            f"of them), got {type(registry).__name__}"
+        )
+    missing = [str(f) for f in files if not Path(f).is_file()]
+    if missing:
+        raise RegistryError(f"{what}: registry file {missing[0]} does not exist")
+    return load_registry(*files)

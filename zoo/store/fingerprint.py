@@ -1,0 +1,544 @@
+"""What code does, as a short hash that does not depend on where the code lives.
+
+A fingerprint hashes syntax trees (docstrings, comments and formatting left out) in which every
+reference to a definition of the zoo, or of a researcher's module beside a model file, is
+written as that definition's name and a digest of its own text, never as the module that holds
+it, and in which imports of those modules are left out. So renaming a module, moving a
+definition to another file or reordering definitions changes no fingerprint, while a changed
+body, constant, base class or import from outside the zoo does. Two uses: the definitions a
+model class reaches (:func:`model_fingerprint`) and whole modules with the zoo modules they
+import (:func:`code_fingerprint`, the evaluator's). Which code a result's identity covers is
+the store's policy (:mod:`zoo.store.identity`).
+"""
+
+from __future__ import annotations
+
+import ast
+import copy
+import hashlib
+import inspect
+import re
+from functools import cache
+from pathlib import Path
+
+from zoo.paths import REPO_ROOT
+
+# A string naming a zoo definition by its module, as the benchmark's mesh datasets are named
+# ("zoo.data.cloth:cloth_dataset"): a reference like an import, normalised like one.
+_NAMED_DEFINITION = re.compile(r"zoo(?:\.\w+)+:\w+")
+
+
+def _tree_text(node) -> str:
+    """A syntax tree as text: node types and field values, docstrings and empty fields left
+    out (so the text is the same on every Python version that parses the file alike)."""
+    if isinstance(node, ast.AST):
+        body = getattr(node, "body", None)
+        fields = []
+        for name in node._fields:
+            value = getattr(node, name, None)
+            if name == "body" and isinstance(body, list) and _is_docstring(body):
+                value = body[1:]
+            if value is None or value == [] or name in ("kind", "type_comment"):
+                continue
+            fields.append(f"{name}={_tree_text(value)}")
+        return f"{type(node).__name__}({','.join(fields)})"
+    if isinstance(node, list):
+        return "[" + ",".join(_tree_text(v) for v in node) + "]"
+    return repr(node)
+
+
+def _is_docstring(body: list) -> bool:
+    first = body[0] if body else None
+    return (
+        isinstance(first, ast.Expr)
+        and isinstance(first.value, ast.Constant)
+        and isinstance(first.value.value, str)
+    )
+
+
+def _digest(texts) -> str:
+    return hashlib.sha256("\n".join(texts).encode()).hexdigest()[:16]
+
+
+# ---- modules and what their imports bind -----------------------------------------------------
+
+
+def zoo_module_file(module: str) -> Path | None:
+    parts = module.split(".")
+    if parts[0] != "zoo":
+        return None
+    for candidate in (
+        REPO_ROOT.joinpath(*parts).with_suffix(".py"),
+        REPO_ROOT.joinpath(*parts, "__init__.py"),
+    ):
+        if candidate.is_file():
+            return candidate.resolve()
+    return None
+
+
+def _import_base(node: ast.ImportFrom, package: str) -> str:
+    """The absolute module a ``from ... import`` names, relative ones resolved in ``package``
+    (the importing file's; empty outside the repository, where they stay unresolved)."""
+    base = node.module or ""
+    if node.level and package:
+        parent = package.split(".")[: len(package.split(".")) - node.level + 1]
+        base = ".".join([*parent, *([base] if base else [])])
+    return base
+
+
+def _package_of(path: Path) -> str:
+    return (
+        ".".join(path.relative_to(REPO_ROOT).with_suffix("").parts[:-1])
+        if path.is_relative_to(REPO_ROOT)
+        else ""
+    )
+
+
+def _beside(path: Path | None, module: str) -> Path | None:
+    """The file of ``module`` where it is a researcher's code that ``path``, a model file outside
+    the zoo package, reaches: beside it (the registry puts its folder on ``sys.path``), or in a
+    folder of ``sys.path`` that is neither the standard library nor installed packages (where a
+    wrapper puts the authors' checkout). None for zoo's own files and for installed modules."""
+    if path is None or not module or path.is_relative_to(REPO_ROOT / "zoo"):
+        return None
+    parts = module.split(".")
+    for root in (path.parent, *_researcher_folders()):
+        for candidate in (
+            root.joinpath(*parts).with_suffix(".py"),
+            root.joinpath(*parts, "__init__.py"),
+        ):
+            if candidate.is_file() and not candidate.resolve().is_relative_to(REPO_ROOT / "zoo"):
+                return candidate.resolve()
+    return None
+
+
+def _researcher_folders() -> list[Path]:
+    """The folders of ``sys.path`` (as it is now: after a wrapper has added its own) that hold
+    neither the standard library nor installed packages, nor the zoo's own code."""
+    import site
+    import sys
+    import sysconfig
+
+    installed = {Path(p).resolve() for p in sysconfig.get_paths().values()}
+    installed |= {Path(p).resolve() for p in site.getsitepackages()}
+    installed |= {Path(p).resolve() for p in (sys.prefix, sys.base_prefix, sys.exec_prefix)}
+    folders = []
+    for entry in sys.path:
+        folder = Path(entry or ".").resolve()
+        if not folder.is_dir() or folder == REPO_ROOT or folder in folders:
+            continue
+        if any(folder == p or folder.is_relative_to(p) for p in installed):
+            continue
+        folders.append(folder)
+    return folders
+
+
+def _import_bindings(node, package: str, path: Path | None = None) -> dict[str, tuple]:
+    """The names an import statement binds: ``("zoo", module, attribute or None)`` for a zoo
+    module or one of its names, ``("beside", module, attribute or None)`` for a module beside a
+    model file outside zoo (:func:`_beside`), ``("outside", text)`` for anything else."""
+    bindings: dict[str, tuple] = {}
+    if isinstance(node, ast.Import):
+        for alias in node.names:
+            top = alias.name.split(".")[0]
+            if _beside(path, alias.name if alias.asname else top) is not None:
+                # import a.b as m binds the module a.b; import a.b binds a (a.b reached by name)
+                bindings[alias.asname or top] = (
+                    "beside",
+                    alias.name if alias.asname else top,
+                    None,
+                )
+            elif top == "zoo":
+                # import zoo.a.b binds zoo; import zoo.a.b as m binds the module itself
+                bound = alias.asname or "zoo"
+                bindings[bound] = ("zoo", alias.name if alias.asname else "zoo", None)
+            else:
+                bindings[alias.asname or alias.name.split(".")[0]] = (
+                    "outside",
+                    _tree_text(ast.Import(names=[alias])),
+                )
+        return bindings
+    base = _import_base(node, package)
+    beside = not node.level and _beside(path, base) is not None
+    for alias in node.names:
+        bound = alias.asname or alias.name
+        if beside and alias.name != "*":
+            submodule = f"{base}.{alias.name}"
+            bindings[bound] = (
+                ("beside", submodule, None)
+                if _beside(path, submodule)
+                else ("beside", base, alias.name)
+            )
+        elif base.split(".")[0] == "zoo" and alias.name != "*":
+            submodule = f"{base}.{alias.name}"
+            bindings[bound] = (
+                ("zoo", submodule, None)
+                if zoo_module_file(submodule)
+                else ("zoo", base, alias.name)
+            )
+        else:
+            bindings[bound] = ("outside", f"from {base} import {alias.name}")
+    return bindings
+
+
+def _bound_names(target) -> list[str]:
+    """The names an assignment target binds: ``a``, ``a, (b, *c)``; none for ``m.a`` or
+    ``m[i]``, which change something else."""
+    if isinstance(target, ast.Name):
+        return [target.id]
+    if isinstance(target, ast.Starred):
+        return _bound_names(target.value)
+    if isinstance(target, (ast.Tuple, ast.List)):
+        return [n for t in target.elts for n in _bound_names(t)]
+    return []
+
+
+@cache
+def _module_parts(path: str, mtime_ns: int) -> tuple[dict, dict, list]:
+    """A module's top level: ``defs`` (name -> the statements that bind it: functions,
+    classes, assignments), ``imports`` (name -> what :func:`_import_bindings` says it binds)
+    and ``others`` (every other statement: it runs on import, whatever is reached)."""
+    tree = ast.parse(Path(path).read_text(), filename=path)
+    package = _package_of(Path(path))
+    defs: dict[str, list] = {}
+    imports: dict[str, tuple] = {}
+    others: list = []
+    body = tree.body[1:] if _is_docstring(tree.body) else tree.body
+    for node in body:
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+            defs.setdefault(node.name, []).append(node)
+        elif isinstance(node, (ast.Assign, ast.AnnAssign, ast.AugAssign)):
+            targets = node.targets if isinstance(node, ast.Assign) else [node.target]
+            names = [n for t in targets for n in _bound_names(t)]  # not mod.attr = ...
+            for name in names:
+                defs.setdefault(name, []).append(node)
+            if not names:
+                others.append(node)
+        elif isinstance(node, (ast.Import, ast.ImportFrom)):
+            imports.update(_import_bindings(node, package, Path(path)))
+        else:
+            others.append(node)
+    return defs, imports, others
+
+
+def _parts(path: Path) -> tuple[dict, dict, list]:
+    return _module_parts(str(path), path.stat().st_mtime_ns)
+
+
+def _module_file(kind: str, path: Path, module: str) -> Path | None:
+    return _beside(path, module) if kind == "beside" else zoo_module_file(module)
+
+
+def _resolve(path: Path, binding: tuple, rest: list[str], depth: int = 0):
+    """Where a name bound by an import leads, with the attributes read from it (``rest``):
+    ``(file, definition, attributes left)``, ``(file, None, [])`` for a module itself, or None
+    for an import from outside (or a name no module defines). A name a module only re-exports
+    is followed to where it is defined."""
+    kind, *target = binding
+    if kind == "outside":
+        return None
+    module, attribute = target
+    rest = list(rest)
+    if attribute is None:  # a module: its submodules, then one of its definitions
+        while rest and _module_file(kind, path, f"{module}.{rest[0]}"):
+            module = f"{module}.{rest.pop(0)}"
+        attribute = rest.pop(0) if rest else None
+    file = _module_file(kind, path, module)
+    if file is None:
+        return None
+    if attribute is None:
+        return file, None, []
+    defs, imports, _ = _parts(file)
+    if attribute not in defs and attribute in imports and depth < 20:
+        found = _resolve(file, imports[attribute], [], depth + 1)
+        return None if found is None else (found[0], found[1], rest)
+    return file, attribute, rest
+
+
+# ---- references written by name, not by place -----------------------------------------------
+
+
+def _local_bindings(nodes: list, path: Path) -> dict[str, tuple]:
+    """Imports written inside definitions bind names there too."""
+    local: dict[str, tuple] = {}
+    for node in nodes:
+        for sub in ast.walk(node):
+            if isinstance(sub, (ast.Import, ast.ImportFrom)):
+                local.update(_import_bindings(sub, _package_of(path), path))
+    return local
+
+
+def _shadowed(node) -> set[str]:
+    """Names a top-level statement binds inside itself (arguments, local variables), which
+    its body reads as its own, not as the module's."""
+    names: set[str] = set()
+    own = (
+        set(_bound_names_of(node))
+        if isinstance(node, (ast.Assign, ast.AnnAssign, ast.AugAssign))
+        else set()
+    )
+    for sub in ast.walk(node):
+        if isinstance(sub, ast.arg):
+            names.add(sub.arg)
+        elif isinstance(sub, ast.Name) and isinstance(sub.ctx, (ast.Store, ast.Del)):
+            names.add(sub.id)
+        elif isinstance(sub, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)) and (
+            sub is not node
+        ):
+            names.add(sub.name)
+    return names - own
+
+
+def _bound_names_of(node) -> list[str]:
+    targets = node.targets if isinstance(node, ast.Assign) else [node.target]
+    return [n for t in targets for n in _bound_names(t)]
+
+
+class _ByName(ast.NodeTransformer):
+    """A statement's tree with every reference to a definition (of its own module, or reached
+    through an import of a zoo module or one beside a model file) replaced by ``token(file,
+    name)``; imports of such modules removed."""
+
+    def __init__(self, path: Path, names: dict[str, tuple], defs: dict, shadowed: set, token):
+        self.path, self.names, self.defs, self.shadowed = path, names, defs, shadowed
+        self.token = token
+
+    def _lookup(self, name: str, rest: list[str]):
+        if name in self.shadowed:
+            return None
+        if name in self.names:
+            return _resolve(self.path, self.names[name], rest)
+        if name in self.defs:
+            return self.path, name, rest
+        return None
+
+    def visit_Name(self, node):
+        found = self._lookup(node.id, [])
+        if found is None or not isinstance(node.ctx, ast.Load):
+            return node
+        return ast.Name(id=self.token(found[0], found[1]), ctx=node.ctx)
+
+    def visit_Attribute(self, node):
+        chain, base = [node.attr], node.value
+        while isinstance(base, ast.Attribute):
+            chain.insert(0, base.attr)
+            base = base.value
+        if not isinstance(base, ast.Name) or not isinstance(node.ctx, ast.Load):
+            return self.generic_visit(node)
+        found = self._lookup(base.id, chain)
+        if found is None:
+            return self.generic_visit(node)
+        file, name, rest = found
+        out: ast.expr = ast.Name(id=self.token(file, name), ctx=ast.Load())
+        for attribute in rest:
+            out = ast.Attribute(value=out, attr=attribute, ctx=ast.Load())
+        return out
+
+    def visit_Constant(self, node):
+        # by its name alone: what a string names is loaded on demand, and its code is counted
+        # where it is loaded (zoo.store.identity.dataset_code), not wherever it is named
+        if isinstance(node.value, str) and _NAMED_DEFINITION.fullmatch(node.value):
+            module, name = node.value.split(":")
+            if zoo_module_file(module) is not None:
+                return ast.Name(id=f"@{name}", ctx=ast.Load())
+        return node
+
+    def visit_Import(self, node):
+        return self._kept_import(node)
+
+    def visit_ImportFrom(self, node):
+        return self._kept_import(node)
+
+    def _kept_import(self, node):
+        bindings = _import_bindings(node, _package_of(self.path), self.path)
+        return node if all(b[0] == "outside" for b in bindings.values()) else ast.Pass()
+
+
+def _text_by_name(path: Path, node, level: int) -> str:
+    """A statement's text with its references written by name: ``@name`` (level 1), or
+    ``@name#digest`` with the digest of that definition's level-1 text (level 2), so that two
+    definitions of one name in different modules are told apart."""
+    defs, imports, _ = _parts(path)
+    names = {**imports, **_local_bindings([node], path)}
+
+    def token(file: Path, name: str | None) -> str:
+        if name is None:
+            return "@module"
+        if level == 1 or name not in _parts(file)[0]:
+            return f"@{name}"
+        return f"@{name}#{_definition_digest(str(file), file.stat().st_mtime_ns, name)}"
+
+    tree = _ByName(path, names, defs, _shadowed(node), token).visit(copy.deepcopy(node))
+    return _tree_text(tree)
+
+
+@cache
+def _definition_digest(path: str, mtime_ns: int, name: str) -> str:
+    file = Path(path)
+    return _digest(_text_by_name(file, n, 1) for n in _parts(file)[0][name])[:8]
+
+
+def module_pieces(path: Path) -> set[str]:
+    """A whole module as location-free pieces: each definition by name, each other statement,
+    each import from outside the zoo."""
+    path = path.resolve()
+    defs, imports, others = _parts(path)
+    pieces = {
+        f"{name}::{_text_by_name(path, node, 2)}" for name, nodes in defs.items() for node in nodes
+    }
+    pieces |= {f"::{_text_by_name(path, node, 2)}" for node in others}
+    pieces |= {f"import::{b[1]}" for b in imports.values() if b[0] == "outside"}
+    return pieces
+
+
+def code_fingerprint(*files: str | Path) -> str:
+    """What the code of whole modules does: a hash of their pieces (:func:`module_pieces`),
+    so neither their file names nor the order of their definitions count."""
+    pieces: set[str] = set()
+    for file in files:
+        path = Path(file)
+        pieces |= module_pieces(path if path.is_absolute() else REPO_ROOT / path)
+    return _digest(sorted(pieces))
+
+
+def _imported_files(path: Path) -> set[Path]:
+    """The zoo modules a file imports, at module level or inside functions, absolute or
+    relative (``from zoo.models import dct`` names the module ``zoo.models.dct``)."""
+    try:
+        tree = ast.parse(path.read_text())
+    except (OSError, SyntaxError):
+        return set()
+    package = _package_of(path)
+    names = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            names += [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = _import_base(node, package)
+            names += [base, *(f"{base}.{a.name}" for a in node.names)]
+    found = {zoo_module_file(n) for n in names}
+    return {f for f in found if f is not None}
+
+
+def code_closure(*files: str | Path, skip: frozenset[Path] = frozenset()) -> list[Path]:
+    """``files`` and every zoo module they import, transitively, but for ``skip`` (sorted)."""
+    todo = [Path(f) if Path(f).is_absolute() else (REPO_ROOT / f) for f in files]
+    seen: set[Path] = set()
+    while todo:
+        path = todo.pop().resolve()
+        if path in seen or path in skip:
+            continue
+        seen.add(path)
+        todo += sorted(_imported_files(path) - seen)
+    return sorted(seen)
+
+
+# ---- a model's own code: the definitions its class reaches --------------------------------
+
+
+def _used_names(nodes: list) -> set[tuple[str, ...]]:
+    """Every name the statements use, with the attributes read from it (``a.b.c`` gives
+    ``("a", "b", "c")``, a bare ``a`` gives ``("a",)``)."""
+    used: set[tuple[str, ...]] = set()
+    inner: set[int] = set()  # a name or chain read only for an attribute of it: not used whole
+    for node in nodes:
+        for sub in ast.walk(node):  # outer attributes before the chains inside them
+            if isinstance(sub, ast.Attribute) and id(sub) not in inner:
+                chain, base = [sub.attr], sub.value
+                while isinstance(base, ast.Attribute):
+                    inner.add(id(base))
+                    chain.insert(0, base.attr)
+                    base = base.value
+                if isinstance(base, ast.Name):
+                    used.add((base.id, *chain))
+                    inner.add(id(base))
+            elif isinstance(sub, ast.Name) and id(sub) not in inner:
+                used.add((sub.id,))
+    return used
+
+
+def reachable_code(cls: type) -> list[str] | None:
+    """What a model class's results depend on in code, as ``where::name::text`` pieces: its own
+    definition and every zoo definition it reaches by name (functions, classes, constants;
+    through imports across zoo modules and modules beside a model file, base classes
+    included), the imports from outside zoo that those use, and the other top-level statements
+    of every module reached. A second class in the same file is not among them; a changed
+    helper, constant, base class or import is. None where Python keeps no source for the
+    class, or it is not defined at a module's top level."""
+    try:
+        file = inspect.getsourcefile(cls)
+    except (OSError, TypeError):
+        return None
+    if file is None or not Path(file).is_file():
+        return None
+    start = Path(file).resolve()
+    if cls.__name__ not in _parts(start)[0]:
+        return None
+
+    def label(path: Path) -> str:
+        return str(path.relative_to(REPO_ROOT)) if path.is_relative_to(REPO_ROOT) else path.name
+
+    pieces: set[str] = set()
+    seen: set[tuple[Path, str | None]] = set()
+    todo: list[tuple[Path, str | None]] = [(start, cls.__name__)]
+    while todo:
+        path, name = todo.pop()
+        if (path, name) in seen:
+            continue
+        seen.add((path, name))
+        defs, imports, others = _parts(path)
+        if (path, "") not in seen:  # a module's other statements, once
+            seen.add((path, ""))
+            pieces |= {f"{label(path)}::::{_text_by_name(path, n, 2)}" for n in others}
+            todo += [(path, None)]  # what those statements use
+        nodes = others if name is None else defs.get(name, [])
+        if name is not None and not nodes and name in imports:
+            uses = {(name,)}  # a name this module only imports (a re-export): follow it
+        else:
+            uses = _used_names(nodes)
+        pieces |= {f"{label(path)}::{name}::{_text_by_name(path, n, 2)}" for n in nodes if name}
+        local = _local_bindings(nodes, path)
+        for used in uses:
+            head = used[0]
+            if head in defs and head != name and head not in local:
+                todo.append((path, head))
+            elif head in local or head in imports:
+                binding = local.get(head) or imports[head]
+                if binding[0] == "outside":
+                    pieces.add(f"{label(path)}::import::{binding[1]}")
+                    continue
+                found = _resolve(path, binding, list(used[1:]))
+                if found is None:
+                    continue
+                target, attribute, _ = found
+                target_defs = _parts(target)[0]
+                if attribute is None or attribute not in target_defs:
+                    # the module itself is used, or a name it does not define: all of it
+                    todo += [(target, n) for n in target_defs] + [(target, None)]
+                else:
+                    todo.append((target, attribute))
+    return sorted(pieces)
+
+
+def model_fingerprint(cls: type) -> str | None:
+    """A model class's code fingerprint: of :func:`reachable_code` without the places its
+    pieces were found in, or, for a class defined other than at a module's top level, of its
+    file and the zoo modules it imports; None where Python keeps no source for it (a class
+    typed into an interpreter)."""
+    code = reachable_code(cls)
+    if code is not None:
+        return _digest(sorted({piece.split("::", 1)[1] for piece in code}))
+    sources = model_source_files(cls)
+    return code_fingerprint(*sources) if sources else None
+
+
+def model_source_files(cls: type) -> list[Path]:
+    """The file defining a model class and the zoo modules it imports: the model's source.
+    Empty where Python keeps no file for it (a class typed into an interpreter)."""
+    try:
+        file = inspect.getsourcefile(cls)
+    except (OSError, TypeError):
+        file = None
+    if file is None or not Path(file).is_file():
+        return []
+    return code_closure(Path(file).resolve())

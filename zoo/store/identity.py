@@ -1,0 +1,229 @@
+"""What a stored result is: its identity (:func:`result_identity`, code fingerprints by
+:func:`zoo.store.fingerprint.model_fingerprint`) is what was measured, and a store never replaces
+a result of another identity unless told to (:func:`check_replace`). Two identities differ in
+:class:`Difference` values, each a field with its stored and new value. The identity's fields:
+docs/results.md ("What a stored row is").
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from pathlib import Path
+from typing import Any
+
+from zoo.core.io import canonical_json
+from zoo.store.fingerprint import code_closure, code_fingerprint, model_fingerprint, zoo_module_file
+from zoo.store.layout import StoreError
+
+IDENTITY_VERSION = 2  # 2: code fingerprints that do not depend on where the code lives
+# The evaluator's code is zoo.evaluation.evaluator and every zoo module it imports, directly or
+# through others (metrics, windows, benchmarks, data loaders and forward kinematics, spectral
+# bases). Left out: modules that only present, store or move results and cannot change a number
+# (the result files and their Markdown, tables, intervals, ranking, files and locks, paths,
+# errors, the process group, the check's and costs' budgets). Named as modules: one renamed is
+# renamed here in the same change.
+EVALUATOR = "zoo.evaluation.evaluator"
+NOT_COMPUTING = frozenset(
+    {
+        "zoo.evaluation.results",
+        "zoo.evaluation.markdown",
+        "zoo.protocol.comparable",
+        "zoo.protocol.published",
+        "zoo.report.tables",
+        "zoo.stats.intervals",
+        "zoo.stats.ranking",
+        "zoo.core.io",
+        "zoo.paths",
+        "zoo.core.errors",
+        "zoo.core.distributed",
+        "zoo.core.budgets",
+    }
+)
+
+
+# ---- the code a result's identity covers ----------------------------------------------------
+
+
+def _skipped() -> frozenset[Path]:
+    return frozenset(
+        f for f in (zoo_module_file(m) for m in (*NOT_COMPUTING, "zoo")) if f is not None
+    )
+
+
+def dataset_code(dataset: str | None) -> list[Path]:
+    """The code that generates a mesh dataset (cloth simulation, CMU motion on the Anny body),
+    which the evaluator loads by name, not by import; skeleton loaders are the evaluator's."""
+    from zoo.protocol.benchmark import MESH_DATASETS
+
+    loader = MESH_DATASETS.get(dataset or "")
+    loader = loader[0] if isinstance(loader, tuple) else loader
+    if not isinstance(loader, str):
+        return []
+    file = zoo_module_file(loader.split(":")[0])
+    return code_closure(file, skip=_skipped()) if file is not None else []
+
+
+def evaluation_code(model_class: type | None, dataset: str | None = None) -> dict[str, str | None]:
+    """The ``code`` part of an identity: the evaluator's fingerprint (with the code that
+    generates ``dataset``, a mesh dataset) and the model's (None where its source cannot be
+    read, a class typed into an interpreter: such a result is never taken for another)."""
+    evaluator = code_closure(zoo_module_file(EVALUATOR), skip=_skipped())
+    files = sorted(set(evaluator) | set(dataset_code(dataset)))
+    code: dict[str, str | None] = {"evaluator": code_fingerprint(*files)}
+    if model_class is not None:
+        code["model"] = model_fingerprint(model_class)
+    return code
+
+
+# ---- identities ------------------------------------------------------------------------------
+
+
+def result_identity(
+    *,
+    benchmark: str,
+    protocol_id: str,
+    label: str,
+    model: dict[str, Any],
+    trained: dict[str, Any] | None,
+    code: dict[str, str],
+) -> dict[str, Any]:
+    return {
+        "version": IDENTITY_VERSION,
+        "benchmark": benchmark,
+        "protocol_id": protocol_id,
+        "label": label,
+        "model": model,
+        "trained": trained,
+        "code": code,
+    }
+
+
+def identity_id(identity: dict[str, Any]) -> str:
+    return hashlib.sha256(canonical_json(identity).encode()).hexdigest()[:16]
+
+
+def stamp(result, identity: dict, made_by: str) -> None:
+    """Record ``identity`` in a result's provenance (written to its ``protocol.json``), and
+    what made it (``zoo leaderboard``, ``zoo eval``, ``zoo.evaluate``): a rebuild replaces only
+    rows it made."""
+    stamp_record(result.protocol, identity)
+    result.protocol["provenance"]["made_by"] = made_by
+
+
+def stamp_record(protocol: dict, identity: dict) -> None:
+    """``identity`` into a protocol record's provenance (its ``made_by`` unchanged)."""
+    protocol["provenance"]["identity"] = identity
+    protocol["provenance"]["identity_id"] = identity_id(identity)
+
+
+def restamp_record(protocol: dict, identity: dict, verification: dict | None = None) -> None:
+    """A stored row's record given the identity it has now, its numbers kept: for a row whose
+    identity went stale only because code changed, with how its numbers were verified under the
+    new code (``verification``: windows, seed, old and new code), kept in order under
+    ``provenance.verified``."""
+    if verification is not None:
+        protocol["provenance"].setdefault("verified", []).append(verification)
+    stamp_record(protocol, identity)
+
+
+class Difference(str):
+    """One field in which two identities differ: its text (``field: stored X, now Y``) is what
+    messages print; ``field`` and ``comparable`` are what code decides on."""
+
+    field: str
+    comparable: bool  # False: no result can be its twin (a model whose source cannot be read)
+
+    def __new__(cls, field: str, text: str, comparable: bool = True) -> Difference:
+        difference = super().__new__(cls, f"{field}: {text}")
+        difference.field, difference.comparable = field, comparable
+        return difference
+
+    def __reduce__(self):  # copy and pickle keep the field and the flag
+        return (Difference, (self.field, self[len(self.field) + 2 :], self.comparable))
+
+
+def only_code_changed(differences: list[Difference]) -> bool:
+    """Whether identity differences (:func:`identity_differences`) are of code alone: the same
+    data, protocol, hyper-parameters and weights, so a sample can verify the stored numbers."""
+    return bool(differences) and all(
+        d.field.startswith("code.") and d.comparable for d in differences
+    )
+
+
+def identity_differences(stored: dict[str, Any] | None, new: dict[str, Any]) -> list[Difference]:
+    """The fields in which two identities differ, as ``field: stored X, now Y``; one line for
+    a result that records none (written by an older zoo)."""
+    if not stored:
+        return [Difference("identity", "none recorded (written by an older zoo)")]
+    out: list[Difference] = []
+    if (new.get("code") or {}).get("model", "") is None:
+        out.append(
+            Difference(
+                "code.model",
+                "the model's source cannot be read, so no result is its twin",
+                comparable=False,
+            )
+        )
+
+    def walk(a, b, path):
+        if isinstance(a, dict) and isinstance(b, dict):
+            for key in sorted(set(a) | set(b), key=str):
+                walk(a.get(key), b.get(key), f"{path}.{key}" if path else str(key))
+        elif a != b:
+            out.append(Difference(path, f"stored {_short(a)}, now {_short(b)}"))
+
+    walk(stored, new, "")
+    return out
+
+
+def _short(value: Any) -> str:
+    text = json.dumps(value, default=str)
+    return text if len(text) <= 70 else text[:67] + "..."
+
+
+def stored_identity(folder: str | Path) -> dict[str, Any] | None:
+    """The identity recorded in a result folder, or None (no result, or one without)."""
+    path = Path(folder) / "protocol.json"
+    if not path.is_file():
+        return None
+    try:
+        record = json.loads(path.read_text())
+    except (OSError, ValueError) as e:
+        raise StoreError(
+            f"{path}: not readable JSON ({e}); remove the folder or re-evaluate with --replace"
+        ) from e
+    return (record.get("provenance") or {}).get("identity")
+
+
+def check_replace(
+    folder: str | Path,
+    identity: dict[str, Any],
+    replace: bool = False,
+    protocol: dict[str, Any] | None = None,
+) -> str:
+    """Whether ``folder`` may receive a result of ``identity``: ``new`` (nothing there),
+    ``same`` (a result of this identity, re-measured), ``replace`` (another identity, and
+    ``replace`` was asked); otherwise an error naming the fields that differ (with
+    ``protocol``, the new protocol record, the protocol's own fields too: data files, windows)."""
+    folder = Path(folder)
+    if not (folder / "protocol.json").is_file():
+        return "new"
+    if replace:
+        return "replace"
+    differences = identity_differences(stored_identity(folder), identity)
+    if not differences:
+        return "same"
+    if protocol is not None:
+        from zoo.protocol.comparable import protocol_differences
+
+        stored = json.loads((folder / "protocol.json").read_text())
+        differences += [f"protocol {d}" for d in protocol_differences(stored, protocol)]
+    shown = "; ".join(differences[:6]) + (
+        f"; and {len(differences) - 6} more" if len(differences) > 6 else ""
+    )
+    raise StoreError(
+        f"{folder} holds a result of another identity ({shown}); store this one "
+        f"beside it under its own --label, write elsewhere with --out, or replace "
+        f"it with --replace"
+    )
