@@ -15,7 +15,7 @@ from tiny_models import REGISTRY
 
 from zoo.cli import main
 from zoo.evaluation.results import WindowErrors
-from zoo.leaderboard.check import data_hash_of, draw_sample, escape_sentence, verification_record
+from zoo.leaderboard.verdict import data_hash_of, draw_sample, escape_sentence, verification_record
 from zoo.models.registry import Registry
 from zoo.train.loop import train
 

@@ -15,8 +15,9 @@ from test_leaderboard import cmu_and_registry
 import zoo.leaderboard.costs
 import zoo.leaderboard.efficiency
 from zoo.cli import main
-from zoo.leaderboard.board import Plan, regenerate
 from zoo.leaderboard.efficiency import LATENCY_REPEATS, TRAINING_STEPS, measure
+from zoo.leaderboard.plan import Plan
+from zoo.leaderboard.rebuild import regenerate
 from zoo.models.recipe import DEFAULT_RECIPE
 from zoo.train.loop import train
 from zoo.train.step import forward_precision

@@ -23,8 +23,8 @@ def probe(results: str | Path) -> dict:
     """What the imported tree says of the committed rows in ``results``: the rows whose
     recorded code fingerprints are not those of this code, and the CMU rows whose cost cells
     ``costs.json`` keeps for their model as it is now."""
-    from zoo.leaderboard.board import Leaderboard
     from zoo.leaderboard.costs import committed_tables
+    from zoo.leaderboard.plan import Leaderboard
     from zoo.models.registry import load_registry
     from zoo.protocol.benchmark import get_benchmark
     from zoo.store.fingerprint import model_fingerprint

@@ -12,7 +12,8 @@ from tiny_models import REGISTRY
 
 from zoo.core.errors import EvaluationError
 from zoo.evaluation.results import EvalResult, read_table
-from zoo.leaderboard.board import Plan, regenerate
+from zoo.leaderboard.plan import Plan
+from zoo.leaderboard.rebuild import regenerate
 from zoo.models.registry import Registry
 from zoo.report.outputs import write_leaderboard
 from zoo.train.loop import train

@@ -15,7 +15,7 @@ from test_mesh_eval import toy_bench  # noqa: F401 (a fixture)
 import zoo
 from zoo.cli import main
 from zoo.data import windows as window_rules
-from zoo.leaderboard.board import regenerate
+from zoo.leaderboard.rebuild import regenerate
 from zoo.models.registry import load_registry
 
 FILES = ("results.csv", "tables.md", "windows.npz")

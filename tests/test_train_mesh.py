@@ -313,7 +313,7 @@ def test_each_epoch_records_its_horizons_and_the_log_prints_them(toy_mesh, tmp_p
 
 def test_an_entry_with_weights_of_runs_that_models_weights_beside_its_rows(toy_mesh, tmp_path):
     from zoo.hub.model_source import ModelSource
-    from zoo.leaderboard.board import regenerate
+    from zoo.leaderboard.rebuild import regenerate
 
     bench, registry, _ = toy_mesh
     checkpoints = tmp_path / "checkpoints"

@@ -14,7 +14,7 @@ from zoo.cli import main
 from zoo.evaluation.results import EvalResult, read_table
 from zoo.hub.checkpoints import export_weights, load_weights, read_checkpoint
 from zoo.hub.weights import WeightsError, read_weights
-from zoo.leaderboard.board import regenerate
+from zoo.leaderboard.rebuild import regenerate
 
 
 @pytest.fixture

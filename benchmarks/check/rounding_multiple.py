@@ -25,9 +25,9 @@ import numpy as np
 from zoo.evaluation.evaluator import Scored, evaluate_models
 from zoo.evaluation.results import WINDOWS_FILE, WindowErrors
 from zoo.evaluation.tolerance import allowed
-from zoo.leaderboard.board import Leaderboard, Plan
-from zoo.leaderboard.check import CheckReport
+from zoo.leaderboard.plan import Leaderboard, Plan
 from zoo.leaderboard.rounding import SENSITIVITY_MULTIPLE, rounding_sensitivity, with_inputs_moved
+from zoo.leaderboard.verdict import CheckReport
 from zoo.paths import REPO_ROOT
 
 OTHER_MACHINES = (98, 99)  # draws of the stand-in for another CPU, not the check's own

@@ -34,7 +34,7 @@ import torch
 from zoo.cli import main as zoo_main
 from zoo.cli.common import committed_benchmarks
 from zoo.evaluation.results import WINDOWS_FILE, WindowErrors
-from zoo.leaderboard.check import CHECK_WINDOWS, fresh_seed
+from zoo.leaderboard.verdict import CHECK_WINDOWS, fresh_seed
 
 
 def matmul_gflops(size: int = 1024, repeats: int = 10) -> float:

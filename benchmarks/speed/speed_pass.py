@@ -33,7 +33,7 @@ def table_models(bench, data_root=None, weights=None) -> tuple[object, list[Scor
     """The dataset and the rows of the benchmark's leaderboard (shipped weights from
     ``weights``, default the repository's; no checkpoints), as ``zoo leaderboard`` loads them."""
     from zoo.evaluation.pipeline import Subject
-    from zoo.leaderboard.board import Leaderboard, Plan
+    from zoo.leaderboard.plan import Leaderboard, Plan
     from zoo.models.registry import load_registry
     from zoo.paths import REPO_ROOT
 

@@ -99,8 +99,10 @@ def add(sub) -> None:
 def run(args) -> int:
     import time
 
-    from zoo.leaderboard.board import Plan, regenerate
-    from zoo.leaderboard.check import CheckReport, fresh_seed
+    from zoo.leaderboard.check import Check
+    from zoo.leaderboard.plan import Plan
+    from zoo.leaderboard.rebuild import Rebuild
+    from zoo.leaderboard.verdict import CheckReport, fresh_seed
 
     registry = registry_of(args)
     if args.windows is not None and args.windows < 1:
@@ -158,7 +160,7 @@ def run(args) -> int:
             raise UsageError(f"--base {base}: no such results folder")
         if base.resolve() == Path(args.results).resolve():
             raise UsageError(f"--base {base} is --results itself: name another --results")
-        from zoo.leaderboard.board import copy_benchmark_tables
+        from zoo.leaderboard.rebuild import copy_benchmark_tables
 
         for name in names:
             copied = copy_benchmark_tables(base, args.results, name)
@@ -173,15 +175,19 @@ def run(args) -> int:
             windows=windows,
             seed=seed,
         )
-        run = lambda bench=bench, plan=plan: regenerate(  # noqa: E731
-            bench,
-            registry=registry,
-            data_root=args.data_root,
-            out_root=Path(args.results),
-            checkpoints=Path(args.checkpoints),
-            weights=Path(args.weights_dir),
-            device=args.device,
-            plan=plan,
+        run = lambda bench=bench, plan=plan: (
+            (Check if check else Rebuild)
+            .of(  # noqa: E731
+                bench,
+                registry=registry,
+                data_root=args.data_root,
+                out_root=Path(args.results),
+                checkpoints=Path(args.checkpoints),
+                weights=Path(args.weights_dir),
+                device=args.device,
+                plan=plan,
+            )
+            .run()
         )
         if check is None:
             run()

@@ -19,8 +19,8 @@ from zoo.core.budgets import COST_SECONDS
 from zoo.core.errors import ZooError
 from zoo.core.io import atomic_write_text, folder_lock
 from zoo.evaluation.results import TABLE_FILE, read_table, table_labels
-from zoo.leaderboard.board import Leaderboard, Plan
 from zoo.leaderboard.efficiency import architecture, cost_key, measure
+from zoo.leaderboard.plan import Leaderboard, Plan
 from zoo.report.outputs import efficiency_csv
 from zoo.report.tables import with_costs
 
