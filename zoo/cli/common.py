@@ -12,6 +12,7 @@ from typing import Any
 import yaml
 
 from zoo.core.errors import ZooError
+from zoo.core.io import load_yaml
 from zoo.models.registry import load_registry
 from zoo.paths import REPO_ROOT
 
@@ -68,7 +69,7 @@ def registry_hint(error: ZooError, folder: Path | None = None) -> str:
     defining = []
     for path in sorted((folder or Path.cwd()).glob("*.y*ml")):
         try:
-            models = (yaml.safe_load(path.read_text()) or {}).get("models")
+            models = (load_yaml(path.read_text()) or {}).get("models")
         except (OSError, UnicodeDecodeError, yaml.YAMLError, AttributeError):
             continue
         if isinstance(models, dict) and error.model in models:
@@ -216,7 +217,7 @@ def parse_overrides(items: Sequence[str] | None) -> dict[str, Any]:
         if "=" not in item:
             raise UsageError(f"--set expects key=value, got {item!r}")
         key, value = item.split("=", 1)
-        out[key.strip()] = _numbers_as_numbers(yaml.safe_load(value))
+        out[key.strip()] = _numbers_as_numbers(load_yaml(value))
     return out
 
 

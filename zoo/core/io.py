@@ -13,6 +13,8 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
+import yaml
+
 from zoo.core.errors import ZooError
 from zoo.core.version import __version__
 from zoo.paths import REPO_ROOT
@@ -227,3 +229,13 @@ def json_number(x) -> float | None:
     """A JSON number to 7 significant digits (what differs past them is CPU rounding, and a
     rebuild on another CPU then rewrites no file); None for a missing or non-finite value."""
     return float(f"{x:.7g}") if x is not None and math.isfinite(x) else None
+
+
+# libyaml's parser where PyYAML was built with it (its wheels are): the same safe constructor,
+# about ten times faster on the registry and published.yaml, which every rebuild reads.
+_YAML_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+
+
+def load_yaml(text: str) -> Any:
+    """YAML text as plain data, as ``yaml.safe_load`` reads it (raises ``yaml.YAMLError``)."""
+    return yaml.load(text, Loader=_YAML_LOADER)  # noqa: S506 - a safe loader

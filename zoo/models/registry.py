@@ -23,6 +23,7 @@ from typing import Any
 import yaml
 
 from zoo.core.errors import ZooError
+from zoo.core.io import load_yaml
 from zoo.models.citation import CitationError, Paper, parse_paper, parse_url
 from zoo.paths import REPO_ROOT
 
@@ -215,7 +216,7 @@ class Registry:
         if not path.is_file():
             raise RegistryError(f"registry file {path} does not exist")
         try:
-            data = yaml.safe_load(path.read_text()) or {}
+            data = load_yaml(path.read_text()) or {}
         except yaml.YAMLError as e:
             raise RegistryError(f"{path}: not valid YAML ({e})") from e
         models = data.get("models") if isinstance(data, dict) else None

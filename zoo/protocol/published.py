@@ -9,9 +9,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 from zoo.core.errors import ZooError
+from zoo.core.io import load_yaml
 
 PUBLISHED_FILE = Path(__file__).with_name("published.yaml")
 FIELDS = ("label", "model", "source", "benchmark", "metric", "averaging", "joints", "protocol")
@@ -47,7 +46,7 @@ class Placed:
 
 
 def load_published(path: str | Path = PUBLISHED_FILE) -> list[Published]:
-    entries = yaml.safe_load(Path(path).read_text()) or []
+    entries = load_yaml(Path(path).read_text()) or []
     if not isinstance(entries, list):
         raise PublishedError(f"{path}: expected a list of entries, got {type(entries).__name__}")
     out = []

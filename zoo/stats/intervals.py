@@ -70,10 +70,10 @@ class Design:
 def coverage_record() -> dict:
     """The coverage measured for these intervals (``zoo/stats/coverage.yaml``, written by
     ``benchmarks/coverage/coverage.py``); empty if not measured."""
-    import yaml
+    from zoo.core.io import load_yaml
 
     path = Path(__file__).with_name("coverage.yaml")
-    return yaml.safe_load(path.read_text()) if path.is_file() else {}
+    return load_yaml(path.read_text()) if path.is_file() else {}
 
 
 def design(sequence: np.ndarray, actions: np.ndarray) -> Design:

@@ -222,7 +222,10 @@ def _module_parts(path: str, mtime_ns: int) -> tuple[dict, dict, list]:
 
 
 def _parts(path: Path) -> tuple[dict, dict, list]:
-    return _module_parts(str(path), path.stat().st_mtime_ns)
+    mtime = path.stat().st_mtime_ns
+    if _consulted:  # a module's pieces being computed: they depend on this file as it is now
+        _consulted[-1][str(path)] = mtime
+    return _module_parts(str(path), mtime)
 
 
 def _module_file(kind: str, path: Path, module: str) -> Path | None:
@@ -378,16 +381,44 @@ def _definition_digest(path: str, mtime_ns: int, name: str) -> str:
     return _digest(_text_by_name(file, n, 1) for n in _parts(file)[0][name])[:8]
 
 
+# The files (and their folders) read while a module's pieces are computed, with the mtimes
+# they were read at; and each module's pieces, kept while none of what they read has changed.
+_consulted: list[dict[str, int]] = []
+_PIECES: dict[Path, tuple[frozenset[str], dict[str, int]]] = {}
+
+
+def _unchanged(read: dict[str, int]) -> bool:
+    try:
+        return all(Path(f).stat().st_mtime_ns == mtime for f, mtime in read.items())
+    except OSError:
+        return False
+
+
 def module_pieces(path: Path) -> set[str]:
     """A whole module as location-free pieces: each definition by name, each other statement,
-    each import from outside the zoo."""
+    each import from outside the zoo. Computed once per process while neither the module nor
+    any file or folder its pieces were resolved through changes (a rebuild asks for the
+    evaluator's pieces once per row)."""
     path = path.resolve()
-    defs, imports, others = _parts(path)
-    pieces = {
-        f"{name}::{_text_by_name(path, node, 2)}" for name, nodes in defs.items() for node in nodes
-    }
-    pieces |= {f"::{_text_by_name(path, node, 2)}" for node in others}
-    pieces |= {f"import::{b[1]}" for b in imports.values() if b[0] == "outside"}
+    kept = _PIECES.get(path)
+    if kept is not None and _unchanged(kept[1]):
+        return set(kept[0])
+    _consulted.append({})
+    try:
+        defs, imports, others = _parts(path)
+        pieces = {
+            f"{name}::{_text_by_name(path, node, 2)}"
+            for name, nodes in defs.items()
+            for node in nodes
+        }
+        pieces |= {f"::{_text_by_name(path, node, 2)}" for node in others}
+        pieces |= {f"import::{b[1]}" for b in imports.values() if b[0] == "outside"}
+    finally:
+        read = _consulted.pop()
+    # a module added to or removed from a folder changes what an import resolves to
+    for folder in {str(Path(f).parent) for f in read}:
+        read[folder] = Path(folder).stat().st_mtime_ns
+    _PIECES[path] = (frozenset(pieces), read)
     return pieces
 
 
@@ -405,9 +436,19 @@ def _imported_files(path: Path) -> set[Path]:
     """The zoo modules a file imports, at module level or inside functions, absolute or
     relative (``from zoo.models import dct`` names the module ``zoo.models.dct``)."""
     try:
+        stat = path.stat()
+        return set(_imported_files_of(str(path), stat.st_mtime_ns, path.parent.stat().st_mtime_ns))
+    except OSError:
+        return set()
+
+
+@cache
+def _imported_files_of(file: str, mtime_ns: int, folder_mtime_ns: int) -> frozenset[Path]:
+    path = Path(file)
+    try:
         tree = ast.parse(path.read_text())
     except (OSError, SyntaxError):
-        return set()
+        return frozenset()
     package = _package_of(path)
     names = []
     for node in ast.walk(tree):
@@ -417,7 +458,7 @@ def _imported_files(path: Path) -> set[Path]:
             base = _import_base(node, package)
             names += [base, *(f"{base}.{a.name}" for a in node.names)]
     found = {zoo_module_file(n) for n in names}
-    return {f for f in found if f is not None}
+    return frozenset(f for f in found if f is not None)
 
 
 def code_closure(*files: str | Path, skip: frozenset[Path] = frozenset()) -> list[Path]:
