@@ -2,7 +2,9 @@
 replaced silently; the leaderboard reuses what still holds, recomputes what is new or stale, and
 never deletes a row it did not make."""
 
+import copy
 import json
+import pickle
 import shutil
 import sys
 import textwrap
@@ -712,12 +714,22 @@ def test_identity_differences_are_decided_on_by_field_not_by_their_words():
 
     code = identity_differences({"code": {"evaluator": "a"}}, {"code": {"evaluator": "b"}})
     assert only_code_changed(code) and code == ['code.evaluator: stored "a", now "b"']
-    assert code[0].field == "code.evaluator"
+    assert (code[0].field, code[0].stored, code[0].new, code[0].kind) == (
+        "code.evaluator",
+        "a",
+        "b",
+        "changed",
+    )
     unreadable = identity_differences({"code": {}}, {"code": {"model": None}})
     assert not only_code_changed(unreadable) and "no result is its twin" in "; ".join(unreadable)
-    # the words no longer decide: a code difference that happens to say them is still code
-    assert only_code_changed([Difference("code.model", "so no result is its twin")])
-    assert not only_code_changed([Difference("weights.sha256", "stored 1, now 2")])
+    assert unreadable[0].kind == "unreadable"
+    assert identity_differences(None, {"code": {}})[0].kind == "unrecorded"
+    # the kind decides, not the words: a code field whose values merely read alike is code
+    assert only_code_changed([Difference("code.model", "no result is its twin", "x")])
+    assert not only_code_changed([Difference("weights.sha256", "1", "2")])
+    assert copy.deepcopy(code[0]).stored == "a" and pickle.loads(pickle.dumps(code[0])) == code[0]
+    with pytest.raises(ValueError, match="kind 'odd'"):
+        Difference("code.model", kind="odd")
 
 
 def test_a_second_folder_whose_sibling_module_is_shadowed_is_refused(tmp_path):

@@ -128,19 +128,40 @@ def restamp_record(protocol: dict, identity: dict, verification: dict | None = N
 
 
 class Difference(str):
-    """One field in which two identities differ: its text (``field: stored X, now Y``) is what
-    messages print; ``field`` and ``comparable`` are what code decides on."""
+    """One field in which two identities differ, as data: ``field``, the ``stored`` and the
+    ``new`` value, and its ``kind``: ``changed`` (both recorded, unequal), ``unrecorded``
+    (a result written by an older zoo: no identity) or ``unreadable`` (the model's source cannot
+    be read, so no result can be its twin). Its text (``field: stored X, now Y``), made from
+    them, is what messages print; code decides on the fields."""
 
     field: str
-    comparable: bool  # False: no result can be its twin (a model whose source cannot be read)
+    stored: Any
+    new: Any
+    kind: str
 
-    def __new__(cls, field: str, text: str, comparable: bool = True) -> Difference:
-        difference = super().__new__(cls, f"{field}: {text}")
-        difference.field, difference.comparable = field, comparable
+    def __new__(cls, field: str, stored: Any = None, new: Any = None, kind: str = "changed"):
+        if kind not in _DIFFERENCE_WORDS:
+            raise ValueError(f"kind {kind!r}: expected one of {', '.join(_DIFFERENCE_WORDS)}")
+        words = _DIFFERENCE_WORDS[kind] or f"stored {_short(stored)}, now {_short(new)}"
+        difference = super().__new__(cls, f"{field}: {words}")
+        difference.field, difference.stored, difference.new = field, stored, new
+        difference.kind = kind
         return difference
 
-    def __reduce__(self):  # copy and pickle keep the field and the flag
-        return (Difference, (self.field, self[len(self.field) + 2 :], self.comparable))
+    @property
+    def comparable(self) -> bool:
+        """False where no result can be this one's twin (a model whose source is unreadable)."""
+        return self.kind != "unreadable"
+
+    def __reduce__(self):  # copy and pickle keep the values and the kind
+        return (Difference, (self.field, self.stored, self.new, self.kind))
+
+
+_DIFFERENCE_WORDS = {
+    "changed": None,  # made from the values
+    "unrecorded": "none recorded (written by an older zoo)",
+    "unreadable": "the model's source cannot be read, so no result is its twin",
+}
 
 
 def only_code_changed(differences: list[Difference]) -> bool:
@@ -155,15 +176,11 @@ def identity_differences(stored: dict[str, Any] | None, new: dict[str, Any]) -> 
     """The fields in which two identities differ, as ``field: stored X, now Y``; one line for
     a result that records none (written by an older zoo)."""
     if not stored:
-        return [Difference("identity", "none recorded (written by an older zoo)")]
+        return [Difference("identity", None, new, kind="unrecorded")]
     out: list[Difference] = []
     if (new.get("code") or {}).get("model", "") is None:
         out.append(
-            Difference(
-                "code.model",
-                "the model's source cannot be read, so no result is its twin",
-                comparable=False,
-            )
+            Difference("code.model", (stored.get("code") or {}).get("model"), None, "unreadable")
         )
 
     def walk(a, b, path):
@@ -171,7 +188,7 @@ def identity_differences(stored: dict[str, Any] | None, new: dict[str, Any]) -> 
             for key in sorted(set(a) | set(b), key=str):
                 walk(a.get(key), b.get(key), f"{path}.{key}" if path else str(key))
         elif a != b:
-            out.append(Difference(path, f"stored {_short(a)}, now {_short(b)}"))
+            out.append(Difference(path, a, b))
 
     walk(stored, new, "")
     return out
