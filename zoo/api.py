@@ -15,6 +15,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+from zoo.hub.build import model_args_for
 from zoo.models.registry import Registry, RegistryError, as_registry, load_registry
 
 
@@ -65,11 +66,7 @@ def create_model(
         from zoo.protocol.benchmark import get_benchmark
 
         bench = get_benchmark(benchmark) if isinstance(benchmark, (str, Path)) else benchmark
-        entry = registry.get(name)
-        overrides = {
-            **bench.model_inputs(entry.context, view=bench.view_for(entry.representation)),
-            **overrides,
-        }
+        _, overrides = model_args_for(registry, name, bench, overrides=overrides)
     return registry.create_model(name, **overrides)
 
 

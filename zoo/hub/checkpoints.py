@@ -23,6 +23,7 @@ from torch import nn
 
 from zoo.core.errors import NamesParameter, ZooError
 from zoo.core.io import atomic_path, atomic_write_json, replace_folder, repo_relative, sha256_file
+from zoo.hub.build import benchmark_inputs
 from zoo.hub.weights import (
     PAUSED_SUMMARY,
     RECORD_FORMAT,
@@ -480,7 +481,7 @@ def trained_model(
     hparams = dict(meta["hparams"])
     hashes = meta.get("context_hashes", {})
     if hashes:
-        supplied = bench.model_inputs(entry.context, data_root, dataset, view)
+        _, supplied = benchmark_inputs(bench, entry, data_root=data_root, dataset=dataset)
         for key, trained_hash in hashes.items():
             if supplied[key].hash != trained_hash:
                 raise CheckpointError(

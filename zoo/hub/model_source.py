@@ -17,6 +17,7 @@ from typing import Any
 from torch import nn
 
 from zoo.core.errors import ZooError
+from zoo.hub.build import model_args_for
 from zoo.models.registry import ModelEntry, Registry
 
 
@@ -134,10 +135,13 @@ class ModelSource:
 
         if self.kind == "registry":
             entry = registry.get(self.name)
-            view = bench.view_for(entry.representation)
-            hparams = registry.model_args(
+            view, hparams = model_args_for(
+                registry,
                 self.name,
-                **{**bench.model_inputs(entry.context, data_root, dataset, view), **self.overrides},
+                bench,
+                data_root=data_root,
+                dataset=dataset,
+                overrides=self.overrides,
             )
             model = registry.create_model(self.name, **hparams)
             plain, hashes = stored_hparams(hparams)

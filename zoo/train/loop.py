@@ -18,6 +18,7 @@ from zoo.core.distributed import DistInfo, init_distributed
 from zoo.core.errors import TrainingError
 from zoo.core.io import progress_bar, repo_relative
 from zoo.data.windows import frame_counts, gather_windows
+from zoo.hub.build import model_args_for
 from zoo.hub.checkpoints import CheckpointError, read_checkpoint, stored_hparams
 from zoo.models.hooks import Hooks, model_hooks
 from zoo.models.recipe import Recipe, learning_rate, patience_spent, training_recipe
@@ -107,9 +108,8 @@ def train(
     dataset = bench.load(data_root, split=bench.train_split)
     if bench.representation == "mesh" and view == "joints":
         dataset = dataset.joints_view()  # a skeleton model on a mesh benchmark's joints
-    hparams = registry.model_args(
-        model_name,
-        **{**bench.model_inputs(entry.context, data_root, dataset, view), **(overrides or {})},
+    _, hparams = model_args_for(
+        registry, model_name, bench, data_root=data_root, dataset=dataset, overrides=overrides
     )
     out_dir = Path(out_dir) if out_dir else REPO_ROOT / "checkpoints" / bench.name / model_name
     if init_from is not None and Path(init_from).resolve() in {
