@@ -21,6 +21,7 @@ SCRIPTS = [
     "speed_baselines",
     "speed_check",
     "speed_eval",
+    "speed_identity",
     "speed_pass",
     "speed_public_cmu",
     "speed_spectral",
@@ -211,3 +212,13 @@ def test_speed_anny(capsys):
     load("speed_anny").main(["--trial", "09_03", "--frames", "8", "--batch", "4"])
     out = capsys.readouterr().out
     assert "cached load: full" in out and "end to end (09_03" in out
+
+
+def test_speed_identity_prints_agreeing_fingerprints_and_a_finite_ratio(capsys):
+    rows = load("speed_identity").main(["--benchmark", "cmu", "--repeats", "1"])
+    out = capsys.readouterr().out.splitlines()
+    assert out[0].startswith("benchmark") and out[1].startswith("cmu")
+    (row,) = rows
+    assert row["same"] and "agree" in out[1]
+    for key in ("cold", "anew", "kept", "ratio"):
+        assert math.isfinite(row[key]) and row[key] > 0, key

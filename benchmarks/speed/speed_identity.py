@@ -1,0 +1,95 @@
+"""How long a result's identity takes: the evaluator's code fingerprint computed from the files,
+against the same fingerprint asked for again in the same process, side by side in one run.
+
+A rebuild asks for the evaluator's fingerprint once per row and once per cost cell; the code
+fingerprint keeps each module's pieces while neither it nor what they were resolved through
+changes (:func:`zoo.store.fingerprint.module_pieces`). This prints, per benchmark:
+
+- ``cold``: the fingerprint with every cache emptied (what a fresh process pays once);
+- ``pieces anew``: the files' syntax trees kept, the pieces and the import scan recomputed
+  (what each call cost before they were kept);
+- ``kept``: the pieces kept, as every call after the first now is;
+- the ratio ``pieces anew / kept``, and whether all three fingerprints agree (they must).
+
+Run: python benchmarks/speed/speed_identity.py [--benchmark NAME ...] [--repeats N]
+"""
+
+import argparse
+import statistics
+import time
+
+from zoo.protocol.benchmark import get_benchmark
+from zoo.store import fingerprint
+from zoo.store.identity import evaluation_code
+
+
+def _timed(call, repeats: int) -> tuple[float, str]:
+    times, value = [], None
+    for _ in range(repeats):
+        started = time.perf_counter()
+        value = call()
+        times.append(time.perf_counter() - started)
+    return statistics.median(times), value
+
+
+def _forget_pieces() -> None:
+    """What was not kept before: each module's pieces and its import scan."""
+    fingerprint._PIECES.clear()
+    fingerprint._imported_files_of.cache_clear()
+
+
+def _forget_all() -> None:
+    _forget_pieces()
+    fingerprint._module_parts.cache_clear()
+    fingerprint._definition_digest.cache_clear()
+
+
+def measure(benchmark: str, repeats: int) -> dict:
+    dataset = get_benchmark(benchmark).dataset
+
+    def fingerprint_of() -> str:
+        return evaluation_code(None, dataset)["evaluator"]
+
+    def cold() -> str:
+        _forget_all()
+        return fingerprint_of()
+
+    def anew() -> str:
+        _forget_pieces()
+        return fingerprint_of()
+
+    cold_s, cold_value = _timed(cold, 1)
+    anew_s, anew_value = _timed(anew, repeats)
+    fingerprint_of()  # the pieces kept from here on
+    kept_s, kept_value = _timed(fingerprint_of, repeats)
+    return {
+        "benchmark": benchmark,
+        "cold": cold_s,
+        "anew": anew_s,
+        "kept": kept_s,
+        "ratio": anew_s / kept_s,
+        "same": cold_value == anew_value == kept_value,
+        "fingerprint": kept_value,
+    }
+
+
+def main(argv=None) -> list[dict]:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--benchmark", nargs="+", default=["cmu", "cloth"])
+    parser.add_argument("--repeats", type=int, default=5)
+    args = parser.parse_args(argv)
+    print("benchmark  cold (s)  pieces anew (s)  kept (s)  anew/kept  fingerprints")
+    rows = []
+    for name in args.benchmark:
+        r = measure(name, args.repeats)
+        rows.append(r)
+        agree = f"agree ({r['fingerprint']})" if r["same"] else "DIFFER"
+        print(
+            f"{name:<10} {r['cold']:8.3f}  {r['anew']:15.3f}  {r['kept']:8.4f}  "
+            f"{r['ratio']:8.0f}x  {agree}"
+        )
+    return rows
+
+
+if __name__ == "__main__":
+    main()
