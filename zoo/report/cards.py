@@ -27,7 +27,7 @@ import pandas as pd
 from zoo.core.errors import ZooError
 from zoo.core.io import atomic_write_text, repo_relative
 from zoo.evaluation.markdown import default_horizons, headline_key, metric_unit
-from zoo.evaluation.results import read_table, table_files
+from zoo.evaluation.results import EvalResult, read_table, table_files
 from zoo.hub.weights import (
     WEIGHTS_DIR,
     available_weights,
@@ -363,12 +363,17 @@ def _belongs(label: str, name: str) -> bool:
     return base == name
 
 
-def _row_tables(name: str, results_root: Path) -> list[str]:
+def committed_tables(results_root: Path) -> list[tuple[Path, EvalResult]]:
+    """Every table under ``results_root`` (its ``leaderboard.md``) with its rows read: read
+    once for all the cards."""
+    return [(table, read_table(table.parent)) for table in table_files(results_root, depth=2)]
+
+
+def _row_tables(name: str, tables: list[tuple[Path, EvalResult]]) -> list[str]:
     out = []
-    for table in table_files(results_root, depth=2):
-        result = read_table(table.parent)
+    for table, result in tables:
         frame = result.frame
-        labels = sorted({m for m in frame["model"] if _belongs(m, name)})
+        labels = sorted(m for m in frame["model"].unique() if _belongs(m, name))
         if not labels:
             continue
         record = result.protocol
@@ -492,8 +497,10 @@ def generated_card(
     registry: Registry,
     files: list[Shipped],
     results_root: Path = RESULTS_DIR,
+    tables: list[tuple[Path, EvalResult]] | None = None,
 ) -> str:
-    """The generated part of ``name``'s card, ending with :data:`END_MARKER`."""
+    """The generated part of ``name``'s card, ending with :data:`END_MARKER` (``tables``: the
+    tables of ``results_root`` already read, :func:`committed_tables`)."""
     entry = registry.get(name)
     params = sorted({(s.record.get("parameters"), s.benchmarks[0]) for s in files})
     out = [f"# {name}", "", GENERATED_NOTE, ""]
@@ -556,7 +563,8 @@ def generated_card(
     else:
         out += ["None yet.", ""]
     out += ["## Training curve", "", *_curve_lines(name, files)]
-    out += ["## Rows", "", *_row_tables(name, results_root)]
+    tables = committed_tables(results_root) if tables is None else tables
+    out += ["## Rows", "", *_row_tables(name, tables)]
     out += ["## Published figures", "", *_published_lines(name)]
     if entry.paper:
         out += ["## Citation", "", "```bibtex", entry.paper.bibtex(), "```", ""]
@@ -645,11 +653,12 @@ def build_cards(
     registry = registry or load_registry()
     shipped = shipped_weights(weights_root or WEIGHTS_DIR)
     names = card_models(registry, shipped)
+    tables = committed_tables(results_root)
     statuses = []
     for name in names:
         path = cards_dir / f"{name}.md"
         files = _files(registry, name, shipped)
-        generated = generated_card(name, registry, files, results_root)
+        generated = generated_card(name, registry, files, results_root, tables)
         current = _generated_part(path)
         if current == generated:
             statuses.append(CardStatus(name, path, True))
