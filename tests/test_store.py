@@ -755,3 +755,67 @@ def test_a_second_folder_whose_sibling_module_is_shadowed_is_refused(tmp_path):
             entries["second"].load_class()
     finally:
         sys.modules.pop("authors", None)
+
+
+KEPT_FINGERPRINTS = """
+import json, sys, time
+from pathlib import Path
+sys.path.insert(0, sys.argv[1])
+from zoo.store import fingerprint as fp
+
+root = Path(sys.argv[1])
+
+
+def now():
+    closure = fp.code_closure("zoo/yy/user.py")
+    return [str(p.relative_to(root)) for p in closure], fp.code_fingerprint(*closure)
+
+
+def changed(path, text):
+    time.sleep(0.02)  # a new mtime even on a coarse clock
+    path.write_text(text)
+
+
+seen = [now()]
+changed(root / "zoo" / "xx" / "foo.py", "def foo(x):\\n    return x + 2\\n")  # a module appears
+seen.append(now())
+changed(root / "zoo" / "xx" / "foo.py", "def foo(x):\\n    return x + 3\\n")  # and is edited
+seen.append(now())
+seen.append(now())  # nothing changed: the kept value
+print(json.dumps(seen))
+"""
+
+
+def test_fingerprints_kept_in_a_process_follow_edits_and_new_modules(tmp_path):
+    """A process keeps each module's fingerprint pieces, and gives what a fresh process would
+    after a module is added in another package (an import that named a function now names a
+    module) and after that module is edited."""
+    import subprocess
+
+    shutil.copytree(
+        HERE.parent / "zoo", tmp_path / "zoo", ignore=shutil.ignore_patterns("__pycache__")
+    )
+    (tmp_path / "zoo" / "xx").mkdir()
+    (tmp_path / "zoo" / "xx" / "__init__.py").write_text("def foo(x):\n    return x + 1\n")
+    (tmp_path / "zoo" / "yy").mkdir()
+    (tmp_path / "zoo" / "yy" / "__init__.py").write_text("")
+    (tmp_path / "zoo" / "yy" / "user.py").write_text(
+        "from zoo.xx import foo\n\n\ndef use(x):\n    return foo(x)\n"
+    )
+    script = tmp_path / "kept.py"
+    script.write_text(KEPT_FINGERPRINTS)
+
+    def run(path: Path) -> list:
+        out = subprocess.run(
+            [sys.executable, str(path), str(tmp_path)], capture_output=True, text=True, check=True
+        )
+        return json.loads(out.stdout)
+
+    kept = run(script)
+    (closure_0, first), (closure_1, added), (closure_2, edited), (_, again) = kept
+    assert "zoo/xx/foo.py" not in closure_0 and "zoo/xx/foo.py" in closure_1
+    assert len({first, added, edited}) == 3 and again == edited
+    # a fresh process on the final tree agrees with the value the first one kept
+    fresh = tmp_path / "fresh.py"
+    fresh.write_text(KEPT_FINGERPRINTS.split("seen = [now()]")[0] + "print(json.dumps(now()))\n")
+    assert run(fresh) == [closure_2, edited]

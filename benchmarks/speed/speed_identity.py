@@ -34,14 +34,15 @@ def _timed(call, repeats: int) -> tuple[float, str]:
 
 def _forget_pieces() -> None:
     """What was not kept before: each module's pieces and its import scan."""
-    fingerprint._PIECES.clear()
-    fingerprint._imported_files_of.cache_clear()
+    for key in [k for k in fingerprint._KEPT if k[0] == "pieces"]:
+        del fingerprint._KEPT[key]
+    fingerprint._imported_names.cache_clear()
 
 
 def _forget_all() -> None:
-    _forget_pieces()
+    fingerprint._KEPT.clear()
+    fingerprint._imported_names.cache_clear()
     fingerprint._module_parts.cache_clear()
-    fingerprint._definition_digest.cache_clear()
 
 
 def measure(benchmark: str, repeats: int) -> dict:

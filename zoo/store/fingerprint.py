@@ -15,11 +15,13 @@ from __future__ import annotations
 
 import ast
 import copy
+import functools
 import hashlib
 import inspect
 import re
 from functools import cache
 from pathlib import Path
+from typing import Any
 
 from zoo.paths import REPO_ROOT
 
@@ -194,10 +196,12 @@ def _bound_names(target) -> list[str]:
 
 
 @cache
-def _module_parts(path: str, mtime_ns: int) -> tuple[dict, dict, list]:
+def _module_parts(path: str, mtime_ns: int, folder_mtime_ns: int, layout: tuple) -> tuple:
     """A module's top level: ``defs`` (name -> the statements that bind it: functions,
     classes, assignments), ``imports`` (name -> what :func:`_import_bindings` says it binds)
-    and ``others`` (every other statement: it runs on import, whatever is reached)."""
+    and ``others`` (every other statement: it runs on import, whatever is reached). Kept for
+    the file as it is, in its folder and the zoo's folders as they are (:func:`_layout`): what
+    an import binds depends on which modules exist."""
     tree = ast.parse(Path(path).read_text(), filename=path)
     package = _package_of(Path(path))
     defs: dict[str, list] = {}
@@ -222,10 +226,10 @@ def _module_parts(path: str, mtime_ns: int) -> tuple[dict, dict, list]:
 
 
 def _parts(path: Path) -> tuple[dict, dict, list]:
-    mtime = path.stat().st_mtime_ns
-    if _consulted:  # a module's pieces being computed: they depend on this file as it is now
-        _consulted[-1][str(path)] = mtime
-    return _module_parts(str(path), mtime)
+    mtime, folder_mtime = path.stat().st_mtime_ns, path.parent.stat().st_mtime_ns
+    # whatever is being computed depends on this file, and on its folder's modules, as they are
+    _record({str(path): mtime, str(path.parent): folder_mtime})
+    return _module_parts(str(path), mtime, folder_mtime, _current_layout())
 
 
 def _module_file(kind: str, path: Path, module: str) -> Path | None:
@@ -369,22 +373,60 @@ def _text_by_name(path: Path, node, level: int) -> str:
             return "@module"
         if level == 1 or name not in _parts(file)[0]:
             return f"@{name}"
-        return f"@{name}#{_definition_digest(str(file), file.stat().st_mtime_ns, name)}"
+        return f"@{name}#{_definition_digest(file, name)}"
 
     tree = _ByName(path, names, defs, _shadowed(node), token).visit(copy.deepcopy(node))
     return _tree_text(tree)
 
 
-@cache
-def _definition_digest(path: str, mtime_ns: int, name: str) -> str:
-    file = Path(path)
-    return _digest(_text_by_name(file, n, 1) for n in _parts(file)[0][name])[:8]
+def _definition_digest(file: Path, name: str) -> str:
+    return _kept(
+        ("digest", str(file), name),
+        lambda: _digest(_text_by_name(file, n, 1) for n in _parts(file)[0][name])[:8],
+    )
 
 
-# The files (and their folders) read while a module's pieces are computed, with the mtimes
-# they were read at; and each module's pieces, kept while none of what they read has changed.
-_consulted: list[dict[str, int]] = []
-_PIECES: dict[Path, tuple[frozenset[str], dict[str, int]]] = {}
+# Results kept for the rest of the process while nothing they were computed from has changed:
+# each is stored with the files and folders read to compute it (mtimes as read) and the zoo's
+# folder layout; a result used inside another's computation passes what it read on to it.
+_KEPT: dict[tuple, tuple[Any, dict[str, int], tuple]] = {}
+_frames: list[tuple[dict[str, int], tuple]] = []  # (read so far, layout) of each computation
+
+
+def _layout() -> tuple:
+    """Every folder of the zoo package with its mtime: a module added, removed or renamed
+    anywhere in it changes what an import of a zoo module binds."""
+    folders = [REPO_ROOT / "zoo"]
+    folders += sorted(p for p in folders[0].rglob("*") if p.is_dir())
+    return tuple((str(f), f.stat().st_mtime_ns) for f in folders)
+
+
+_scopes: list[tuple] = []  # the layout read once at a public entry point, for all it calls
+
+
+def _current_layout() -> tuple:
+    if _frames:
+        return _frames[0][1]
+    return _scopes[-1] if _scopes else _layout()
+
+
+def _one_layout(function):
+    """``function`` reads the zoo's folder layout once per call, not once per file it parses."""
+
+    @functools.wraps(function)
+    def scoped(*args, **kwargs):
+        _scopes.append(_current_layout())
+        try:
+            return function(*args, **kwargs)
+        finally:
+            _scopes.pop()
+
+    return scoped
+
+
+def _record(read: dict[str, int]) -> None:
+    for frame_read, _ in _frames:
+        frame_read.update(read)
 
 
 def _unchanged(read: dict[str, int]) -> bool:
@@ -394,17 +436,31 @@ def _unchanged(read: dict[str, int]) -> bool:
         return False
 
 
+def _kept(key: tuple, compute):
+    """``compute()``, or its value kept from an earlier call while nothing it read changed."""
+    layout = _current_layout()
+    kept = _KEPT.get(key)
+    if kept is not None and kept[2] == layout and _unchanged(kept[1]):
+        _record(kept[1])
+        return kept[0]
+    _frames.append(({}, layout))
+    try:
+        value = compute()
+    finally:
+        read, _ = _frames.pop()
+    _record(read)
+    _KEPT[key] = (value, read, layout)
+    return value
+
+
 def module_pieces(path: Path) -> set[str]:
     """A whole module as location-free pieces: each definition by name, each other statement,
-    each import from outside the zoo. Computed once per process while neither the module nor
-    any file or folder its pieces were resolved through changes (a rebuild asks for the
-    evaluator's pieces once per row)."""
+    each import from outside the zoo. Kept for the rest of the process while neither the module
+    nor any file or folder its pieces were resolved through, nor the zoo's folder layout,
+    changes (a rebuild asks for the evaluator's pieces once per row)."""
     path = path.resolve()
-    kept = _PIECES.get(path)
-    if kept is not None and _unchanged(kept[1]):
-        return set(kept[0])
-    _consulted.append({})
-    try:
+
+    def compute() -> frozenset[str]:
         defs, imports, others = _parts(path)
         pieces = {
             f"{name}::{_text_by_name(path, node, 2)}"
@@ -413,15 +469,12 @@ def module_pieces(path: Path) -> set[str]:
         }
         pieces |= {f"::{_text_by_name(path, node, 2)}" for node in others}
         pieces |= {f"import::{b[1]}" for b in imports.values() if b[0] == "outside"}
-    finally:
-        read = _consulted.pop()
-    # a module added to or removed from a folder changes what an import resolves to
-    for folder in {str(Path(f).parent) for f in read}:
-        read[folder] = Path(folder).stat().st_mtime_ns
-    _PIECES[path] = (frozenset(pieces), read)
-    return pieces
+        return frozenset(pieces)
+
+    return set(_kept(("pieces", str(path)), compute))
 
 
+@_one_layout
 def code_fingerprint(*files: str | Path) -> str:
     """What the code of whole modules does: a hash of their pieces (:func:`module_pieces`),
     so neither their file names nor the order of their definitions count."""
@@ -436,19 +489,22 @@ def _imported_files(path: Path) -> set[Path]:
     """The zoo modules a file imports, at module level or inside functions, absolute or
     relative (``from zoo.models import dct`` names the module ``zoo.models.dct``)."""
     try:
-        stat = path.stat()
-        return set(_imported_files_of(str(path), stat.st_mtime_ns, path.parent.stat().st_mtime_ns))
+        names = _imported_names(str(path), path.stat().st_mtime_ns)
     except OSError:
         return set()
+    # resolved now, not kept: which of these names are modules depends on the files that exist
+    found = {zoo_module_file(n) for n in names}
+    return {f for f in found if f is not None}
 
 
 @cache
-def _imported_files_of(file: str, mtime_ns: int, folder_mtime_ns: int) -> frozenset[Path]:
+def _imported_names(file: str, mtime_ns: int) -> tuple[str, ...]:
+    """Every module name a file's imports could name (its parse kept for the file as it is)."""
     path = Path(file)
     try:
         tree = ast.parse(path.read_text())
     except (OSError, SyntaxError):
-        return frozenset()
+        return ()
     package = _package_of(path)
     names = []
     for node in ast.walk(tree):
@@ -457,8 +513,7 @@ def _imported_files_of(file: str, mtime_ns: int, folder_mtime_ns: int) -> frozen
         elif isinstance(node, ast.ImportFrom):
             base = _import_base(node, package)
             names += [base, *(f"{base}.{a.name}" for a in node.names)]
-    found = {zoo_module_file(n) for n in names}
-    return frozenset(f for f in found if f is not None)
+    return tuple(names)
 
 
 def code_closure(*files: str | Path, skip: frozenset[Path] = frozenset()) -> list[Path]:
@@ -498,6 +553,7 @@ def _used_names(nodes: list) -> set[tuple[str, ...]]:
     return used
 
 
+@_one_layout
 def reachable_code(cls: type) -> list[str] | None:
     """What a model class's results depend on in code, as ``where::name::text`` pieces: its own
     definition and every zoo definition it reaches by name (functions, classes, constants;
@@ -561,6 +617,7 @@ def reachable_code(cls: type) -> list[str] | None:
     return sorted(pieces)
 
 
+@_one_layout
 def model_fingerprint(cls: type) -> str | None:
     """A model class's code fingerprint: of :func:`reachable_code` without the places its
     pieces were found in, or, for a class defined other than at a module's top level, of its
