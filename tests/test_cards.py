@@ -1,6 +1,5 @@
 """Model cards (zoo.report.cards): the committed cards match their sources, and a card goes stale
-when
-a shipped record changes; regenerating keeps what was written by hand."""
+when a shipped record changes; regenerating keeps what was written by hand."""
 
 from __future__ import annotations
 

@@ -294,6 +294,18 @@ def test_results_index_lists_every_table_with_its_headline(tmp_path):
     assert "| repeat_last" in text
 
 
+def test_the_committed_results_index_is_what_the_tables_write():
+    """results/README.md is generated (zoo leaderboard writes it): edited code or tables that
+    would change it leave it stale, and the README's first command would change a tracked file."""
+    from zoo.report.outputs import index_text
+    from zoo.store.layout import RESULTS_DIR
+
+    assert index_text(RESULTS_DIR) == (RESULTS_DIR / "README.md").read_text(), (
+        "results/README.md is stale: python -c 'from zoo.report.outputs import write_index; "
+        'write_index("results")\' rewrites it'
+    )
+
+
 def test_an_interrupted_leaderboard_leaves_the_old_folder_whole(tmp_path, monkeypatch):
     root, registry = cmu_and_registry(tmp_path)
     out = tmp_path / "results"

@@ -1,6 +1,5 @@
 """One pipeline (zoo.evaluation.pipeline) behind zoo eval, zoo.evaluate and zoo leaderboard: the
-same result
-files from each, and one protocol planned per result whichever entry point."""
+same result files from each, and one protocol planned per result whichever entry point."""
 
 from __future__ import annotations
 

@@ -1,6 +1,5 @@
 """The re-runs that measure a window's rounding sensitivity (zoo.leaderboard.rounding): a float64
-copy that
-answers in float32, and copies whose inputs move by a few units in the last place."""
+copy that answers in float32, and copies whose inputs move by a few units in the last place."""
 
 import torch
 from torch import nn

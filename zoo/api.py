@@ -31,8 +31,7 @@ def create_model(
     **overrides: Any,
 ):
     """A registered model. ``benchmark`` (a name or a :class:`zoo.protocol.benchmark.Benchmark`)
-    supplies
-    the shape arguments and context; ``overrides`` replace any hyper-parameter by name.
+    supplies the shape arguments and context; ``overrides`` replace any hyper-parameter by name.
 
     ``pretrained=True`` returns the model trained on ``benchmark`` from the weights shipped in
     ``weights/<benchmark>/<name>.safetensors`` (``name`` may be ``<model>@last``; an entry with
@@ -86,9 +85,8 @@ def evaluate(
     **options: Any,
 ):
     """Evaluate a model on a benchmark; an :class:`zoo.evaluation.results.EvalResult` (``.frame``:
-    every
-    row; ``.summary()``: the action average per horizon) carrying the same identity as
-    ``zoo eval`` records.
+    every row; ``.summary()``: the action average per horizon) carrying the same identity as ``zoo
+    eval`` records.
 
     ``model``: your own ``nn.Module`` (label: ``label``, default its class name), a registered
     model's name, or the path of a checkpoint (``.pt``) or shipped weights (``.safetensors``).

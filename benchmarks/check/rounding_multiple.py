@@ -1,15 +1,14 @@
 """How many times its measured rounding sensitivity another machine's rounding moves a window.
 
-``zoo leaderboard --check`` holds a window beyond the a-priori tolerance to
-``SENSITIVITY_MULTIPLE`` times its rounding sensitivity (:mod:`zoo.leaderboard.rounding`: the
-largest change
-of its errors over a float64 pass and two passes on inputs moved by two units in the last place).
-This measures, on committed rows and a sample of their windows, how far a stand-in for another
-CPU moves each window's errors (the row's model on inputs moved by two units in the last place
-with other draws: data built elsewhere differs in its last bits) as a multiple of that
-sensitivity, measured here as the check measures it, and how many windows that stand-in moves
-beyond the a-priori tolerance at all; and the same for the real other machine: the stored rows,
-written on another CPU (on a generated mesh, from data built there: ``data_hash``).
+``zoo leaderboard --check`` holds a window beyond the a-priori tolerance to ``SENSITIVITY_MULTIPLE``
+times its rounding sensitivity (:mod:`zoo.leaderboard.rounding`: the largest change of its errors
+over a float64 pass and two passes on inputs moved by two units in the last place). This measures,
+on committed rows and a sample of their windows, how far a stand-in for another CPU moves each
+window's errors (the row's model on inputs moved by two units in the last place with other draws:
+data built elsewhere differs in its last bits) as a multiple of that sensitivity, measured here as
+the check measures it, and how many windows that stand-in moves beyond the a-priori tolerance at
+all; and the same for the real other machine: the stored rows, written on another CPU (on a
+generated mesh, from data built there: ``data_hash``).
 
     python benchmarks/check/rounding_multiple.py --benchmark cmu --windows 256
 """

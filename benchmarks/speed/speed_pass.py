@@ -1,12 +1,11 @@
 """One evaluation pass for all of a table's rows against one pass per row, side by side.
 
-``zoo leaderboard`` (and its ``--check``) scores every row of a table in one pass over the
-windows (:func:`zoo.evaluation.evaluator.evaluate_models`): each batch of ground truth, with what
-it alone
-gives (on a mesh benchmark its spectral reconstruction, the reference frame's edge lengths, its
-own MELV, its regressed joints), is made once for all the models. Here the same rows are timed
-both ways in one run, on the first ``--windows`` windows of a table, each way in turn and
-``--repeats`` times (medians), and the results of both ways are checked equal.
+``zoo leaderboard`` (and its ``--check``) scores every row of a table in one pass over the windows
+(:func:`zoo.evaluation.evaluator.evaluate_models`): each batch of ground truth, with what it alone
+gives (on a mesh benchmark its spectral reconstruction, the reference frame's edge lengths, its own
+MELV, its regressed joints), is made once for all the models. Here the same rows are timed both ways
+in one run, on the first ``--windows`` windows of a table, each way in turn and ``--repeats`` times
+(medians), and the results of both ways are checked equal.
 
 Run: python benchmarks/speed/speed_pass.py [--benchmark cmu_anny_oi_low] [--truth spectral]
      [--windows 116] [--repeats 3] [--threads 1] [--data-root DIR] [--weights DIR]

@@ -175,9 +175,10 @@ def run(args) -> int:
             windows=windows,
             seed=seed,
         )
-        run = lambda bench=bench, plan=plan: (
-            (Check if check else Rebuild)
-            .of(  # noqa: E731
+
+        def tables(bench=bench, plan=plan):
+            """This benchmark's tables under this run's plan, their data loaded."""
+            return (Check if check else Rebuild).of(
                 bench,
                 registry=registry,
                 data_root=args.data_root,
@@ -187,14 +188,13 @@ def run(args) -> int:
                 device=args.device,
                 plan=plan,
             )
-            .run()
-        )
+
         if check is None:
-            run()
+            tables().run()
             continue
         print(f"checking {name} ...", file=sys.stderr)
         try:  # a benchmark that cannot be loaded at all is reported; the others are checked
-            run()
+            tables().run()
         except Exception as e:  # noqa: BLE001
             check.start_table(f"{name} (not loaded, or a table not finished)")
             check.problem(f"{name}: not checked: {e}")

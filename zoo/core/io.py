@@ -238,4 +238,10 @@ _YAML_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
 
 def load_yaml(text: str) -> Any:
     """YAML text as plain data, as ``yaml.safe_load`` reads it (raises ``yaml.YAMLError``)."""
-    return yaml.load(text, Loader=_YAML_LOADER)  # noqa: S506 - a safe loader
+    try:
+        return yaml.load(text, Loader=_YAML_LOADER)  # noqa: S506 - a safe loader
+    except yaml.YAMLError:
+        if _YAML_LOADER is yaml.SafeLoader:
+            raise
+        # the pure-Python parser's message quotes the line and points at the character
+        return yaml.load(text, Loader=yaml.SafeLoader)  # noqa: S506

@@ -2,8 +2,7 @@
 (:func:`evaluate_models`), every row carrying its protocol.
 
 Skeleton and mesh benchmarks share the long format of :class:`zoo.evaluation.results.EvalResult`
-(one row
-per model, action, metric, averaging, joint protocol and horizon). Users call
+(one row per model, action, metric, averaging, joint protocol and horizon). Users call
 :func:`zoo.evaluate` (:mod:`zoo.api`), which plans the protocol and stamps the identity.
 """
 

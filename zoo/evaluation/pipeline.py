@@ -126,10 +126,9 @@ def compute_all(
     keep_going: bool = True,
 ) -> list[EvalResult | Exception]:
     """Subjects (each with its identity) evaluated in one pass over the protocol's windows
-    (:func:`zoo.evaluation.evaluator.evaluate_models`: the ground truth prepared once for all),
-    each result
-    stamped as :func:`compute` stamps it; a subject that failed gets its error instead (or, with
-    ``keep_going=False``, the first failure is raised at once)."""
+    (:func:`zoo.evaluation.evaluator.evaluate_models`: the ground truth prepared once for all), each
+    result stamped as :func:`compute` stamps it; a subject that failed gets its error instead (or,
+    with ``keep_going=False``, the first failure is raised at once)."""
     results = evaluate_models(
         [subject.scored() for subject, _ in subjects],
         protocol,

@@ -123,8 +123,8 @@ def _compare(result, stored) -> Agreement:
 
 def sample_agreement(fresh, stored, rows: np.ndarray) -> Agreement:
     """Whether per-window errors ``fresh`` (a :class:`zoo.evaluation.results.WindowErrors` of the
-    windows
-    at positions ``rows`` of ``stored``'s) agree with the stored ones there, series by series."""
+    windows at positions ``rows`` of ``stored``'s) agree with the stored ones there, series by
+    series."""
     try:
         gaps = window_gaps(fresh, stored, rows)
     except Incomparable as e:
@@ -144,12 +144,11 @@ class Incomparable(ValueError):
 
 @dataclass
 class WindowGap:
-    """The largest difference of one series of per-window errors from the stored one: as a
-    share of what it is held to, relative, absolute, and at which window (its stored position);
-    ``held_to_rounding``: how many of its values exceed the a-priori tolerance but not the
-    margin their measured rounding sensitivity gives them (:mod:`zoo.leaderboard.rounding`), and
-    the largest
-    of those as a share of the a-priori tolerance (``a_priori``)."""
+    """The largest difference of one series of per-window errors from the stored one: as a share of
+    what it is held to, relative, absolute, and at which window (its stored position);
+    ``held_to_rounding``: how many of its values exceed the a-priori tolerance but not the margin
+    their measured rounding sensitivity gives them (:mod:`zoo.leaderboard.rounding`), and the
+    largest of those as a share of the a-priori tolerance (``a_priori``)."""
 
     key: tuple[str, str, str]
     share: float
@@ -208,13 +207,12 @@ def windows_beyond(fresh, stored, rows: np.ndarray | None = None) -> np.ndarray:
 def window_gaps(
     fresh, stored, rows: np.ndarray | None = None, margins: dict | None = None
 ) -> list[WindowGap]:
-    """Each series of ``fresh`` per-window errors against ``stored``'s at its windows'
-    positions ``rows`` (None: every window, in order); :class:`Incomparable` where the windows
-    are not the same ones or a series is missing from ``stored``. ``margins`` (per series, an
-    array shaped like its errors): what a value may differ by beyond the a-priori tolerance,
-    where its rounding sensitivity was measured (:mod:`zoo.leaderboard.rounding`); each value is
-    held to
-    the larger of the two."""
+    """Each series of ``fresh`` per-window errors against ``stored``'s at its windows' positions
+    ``rows`` (None: every window, in order); :class:`Incomparable` where the windows are not the
+    same ones or a series is missing from ``stored``. ``margins`` (per series, an array shaped like
+    its errors): what a value may differ by beyond the a-priori tolerance, where its rounding
+    sensitivity was measured (:mod:`zoo.leaderboard.rounding`); each value is held to the larger of
+    the two."""
     gaps = []
     for key, at, before, gap, limit, a_priori in _window_shares(fresh, stored, rows):
         if not before.size:

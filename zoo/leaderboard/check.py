@@ -22,10 +22,13 @@ from zoo.store.identity import (
 class Check(Leaderboard):
     """The committed tables of one benchmark recomputed and compared; nothing written."""
 
+    def __init__(self, **options) -> None:
+        if options.get("plan") is None or options["plan"].check is None:  # before any data
+            raise ValueError("Check needs a plan with a CheckReport (Plan(check=...))")
+        super().__init__(**options)
+
     def run(self) -> list[Path]:
         bench, check = self.bench, self.plan.check
-        if check is None:
-            raise ValueError("Check needs a plan with a CheckReport (Plan(check=...))")
         written = []
         self._refuse_models_without_rows()
         for sampler, task, truth, folder in self.tables():

@@ -1,10 +1,8 @@
 """``zoo costs``: measure the cost columns of the rows of a benchmark's committed tables
 (:func:`zoo.leaderboard.efficiency.measure`: float32, a time budget per model, progress on stderr),
-store
-them in ``results/<benchmark>/costs.json`` (format: :mod:`zoo.leaderboard.efficiency`) with the
-machine,
-thread count and date, and rewrite those tables' cost columns (the headline's cost cells and
-the line under it in ``leaderboard.md``; ``efficiency.csv``): no row is recomputed, and no
+store them in ``results/<benchmark>/costs.json`` (format: :mod:`zoo.leaderboard.efficiency`) with
+the machine, thread count and date, and rewrite those tables' cost columns (the headline's cost
+cells and the line under it in ``leaderboard.md``; ``efficiency.csv``): no row is recomputed, and no
 other byte of a table, row folder or ``results.csv`` changes. The only command that measures
 costs."""
 

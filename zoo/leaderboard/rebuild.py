@@ -51,6 +51,9 @@ def regenerate(benchmark, *, plan: Plan | None = None, **options) -> list[Path]:
     weights ``<weights>/<benchmark>/<label>.safetensors`` (a published row is always computed
     from the published weights), else from its checkpoint ``<checkpoints>/<benchmark>/<model>/
     best.pt`` (and ``last.pt`` as ``<model>@last`` when it trained past its best epoch).
+
+    A plan with a check (``Plan(check=...)``) is refused with ``ValueError``: a check writes
+    nothing and runs as :class:`zoo.leaderboard.check.Check`.
     """
     return Rebuild.of(benchmark, plan=plan, **options).run()
 
@@ -59,9 +62,10 @@ class Rebuild(Leaderboard):
     """A benchmark's tables brought up to date (see :func:`regenerate`)."""
 
     def __init__(self, **options) -> None:
-        super().__init__(**options)
-        if self.plan.check is not None:  # a check writes nothing: never a rebuild's plan
+        # a check writes nothing: never a rebuild's plan (refused before any data is read)
+        if options.get("plan") is not None and options["plan"].check is not None:
             raise ValueError("a plan with a check runs as zoo.leaderboard.check.Check")
+        super().__init__(**options)
         self.counts = dict.fromkeys(
             ("reused", "restamped", "recomputed", "agreed", "kept", "dropped"), 0
         )
@@ -347,8 +351,7 @@ class Rebuild(Leaderboard):
     def short_training(self, table: Path, results=()) -> dict[str, tuple[str, str | None]]:
         """Per row label of this benchmark trained short of its recipe, by its shipped weights
         (:func:`zoo.report.cards.short_training_notes`) or by the checkpoint it was scored from
-        (what
-        ``results``, the table's rows, record of their run): what its run saw and the path of
+        (what ``results``, the table's rows, record of their run): what its run saw and the path of
         its model's card from ``table``'s folder (None where it has none)."""
         from zoo.report.cards import checkpoint_budget_notes, shipped_weights, short_training_notes
 

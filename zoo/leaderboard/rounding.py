@@ -1,7 +1,6 @@
-"""How far a row's forward pass moves when its float32 arithmetic rounds otherwise: the part of
-a recomputed result that the a-priori tolerance (:mod:`zoo.evaluation.tolerance`) does not bound,
-measured
-on the spot by ``zoo leaderboard --check`` for a window beyond that tolerance.
+"""How far a row's forward pass moves when its float32 arithmetic rounds otherwise: the part of a
+recomputed result that the a-priori tolerance (:mod:`zoo.evaluation.tolerance`) does not bound,
+measured on the spot by ``zoo leaderboard --check`` for a window beyond that tolerance.
 
 A window's *rounding sensitivity*, per error series, is the largest change of any of its
 per-frame errors over :data:`PASSES` re-runs of the row's model on it: once in float64 (its

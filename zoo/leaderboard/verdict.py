@@ -184,9 +184,8 @@ class CheckReport:
         )
 
     def gap(self, share: float, relative: float, absolute: float, where: str, gap=None):
-        """Keep the largest difference (as a share of what it is held to) and where it is;
-        ``gap`` (a :class:`zoo.evaluation.tolerance.WindowGap`): its values held to their rounding
-        margin
+        """Keep the largest difference (as a share of what it is held to) and where it is; ``gap``
+        (a :class:`zoo.evaluation.tolerance.WindowGap`): its values held to their rounding margin
         and its windows beyond the tolerance."""
         if self.current:
             table = self.tables[self.current]
@@ -369,8 +368,7 @@ def generated_data_hash(protocol: dict) -> str | None:
 
 def _read(row: Path, check: CheckReport):
     """A committed row (``zoo.evaluation.results.EvalResult``) with its per-window errors, or None
-    and a
-    problem where it cannot be read or has none."""
+    and a problem where it cannot be read or has none."""
     from zoo.evaluation.results import WINDOWS_FILE, EvalResult
 
     try:

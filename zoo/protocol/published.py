@@ -1,6 +1,5 @@
 """Published figures (``zoo/protocol/published.yaml``) beside measured rows, never mixed with them:
-a
-figure is a ``reported`` row of a table only where its protocol matches the table's record; any
+a figure is a ``reported`` row of a table only where its protocol matches the table's record; any
 other is listed under its own heading with every difference named."""
 
 from __future__ import annotations

@@ -363,7 +363,7 @@ def _belongs(label: str, name: str) -> bool:
     return base == name
 
 
-def committed_tables(results_root: Path) -> list[tuple[Path, EvalResult]]:
+def read_tables(results_root: Path) -> list[tuple[Path, EvalResult]]:
     """Every table under ``results_root`` (its ``leaderboard.md``) with its rows read: read
     once for all the cards."""
     return [(table, read_table(table.parent)) for table in table_files(results_root, depth=2)]
@@ -500,7 +500,7 @@ def generated_card(
     tables: list[tuple[Path, EvalResult]] | None = None,
 ) -> str:
     """The generated part of ``name``'s card, ending with :data:`END_MARKER` (``tables``: the
-    tables of ``results_root`` already read, :func:`committed_tables`)."""
+    tables of ``results_root`` already read, :func:`read_tables`)."""
     entry = registry.get(name)
     params = sorted({(s.record.get("parameters"), s.benchmarks[0]) for s in files})
     out = [f"# {name}", "", GENERATED_NOTE, ""]
@@ -563,7 +563,7 @@ def generated_card(
     else:
         out += ["None yet.", ""]
     out += ["## Training curve", "", *_curve_lines(name, files)]
-    tables = committed_tables(results_root) if tables is None else tables
+    tables = read_tables(results_root) if tables is None else tables
     out += ["## Rows", "", *_row_tables(name, tables)]
     out += ["## Published figures", "", *_published_lines(name)]
     if entry.paper:
@@ -653,7 +653,7 @@ def build_cards(
     registry = registry or load_registry()
     shipped = shipped_weights(weights_root or WEIGHTS_DIR)
     names = card_models(registry, shipped)
-    tables = committed_tables(results_root)
+    tables = read_tables(results_root)
     statuses = []
     for name in names:
         path = cards_dir / f"{name}.md"

@@ -29,13 +29,12 @@ def write_leaderboard(
     """Combine :class:`zoo.evaluation.results.EvalResult` objects of one protocol into ``out_dir``:
     ``leaderboard.md``, ``summary.json`` (the same table as data,
     :func:`zoo.report.tables.table_summary`, and :func:`zoo.stats.comparison.table_comparisons`),
-    ``protocol.json`` and a ``<metric>.png`` per metric (each result's own folder, beside
-    them, holds its ``results.csv``). ``efficiency`` (per row label, the costs
-    ``zoo costs`` stored: :class:`zoo.leaderboard.efficiency.Costs`) fills the headline's cost
-    columns and
-    ``efficiency.csv`` (a dict without a row's label: its cost cells stay empty, and the table
-    says how to fill them). ``short_training``: per row label trained short of its recipe, what
-    its run saw and a link to its model's card, marked in the headline."""
+    ``protocol.json`` and a ``<metric>.png`` per metric (each result's own folder, beside them,
+    holds its ``results.csv``). ``efficiency`` (per row label, the costs ``zoo costs`` stored:
+    :class:`zoo.leaderboard.efficiency.Costs`) fills the headline's cost columns and
+    ``efficiency.csv`` (a dict without a row's label: its cost cells stay empty, and the table says
+    how to fill them). ``short_training``: per row label trained short of its recipe, what its run
+    saw and a link to its model's card, marked in the headline."""
     out_dir = Path(out_dir)
     # Rows and runs in model order, whichever models were evaluated now and which were stored:
     # regenerating then rewrites no unchanged table.
@@ -228,9 +227,8 @@ How each number is made:
   `protocol.json` (data files and hashes, window sampler, frame rate, joints, averaging); its
   numbers are in the row's own `<table>/<label>/results.csv`, each line carrying the
   `protocol_id`, and rows of different protocols never share a table
-  (`zoo.evaluation.results.read_table`
-  reads a table's rows as one frame). Trained rows name the shipped weights (and their sha256)
-  they were computed from.
+  (`zoo.evaluation.results.read_table` reads a table's rows as one frame). Trained rows name the
+  shipped weights (and their sha256) they were computed from.
 - Headline tables: the benchmark's first metric, frame averaging, mean over actions. `±` is half
   a 95% interval whose meaning each table states: with one recording per action (CMU,
   CMU-on-Anny), a window-sampling interval, conditional on these recordings and not a confidence
@@ -251,14 +249,21 @@ How each number is made:
   frames (as SpecTrHuMS measures it) and printed as mean (standard deviation over windows);
   `<model>:autoencoder` rows are a SpecTrHuMS model's floor, the ground-truth future through its
   autoencoder alone. `*-gt_spectral` tables score against the k-coefficient reconstruction.
-- Rows marked `reported` are figures printed in papers (`zoo/protocol/published.yaml`), shown only
-where
-  their protocol matches; the others are listed under each table with their differences.
+- Rows marked `reported` are figures printed in papers (`zoo/protocol/published.yaml`), shown
+  only where their protocol matches; the others are listed under each table with their
+  differences.
 """
 
 
 def write_index(out_root: str | Path) -> Path:
     """``<out_root>/README.md``: every benchmark's tables with their headline and plots."""
+    path = Path(out_root) / "README.md"
+    atomic_write_text(path, index_text(out_root))
+    return path
+
+
+def index_text(out_root: str | Path) -> str:
+    """What :func:`write_index` writes for the tables under ``out_root``."""
     out_root = Path(out_root)
     lines = [INDEX_PREAMBLE]
     for bench_dir in sorted(p for p in out_root.iterdir() if p.is_dir()):
@@ -299,6 +304,4 @@ def write_index(out_root: str | Path) -> Path:
             if headline:  # its heading and table; the leaderboard explains them
                 rows = headline.strip().splitlines()
                 lines += ["##" + rows[0], "", *[r for r in rows if r.startswith("|")], ""]
-    path = out_root / "README.md"
-    atomic_write_text(path, "\n".join(lines).rstrip() + "\n")
-    return path
+    return "\n".join(lines).rstrip() + "\n"

@@ -349,10 +349,9 @@ def interval(
     seed: int = 0,
     block_frames: int | None = None,
 ) -> Interval:
-    """The interval a design allows for the protocol mean of ``errors (W, T)`` over
-    ``windows`` (a :class:`zoo.evaluation.results.WindowErrors`): a confidence interval over
-    recordings
-    where every action has ``MIN_RECORDINGS`` or more, else a window-sampling interval."""
+    """The interval a design allows for the protocol mean of ``errors (W, T)`` over ``windows`` (a
+    :class:`zoo.evaluation.results.WindowErrors`): a confidence interval over recordings where every
+    action has ``MIN_RECORDINGS`` or more, else a window-sampling interval."""
     if design(windows.sequence, windows.action).recording_level:
         return recording_interval(errors, windows.sequence, windows.action, confidence)
     return window_sampling_interval(
