@@ -1,11 +1,20 @@
 """Shared fixtures: tiny datasets written in the exact on-disk formats."""
 
 import os
-from pathlib import Path
+import sys
 
-import numpy as np
-import pytest
-import torch
+# Compiled bytecode is kept even where PYTHONDONTWRITEBYTECODE is set: both xdist workers and
+# every command a test runs in a subprocess would otherwise compile the same modules (torch's
+# among them) again, seconds of CPU each. Python checks each cached file against its source;
+# git ignores __pycache__. Set here, before the imports below and before the workers start.
+os.environ.pop("PYTHONDONTWRITEBYTECODE", None)
+sys.dont_write_bytecode = False
+
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+import torch  # noqa: E402
 
 # One thread per pytest-xdist worker: the workers share the machine's cores.
 if os.environ.get("PYTEST_XDIST_WORKER"):
