@@ -397,7 +397,10 @@ def _layout() -> tuple:
     """Every folder of the zoo package with its mtime: a module added, removed or renamed
     anywhere in it changes what an import of a zoo module binds."""
     folders = [REPO_ROOT / "zoo"]
-    folders += sorted(p for p in folders[0].rglob("*") if p.is_dir())
+    # not __pycache__: Python writes compiled files there as modules load, which moves no import
+    folders += sorted(
+        p for p in folders[0].rglob("*") if p.is_dir() and "__pycache__" not in p.parts
+    )
     return tuple((str(f), f.stat().st_mtime_ns) for f in folders)
 
 
