@@ -8,6 +8,7 @@ import shutil
 from pathlib import Path
 
 import pytest
+from tiny_models import weights_record
 
 from zoo.cli import main
 from zoo.paths import REPO_ROOT
@@ -133,10 +134,10 @@ def test_a_card_counts_every_stage_its_weights_were_trained_on_from():
             "init_from": before,
         }
 
-    record = {
-        "hparams": {"autoencoder_epochs": 2, "latent": 256},
-        "init_from": stage(22, 64768, 600.0, 22, "stride5_strict", stage(3, 3200, 60.0, 3, "")),
-    }
+    record = weights_record(
+        hparams={"autoencoder_epochs": 2, "latent": 256},
+        init_from=stage(22, 64768, 600.0, 22, "stride5_strict", stage(3, 3200, 60.0, 3, "")),
+    )
     lines = _earlier_stage_lines(
         [Shipped("m", ("x",), REPO_ROOT / "weights/x/m.safetensors", record)]
     )
@@ -148,6 +149,6 @@ def test_a_card_counts_every_stage_its_weights_were_trained_on_from():
     assert ": before that, from `checkpoints/stage3/last.pt`" in lines[1]
     assert "3 epochs, 100 optimizer steps" in lines[1] and "`autoencoder_epochs: 3`" in lines[1]
     assert (
-        _earlier_stage_lines([Shipped("m", ("x",), REPO_ROOT / "m.safetensors", {"hparams": {}})])
+        _earlier_stage_lines([Shipped("m", ("x",), REPO_ROOT / "m.safetensors", weights_record())])
         == []
     )

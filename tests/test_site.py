@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from tiny_models import weights_record
 
 from zoo.cli import main
 from zoo.evaluation.markdown import headline_key
@@ -354,12 +355,12 @@ def test_a_row_trained_short_of_its_recipe_says_so_where_its_number_is(tmp_path)
         "validation": {"training_windows": 14_389},
         "recipe": {"batch_size": 32},
     }
-    assert budget_note(record, 50) == (
+    assert budget_note(50, **record) == (
         "its run saw 23% of its recipe's training windows (161,920 of 718,400)"
     )
     record["training"]["samples_seen"] = 718_400
-    assert budget_note(record, 50) is None
-    shipped = {"ltd": [Shipped("ltd@last", ("cmu",), Path(), dict(record, label="ltd@last"))]}
+    assert budget_note(50, **record) is None
+    shipped = {"ltd": [Shipped("ltd@last", ("cmu",), Path(), weights_record("ltd", **record))]}
     assert short_training_notes(load_registry(), shipped) == {}
 
 
@@ -385,11 +386,11 @@ def test_a_run_stopped_by_its_patience_is_not_short_and_a_tiny_split_does_not_cr
         "validation": {"training_windows": 14_389},
         "recipe": {"batch_size": 16, "epochs": 58, "patience": 10},
     }
-    assert budget_note(run, 58) is None  # finished by its recipe's patience
+    assert budget_note(58, **run) is None  # finished by its recipe's patience
     run["recipe"]["patience"] = None
-    assert budget_note(run, 58).startswith("its run saw")
+    assert budget_note(58, **run).startswith("its run saw")
     run["validation"]["training_windows"] = 3  # fewer windows than a batch
-    assert budget_note(run, 58) is None or "training windows" in budget_note(run, 58)
+    assert budget_note(58, **run) is None or "training windows" in budget_note(58, **run)
 
 
 def test_a_model_being_retrained_says_so_beside_its_shipped_rows(tmp_path):

@@ -2,18 +2,28 @@
 ``zoo eval`` / ``zoo leaderboard`` computing a trained row from exactly the stored tensors."""
 
 import json
+from dataclasses import asdict
 
 import pandas as pd
 import pytest
 import torch
 from test_train import run, setup  # noqa: F401  (setup is a fixture)
+from tiny_models import weights_record
 
 import zoo
 import zoo.hub.weights
 from zoo.cli import main
 from zoo.evaluation.results import EvalResult, read_table
 from zoo.hub.checkpoints import export_weights, load_weights, read_checkpoint
-from zoo.hub.weights import WeightsError, read_weights
+from zoo.hub.records import RunRecord, WeightsRecord
+from zoo.hub.weights import (
+    WEIGHTS_DIR,
+    WeightsError,
+    available_weights,
+    read_weights,
+    read_weights_record,
+    weights_file,
+)
 from zoo.leaderboard.rebuild import regenerate
 
 
@@ -33,18 +43,59 @@ def test_exported_weights_are_the_checkpoint_s_and_carry_its_record(trained, tmp
     for name, tensor in ckpt["state_dict"].items():
         stored = tensor.to(getattr(torch, dtype)).float()  # exactly the stored values
         assert state[name].dtype == torch.float32 and torch.equal(state[name], stored)
-    assert record["label"] == "tiny@last" and record["model"] == "tiny"
-    assert record["dtype"] == dtype and len(record["sha256"]) == 64
+    assert record.label == "tiny@last" and record.model == "tiny"
+    assert record.dtype == dtype and len(record.sha256) == 64
     # what a reader needs to judge and reproduce the row: budget, device, data, code
-    assert record["training"]["samples_seen"] > 0 and record["training"]["device_name"]
-    assert record["recipe"]["epochs"] == 2 and record["seed"] == 0
-    assert record["training_data"]["files"][0]["sha256"]
-    assert record["hparams"] == ckpt["hparams"] and record["protocol"] == ckpt["protocol"]
-    assert len(record["history"]) == 2 and record["init_from"] is None  # a first stage
+    assert record.training["samples_seen"] > 0 and record.training["device_name"]
+    assert record.recipe["epochs"] == 2 and record.seed == 0
+    assert record.training_data["files"][0]["sha256"]
+    assert record.hparams == ckpt["hparams"] and record.protocol == ckpt["protocol"]
+    assert len(record.history) == 2 and record.init_from is None  # a first stage
+    # every field of the checkpoint's run record, as the checkpoint holds it
+    assert asdict(RunRecord.of_checkpoint(ckpt)).items() <= asdict(record).items()
     best = export_weights(trained / "best.pt", root=tmp_path / "weights")
     assert best.stem == "tiny"
     best_epoch = read_checkpoint(trained / "best.pt")["training"]["best"]["epoch"]
-    assert [h["epoch"] for h in read_weights(best)[1]["history"]] == list(range(1, best_epoch + 1))
+    assert [h["epoch"] for h in read_weights(best)[1].history] == list(range(1, best_epoch + 1))
+
+
+def test_every_committed_record_reads_as_its_type_and_writes_back_the_same_fields():
+    """The records written before the type existed (some without max_batches, recipe_changes,
+    init_from or validation; four with upgrades) read into it, and it writes back each field
+    they hold with the same value."""
+    shipped = available_weights()
+    assert len(shipped) >= 20
+    for bench, label in shipped:
+        path = weights_file(bench, label).with_suffix(".json")
+        stored = json.loads(path.read_text())
+        written = read_weights_record(weights_file(bench, label)).to_json()
+        assert {k: written[k] for k in stored} == stored, path
+        assert set(written) - set(stored) <= {
+            "world_size", "max_batches", "recipe_changes", "init_from", "validation",
+        }  # fmt: skip
+    assert WEIGHTS_DIR.is_dir()
+
+
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        ({"format": "other/1"}, r"w\.json: format 'other/1', expected 'motion-zoo-weights/1'"),
+        ({"sha256": None}, r"w\.json: field sha256 is NoneType None, expected str"),
+        ({"parameters": "12"}, r"field parameters is str '12', expected int"),
+        ({"seed": True}, r"field seed is bool True, expected NoneType or int"),
+        ({"epochs": 3}, r"w\.json: unknown field\(s\) epochs \(a record of motion-zoo-weights/1 "),
+        ({"label": ...}, r"w\.json: field\(s\) label missing"),
+    ],
+)
+def test_a_weights_record_names_the_field_it_cannot_take(change, message):
+    record = weights_record().to_json()
+    assert WeightsRecord.from_json(record, "w.json") == WeightsRecord.from_json(
+        json.loads(json.dumps(record)), "w.json"
+    )
+    record.update(change)
+    record = {k: v for k, v in record.items() if v is not ...}
+    with pytest.raises(WeightsError, match=message):
+        WeightsRecord.from_json(record, "w.json")
 
 
 def test_weights_beyond_float16_are_refused_in_float16_and_nothing_is_written(trained, tmp_path):
@@ -169,7 +220,7 @@ def test_eval_and_leaderboard_compute_the_row_from_the_weights(
     evaluated = EvalResult.read(out)
     assert (
         evaluated.protocol["provenance"]["weights_sha256"]
-        == read_weights(weights / "cmu" / "tiny@last.safetensors")[1]["sha256"]
+        == read_weights(weights / "cmu" / "tiny@last.safetensors")[1].sha256
     )
     # No checkpoints at all: the leaderboard still computes the row, from the weights.
     regenerate(
@@ -205,14 +256,14 @@ def test_training_plot_draws_each_validation_horizon_beside_repeat_last(tmp_path
         "model": [m, 2 * m],
         "repeat_last": [0.01, 0.02],
     }
-    record = {
-        "recipe": {"batch_size": 4},
-        "history": [
+    record = weights_record(
+        recipe={"batch_size": 4},
+        history=[
             {"samples": 40, "val_mpjpe": 3.0},  # an epoch logged before horizons were
             {"samples": 40, "val_mpjpe": 2.0, "val_horizons": horizons(0.03)},
             {"samples": 40, "val_mpjpe": 1.0, "val_horizons": horizons(0.005)},
         ],
-    }
+    )
     assert training_horizons(record) == [(20, horizons(0.03)), (30, horizons(0.005))]
     drawn = []
     save = matplotlib.figure.Figure.savefig

@@ -79,14 +79,14 @@ def show(args) -> int:
     rows = []
     for bench, label in available_weights(root):
         record = read_weights_record(weights_file(bench, label, root))
-        training = record.get("training", {})
+        training = record.training
         rows.append(
             [
                 bench,
                 label,
-                record["model"],
-                f"{record['parameters'] / 1e6:.2f} M",
-                record["dtype"],
+                record.model,
+                f"{record.parameters / 1e6:.2f} M",
+                record.dtype,
                 training.get("samples_seen"),
                 f"{training.get('seconds', 0) / 60:.0f}",
                 training.get("device_name"),

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import hashlib
 import math
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
@@ -24,11 +24,10 @@ from torch import nn
 from zoo.core.errors import NamesParameter, ZooError
 from zoo.core.io import atomic_path, atomic_write_json, replace_folder, repo_relative, sha256_file
 from zoo.hub.build import benchmark_inputs
+from zoo.hub.records import RECORD_FORMAT, RunRecord, WeightsError, WeightsRecord
 from zoo.hub.weights import (
     PAUSED_SUMMARY,
-    RECORD_FORMAT,
     STORAGE_DTYPES,
-    WeightsError,
     checkpoint_label,
     paused_dir,
     read_weights,
@@ -56,12 +55,12 @@ def model_origin(entry: ModelEntry) -> dict[str, Any]:
     }
 
 
-def recorded_entry(meta: dict[str, Any], registry: Registry, source: str) -> ModelEntry:
+def recorded_entry(meta: RunRecord, registry: Registry, source: str) -> ModelEntry:
     """The registry entry of the model that ``meta`` (a checkpoint's or weights' record) holds,
     checked against the class it recorded; ``source`` names the file in errors."""
     from zoo.paths import REPO_ROOT
 
-    name, origin = meta["model"], meta.get("origin") or {}
+    name, origin = meta.model, meta.origin or {}
     if name not in registry.entries:
         recorded = origin.get("registry")
         if recorded is None:
@@ -140,30 +139,6 @@ def weights_digest(model: nn.Module) -> str:
         digest.update(name.encode())
         digest.update(tensor.detach().cpu().contiguous().numpy().tobytes())
     return digest.hexdigest()
-
-
-@dataclass
-class RunRecord:
-    """What every checkpoint of a training run records about the run, ``best.pt`` and
-    ``last.pt`` alike (and shipped weights' records after them): the model and where its class
-    comes from, its hyper-parameters, the protocol and data it trained for, the recipe, seed,
-    budget changes, the stage it started from and what validated it."""
-
-    model: str
-    origin: dict[str, Any]
-    hparams: dict[str, Any]
-    context_hashes: dict[str, str]
-    protocol: dict[str, Any]
-    training_data: dict[str, Any]
-    recipe: dict[str, Any]
-    seed: int
-    code_version: str | None
-    torch: str
-    world_size: int
-    max_batches: int | None = None
-    recipe_changes: list[dict[str, Any]] = field(default_factory=list)
-    init_from: dict[str, Any] | None = None
-    validation: dict[str, Any] | None = None
 
 
 @dataclass
@@ -425,7 +400,7 @@ def checkpoint_provenance(path: str | Path, checkpoint: dict[str, Any]) -> dict[
 
 
 def trained_model(
-    meta: dict[str, Any],
+    meta: RunRecord,
     state_dict: dict[str, torch.Tensor],
     kind: str,
     path: str | Path,
@@ -436,10 +411,10 @@ def trained_model(
     dataset=None,
     model_name: str | None = None,
 ) -> nn.Module:
-    """The model that ``meta`` (a checkpoint's or shipped weights' record: model, hparams,
-    protocol, context_hashes) describes, holding ``state_dict``, in eval mode; refused with an
-    error naming the ``kind`` ("checkpoint", "weights") and ``path`` it came from if it was
-    trained for another protocol or data than ``benchmark``. ``model_name``: build it as that
+    """The model that ``meta`` (a checkpoint's or shipped weights' record) describes, holding
+    ``state_dict``, in eval mode; refused with an error naming the ``kind`` ("checkpoint",
+    "weights") and ``path`` it came from if it was trained for another protocol or data than
+    ``benchmark``. ``model_name``: build it as that
     entry instead, which must run the recorded model's weights (registry ``weights_of``)."""
     source = f"{kind} {path}"
     registry = registry or load_registry()
@@ -454,32 +429,32 @@ def trained_model(
             )
         entry = variant
     bench = (
-        get_benchmark(benchmark or meta["protocol"]["benchmark"])
+        get_benchmark(benchmark or meta.protocol["benchmark"])
         if not isinstance(benchmark, Benchmark)
         else benchmark
     )
     view = bench.view_for(entry.representation)
     expected = model_protocol(bench, view)
     diff = [
-        f"{k} ({kind} {meta['protocol'].get(k)!r}, benchmark {v!r})"
+        f"{k} ({kind} {meta.protocol.get(k)!r}, benchmark {v!r})"
         for k, v in expected.items()
-        if meta["protocol"].get(k) != v
+        if meta.protocol.get(k) != v
     ]
-    if diff and bench.weights_from and meta["protocol"].get("benchmark") == bench.weights_from:
+    if diff and bench.weights_from and meta.protocol.get("benchmark") == bench.weights_from:
         # trained on the benchmark this one takes weights from: the same data, other sizes
         source_protocol = model_protocol(get_benchmark(bench.weights_from), view)
         diff = [
-            f"{k} ({kind} {meta['protocol'].get(k)!r}, benchmark {bench.weights_from} {v!r})"
+            f"{k} ({kind} {meta.protocol.get(k)!r}, benchmark {bench.weights_from} {v!r})"
             for k, v in source_protocol.items()
-            if meta["protocol"].get(k) != v
+            if meta.protocol.get(k) != v
         ]
     if diff:
         raise CheckpointError(
             f"{source} was trained for another protocol than benchmark "
             f"{bench.name!r}: " + "; ".join(diff)
         )
-    hparams = dict(meta["hparams"])
-    hashes = meta.get("context_hashes", {})
+    hparams = dict(meta.hparams)
+    hashes = meta.context_hashes
     if hashes:
         _, supplied = benchmark_inputs(bench, entry, data_root=data_root, dataset=dataset)
         for key, trained_hash in hashes.items():
@@ -517,7 +492,7 @@ def load_checkpoint(
     """
     ckpt = read_checkpoint(path)
     model = trained_model(
-        ckpt,
+        RunRecord.of_checkpoint(ckpt),
         ckpt["state_dict"],
         "checkpoint",
         path,
@@ -538,7 +513,7 @@ def load_weights(
     data_root=None,
     dataset=None,
     model_name: str | None = None,
-) -> tuple[torch.nn.Module, dict[str, Any]]:
+) -> tuple[torch.nn.Module, WeightsRecord]:
     """The model of shipped weights, checked against ``benchmark`` (default: its own); built as
     ``model_name`` where that entry runs these weights (registry ``weights_of``)."""
     state, record = read_weights(path)
@@ -603,35 +578,17 @@ def export_weights(
     with atomic_path(path) as tmp:
         save_file(tensors, str(tmp), metadata={"format": RECORD_FORMAT, "model": ckpt["model"]})
         digest = sha256_file(tmp)
-    record = {
-        "format": RECORD_FORMAT,
-        "label": label,
-        "model": ckpt["model"],
-        "benchmark": benchmark,
-        "file": path.name,
-        "sha256": digest,
-        "dtype": dtype,
-        "parameters": int(sum(t.numel() for t in ckpt["state_dict"].values())),
-        "hparams": ckpt["hparams"],
-        "origin": ckpt.get("origin"),
-        "context_hashes": ckpt.get("context_hashes", {}),
-        "protocol": ckpt["protocol"],
-        "recipe": ckpt.get("recipe"),
-        "seed": ckpt.get("seed"),
-        # batches per epoch when capped, and budget changes made on resume (epoch they began)
-        "max_batches": ckpt.get("max_batches"),
-        "recipe_changes": ckpt.get("recipe_changes", []),
-        # the weights this run started from (a stage of a longer recipe), with their budget
-        "init_from": ckpt.get("init_from"),
-        # budget (epochs, samples, seconds), device and the validation curve
-        "training": ckpt.get("training", {}),
-        "history": ckpt.get("history"),
-        "training_data": ckpt.get("training_data"),
-        # the recordings (or share of each) held out for validation, and its windows
-        "validation": ckpt.get("validation"),
-        "code_version": ckpt.get("code_version"),
-        "torch": ckpt.get("torch"),
-        "checkpoint": repo_relative(checkpoint),
-    }
-    atomic_write_json(record_file(path), record)
+    record = WeightsRecord(
+        **asdict(RunRecord.of_checkpoint(ckpt)),
+        label=label,
+        benchmark=benchmark,
+        file=path.name,
+        sha256=digest,
+        dtype=dtype,
+        parameters=int(sum(t.numel() for t in ckpt["state_dict"].values())),
+        training=ckpt.get("training", {}),
+        history=ckpt.get("history"),
+        checkpoint=repo_relative(checkpoint),
+    )
+    atomic_write_json(record_file(path), record.to_json())
     return path

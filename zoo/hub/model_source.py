@@ -18,6 +18,7 @@ from torch import nn
 
 from zoo.core.errors import ZooError
 from zoo.hub.build import model_args_for
+from zoo.hub.records import RunRecord
 from zoo.models.registry import ModelEntry, Registry
 
 
@@ -72,7 +73,7 @@ class ModelSource:
     def kind(self) -> str:
         return "weights" if self.weights else "checkpoint" if self.checkpoint else "registry"
 
-    def record(self) -> dict[str, Any] | None:
+    def record(self) -> RunRecord | None:
         """The checkpoint's or weights' own record (model, hparams, protocol, ...)."""
         if self.weights:
             from zoo.hub.weights import read_weights_record
@@ -81,13 +82,13 @@ class ModelSource:
         if self.checkpoint:
             from zoo.hub.checkpoints import read_checkpoint
 
-            return read_checkpoint(self.checkpoint)
+            return RunRecord.of_checkpoint(read_checkpoint(self.checkpoint))
         return None
 
     def benchmark(self) -> str | None:
         """The benchmark a trained model was trained for (its default benchmark), if any."""
         record = self.record()
-        return record["protocol"]["benchmark"] if record else None
+        return record.protocol["benchmark"] if record else None
 
     def default_label(self, model_name: str) -> str:
         """The row label: ``--label``; else a shipped file's label (its name), a checkpoint's
@@ -98,7 +99,7 @@ class ModelSource:
         if self.weights:
             # the file's label, or for an entry that runs these weights (weights_of) its own
             # name with the file's @suffix: never the row of the model the file holds
-            recorded = self.record()["model"]
+            recorded = self.record().model
             if model_name != recorded:
                 _, at, suffix = self.weights.stem.partition("@")
                 return f"{model_name}{at}{suffix}"
@@ -117,7 +118,7 @@ class ModelSource:
         ``weights_of``), so the file scores as that entry, never as the model it holds."""
         named = self.weights.stem.partition("@")[0]
         entry = registry.entries.get(named)
-        if entry is not None and entry.weights_of == self.record()["model"]:
+        if entry is not None and entry.weights_of == self.record().model:
             return named
         return None
 
@@ -168,9 +169,9 @@ class ModelSource:
                 model_name=name,
             )
             provenance = weights_provenance(self.weights, record)
-            trained = {"kind": "weights", "sha256": record["sha256"]}
+            trained = {"kind": "weights", "sha256": record.sha256}
         else:
-            model, record = load_checkpoint(
+            model, payload = load_checkpoint(
                 self.checkpoint,
                 registry=registry,
                 benchmark=bench,
@@ -178,19 +179,20 @@ class ModelSource:
                 dataset=dataset,
                 model_name=name,
             )
-            provenance = checkpoint_provenance(self.checkpoint, record)
+            provenance = checkpoint_provenance(self.checkpoint, payload)
             trained = {"kind": "checkpoint", "sha256": sha256_file(self.checkpoint)}
+            record = RunRecord.of_checkpoint(payload)
         # the recorded model, or an entry that runs its weights (registry weights_of)
-        entry = registry.get(name or record["model"])
-        hashes = record.get("context_hashes") or {}
+        entry = registry.get(name or record.model)
+        hashes = record.context_hashes
         return LoadedModel(
             model=model,
             entry=entry,
             view=bench.view_for(entry.representation),
             label=self.default_label(entry.name),
             provenance={**entry.provenance(), **provenance},
-            recipe=record.get("recipe"),
-            hparams={**record["hparams"], **({"context_hashes": hashes} if hashes else {})},
+            recipe=record.recipe,
+            hparams={**record.hparams, **({"context_hashes": hashes} if hashes else {})},
             trained=trained,
         )
 

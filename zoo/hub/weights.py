@@ -21,17 +21,12 @@ from typing import Any
 
 import torch
 
-from zoo.core.errors import ZooError
 from zoo.core.io import repo_relative, sha256_file
+from zoo.hub.records import WeightsError, WeightsRecord
 from zoo.paths import REPO_ROOT
 
 WEIGHTS_DIR = REPO_ROOT / "weights"
-RECORD_FORMAT = "motion-zoo-weights/1"
 STORAGE_DTYPES = {"float32": torch.float32, "float16": torch.float16}
-
-
-class WeightsError(ZooError, ValueError):
-    pass
 
 
 def weights_file(benchmark: str, label: str, root: str | Path | None = None) -> Path:
@@ -47,8 +42,8 @@ def checkpoint_label(checkpoint: str | Path, model: str) -> str:
     return f"{model}@last" if Path(checkpoint).name == "last.pt" else model
 
 
-def read_weights_record(path: str | Path) -> dict[str, Any]:
-    """The JSON record of shipped weights (tensors neither read nor checked)."""
+def read_weights_record(path: str | Path) -> WeightsRecord:
+    """The record of shipped weights (tensors neither read nor checked)."""
     path = Path(path)
     record_path = record_file(path)
     for p in (path, record_path):
@@ -58,19 +53,13 @@ def read_weights_record(path: str | Path) -> dict[str, Any]:
                 f".safetensors file and the .json record beside it)"
             )
     try:
-        record = json.loads(record_path.read_text())
+        data = json.loads(record_path.read_text())
     except (OSError, ValueError) as e:
         raise WeightsError(f"weights record {record_path} is not readable JSON ({e})") from e
-    if not isinstance(record, dict) or record.get("format") != RECORD_FORMAT:
-        raise WeightsError(
-            f"weights record {record_path}: format "
-            f"{record.get('format') if isinstance(record, dict) else None!r}, "
-            f"expected {RECORD_FORMAT!r}"
-        )
-    return record
+    return WeightsRecord.from_json(data, str(record_path))
 
 
-def read_weights(path: str | Path) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
+def read_weights(path: str | Path) -> tuple[dict[str, torch.Tensor], WeightsRecord]:
     """The float32 state dict and the record of shipped weights, after checking the file's
     sha256 against its record."""
     from safetensors import SafetensorError
@@ -80,10 +69,10 @@ def read_weights(path: str | Path) -> tuple[dict[str, torch.Tensor], dict[str, A
     record_path = record_file(path)
     record = read_weights_record(path)
     digest = sha256_file(path)
-    if digest != record.get("sha256"):
+    if digest != record.sha256:
         raise WeightsError(
             f"weights {path}: sha256 {digest[:16]}... differs from its record's "
-            f"{str(record.get('sha256'))[:16]}... ({record_path}): the file was "
+            f"{record.sha256[:16]}... ({record_path}): the file was "
             f"changed or damaged; restore it (git checkout) or export it again"
         )
     try:
@@ -101,29 +90,19 @@ def available_weights(root: str | Path | None = None) -> list[tuple[str, str]]:
     )
 
 
-def _epochs_by_steps(record: dict[str, Any]):
-    """``(optimizer steps at its end, epoch record)`` of each epoch of a weights record's
-    training history (exported from a ``last.pt``; nothing where the record holds none)."""
-    batch = (record.get("recipe") or {}).get("batch_size")
-    steps = 0
-    for epoch in (record.get("history") or []) if batch else []:
-        steps += epoch["samples"] // batch
-        yield steps, epoch
-
-
-def training_points(record: dict[str, Any]) -> list[tuple[int, float]]:
+def training_points(record: WeightsRecord) -> list[tuple[int, float]]:
     """``[(optimizer steps, validation error), ...]`` from a weights record's training history
     (empty where the record holds none)."""
-    return [(steps, epoch["val_mpjpe"]) for steps, epoch in _epochs_by_steps(record)]
+    return [(steps, epoch["val_mpjpe"]) for steps, epoch in record.epochs_by_steps]
 
 
-def training_horizons(record: dict[str, Any]) -> list[tuple[int, dict[str, Any]]]:
+def training_horizons(record: WeightsRecord) -> list[tuple[int, dict[str, Any]]]:
     """``[(optimizer steps, val_horizons), ...]``: the per-horizon validation errors (the
     model's and repeat-last's, see :func:`zoo.train.validation.validate`) of every epoch that logged
     them."""
     return [
         (steps, epoch["val_horizons"])
-        for steps, epoch in _epochs_by_steps(record)
+        for steps, epoch in record.epochs_by_steps
         if "val_horizons" in epoch
     ]
 
@@ -170,7 +149,7 @@ def unshipped_models(
     where the caller has read the records already."""
     if shipped is None:
         shipped = {
-            read_weights_record(weights_file(b, label, root))["model"]
+            read_weights_record(weights_file(b, label, root)).model
             for b, label in available_weights(root)
         }
     paused = {model: summary for (_, model), summary in paused_runs(root).items()}
@@ -202,12 +181,12 @@ def pretrained_path(name: str, benchmark: str, root: str | Path | None = None) -
     return path
 
 
-def weights_provenance(path: str | Path, record: dict[str, Any]) -> dict[str, Any]:
+def weights_provenance(path: str | Path, record: WeightsRecord) -> dict[str, Any]:
     """What a result computed from shipped weights records about them."""
     return {
         "weights": repo_relative(path),
-        "weights_sha256": record["sha256"],
-        "weights_dtype": record["dtype"],
-        "hparams": record["hparams"],
-        "training": record.get("training", {}),
+        "weights_sha256": record.sha256,
+        "weights_dtype": record.dtype,
+        "hparams": record.hparams,
+        "training": record.training,
     }

@@ -28,6 +28,7 @@ from zoo.core.errors import ZooError
 from zoo.core.io import atomic_write_text, repo_relative
 from zoo.evaluation.markdown import default_horizons, headline_key, metric_unit
 from zoo.evaluation.results import EvalResult, read_table, table_files
+from zoo.hub.records import WeightsRecord
 from zoo.hub.weights import (
     WEIGHTS_DIR,
     available_weights,
@@ -63,7 +64,7 @@ class Shipped:
     label: str
     benchmarks: tuple[str, ...]
     path: Path
-    record: dict[str, Any]
+    record: WeightsRecord
 
 
 def shipped_weights(weights_root: str | Path | None = None) -> dict[str, list[Shipped]]:
@@ -76,12 +77,10 @@ def shipped_weights(weights_root: str | Path | None = None) -> dict[str, list[Sh
     out: dict[str, list[Shipped]] = {}
     for paths in by_file.values():
         record = read_weights_record(paths[0])
-        own = record.get("benchmark")
+        own = record.benchmark
         path = next((p for p in paths if p.parent.name == own), paths[0])
         benches = sorted({p.parent.name for p in paths}, key=lambda b: (b != own, b))
-        out.setdefault(record["model"], []).append(
-            Shipped(record["label"], tuple(benches), path, record)
-        )
+        out.setdefault(record.model, []).append(Shipped(record.label, tuple(benches), path, record))
     for files in out.values():
         files.sort(key=lambda s: (s.benchmarks[0], s.label))
     return out
@@ -100,13 +99,19 @@ def short_training_notes(
         entry = registry.get(name)
         planned = _planned_epochs(registry, name)
         records = {
-            (bench, s.record["label"]): s.record
+            (bench, s.record.label): s.record
             for s in shipped.get(entry.weights_of or name, [])
             for bench in s.benchmarks
         }
         for (bench, label), record in records.items():
             last = records.get((bench, label.partition("@")[0] + "@last"), record)
-            note = budget_note(last, planned)
+            note = budget_note(
+                planned,
+                training=last.training,
+                recipe=last.recipe,
+                validation=last.validation,
+                max_batches=last.max_batches,
+            )
             if note:  # the row is named after this model (an entry running another's weights)
                 notes[bench, name + ("@last" if label.endswith("@last") else "")] = note
     return notes
@@ -123,7 +128,10 @@ def checkpoint_budget_notes(registry: Registry, runs: dict[str, dict[str, Any]])
         name = label.partition("@")[0]
         if name not in registry.list_models():
             continue
-        note = budget_note(provenance, _planned_epochs(registry, name))
+        note = budget_note(
+            _planned_epochs(registry, name),
+            **{k: provenance.get(k) for k in ("training", "recipe", "validation", "max_batches")},
+        )
         if note:
             notes[label] = note
     return notes
@@ -137,18 +145,25 @@ def _planned_epochs(registry: Registry, name: str) -> int | None:
     return (trained.train or {}).get("epochs")
 
 
-def budget_note(run: dict[str, Any], planned: int | None) -> str | None:
-    """What a run saw, where it stopped short of ``planned`` epochs of its recipe (``run``: a
-    weights record, or a row's provenance of the checkpoint it was scored from); None where it
-    did not."""
+def budget_note(
+    planned: int | None,
+    *,
+    training: dict[str, Any] | None = None,
+    recipe: dict[str, Any] | None = None,
+    validation: dict[str, Any] | None = None,
+    max_batches: int | None = None,
+) -> str | None:
+    """What a run saw, where it stopped short of ``planned`` epochs of its recipe (the run's
+    training summary, recipe, validation split and batch cap, as a weights record or a row's
+    provenance of the checkpoint it was scored from holds them); None where it did not."""
     from zoo.models.recipe import Recipe, patience_spent
 
-    training = run.get("training") or {}
+    training = training or {}
     seen = training.get("samples_seen")
-    windows = (run.get("validation") or {}).get("training_windows")
-    batch = (run.get("recipe") or {}).get("batch_size")
+    windows = (validation or {}).get("training_windows")
+    batch = (recipe or {}).get("batch_size")
     best = (training.get("best") or {}).get("epoch", -1)
-    if patience_spent(Recipe.of(run.get("recipe") or {}), training.get("epochs_run", 0), best):
+    if patience_spent(Recipe.of(recipe or {}), training.get("epochs_run", 0), best):
         return None  # stopped by its recipe's patience: finished, not short
     if seen and windows and batch and planned:
         full = planned * max(1, windows // batch) * batch
@@ -159,10 +174,9 @@ def budget_note(run: dict[str, Any], planned: int | None) -> str | None:
                 f"its run saw {seen_share} of its recipe's training windows ({seen:,} of {full:,})"
             )
         return None
-    if run.get("max_batches") and seen:
+    if max_batches and seen:
         return (
-            f"its run capped each epoch at {run['max_batches']} batches ({seen:,} training "
-            f"windows in all)"
+            f"its run capped each epoch at {max_batches} batches ({seen:,} training windows in all)"
         )
     return None
 
@@ -194,34 +208,34 @@ def _table(header: list[str], rows: list[list[str]]) -> list[str]:
     return out + [""]
 
 
-def _steps(record: dict[str, Any]) -> int | None:
-    """Optimizer steps: the history's, else the samples seen over the batch size."""
-    batch = (record.get("recipe") or {}).get("batch_size")
+def _steps(recipe: dict | None, training: dict | None, points: list) -> int | None:
+    """Optimizer steps: the history's (``points``, :func:`training_points`), else the samples
+    seen over the batch size."""
+    batch = (recipe or {}).get("batch_size")
     if not batch:
         return None
-    points = training_points(record)
-    return points[-1][0] if points else record.get("training", {}).get("samples_seen", 0) // batch
+    return points[-1][0] if points else (training or {}).get("samples_seen", 0) // batch
 
 
 def _budget_rows(files: list[Shipped]) -> list[list[str]]:
     rows = []
     for s in files:
-        r, t = s.record, s.record.get("training", {})
+        r, t = s.record, s.record.training
         best = t.get("best") or {}
-        steps = _steps(r)
+        steps = _steps(r.recipe, t, training_points(r))
         rows.append(
             [
                 f"`{repo_relative(s.path)}`",
                 ", ".join(s.benchmarks),
-                f"{r.get('parameters', 0):,}",
-                r.get("dtype", "?"),
+                f"{r.parameters:,}",
+                r.dtype,
                 f"{t.get('epochs_run', '?')} of {t.get('epochs_planned', '?')}",
                 f"{steps:,}" if steps is not None else "?",
                 f"{t.get('samples_seen', 0):,}",
                 f"{t.get('seconds', 0) / 60:.0f}",
                 str(t.get("device_name", t.get("device", "?"))),
                 f"{best['val_mpjpe']:.2f} (epoch {best['epoch']})" if best else "?",
-                r["sha256"][:12],
+                r.sha256[:12],
             ]
         )
     return rows
@@ -233,19 +247,17 @@ def _earlier_stage_lines(files: list[Shipped]) -> list[str]:
     only."""
     out = []
     for s in files:
-        later, stage = s.record, s.record.get("init_from")
+        later_hparams, stage, first = s.record.hparams, s.record.init_from, True
         while stage and stage.get("kind") == "checkpoint":
             t = stage.get("training") or {}
-            steps = _steps(stage)
+            steps = _steps(stage.get("recipe"), t, [])
             changed = {
-                k: v
-                for k, v in (stage.get("hparams") or {}).items()
-                if (later.get("hparams") or {}).get(k) != v
+                k: v for k, v in (stage.get("hparams") or {}).items() if later_hparams.get(k) != v
             }
             sampler = (stage.get("recipe") or {}).get("val_sampler")
             out.append(
                 f"- `{repo_relative(s.path)}`"
-                + (" was trained on from" if later is s.record else ": before that, from")
+                + (" was trained on from" if first else ": before that, from")
                 + f" `{stage.get('path', '?')}` (sha256 {stage.get('sha256', '?')[:12]}), a "
                 f"stage of {t.get('epochs_run', '?')} epochs, "
                 f"{f'{steps:,}' if steps is not None else '?'} optimizer steps, "
@@ -259,7 +271,7 @@ def _earlier_stage_lines(files: list[Shipped]) -> list[str]:
                 + (f", validated on `{sampler}` windows" if sampler else "")
                 + "."
             )
-            later, stage = stage, stage.get("init_from")
+            later_hparams, stage, first = stage.get("hparams") or {}, stage.get("init_from"), False
     return out + [""] if out else []
 
 
@@ -274,19 +286,19 @@ def _recipe_lines(entry_recipe: dict[str, Any], files: list[Shipped]) -> list[st
     else:
         out += ["The registry gives no `train:` section: `zoo train` runs on its defaults.", ""]
     for s in files:
-        recipe = s.record.get("recipe") or {}
+        recipe = s.record.recipe or {}
         differs = [
             f"{k} `{_value(v)}`" for k, v in recipe.items() if entry_recipe.get(k, None) != v
         ]
         changes = [
             f"{c['field']} {_value(c['from'])} -> {_value(c['to'])} from epoch {c['from_epoch']}"
-            for c in s.record.get("recipe_changes") or []
+            for c in s.record.recipe_changes
         ]
         extra = []
-        if s.record.get("max_batches"):
-            extra.append(f"at most {s.record['max_batches']} batches an epoch")
-        if s.record.get("seed") is not None:
-            extra.append(f"seed {s.record['seed']}")
+        if s.record.max_batches:
+            extra.append(f"at most {s.record.max_batches} batches an epoch")
+        if s.record.seed is not None:
+            extra.append(f"seed {s.record.seed}")
         words = []
         if differs:
             words.append("trained with " + ", ".join(differs))
@@ -304,7 +316,7 @@ def _hparam_lines(entry_hparams: dict[str, Any], files: list[Shipped]) -> list[s
         ["name", "registry default"], [[k, f"`{_value(v)}`"] for k, v in entry_hparams.items()]
     )
     for s in files:
-        stored = s.record.get("hparams") or {}
+        stored = s.record.hparams
         differs = [
             f"{k} `{_value(stored[k])}`"
             for k in entry_hparams
@@ -337,7 +349,7 @@ def _curve_lines(name: str, files: list[Shipped]) -> list[str]:
     ]
     rows = []
     for s in files:
-        history = s.record.get("history") or []
+        history = s.record.history or []
         if not history:
             continue
         best = min(history, key=lambda e: e["val_mpjpe"])
@@ -502,7 +514,7 @@ def generated_card(
     """The generated part of ``name``'s card, ending with :data:`END_MARKER` (``tables``: the
     tables of ``results_root`` already read, :func:`read_tables`)."""
     entry = registry.get(name)
-    params = sorted({(s.record.get("parameters"), s.benchmarks[0]) for s in files})
+    params = sorted({(s.record.parameters, s.benchmarks[0]) for s in files})
     out = [f"# {name}", "", GENERATED_NOTE, ""]
     if entry.description:
         out += [entry.description, ""]

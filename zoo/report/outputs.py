@@ -14,6 +14,7 @@ import pandas as pd
 from zoo.core.io import atomic_write_json, atomic_write_text, save_figure
 from zoo.evaluation.markdown import markdown_tables, metric_unit
 from zoo.evaluation.results import table_files
+from zoo.hub.records import WeightsRecord
 from zoo.protocol.comparable import check_comparable
 from zoo.report.tables import headline_table, table_summary
 from zoo.stats.comparison import table_comparisons
@@ -135,7 +136,7 @@ def plot_average(frame: pd.DataFrame, out_dir: str | Path, title: str = "") -> l
     return written
 
 
-def training_curves(weights_root: str | Path | None, benchmark: str) -> dict[str, dict]:
+def training_curves(weights_root: str | Path | None, benchmark: str) -> dict[str, WeightsRecord]:
     """``{label: weights record}`` of every shipped model of ``benchmark`` whose record holds
     its training history (exported from a ``last.pt``), for :func:`plot_training_curves`."""
     from zoo.hub.weights import (
@@ -151,11 +152,13 @@ def training_curves(weights_root: str | Path | None, benchmark: str) -> dict[str
             continue
         record = read_weights_record(weights_file(bench, label, weights_root))
         if training_points(record):  # by the record's label: a file linked twice counts once
-            records[record["label"]] = record
+            records[record.label] = record
     return records
 
 
-def plot_training_curves(records: dict[str, dict], path: str | Path, title: str = "") -> None:
+def plot_training_curves(
+    records: dict[str, WeightsRecord], path: str | Path, title: str = ""
+) -> None:
     """Validation error against optimizer steps, one line per trained model (``{label: weights
     record}``); where the histories log them, one panel more per validation horizon, each
     model's line beside repeat-last's error on the same windows (dashed, same colour)."""

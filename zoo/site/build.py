@@ -24,7 +24,7 @@ import numpy as np
 from zoo.core.errors import ZooError
 from zoo.core.io import replace_folder
 from zoo.protocol.metrics import FLOOR_SUFFIX
-from zoo.report.cards import Shipped, checkpoint_budget_notes, short_training_notes
+from zoo.report.cards import checkpoint_budget_notes, short_training_notes
 from zoo.report.outputs import PALETTE
 from zoo.site.collect import (
     Benchmark,
@@ -261,10 +261,7 @@ def build_site(
     render = partial(_render, env, common)
     budgets = short_training_notes(
         registry,
-        {
-            m.name: [Shipped(r["label"], tuple(r["benchmarks"]), Path(), r) for r in m.shipped]
-            for m in models
-        },
+        {m.name: m.shipped for m in models},
     )
     # what every model must beat: the registered models that learn nothing
     baselines = [
@@ -375,10 +372,10 @@ def _model_page(render, model, card: str, benchmarks, model_names) -> str:
     from zoo.hub.weights import training_points
 
     curves = {}
-    for rec in model.shipped:
-        name = f"{rec.get('benchmark', '?')}/{rec.get('label', model.name)}"
+    for shipped in model.shipped:
+        name = f"{shipped.record.benchmark}/{shipped.label}"
         try:
-            curves[name] = [[int(s), float(v)] for s, v in training_points(rec)]
+            curves[name] = [[int(s), float(v)] for s, v in training_points(shipped.record)]
         except (KeyError, TypeError, ValueError) as exc:
             model.problems.append(f"{name}: its weights record's training history ({exc!r})")
     return render(

@@ -11,9 +11,12 @@ import json
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from zoo.evaluation.results import TABLE_FILE, table_files, table_labels
+
+if TYPE_CHECKING:  # the cards import pandas: a site that only reads tables does not need it
+    from zoo.report.cards import Shipped
 
 SUMMARY_FILE = "summary.json"
 
@@ -103,7 +106,7 @@ class Model:
     name: str
     card: str | None  # Markdown
     description: str
-    shipped: list[dict[str, Any]] = field(default_factory=list)  # weights records
+    shipped: list[Shipped] = field(default_factory=list)  # its weights files and records
     problems: list[str] = field(default_factory=list)
     training: str | None = None  # a trainable model without shipped weights: where it stands
     representation: tuple[str, ...] = ()  # joints, mesh
@@ -362,7 +365,7 @@ def read_models(
             name,
             card,
             " ".join(str(getattr(entry, "description", "") or "").split()),
-            [dict(s.record, benchmarks=list(s.benchmarks)) for s in files],
+            files,
             training=unshipped.get(name),
             representation=tuple(entry.representation),
             kind="trained" if entry.trainable or entry.weights_of else "baseline",

@@ -15,7 +15,6 @@ from zoo.core.io import atomic_path, code_version, repo_relative, sha256_file
 from zoo.hub.checkpoints import (
     CheckpointError,
     ResumeState,
-    RunRecord,
     checkpoint_payload,
     model_origin,
     model_protocol,
@@ -26,6 +25,7 @@ from zoo.hub.checkpoints import (
     trained_model,
     weights_digest,
 )
+from zoo.hub.records import RunRecord
 from zoo.hub.weights import read_weights
 from zoo.models.recipe import DEFAULT_RECIPE, Recipe
 from zoo.models.registry import Registry
@@ -170,13 +170,14 @@ def initial_weights(
         raise TrainingError(f"init_from: {path}: no such file", parameter="init_from")
     if path.suffix == ".safetensors":
         state_dict, meta = read_weights(path)
-        kind, digest = "weights", meta["sha256"]
+        kind, digest, training = "weights", meta.sha256, meta.training
     else:
-        meta = read_checkpoint(path)
-        state_dict, kind, digest = meta["state_dict"], "checkpoint", sha256_file(path)
-    if meta["model"] != model_name:
+        payload = read_checkpoint(path)
+        meta, state_dict = RunRecord.of_checkpoint(payload), payload["state_dict"]
+        kind, digest, training = "checkpoint", sha256_file(path), payload.get("training")
+    if meta.model != model_name:
         raise TrainingError(
-            f"init_from: {path}: it holds {meta['model']!r}, not {model_name!r}",
+            f"init_from: {path}: it holds {meta.model!r}, not {model_name!r}",
             parameter="init_from",
         )
     source = trained_model(
@@ -193,12 +194,13 @@ def initial_weights(
         "path": repo_relative(path),
         "kind": kind,
         "sha256": digest,
-        **({"dtype": meta["dtype"]} if kind == "weights" else {}),
-        "hparams": meta["hparams"],
-        **{
-            k: meta.get(k)
-            for k in ("recipe", "max_batches", "recipe_changes", "training", "init_from")
-        },
+        **({"dtype": meta.dtype} if kind == "weights" else {}),
+        "hparams": meta.hparams,
+        "recipe": meta.recipe,
+        "max_batches": meta.max_batches,
+        "recipe_changes": meta.recipe_changes,
+        "training": training,
+        "init_from": meta.init_from,
     }
     return source.state_dict(), record
 
