@@ -18,6 +18,7 @@ from zoo.evaluation.results import WindowErrors
 from zoo.leaderboard.verdict import data_hash_of, draw_sample, escape_sentence, verification_record
 from zoo.models.registry import Registry
 from zoo.train.loop import train
+from zoo.train.options import RunOptions
 
 HERE = Path(__file__).resolve().parent
 
@@ -26,12 +27,9 @@ def _train(tmp, root, out, seed=0):
     train(
         "tiny",
         "cmu",
+        RunOptions(data_root=root, progress=False, seed=seed, out_dir=out),
         registry=Registry.from_files(HERE.parent / "registry.yaml", tmp / "registry.yaml"),
-        data_root=root,
-        epochs=1,
-        progress=False,
-        seed=seed,
-        out_dir=out,
+        recipe_overrides={"epochs": 1},
     )
 
 

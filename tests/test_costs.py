@@ -20,6 +20,7 @@ from zoo.leaderboard.plan import Plan
 from zoo.leaderboard.rebuild import regenerate
 from zoo.models.recipe import DEFAULT_RECIPE
 from zoo.train.loop import train
+from zoo.train.options import RunOptions
 from zoo.train.step import forward_precision
 
 
@@ -54,11 +55,9 @@ def test_costs_are_measured_only_by_zoo_costs_and_shown_with_their_machine(
     train(
         "tiny",
         "cmu",
+        RunOptions(data_root=root, progress=False, out_dir=checkpoints / "cmu" / "tiny"),
         registry=registry,
-        data_root=root,
-        epochs=1,
-        progress=False,
-        out_dir=checkpoints / "cmu" / "tiny",
+        recipe_overrides={"epochs": 1},
     )
     monkeypatch.setattr(zoo.leaderboard.efficiency, "measure", no_measuring)
     monkeypatch.setattr(zoo.leaderboard.costs, "measure", no_measuring)

@@ -17,6 +17,7 @@ from zoo.leaderboard.rebuild import regenerate
 from zoo.models.registry import Registry
 from zoo.report.outputs import write_leaderboard
 from zoo.train.loop import train
+from zoo.train.options import RunOptions
 
 HERE = Path(__file__).resolve().parent
 
@@ -35,19 +36,13 @@ def cmu_and_registry(tmp_path):
 
 def trained_tiny(tmp_path, **options):
     """The CMU copy and registry of :func:`cmu_and_registry`, and the checkpoints folder where
-    ``tiny`` was just trained for one epoch (``options``: more of ``train``'s)."""
+    ``tiny`` was just trained for one epoch (``options``: more of :class:`RunOptions`' fields)."""
     root, registry = cmu_and_registry(tmp_path)
     checkpoints = tmp_path / "checkpoints"
-    train(
-        "tiny",
-        "cmu",
-        registry=registry,
-        data_root=root,
-        epochs=1,
-        progress=False,
-        out_dir=checkpoints / "cmu" / "tiny",
-        **options,
+    options = RunOptions(
+        data_root=root, progress=False, out_dir=checkpoints / "cmu" / "tiny", **options
     )
+    train("tiny", "cmu", options, registry=registry, recipe_overrides={"epochs": 1})
     return root, registry, checkpoints
 
 
@@ -109,12 +104,9 @@ def test_fully_trained_checkpoint_joins_as_model_at_last(tmp_path):
     train(
         "tiny",
         "cmu",
+        RunOptions(data_root=root, progress=False, out_dir=checkpoints / "cmu" / "tiny"),
         registry=registry,
-        data_root=root,
-        epochs=2,
-        progress=False,
-        out_dir=checkpoints / "cmu" / "tiny",
-        train_overrides={"lr": 0.0},
+        recipe_overrides={"lr": 0.0, "epochs": 2},
     )
     out = tmp_path / "results"
     regenerate("cmu", registry=registry, data_root=root, out_root=out, checkpoints=checkpoints)
@@ -159,10 +151,8 @@ def test_completion_models_get_their_own_tables(tmp_path, capsys):
     train(
         "tiny_completion",
         "cmu",
+        RunOptions(data_root=root, progress=False, out_dir=checkpoints / "cmu" / "tiny_completion"),
         registry=registry,
-        data_root=root,
-        progress=False,
-        out_dir=checkpoints / "cmu" / "tiny_completion",
     )
     regenerate("cmu", registry=registry, data_root=root, out_root=out, checkpoints=checkpoints)
     completion = read_table(out / "cmu" / "all-completion").frame
@@ -209,11 +199,9 @@ def test_check_recomputes_every_row_and_names_what_differs(tmp_path, capsys):
     train(
         "tiny",
         "cmu",
+        RunOptions(data_root=root, progress=False, out_dir=checkpoints / "cmu" / "tiny"),
         registry=Registry.from_files(HERE.parent / "registry.yaml", tmp_path / "registry.yaml"),
-        data_root=root,
-        epochs=1,
-        progress=False,
-        out_dir=checkpoints / "cmu" / "tiny",
+        recipe_overrides={"epochs": 1},
     )
     assert main(["leaderboard", "--benchmark", "cmu", *common]) == 0
     before = {p: p.stat().st_mtime_ns for p in out.rglob("*") if p.is_file()}
@@ -375,8 +363,13 @@ def test_base_shows_ones_rows_beside_the_committed_ones_and_never_writes_them(tm
     assert main(["leaderboard", *common, "--results", str(base), "--checkpoints", none]) == 0
     before = {p: p.read_bytes() for p in base.rglob("*") if p.is_file()}
     checkpoints = tmp_path / "checkpoints"
-    train("tiny", "cmu", registry=registry, data_root=root, epochs=1, progress=False,
-          out_dir=checkpoints / "cmu" / "tiny")  # fmt: skip
+    train(
+        "tiny",
+        "cmu",
+        RunOptions(data_root=root, progress=False, out_dir=checkpoints / "cmu" / "tiny"),
+        registry=registry,
+        recipe_overrides={"epochs": 1},
+    )
     args = ["--base", str(base), "--results", str(mine), "--checkpoints", str(checkpoints)]
     assert main(["leaderboard", *common, "--model", "tiny", *args]) == 0
     labels = set(read_table(mine / "cmu" / "all").frame.model)

@@ -90,7 +90,7 @@ def test_pausing_again_replaces_the_state_and_a_tensor_past_float16_stays_float3
 def test_precision_may_change_on_resume_and_each_epoch_records_its_own(setup, tmp_path):
     out = tmp_path / "run"
     run(setup, out, epochs=2, max_batches=2, stop_after_epoch=1)
-    run(setup, out, epochs=2, max_batches=2, resume=True, train_overrides={"precision": "bfloat16"})
+    run(setup, out, epochs=2, max_batches=2, resume=True, recipe={"precision": "bfloat16"})
     ckpt = read_checkpoint(out / "last.pt")
     assert [h["precision"] for h in ckpt["history"]] == ["float32", "bfloat16"]
     assert ckpt["recipe_changes"] == [
@@ -192,7 +192,7 @@ def test_patience_stops_a_run_that_no_longer_improves_and_its_state_says_finishe
 ):
     out = tmp_path / "run"
     # lr 0: the weights never change, so epoch 1 stays the best and patience 2 ends at 3
-    run(setup, out, epochs=10, max_batches=1, train_overrides={"lr": 0.0, "patience": 2})
+    run(setup, out, epochs=10, max_batches=1, recipe={"lr": 0.0, "patience": 2})
     ckpt = read_checkpoint(out / "last.pt")
     assert [h["epoch"] for h in ckpt["history"]] == [1, 2, 3]
     assert "stopped after epoch 3: no better validation error for 2 epochs" in (
@@ -207,11 +207,11 @@ def test_patience_stops_a_run_that_no_longer_improves_and_its_state_says_finishe
         epochs=10,
         max_batches=1,
         resume=True,
-        train_overrides={"lr": 0.0, "patience": 2},
+        recipe={"lr": 0.0, "patience": 2},
     )
     assert read_checkpoint(out / "last.pt")["epoch"] == 2  # resuming adds no epoch
     with pytest.raises(TrainingError, match="patience must be a positive integer"):
-        run(setup, tmp_path / "bad", train_overrides={"patience": 0})
+        run(setup, tmp_path / "bad", recipe={"patience": 0})
 
 
 def test_a_resumed_run_does_not_begin_an_epoch_its_history_here_says_cannot_finish(

@@ -21,6 +21,7 @@ from zoo.cli import main
 from zoo.evaluation.results import read_table
 from zoo.models.registry import Registry
 from zoo.train.loop import train
+from zoo.train.options import RunOptions
 
 HERE = Path(__file__).resolve().parent
 
@@ -108,12 +109,9 @@ def shipped_tiny(project, epochs=1, seed=0):
     best = train(
         "tiny",
         "cmu",
+        RunOptions(data_root=project / "cmu", seed=seed, progress=False, out_dir=run),
         registry=registry,
-        data_root=project / "cmu",
-        epochs=epochs,
-        seed=seed,
-        progress=False,
-        out_dir=run,
+        recipe_overrides={"epochs": epochs},
     )
     return export_weights(best, root=project / "weights", dtype="float32")
 
@@ -252,11 +250,11 @@ def test_a_user_checkpoint_names_its_registry(project, capsys):
     best = train(
         "tiny",
         "cmu",
+        RunOptions(
+            data_root=project / "cmu", progress=False, out_dir=project / "checkpoints" / "tiny"
+        ),
         registry=registry,
-        data_root=project / "cmu",
-        epochs=1,
-        progress=False,
-        out_dir=project / "checkpoints" / "tiny",
+        recipe_overrides={"epochs": 1},
     )
     from zoo.hub.checkpoints import read_checkpoint
 
@@ -374,12 +372,11 @@ def test_a_users_row_under_a_planned_label_stops_the_rebuild(project, capsys):
     mine = train(
         "tiny",
         "cmu",
+        RunOptions(
+            data_root=project / "cmu", seed=3, progress=False, out_dir=project / "mine" / "run"
+        ),
         registry=registry,
-        data_root=project / "cmu",
-        epochs=1,
-        seed=3,
-        progress=False,
-        out_dir=project / "mine" / "run",
+        recipe_overrides={"epochs": 1},
     )
     assert (
         cli(

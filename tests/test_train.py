@@ -20,6 +20,7 @@ from zoo.core.errors import TrainingError
 from zoo.hub.checkpoints import CheckpointError, load_checkpoint, read_checkpoint, weights_digest
 from zoo.models.registry import Registry
 from zoo.train.loop import train
+from zoo.train.options import RunOptions
 
 HERE = Path(__file__).resolve().parent
 
@@ -37,10 +38,18 @@ def setup(tmp_path):
     return root, registry, reg_file
 
 
-def run(setup, out, **kw):
+def run(setup, out, *, epochs=None, recipe=None, overrides=None, **options):
+    """``tiny`` trained on the setup's data into ``out`` (``recipe``: recipe overrides,
+    ``epochs`` among them; ``options``: :class:`RunOptions`' fields)."""
     root, registry, _ = setup
+    recipe = {**(recipe or {}), **({"epochs": epochs} if epochs is not None else {})}
     return train(
-        "tiny", "cmu", registry=registry, data_root=root, out_dir=out, progress=False, **kw
+        "tiny",
+        "cmu",
+        RunOptions(data_root=root, out_dir=out, progress=False, **options),
+        registry=registry,
+        overrides=overrides,
+        recipe_overrides=recipe,
     )
 
 
@@ -78,7 +87,7 @@ def test_bfloat16_precision_trains_under_autocast_with_float32_weights(
 ):
     monkeypatch.setattr(train_loop, "cpu_has_native_bfloat16", lambda: True)
     plain = run(setup, tmp_path / "fp32")
-    mixed = run(setup, tmp_path / "bf16", train_overrides={"precision": "bfloat16"})
+    mixed = run(setup, tmp_path / "bf16", recipe={"precision": "bfloat16"})
     ckpt = read_checkpoint(mixed)
     assert ckpt["recipe"]["precision"] == "bfloat16"
     assert read_checkpoint(plain)["recipe"]["precision"] == "float32"
@@ -96,7 +105,7 @@ def test_bfloat16_on_a_cpu_without_native_bfloat16_warns_that_float32_is_faster(
         match=r"precision bfloat16 on a CPU without native "
         r"bfloat16 .* precision float32 is faster here",
     ):
-        run(setup, tmp_path / "bf16", epochs=1, train_overrides={"precision": "bfloat16"})
+        run(setup, tmp_path / "bf16", epochs=1, recipe={"precision": "bfloat16"})
 
 
 def test_native_bfloat16_is_read_from_the_cpu_flags(tmp_path):
@@ -235,19 +244,24 @@ def test_trained_checkpoint_evaluates_and_refuses_mismatches(setup, tmp_path, ca
 
 def test_recipe_errors_are_named(setup, tmp_path):
     with pytest.raises(TrainingError, match="unknown training-recipe key.*lrr"):
-        run(setup, tmp_path / "r", train_overrides={"lrr": 1})
+        run(setup, tmp_path / "r", recipe={"lrr": 1})
     with pytest.raises(TrainingError, match="warmup_steps must be a non-negative integer"):
         run(
             setup,
             tmp_path / "r",
-            train_overrides={"schedule": {"type": "constant", "warmup_steps": -1}},
+            recipe={"schedule": {"type": "constant", "warmup_steps": -1}},
         )
     with pytest.raises(
         TrainingError, match="precision 'float16' unknown; valid: float32, bfloat16"
     ):
-        run(setup, tmp_path / "r", train_overrides={"precision": "float16"})
+        run(setup, tmp_path / "r", recipe={"precision": "float16"})
     with pytest.raises(TrainingError, match="nothing to train"):
-        train("repeat_last", "cmu", registry=setup[1], data_root=setup[0], out_dir=tmp_path)
+        train(
+            "repeat_last",
+            "cmu",
+            RunOptions(data_root=setup[0], out_dir=tmp_path),
+            registry=setup[1],
+        )
 
 
 @pytest.mark.slow  # out of the README test command's 2 minutes; .ci/run runs it after
@@ -318,10 +332,10 @@ def test_resume_refuses_another_recipe_and_records_a_larger_budget(setup, tmp_pa
     run(setup, out, epochs=2, max_batches=2)
     for kw, field in (
         ({"seed": 1}, "seed"),
-        ({"train_overrides": {"batch_size": 16}}, "batch_size"),
-        ({"train_overrides": {"lr": 0.5}}, "lr"),
+        ({"recipe": {"batch_size": 16}}, "batch_size"),
+        ({"recipe": {"lr": 0.5}}, "lr"),
         (
-            {"train_overrides": {"schedule": {"type": "step", "every_epochs": 1, "gamma": 0.9}}},
+            {"recipe": {"schedule": {"type": "step", "every_epochs": 1, "gamma": 0.9}}},
             "schedule",
         ),
     ):
@@ -369,7 +383,7 @@ def test_resume_refuses_another_recipe_and_records_a_larger_budget(setup, tmp_pa
 )
 def test_recipe_values_are_checked_before_training(setup, tmp_path, overrides, message):
     with pytest.raises(TrainingError, match=message):
-        run(setup, tmp_path / "bad", train_overrides=overrides)
+        run(setup, tmp_path / "bad", recipe=overrides)
     assert not (tmp_path / "bad").exists()
 
 
@@ -388,7 +402,7 @@ def test_init_from_starts_a_new_stage_from_those_weights_and_records_them(setup,
             tmp_path / "b",
             epochs=1,
             init_from=first,
-            train_overrides={"lr": 0.0, "schedule": None},
+            recipe={"lr": 0.0, "schedule": None},
         )
     )
     for name, tensor in source["state_dict"].items():
@@ -417,7 +431,7 @@ def test_init_from_shipped_weights_extends_a_published_row(setup, tmp_path):
             tmp_path / "b",
             epochs=1,
             init_from=shipped,
-            train_overrides={"lr": 0.0, "schedule": None},
+            recipe={"lr": 0.0, "schedule": None},
         )
     )
     for name, tensor in read_checkpoint(first)["state_dict"].items():
@@ -458,7 +472,7 @@ def test_init_from_refusals_name_the_file(setup, tmp_path):
 
 def test_a_validation_sampler_thins_validation_and_old_checkpoints_resume(setup, tmp_path):
     out = tmp_path / "run"
-    run(setup, out, epochs=1, max_batches=2, train_overrides={"val_sampler": "stride5_strict"})
+    run(setup, out, epochs=1, max_batches=2, recipe={"val_sampler": "stride5_strict"})
     ckpt = read_checkpoint(out / "last.pt")
     assert ckpt["recipe"]["val_sampler"] == "stride5_strict"
     with pytest.raises(CheckpointError, match="val_sampler: 'stride5_strict' in the checkpoint"):
@@ -485,12 +499,9 @@ def test_validation_by_recordings_holds_out_whole_recordings_and_records_them(tm
     best = train(
         "tiny",
         "cmu",
+        RunOptions(data_root=root, out_dir=tmp_path / "run", progress=False),
         registry=registry,
-        data_root=root,
-        out_dir=tmp_path / "run",
-        progress=False,
-        epochs=1,
-        train_overrides={"val_split": "recordings", "val_fraction": 0.25},
+        recipe_overrides={"val_split": "recordings", "val_fraction": 0.25, "epochs": 1},
     )
     validation = read_checkpoint(best)["validation"]
     # every 4th recording in name order, starting half a step in: the 3rd and the 7th
@@ -509,11 +520,9 @@ def test_validation_by_recordings_holds_out_whole_recordings_and_records_them(tm
         train(
             "tiny",
             "cmu",
+            RunOptions(data_root=root, out_dir=tmp_path / "bad", progress=False),
             registry=registry,
-            data_root=root,
-            out_dir=tmp_path / "bad",
-            progress=False,
-            train_overrides={"val_split": "shuffled"},
+            recipe_overrides={"val_split": "shuffled"},
         )
 
 
@@ -544,8 +553,13 @@ def test_validation_by_tails_takes_the_end_of_long_recordings_and_trains_on_shor
     reg_file.write_text(REGISTRY)
     shutil.copy(HERE / "tiny_models.py", tmp_path / "tiny_models.py")
     registry = Registry.from_files(Path(__file__).resolve().parents[1] / "registry.yaml", reg_file)
-    best = train("tiny", "cmu", registry=registry, data_root=root, out_dir=tmp_path / "run",
-                 progress=False, epochs=1, train_overrides={"val_split": "tails"})  # fmt: skip
+    best = train(
+        "tiny",
+        "cmu",
+        RunOptions(data_root=root, out_dir=tmp_path / "run", progress=False),
+        registry=registry,
+        recipe_overrides={"val_split": "tails", "epochs": 1},
+    )
     validation = read_checkpoint(best)["validation"]
     assert validation["split"] == "tails" and "recordings" not in validation
     assert validation["tails"]["fraction"] == 0.1
@@ -598,8 +612,13 @@ def test_validation_by_actions_gives_every_action_windows_and_holds_none_out_who
 
 
 def run_default(registry, root, out, **recipe):
-    return train("tiny", "cmu", registry=registry, data_root=root, out_dir=out, progress=False,
-                 epochs=1, train_overrides=recipe)  # fmt: skip
+    return train(
+        "tiny",
+        "cmu",
+        RunOptions(data_root=root, out_dir=out, progress=False),
+        registry=registry,
+        recipe_overrides={**recipe, "epochs": 1},
+    )
 
 
 def test_a_model_with_part_of_a_hook_group_is_refused_naming_the_rest(setup, tmp_path):
@@ -627,7 +646,10 @@ def test_a_model_with_part_of_a_hook_group_is_refused_naming_the_rest(setup, tmp
         ModelContractError, match="defines training_view but not training_view_identity"
     ):
         train(
-            "half", "cmu", registry=registry, data_root=root, out_dir=tmp_path / "h", progress=False
+            "half",
+            "cmu",
+            RunOptions(data_root=root, out_dir=tmp_path / "h", progress=False),
+            registry=registry,
         )
     assert not (tmp_path / "h" / "last.pt").exists()  # refused before any training
     assert model_hooks(torch.nn.Linear(2, 2), "plain") == model_hooks(object())  # none at all
@@ -738,9 +760,13 @@ def test_a_best_epoch_that_predicts_no_motion_is_warned_about(setup, tmp_path):
     repeat-last at every horizon, which the engine says."""
     root, registry, _ = setup
     with pytest.warns(RuntimeWarning, match=r"mlp: its best epoch \(1\) cannot be told apart"):
-        train("mlp", "cmu", registry=registry, data_root=root, out_dir=tmp_path / "m",
-              progress=False, epochs=1, max_batches=1,
-              train_overrides={"lr": 0, "schedule": {"type": "constant"}})  # fmt: skip
+        train(
+            "mlp",
+            "cmu",
+            RunOptions(data_root=root, out_dir=tmp_path / "m", progress=False, max_batches=1),
+            registry=registry,
+            recipe_overrides={"lr": 0, "schedule": {"type": "constant"}, "epochs": 1},
+        )
 
 
 def test_like_repeat_last_needs_every_horizon_within_one_percent():

@@ -19,6 +19,7 @@ from zoo.hub.checkpoints import CheckpointError, load_checkpoint, read_checkpoin
 from zoo.models.registry import Registry
 from zoo.protocol import benchmark as benchmark_module
 from zoo.train.loop import train
+from zoo.train.options import RunOptions
 
 HERE = Path(__file__).resolve().parent
 
@@ -79,7 +80,10 @@ def toy_mesh(tmp_path, monkeypatch):
 def test_mesh_model_trains_and_checkpoint_refuses_another_basis(toy_mesh, tmp_path):
     bench, registry, sizes = toy_mesh
     best = train(
-        "tiny_spectral", bench, registry=registry, out_dir=tmp_path / "run", progress=False
+        "tiny_spectral",
+        bench,
+        RunOptions(out_dir=tmp_path / "run", progress=False),
+        registry=registry,
     )
     ckpt = read_checkpoint(best)
     assert ckpt["protocol"]["representation"] == "mesh" and ckpt["protocol"]["spectral_k"] == 6
@@ -113,12 +117,10 @@ def test_skeleton_model_trains_on_a_mesh_benchmarks_regressed_joints(
     best = train(
         "mlp",
         bench,
+        RunOptions(out_dir=tmp_path / "mlp", progress=False),
         registry=registry,
-        out_dir=tmp_path / "mlp",
-        progress=False,
-        epochs=2,
         overrides={"blocks": 2},
-        train_overrides={"batch_size": 4, "schedule": {"type": "constant"}},
+        recipe_overrides={"batch_size": 4, "schedule": {"type": "constant"}, "epochs": 2},
     )
     ckpt = read_checkpoint(best)
     assert ckpt["protocol"]["points"] == "regressed joints"
@@ -143,10 +145,9 @@ def test_a_training_sampler_that_finds_no_window_is_named(toy_mesh, tmp_path):
         train(
             "tiny_spectral",
             whole,
+            RunOptions(out_dir=tmp_path / "run", progress=False),
             registry=registry,
-            out_dir=tmp_path / "run",
-            progress=False,
-            train_overrides={"train_sampler": "stride5_strict"},
+            recipe_overrides={"train_sampler": "stride5_strict"},
         )
     assert not (tmp_path / "run").exists()  # nothing half-written
 
@@ -175,11 +176,9 @@ def test_start_epoch_gets_every_training_frame_once_with_its_window_count(
     train(
         "tiny_spectral",
         bench,
+        RunOptions(out_dir=tmp_path / "run", progress=False),
         registry=registry,
-        out_dir=tmp_path / "run",
-        progress=False,
-        epochs=1,
-        train_overrides={"train_sampler": "all"},
+        recipe_overrides={"train_sampler": "all", "epochs": 1},
     )
     frames = torch.cat([f for f, _ in seen[0]]).double()
     counts = torch.cat([c for _, c in seen[0]])
@@ -240,12 +239,10 @@ def test_spectrhums_trains_on_cached_coefficients(toy_mesh, tmp_path):
     best = train(
         "spectrhums",
         bench,
+        RunOptions(out_dir=tmp_path / "run", progress=False),
         registry=registry,
-        out_dir=tmp_path / "run",
-        progress=False,
-        epochs=2,
         overrides={**small, "autoencoder_epochs": 1, "static_frames": 8},
-        train_overrides={"batch_size": 4, "train_sampler": "all"},
+        recipe_overrides={"batch_size": 4, "train_sampler": "all", "epochs": 2},
     )
     views = list((tmp_path / "cache" / "views").iterdir())
     assert len(views) == 1 and views[0].name.startswith("toy-train-")
@@ -301,7 +298,10 @@ def test_validation_logs_each_horizon_beside_repeat_last_on_the_same_windows(toy
 def test_each_epoch_records_its_horizons_and_the_log_prints_them(toy_mesh, tmp_path, capsys):
     bench, registry, _ = toy_mesh
     best = train(
-        "tiny_spectral", bench, registry=registry, out_dir=tmp_path / "run", progress=False
+        "tiny_spectral",
+        bench,
+        RunOptions(out_dir=tmp_path / "run", progress=False),
+        registry=registry,
     )
     history = read_checkpoint(best)["history"]
     for epoch in history:
@@ -320,9 +320,8 @@ def test_an_entry_with_weights_of_runs_that_models_weights_beside_its_rows(toy_m
     train(
         "tiny_spectral",
         bench,
+        RunOptions(out_dir=checkpoints / "toy" / "tiny_spectral", progress=False),
         registry=registry,
-        out_dir=checkpoints / "toy" / "tiny_spectral",
-        progress=False,
     )
     best = checkpoints / "toy" / "tiny_spectral" / "best.pt"
     toy = benchmark_module.get_benchmark(bench)

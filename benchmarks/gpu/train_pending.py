@@ -31,6 +31,7 @@ import sys
 import tarfile
 import tempfile
 import time
+from dataclasses import replace
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[2]
@@ -117,6 +118,7 @@ def _run_models(args, out: Path, device: str, stop_by: float, started: float, wo
     from zoo.hub.weights import paused_dir, paused_runs
     from zoo.models.registry import load_registry
     from zoo.train.loop import train
+    from zoo.train.options import RunOptions
 
     data = Path(args.data)
     if data.is_file():
@@ -140,8 +142,7 @@ def _run_models(args, out: Path, device: str, stop_by: float, started: float, wo
             _log(out, f"{model}: not begun, no time left")
             continue
         run_dir = work / "runs" / model
-        kw = dict(
-            registry=load_registry(*(args.registry or ())),
+        options = RunOptions(
             out_dir=run_dir,
             data_root=data,
             resume=summary is not None,
@@ -150,16 +151,20 @@ def _run_models(args, out: Path, device: str, stop_by: float, started: float, wo
             max_batches=args.max_batches,
             progress=False,
             stop_by=stop_by,
-            train_overrides={"precision": args.precision} if args.precision else None,
+            cuda_graph=device.startswith("cuda"),
+        )
+        kw = dict(
+            registry=load_registry(*(args.registry or ())),
+            recipe_overrides={"precision": args.precision} if args.precision else None,
         )
         t0 = time.time()
         try:
-            train(model, "cmu", cuda_graph=device.startswith("cuda"), **kw)
+            train(model, "cmu", options, **kw)
         except TrainingError as e:
             if "CUDA graph" not in str(e):
                 raise
             _log(out, f"{model}: {e}; eager instead")
-            train(model, "cmu", **kw)
+            train(model, "cmu", replace(options, cuda_graph=False), **kw)
         if not (run_dir / "last.pt").is_file():
             _log(out, f"{model}: no epoch finished in {time.time() - t0:.0f} s; nothing kept")
             continue

@@ -28,6 +28,7 @@ import torch
 
 from zoo.hub.checkpoints import compact_payload, read_checkpoint, save_checkpoint
 from zoo.train.loop import train
+from zoo.train.options import RunOptions
 
 
 def _sizes(folder: Path) -> dict[str, int]:
@@ -72,13 +73,17 @@ def main() -> None:
         train(
             model,
             benchmark,
-            epochs=done + args.epochs,
-            out_dir=folder,
-            resume=True,
-            seed=last["seed"],
-            max_batches=args.max_batches if args.max_batches else last.get("max_batches"),
-            progress=False,
-            train_overrides={"precision": last["recipe"].get("precision", "float32")},
+            RunOptions(
+                out_dir=folder,
+                resume=True,
+                seed=last["seed"],
+                max_batches=args.max_batches if args.max_batches else last.get("max_batches"),
+                progress=False,
+            ),
+            recipe_overrides={
+                "epochs": done + args.epochs,
+                "precision": last["recipe"].get("precision", "float32"),
+            },
         )
         history = read_checkpoint(folder / "last.pt")["history"][done:]
         curves[name] = [h["val_mpjpe"] for h in history]

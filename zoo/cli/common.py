@@ -23,7 +23,7 @@ class UsageError(ZooError, ValueError):
 
 # A library call's argument -> the flag that gives it on the command line, where they differ
 # by more than dashes for underscores.
-FLAGS = {"out_dir": "--out", "train_overrides": "--train-set", "overrides": "--set"}
+FLAGS = {"out_dir": "--out", "recipe_overrides": "--train-set", "overrides": "--set"}
 
 
 def in_flags(error: ZooError) -> str:

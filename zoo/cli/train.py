@@ -45,28 +45,32 @@ def add(sub) -> None:
 
 def run(args) -> int:
     from zoo.train.loop import train
+    from zoo.train.options import RunOptions
 
     if args.out:  # a file there, or an unwritable place, is refused before training
         from zoo.core.io import check_writable
 
         check_writable(args.out, what=f"--out {args.out}")
     registry = registry_of(args)
+    options = RunOptions(
+        seed=args.seed,
+        device=args.device,
+        data_root=args.data_root,
+        out_dir=args.out,
+        resume=args.resume,
+        init_from=args.init_from,
+        max_batches=args.max_batches,
+        progress=not args.no_progress,
+        cuda_graph=args.cuda_graph,
+    )
+    epochs = {"epochs": args.epochs} if args.epochs is not None else {}
     best = train(
         args.model,
         args.benchmark,
+        options,
         registry=registry,
-        epochs=args.epochs,
-        out_dir=args.out,
-        data_root=args.data_root,
         overrides=parse_overrides(args.set),
-        train_overrides=parse_overrides(args.train_set),
-        resume=args.resume,
-        seed=args.seed,
-        device=args.device,
-        max_batches=args.max_batches,
-        progress=not args.no_progress,
-        init_from=args.init_from,
-        cuda_graph=args.cuda_graph,
+        recipe_overrides={**parse_overrides(args.train_set), **epochs},
     )
     print(
         f"wrote {best} (best validation epoch) and {best.parent / 'last.pt'} (last epoch): "

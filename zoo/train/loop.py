@@ -26,6 +26,7 @@ from zoo.models.registry import ModelEntry, Registry, load_registry
 from zoo.paths import REPO_ROOT
 from zoo.protocol.benchmark import Benchmark, get_benchmark
 from zoo.train.host import cpu_has_native_bfloat16, device_name
+from zoo.train.options import RunOptions
 from zoo.train.split import (
     split_train_val,
     training_view_arrays,
@@ -61,47 +62,29 @@ from zoo.train.validation import (
 def train(
     model_name: str,
     benchmark: str | Benchmark,
+    options: RunOptions | None = None,
     *,
     registry: Registry | None = None,
-    epochs: int | None = None,
-    out_dir: str | Path | None = None,
-    data_root: str | Path | None = None,
     overrides: dict[str, Any] | None = None,
-    train_overrides: dict[str, Any] | None = None,
-    resume: bool = False,
-    seed: int = 0,
-    device: str = "cpu",
-    max_batches: int | None = None,
-    progress: bool = True,
-    stop_after_epoch: int | None = None,
-    init_from: str | Path | None = None,
-    cuda_graph: bool = False,
-    stop_by: float | None = None,
+    recipe_overrides: dict[str, Any] | None = None,
 ) -> Path:
     """Train ``model_name`` on ``benchmark``'s training split; returns the best checkpoint path.
 
-    With ``cuda_graph`` on one CUDA device (one process), each epoch's optimizer step is
-    captured once as a CUDA graph and replayed (:class:`zoo.train.step.CudaGraphStep`).
-
-    ``init_from`` (a checkpoint of the same model and protocol) starts from
-    those weights with a fresh optimiser and schedule: a further stage of training (e.g. a longer
-    autoencoder phase, then the joint one), recorded with the source's own budget.
-
-    ``stop_after_epoch`` ends the run early as if interrupted (tests of ``resume``).
-
-    ``stop_by`` (a ``time.time()``): the run ends by then, its last finished epoch on disk: an
-    epoch that the longest one so far says cannot finish in time is not begun, and one that runs
-    past it is abandoned (a lent machine's time limit).
-    """
+    ``overrides`` replace the model's hyper-parameters, ``recipe_overrides`` fields of its
+    registry recipe (``epochs``, ``lr``, ``precision``, ...); ``options`` say how the run is
+    carried out (:class:`zoo.train.options.RunOptions`: seed, device, folders, resume or a new
+    stage, time limits)."""
     registry = registry or load_registry()
     bench = get_benchmark(benchmark) if isinstance(benchmark, (str, Path)) else benchmark
     entry = registry.get(model_name)
-    _check_arguments(entry, seed, max_batches, init_from, resume)
+    _check_trainable(entry)
     entry.load_class()  # a class that cannot load fails here, before the data is read
     recipe = training_recipe(
         {**({"val_split": bench.val_split} if bench.val_split else {}), **entry.train},
-        {**(train_overrides or {}), **({"epochs": epochs} if epochs is not None else {})},
+        recipe_overrides or {},
     )
+    options = options or RunOptions()
+    device, init_from, data_root = options.device, options.init_from, options.data_root
     dist_info = init_distributed(device)
     _warn_slow_bfloat16(model_name, recipe, device)
     view = bench.view_for(entry.representation)
@@ -111,7 +94,11 @@ def train(
     _, hparams = model_args_for(
         registry, model_name, bench, data_root=data_root, dataset=dataset, overrides=overrides
     )
-    out_dir = Path(out_dir) if out_dir else REPO_ROOT / "checkpoints" / bench.name / model_name
+    out_dir = (
+        Path(options.out_dir)
+        if options.out_dir
+        else REPO_ROOT / "checkpoints" / bench.name / model_name
+    )
     if init_from is not None and Path(init_from).resolve() in {
         (out_dir / f).resolve() for f in ("best.pt", "last.pt")
     }:
@@ -126,31 +113,30 @@ def train(
         else None
     )
 
-    model = _new_model(registry, model_name, hparams, seed, device, initial, init_from)
+    model = _new_model(registry, model_name, hparams, options.seed, device, initial, init_from)
     hooks = model_hooks(model, model_name)  # refuses a model defining half a group of hooks
-    graphed = cuda_graph and torch.device(device).type == "cuda" and not dist_info.active
+    graphed = options.cuda_graph and torch.device(device).type == "cuda" and not dist_info.active
     optimizer = make_optimizer(model, recipe, device, graphed)
-    data = _training_windows(model, model_name, bench, dataset, recipe, hooks, progress)
+    data = _training_windows(model, model_name, bench, dataset, recipe, hooks, options.progress)
 
     run = _Run(first_epoch=0, best={"val_mpjpe": math.inf, "epoch": -1}, history=[])
     run.init_record = initial[1] if initial is not None else None
-    if resume:
+    if options.resume:
         restored = restore_paused(out_dir, bench.name, model_name)
         if restored is not None and dist_info.rank == 0:
             print(f"resuming {model_name} from its paused state in {repo_relative(restored)}")
-        run = _resumed(out_dir / "last.pt", model_name, hparams, model, optimizer, recipe, seed)
+        run = _resumed(out_dir / "last.pt", model_name, hparams, model, optimizer)
         run.recipe_changes += resume_changes(
-            out_dir / "last.pt", run.state, recipe, seed, max_batches
+            out_dir / "last.pt", run.state, recipe, options.seed, options.max_batches
         )
         optimizer_for_device(optimizer, device, graphed)
         if "cuda_rng" in run.state and torch.device(device).type == "cuda":
             torch.cuda.set_rng_state(run.state["cuda_rng"], torch.device(device))
 
     epochs = _Epochs(
-        model_name, model, optimizer, recipe, data, seed, device, dist_info, progress, graphed,
-        task=entry.task, max_batches=max_batches,
+        model_name, model, optimizer, recipe, data, options, dist_info, graphed, task=entry.task,
         fps=getattr(dataset, "mesh", dataset).fps,  # a JointsView: its mesh's rate
-        mesh=bench.representation == "mesh" and view == "mesh", stop_by=stop_by,
+        mesh=bench.representation == "mesh" and view == "mesh",
     )  # fmt: skip
     # a resumed run knows how long its epochs take on this machine (not on another one)
     here = device_name(device)
@@ -158,8 +144,8 @@ def train(
         (h["seconds"] for h in run.history if h.get("device") == here), default=0.0
     )
     record = run_record(
-        entry, hparams, bench, dataset, recipe, seed, dist_info, view,
-        max_batches=max_batches,
+        entry, hparams, bench, dataset, recipe, options.seed, dist_info, view,
+        max_batches=options.max_batches,
         recipe_changes=run.recipe_changes,
         init_from=run.init_record,
         validation=validation_record(
@@ -172,7 +158,9 @@ def train(
             bench.input_frames, bench.output_frames, entry.task, device,
         )  # fmt: skip
     if dist_info.rank == 0:
-        _print_plan(model_name, bench, data, recipe, epochs.steps, run.first_epoch, seed, out_dir)
+        _print_plan(
+            model_name, bench, data, recipe, epochs.steps, run.first_epoch, options.seed, out_dir
+        )
     for epoch in range(run.first_epoch, recipe.epochs):
         if patience_spent(recipe, epoch, run.best["epoch"]):
             if dist_info.rank == 0:
@@ -192,7 +180,7 @@ def train(
         run.history.append(line)
         if dist_info.rank == 0:
             _finish_epoch(out_dir, record, model, optimizer, epoch, run, recipe, device, line)
-        if stop_after_epoch is not None and epoch + 1 >= stop_after_epoch:
+        if options.stop_after_epoch is not None and epoch + 1 >= options.stop_after_epoch:
             break
     if dist_info.active:
         write_rank_digest(out_dir, model, dist_info)
@@ -218,29 +206,14 @@ def _warn_if_repeat_last(model_name: str, run: _Run) -> None:
     )
 
 
-def _check_arguments(entry: ModelEntry, seed, max_batches, init_from, resume) -> None:
-    """Refuse what cannot train before any data is read."""
+def _check_trainable(entry: ModelEntry) -> None:
+    """Refuse a model that cannot train before any data is read."""
     if not entry.trainable:
         raise TrainingError(
             f"model {entry.name!r} runs the weights of {entry.weights_of!r} (registry: "
             f"weights_of): train that one ({entry.weights_of})"
             if entry.weights_of
             else f"model {entry.name!r} has nothing to train (registry: trainable: false)"
-        )
-    if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed < 2**32:
-        raise TrainingError(f"seed must be an integer in 0..2**32-1, got {seed!r}")
-    if max_batches is not None and (
-        isinstance(max_batches, bool) or not isinstance(max_batches, int) or max_batches < 1
-    ):
-        raise TrainingError(
-            f"max_batches: must be a positive integer, got {max_batches!r}",
-            parameter="max_batches",
-        )
-    if init_from is not None and resume:
-        raise TrainingError(
-            "init_from: give init_from (a new stage from other weights) or resume (this run's "
-            "last state), not both",
-            parameter="init_from",
         )
 
 
@@ -367,7 +340,7 @@ class _Run:
         self.recipe_changes = self.recipe_changes or []
 
 
-def _resumed(path: Path, model_name, hparams, model, optimizer, recipe, seed) -> _Run:
+def _resumed(path: Path, model_name, hparams, model, optimizer) -> _Run:
     """The run ``last.pt`` holds, its weights, optimiser and RNG state loaded."""
     state = read_checkpoint(path)
     if state["model"] != model_name or state["hparams"] != stored_hparams(hparams)[0]:
@@ -408,16 +381,15 @@ class _Epochs:
     alone, so a resumed run sees what an uninterrupted one would), its steps, its validation."""
 
     def __init__(
-        self, model_name, model, optimizer, recipe, data: _Data, seed: int, device,
-        dist_info: DistInfo, progress: bool, graphed: bool, *, task: str,
-        max_batches: int | None, fps: float, mesh: bool, stop_by: float | None = None,
+        self, model_name, model, optimizer, recipe, data: _Data, options: RunOptions,
+        dist_info: DistInfo, graphed: bool, *, task: str, fps: float, mesh: bool,
     ) -> None:  # fmt: skip
         self.model_name, self.model, self.optimizer = model_name, model, optimizer
-        self.recipe, self.data, self.seed, self.device = recipe, data, seed, device
+        self.recipe, self.data, self.seed, self.device = recipe, data, options.seed, options.device
         self.dist_info, self.graphed = dist_info, graphed
-        self.progress = progress and dist_info.rank == 0
+        self.progress = options.progress and dist_info.rank == 0
         self.task, self.fps, self.mesh = task, fps, mesh
-        self.stop_by, self.longest_epoch = stop_by, 0.0
+        self.stop_by, self.longest_epoch = options.stop_by, 0.0
         objective = TrainingObjective(model, task, view=data.view)
         # Some phases leave parameters without gradients (SpecTrHuMS's transformer while the
         # autoencoder trains alone), which DDP must be told to expect.
@@ -433,7 +405,7 @@ class _Epochs:
             )
         # Incomplete last batches are dropped, so every process always gets an equal share.
         steps = max(1, len(data.train_index) // batch_size)
-        self.steps = min(steps, max_batches) if max_batches else steps
+        self.steps = min(steps, options.max_batches) if options.max_batches else steps
 
     def run(self, epoch: int) -> dict[str, Any]:
         """0-based ``epoch`` trained and validated: its record in the run's history."""
