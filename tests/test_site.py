@@ -360,7 +360,8 @@ def test_a_row_trained_short_of_its_recipe_says_so_where_its_number_is(tmp_path)
     )
     record["training"]["samples_seen"] = 718_400
     assert budget_note(50, **record) is None
-    shipped = {"ltd": [Shipped("ltd@last", ("cmu",), Path(), weights_record("ltd", **record))]}
+    full = weights_record("ltd", label="ltd@last", **record)
+    shipped = {"ltd": [Shipped("ltd@last", ("cmu",), Path(), full)]}
     assert short_training_notes(load_registry(), shipped) == {}
 
 

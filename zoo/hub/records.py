@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import types
 import typing
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import MISSING, asdict, dataclass, field, fields
 from typing import Any
 
 from zoo.core.errors import ZooError
@@ -41,8 +41,9 @@ class RunRecord:
     seed: int | None = None
     code_version: str | None = None
     torch: str | None = None
-    # data-parallel processes (weights exported before it was recorded: 1)
-    world_size: int = 1
+    # data-parallel processes (None: not recorded, as in weights exported before the record
+    # was typed)
+    world_size: int | None = None
     max_batches: int | None = None
     recipe_changes: list[dict[str, Any]] = field(default_factory=list)
     init_from: dict[str, Any] | None = None
@@ -53,7 +54,7 @@ class RunRecord:
         """The run record a checkpoint's contents hold (``RunRecord``'s fields; the weights,
         optimiser and history beside them are not part of it)."""
         names = {f.name for f in fields(RunRecord)}
-        return RunRecord(**{k: v for k, v in payload.items() if k in names})
+        return cls(**{k: v for k, v in payload.items() if k in names})
 
 
 @dataclass(kw_only=True)
@@ -106,10 +107,13 @@ class WeightsRecord(RunRecord):
         return cls(**values)
 
     def to_json(self) -> dict[str, Any]:
-        """The record as its JSON file holds it (``upgrades`` only where there are some)."""
-        data = {"format": RECORD_FORMAT, **asdict(self)}
-        if not self.upgrades:
-            del data["upgrades"]
+        """The record as its JSON file holds it: what identifies the file first, then the
+        run's record (``world_size`` where recorded, ``upgrades`` where there are some)."""
+        values = asdict(self)
+        data = {"format": RECORD_FORMAT, **{name: values.pop(name) for name in _HEAD}, **values}
+        for name in ("world_size", "upgrades"):
+            if not data[name]:
+                del data[name]
         return data
 
     @property
@@ -124,9 +128,11 @@ class WeightsRecord(RunRecord):
         return out
 
 
-def _required(f) -> bool:
-    from dataclasses import MISSING
+# the fields a weights record's file begins with, after its format
+_HEAD = ("label", "model", "benchmark", "file", "sha256", "dtype", "parameters")
 
+
+def _required(f) -> bool:
     return f.default is MISSING and f.default_factory is MISSING
 
 
