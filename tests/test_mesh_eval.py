@@ -1,6 +1,7 @@
 """Mesh metrics with hand-computed values, and the mesh path of the evaluator."""
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pandas as pd
@@ -508,3 +509,57 @@ def test_a_model_failing_on_another_process_fails_on_every_process(toy_bench, mo
     assert isinstance(first, EvaluationError)
     assert "model 'a' failed on process 1: ValueError: broke" in str(first)
     assert not isinstance(second, Exception) and set(second.frame.model) == {"b", "ground_truth"}
+
+
+def test_a_metric_declared_once_is_scored_by_the_evaluator_in_every_view_that_lists_it(
+    toy_bench, swinging_cmu, monkeypatch
+):
+    """The evaluator scores the metrics a view declares, each by its declaration's ``score``: a
+    metric added to the declarations (here twice the MPJPE) gets its rows on a mesh model, on a
+    skeleton model of the mesh benchmark's regressed joints and on a skeleton benchmark (under
+    each of its joint protocols), with no edit to the evaluator."""
+    import zoo.protocol.metrics as metrics
+    import zoo.protocol.views as views
+    from zoo.protocol.views import View
+
+    assert [m.name for m in View.MESH.metrics] == ["melv", "rmse", "mpjpe"]
+    assert [m.name for m in View.JOINTS.metrics] == ["mpjpe"]
+    doubled = replace(
+        metrics.METRICS["mpjpe"],
+        name="mpjpe2",
+        score=lambda pred, truth: {k: 2 * v for k, v in truth.joint_errors(pred).items()},
+    )
+    monkeypatch.setitem(metrics.METRICS, "mpjpe2", doubled)
+    monkeypatch.setattr(
+        views, "_VIEW_METRICS", {View.JOINTS: ("mpjpe", "mpjpe2"), View.MESH: ("mpjpe2",)}
+    )
+    bench, dataset = toy_bench(), toy_dataset()
+    mesh = zoo.evaluate(RepeatLast(2, 3, 4), bench, label="repeat_last", dataset=dataset).frame
+    # no MELV among the view's metrics: no ground_truth rows of the data's own MELV either
+    assert set(mesh.metric) == {"mpjpe2"} and set(mesh.model) == {"repeat_last"}
+    inputs = bench.model_inputs((), dataset=dataset, view="joints")
+    joints = zoo.evaluate(
+        RepeatLast(**inputs), bench, label="joints_model", dataset=dataset, view="joints"
+    ).frame
+    assert set(joints.metric) == {"mpjpe", "mpjpe2"}
+    np.testing.assert_allclose(
+        rows(joints, "joints_model", "mpjpe2")["average"],
+        2 * rows(joints, "joints_model", "mpjpe")["average"],
+        rtol=1e-6,
+    )
+    np.testing.assert_allclose(
+        rows(mesh, "repeat_last", "mpjpe2")["average"],
+        rows(joints, "joints_model", "mpjpe2")["average"],
+        rtol=1e-6,
+    )
+    cmu = get_benchmark("cmu")
+    skeleton = zoo.evaluate(
+        zoo.create_model("repeat_last", benchmark=cmu), cmu, data_root=swinging_cmu[0]
+    ).frame
+    for protocol in ("all38", "used25"):
+        one, two = (
+            skeleton[(skeleton.joints == protocol) & (skeleton.metric == m)]
+            for m in ("mpjpe", "mpjpe2")
+        )
+        assert len(one) == len(two) > 0
+        np.testing.assert_allclose(two["value"].to_numpy(), 2 * one["value"].to_numpy(), rtol=1e-6)

@@ -33,26 +33,32 @@ from zoo.protocol.metrics import (
     FrameErrorMean,
     cumulative_mean,
     edge_lengths,
-    length_variation,
     mpjpe,
     skeleton_errors,
-    vertex_rmse,
 )
 from zoo.protocol.plan import Protocol
+from zoo.protocol.views import View
 
 MESH_BATCH_VALUES = 2**24  # float32 values of ground-truth windows held at once (64 MiB)
 
 
 @dataclass
 class Scored:
-    """A model in an evaluation pass: the module, its row name, what it is fed (``view``: mesh,
-    or joints for a skeleton model on a mesh benchmark) and what its results record about it."""
+    """A model in an evaluation pass: the module, its row name, what it is fed (``view``: the
+    mesh, or joints: a skeleton benchmark's, or a mesh benchmark's regressed joints for a
+    skeleton model) and what its results record about it."""
 
     model: torch.nn.Module
     name: str
-    view: str = "mesh"
+    view: View = View.MESH
     provenance: dict[str, Any] | None = None
     hooks: Hooks | None = field(default=None, init=False, repr=False)  # set by the pass
+
+    def __post_init__(self) -> None:
+        # a view given by its word ("joints") becomes the View; another stays, for the pass to
+        # refuse this model alone (_MeshScoring.check_view)
+        if self.view in tuple(View):
+            self.view = View(self.view)
 
 
 def evaluate_models(
@@ -219,10 +225,8 @@ def _evaluate_skeleton(
             scored.model, history, task, t_out, windows[:, -1, used].to(device), hooks=scored.hooks
         )
         pred = checked_prediction(pred, (len(history), t_out, len(used), 3), scored.name, start)
-        return {
-            (scored.name, "mpjpe", joints): _float64(e)
-            for joints, e in skeleton_errors(pred, windows[:, t_in:], skeleton).items()
-        }
+        truth = _JointsTruth(windows[:, t_in:], partial(skeleton_errors, skeleton=skeleton))
+        return _scored_errors({scored.name: pred}, View.JOINTS.metrics, truth)
 
     with torch.no_grad(), _progress(protocol, models, dist_info) as bar:
         for start in _my_batches(len(index), batch_size, dist_info):
@@ -340,6 +344,35 @@ def _float64(errors: torch.Tensor) -> np.ndarray:
     return errors.detach().to("cpu", torch.float64).numpy()
 
 
+def _scored_errors(predictions: dict[str, torch.Tensor], metrics, truth) -> dict:
+    """``{(row, metric, joint protocol): errors (B, T)}`` of each prediction (``{row name:
+    frames}``) under each of ``metrics`` (a view's declared ones), each scored by its
+    declaration on ``truth`` (a :class:`zoo.protocol.metrics.BatchTruth`)."""
+    return {
+        (name, metric.name, joints): _float64(errors)
+        for name, frames in predictions.items()
+        for metric in metrics
+        for joints, errors in metric.score(frames, truth).items()
+    }
+
+
+class _JointsTruth:
+    """A batch of ground-truth joints (``target``: the future) that predicted joints are
+    scored against, under the benchmark's joint protocols (``errors(pred, target)``: a
+    skeleton's, or the one column of a mesh benchmark's regressed joints)."""
+
+    reference_lengths = None
+
+    def __init__(self, target: torch.Tensor, errors) -> None:
+        self.target, self._errors = target, errors
+
+    def joint_errors(self, pred: torch.Tensor) -> dict[str, torch.Tensor]:
+        return self._errors(pred, self.target)
+
+    def melv_lengths(self, frames: torch.Tensor) -> torch.Tensor:
+        raise EvaluationError("joints have no edges to measure MELV on")
+
+
 def _accumulate(
     scored: dict[int, dict[tuple[str, str, str], np.ndarray]], actions: np.ndarray
 ) -> tuple[dict[tuple[str, str, str], FrameErrorMean], _WindowLog]:
@@ -422,11 +455,10 @@ def _evaluate_mesh(
             if not live:
                 continue
             truth = scoring.truth(
-                index[start : start + batch], any(s.view == "mesh" for _, s in live)
+                index[start : start + batch], any(s.view is View.MESH for _, s in live)
             )
             for i, scored in live:
-                errors = scoring.joint_errors if scored.view == "joints" else scoring.mesh_errors
-                run.score(i, start, partial(errors, scored, truth, start))
+                run.score(i, start, partial(scoring.errors, scored, truth, start))
     return run.results(dist_info, scoring.finish)
 
 
@@ -472,20 +504,19 @@ class _MeshScoring:
         if self.protocol.ground_truth == "spectral":
             basis = self.protocol.basis
             windows = basis.reconstruct(basis.project(windows.double())).float()
-        truth = _MeshTruth(windows, self.t_in, self.regress)
+        truth = _MeshTruth(windows, self.t_in, self.regress, self.joint_column, self.melv_lengths)
         if mesh_rows:
             reference = windows[:, self.t_in - 1 : self.t_in]
             truth.reference_lengths = self.melv_lengths(reference)[:, 0]
-            # the data's own MELV: the ground-truth rows of every mesh model
-            truth.melv = _float64(
-                length_variation(self.melv_lengths(truth.target), truth.reference_lengths)
-            )
+            # the data's own figures (MELV's): the ground-truth rows of every mesh model
+            own = [m for m in View.MESH.metrics if m.ground_truth_rows]
+            truth.own_errors = _scored_errors({"ground_truth": truth.target}, own, truth)
         return truth
 
     def check_view(self, scored: Scored) -> None:
-        if scored.view not in ("mesh", "joints"):
+        if not isinstance(scored.view, View):
             raise EvaluationError(f"view must be mesh or joints, got {scored.view!r}")
-        if scored.view == "joints" and self.regressor is None:
+        if scored.view is View.JOINTS and self.regressor is None:
             raise EvaluationError(
                 f"benchmark {self.protocol.benchmark.name}: {self.protocol.dataset.name} has no "
                 f"joint regressor, so skeleton model {scored.name!r} cannot be evaluated on it"
@@ -511,14 +542,14 @@ class _MeshScoring:
         expected = (len(windows), self.t_out, *windows.shape[2:])
         return checked_prediction(pred, expected, scored.name, start)
 
-    def joint_errors(self, scored: Scored, truth: _MeshTruth, start: int) -> dict:
-        joints = truth.joints()
-        pred = self._predicted(scored, joints, start)
-        return {
-            (scored.name, "mpjpe", self.joint_column): _float64(mpjpe(pred, joints[:, self.t_in :]))
-        }
-
-    def mesh_errors(self, scored: Scored, truth: _MeshTruth, start: int) -> dict:
+    def errors(self, scored: Scored, truth: _MeshTruth, start: int) -> dict:
+        """A model's errors on a batch: a mesh model's on the vertices it predicts (its
+        autoencoder floor's too, where it has one) and the data's own figures; a skeleton
+        model's on the regressed joints it predicts from theirs."""
+        if scored.view is View.JOINTS:
+            joints = truth.joints()
+            pred = self._predicted(scored, joints, start)
+            return _scored_errors({scored.name: pred}, View.JOINTS.metrics, truth.as_joints())
         scored_frames = {scored.name: self._predicted(scored, truth.windows, start)}
         if scored.hooks.autoencoder_floor:
             name = scored.name + FLOOR_SUFFIX
@@ -526,19 +557,7 @@ class _MeshScoring:
             scored_frames[name] = checked_prediction(
                 rebuilt, tuple(truth.target.shape), name, start
             )
-        errors = {}
-        for name, frames in scored_frames.items():
-            errors[(name, "melv", "vertices")] = length_variation(
-                self.melv_lengths(frames), truth.reference_lengths
-            )
-            errors[(name, "rmse", "vertices")] = vertex_rmse(frames, truth.target)
-            if self.regressor is not None:
-                errors[(name, "mpjpe", self.joint_column)] = mpjpe(
-                    self.regress(frames), truth.joints()[:, self.t_in :]
-                )
-        errors = {key: _float64(value) for key, value in errors.items()}
-        errors[("ground_truth", "melv", "vertices")] = truth.melv
-        return errors
+        return {**_scored_errors(scored_frames, View.MESH.metrics, truth), **truth.own_errors}
 
     def finish(self, scored: Scored, batches: dict) -> EvalResult:
         from zoo.data.spectral import SpectralBasis
@@ -561,7 +580,7 @@ class _MeshScoring:
             ),
             **(
                 {"model_input": f"regressed joints ({self.joint_column})"}
-                if scored.view == "joints"
+                if scored.view is View.JOINTS
                 else {}
             ),
         }
@@ -570,17 +589,32 @@ class _MeshScoring:
 
 class _MeshTruth:
     """One batch of ground-truth windows and what is computed from them once for every model:
-    the reference frame's edge lengths and the future's own MELV (set by the pass), the
-    regressed joints (``regress(windows)``, on first use)."""
+    the reference frame's edge lengths and the future's own errors (set by the pass), the
+    regressed joints (``regress(windows)``, on first use, scored as ``joint_column``; none
+    without a regressor)."""
 
-    def __init__(self, windows: torch.Tensor, t_in: int, regress) -> None:
-        self.windows, self.regress = windows, regress
+    def __init__(self, windows: torch.Tensor, t_in: int, regress, joint_column, melv_lengths):
+        self.windows, self.t_in, self.regress = windows, t_in, regress
+        self.joint_column, self.melv_lengths = joint_column, melv_lengths
         self.target = windows[:, t_in:]
         self.reference_lengths: torch.Tensor | None = None
-        self.melv: np.ndarray | None = None
+        self.own_errors: dict = {}
         self._joints: torch.Tensor | None = None
 
     def joints(self) -> torch.Tensor:
         if self._joints is None:
             self._joints = self.regress(self.windows)
         return self._joints
+
+    def joint_errors(self, pred: torch.Tensor) -> dict[str, torch.Tensor]:
+        """MPJPE of the joints that predicted vertices ``pred`` regress to."""
+        if self.joint_column is None:
+            return {}
+        return {self.joint_column: mpjpe(self.regress(pred), self.joints()[:, self.t_in :])}
+
+    def as_joints(self) -> _JointsTruth:
+        """The batch as a skeleton model on this benchmark sees it: its regressed joints."""
+        column = self.joint_column
+        return _JointsTruth(
+            self.joints()[:, self.t_in :], lambda pred, target: {column: mpjpe(pred, target)}
+        )

@@ -19,6 +19,7 @@ from zoo.evaluation.evaluator import Scored, evaluate_models
 from zoo.evaluation.results import EvalResult
 from zoo.evaluation.tolerance import Agreement, agreement
 from zoo.protocol.plan import Protocol
+from zoo.protocol.views import View
 from zoo.store.identity import check_replace, stamp
 
 
@@ -29,7 +30,7 @@ class Subject:
 
     model: nn.Module
     label: str
-    view: str
+    view: View
     provenance: dict[str, Any]
     identity_under: Callable[[Protocol], dict[str, Any]]
 
@@ -49,7 +50,7 @@ class Subject:
         )
 
     @classmethod
-    def of_module(cls, model: nn.Module, label: str, view: str) -> Subject:
+    def of_module(cls, model: nn.Module, label: str, view: View | str) -> Subject:
         """A module handed over from Python (no registry): its class, settings and weights."""
         from zoo.hub.model_source import object_identity
 

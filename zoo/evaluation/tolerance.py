@@ -14,16 +14,22 @@ from pathlib import Path
 import numpy as np
 
 from zoo.evaluation.markdown import metric_unit
+from zoo.protocol.metrics import METRICS
 
 KEY_COLUMNS = ["model", "action", "metric", "averaging", "joints", "horizon_ms"]
 RELATIVE_TOLERANCE = 2.0**-16
-ABSOLUTE_TOLERANCE = {"mm": 2.0**-9, "rmse": 2.0**-18}
+
+
+def _floor(metric: str) -> float:
+    """The absolute floor of ``metric``'s tolerance (its declaration's; an unknown one: 0)."""
+    declared = METRICS.get(metric)
+    return declared.tolerance if declared else 0.0
 
 
 def tolerance_text() -> str:
     return (
-        f"|difference| <= {RELATIVE_TOLERANCE:.2g} x |value| + {ABSOLUTE_TOLERANCE['mm']:.2g} "
-        f"mm ({ABSOLUTE_TOLERANCE['rmse']:.2g} in RMSE; a std: of its mean; float32 rounding "
+        f"|difference| <= {RELATIVE_TOLERANCE:.2g} x |value| + {_floor('mpjpe'):.2g} "
+        f"mm ({_floor('rmse'):.2g} in RMSE; a std: of its mean; float32 rounding "
         f"across CPUs)"
     )
 
@@ -34,9 +40,9 @@ def tolerance_by_metric(metrics) -> str:
     for m in sorted(set(metrics)):
         unit = metric_unit(m)[0]
         floor = (
-            f"{ABSOLUTE_TOLERANCE['mm']:.2g} mm"
+            f"{_floor(m):.2g} mm"
             if unit == "mm"
-            else f"{ABSOLUTE_TOLERANCE.get(m, 0.0):.2g}" + (f" ({unit})" if unit else "")
+            else f"{_floor(m):.2g}" + (f" ({unit})" if unit else "")
         )
         by_floor.setdefault(floor, []).append(m)
     return (
@@ -51,15 +57,7 @@ def tolerance_by_metric(metrics) -> str:
 def allowed(metric, scale: np.ndarray) -> np.ndarray:
     """The largest difference tolerated for values of ``metric`` (a name or an array of names)
     of magnitude ``scale`` (the value itself, or a std's mean)."""
-
-    def floor(m: str) -> float:
-        return (
-            ABSOLUTE_TOLERANCE["mm"]
-            if metric_unit(m)[0] == "mm"
-            else ABSOLUTE_TOLERANCE.get(m, 0.0)
-        )
-
-    return RELATIVE_TOLERANCE * np.abs(scale) + np.vectorize(floor, otypes=[float])(
+    return RELATIVE_TOLERANCE * np.abs(scale) + np.vectorize(_floor, otypes=[float])(
         np.asarray(metric)
     )
 

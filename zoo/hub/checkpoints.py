@@ -36,6 +36,7 @@ from zoo.hub.weights import (
 )
 from zoo.models.registry import ModelEntry, Registry, class_name, load_registry
 from zoo.protocol.benchmark import Benchmark, get_benchmark
+from zoo.protocol.views import View
 
 CHECKPOINT_FORMAT = "motion-zoo-checkpoint/1"
 
@@ -90,7 +91,7 @@ def recorded_entry(meta: RunRecord, registry: Registry, source: str) -> ModelEnt
     return entry
 
 
-def model_protocol(bench: Benchmark, view: str = "mesh") -> dict[str, Any]:
+def model_protocol(bench: Benchmark, view: View = View.MESH) -> dict[str, Any]:
     """What a trained model's weights depend on: it must match wherever they are evaluated.
     ``view``: ``joints`` for a skeleton model trained on a mesh benchmark's regressed joints."""
     protocol = {
@@ -101,7 +102,7 @@ def model_protocol(bench: Benchmark, view: str = "mesh") -> dict[str, Any]:
     }
     if bench.representation == "mesh":
         protocol.update(representation="mesh", spectral_k=bench.spectral_k)
-        if view == "joints":
+        if view == View.JOINTS:
             protocol["points"] = "regressed joints"
     else:
         protocol.update(skeleton=bench.skeleton.name, used_joints=list(bench.skeleton.used))
@@ -414,8 +415,8 @@ def trained_model(
     """The model that ``meta`` (a checkpoint's or shipped weights' record) describes, holding
     ``state_dict``, in eval mode; refused with an error naming the ``kind`` ("checkpoint",
     "weights") and ``path`` it came from if it was trained for another protocol or data than
-    ``benchmark``. ``model_name``: build it as that
-    entry instead, which must run the recorded model's weights (registry ``weights_of``)."""
+    ``benchmark``. ``model_name``: build it as that entry instead, which must run the recorded
+    model's weights (registry ``weights_of``)."""
     source = f"{kind} {path}"
     registry = registry or load_registry()
     entry = recorded_entry(meta, registry, source)

@@ -20,6 +20,7 @@ from zoo.core.errors import ZooError
 from zoo.hub.build import model_args_for
 from zoo.hub.records import RunRecord
 from zoo.models.registry import ModelEntry, Registry
+from zoo.protocol.views import View
 
 
 class SourceError(ZooError, ValueError):
@@ -203,7 +204,7 @@ class LoadedModel:
 
     model: nn.Module
     entry: ModelEntry
-    view: str
+    view: View
     label: str
     provenance: dict[str, Any]
     recipe: dict[str, Any] | None

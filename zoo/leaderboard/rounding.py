@@ -26,6 +26,7 @@ from zoo.evaluation.evaluator import Scored, evaluate_models
 from zoo.evaluation.results import WINDOWS_FILE, WindowErrors
 from zoo.evaluation.tolerance import Incomparable, windows_beyond
 from zoo.protocol.plan import Protocol
+from zoo.protocol.views import View
 
 SENSITIVITY_MULTIPLE = 8.0
 INPUT_ULPS = 2
@@ -78,7 +79,7 @@ def with_inputs_moved(model: nn.Module, seed: int, ulps: int = INPUT_ULPS) -> nn
 
 
 def rounding_sensitivity(
-    model: nn.Module, label: str, view: str, protocol: Protocol, fresh, device: str = "cpu"
+    model: nn.Module, label: str, view: View, protocol: Protocol, fresh, device: str = "cpu"
 ) -> dict[tuple, np.ndarray]:
     """Per error series (``fresh``'s keys), each window's rounding sensitivity on the windows
     of ``protocol``, whose per-window errors ``fresh`` holds (this CPU's float32 pass): the

@@ -23,6 +23,7 @@ from zoo.data.skeleton import CMU, H36M, THREEDPW, Skeleton
 from zoo.data.threedpw import load_3dpw
 from zoo.data.windows import check_sampler
 from zoo.paths import REPO_ROOT
+from zoo.protocol.views import View
 
 BENCHMARK_DIR = REPO_ROOT / "benchmarks"
 # Skeleton datasets: name -> loader (root, split, actions=...) -> MotionDataset, and its
@@ -120,28 +121,28 @@ class Benchmark:
         kwargs = {"actions": self.actions} if self.actions else {}
         return loader(self.resolve_data_root(data_root), split or self.split, **kwargs)
 
-    def view_for(self, representations) -> str:
+    def view_for(self, representations) -> View:
         """How a model whose registry ``representation`` lists ``representations`` sees this
-        benchmark: ``mesh`` (vertices), or ``joints``: a skeleton benchmark's joints, or, for a
-        skeleton-only model on a mesh benchmark, the joints its regressor takes from the
-        vertices (those the mesh models' MPJPE is scored on)."""
+        benchmark (:class:`zoo.protocol.views.View`): its vertices, or its joints (for a
+        skeleton-only model on a mesh benchmark, those its regressor takes from the vertices,
+        which the mesh models' MPJPE is scored on)."""
         if self.representation != "mesh":
-            return "joints"
-        return "mesh" if "mesh" in representations else "joints"
+            return View.JOINTS
+        return View.MESH if "mesh" in representations else View.JOINTS
 
     def model_inputs(
         self,
         context: tuple[str, ...] = (),
         data_root: str | Path | None = None,
         dataset=None,
-        view: str = "mesh",
+        view: View = View.MESH,
     ) -> dict[str, Any]:
         """Constructor keywords a model gets from this benchmark (see zoo.models). Mesh
         benchmarks read them from ``dataset`` if given (any split: they share the topology),
         else load the test split; ``view='joints'`` gives a skeleton model's keywords for the
         dataset's regressed joints."""
         if self.representation == "mesh":
-            if view == "joints":
+            if view == View.JOINTS:
                 return self._joints_view_inputs(context, data_root, dataset)
             return self._mesh_model_inputs(context, data_root, dataset)
         inputs = {

@@ -1,5 +1,7 @@
-"""The one implementation of every metric, its one description (:data:`METRICS`: unit, printed
-precision, text of the protocol records), plus the accumulator the evaluator streams into.
+"""The one implementation of every metric and its one declaration (:data:`METRICS`: unit,
+printed precision, tolerance, text of the protocol records, and how a batch is scored), plus the
+accumulator the evaluator streams into. The evaluator scores the metrics a view declares
+(:class:`zoo.protocol.views.View`), each through its declaration's ``score``.
 
 Per-frame errors are computed per window as ``(B, T_out)`` tensors; :class:`FrameErrorMean`
 accumulates them per action (``update`` / ``compute``, as in torchmetrics); averaging over time
@@ -9,8 +11,9 @@ accumulates them per action (``update`` / ``compute``, as in torchmetrics); aver
 from __future__ import annotations
 
 from collections import defaultdict
-from collections.abc import Sequence
-from dataclasses import dataclass
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Protocol
 
 import numpy as np
 import torch
@@ -24,46 +27,6 @@ AVERAGING = {
 ACTION_AVERAGING = "mean over windows inside an action, then unweighted mean over actions present"
 
 
-@dataclass(frozen=True)
-class Metric:
-    """What the tables and the protocol records say of a metric.
-
-    ``unit`` heads its tables, ``fmt`` prints its values; ``with_std``: its tables print the
-    standard deviation over windows beside the mean; ``description``: its entry in the mesh
-    protocol records' ``metrics`` (hashed into ``protocol_id``: change it and every stored mesh
-    result stops matching new ones)."""
-
-    name: str
-    unit: str
-    fmt: str
-    with_std: bool
-    description: str
-
-
-METRICS = {
-    m.name: m
-    for m in (
-        Metric("mpjpe", "mm", ".2f", False, "mean L2 error of the regressed joints (mm)"),
-        # The SpecTrHuMS paper prints MELV as mean and standard deviation.
-        Metric(
-            "melv",
-            "mm",
-            ".3f",
-            True,
-            "mean over unique edges of |len_t - len_ref| (mm), reference = last observed "
-            "ground-truth frame, on the frames of `melv_frames`; model `ground_truth` rows: the "
-            "same for the ground-truth future (the data baseline)",
-        ),
-        Metric(
-            "rmse",
-            "per vertex, normalised by the ground-truth frame's bounding-box diagonal",
-            ".4f",
-            False,
-            "sqrt(mean_v |v_hat - v|^2) / |max_v v - min_v v| of the ground-truth "
-            "frame (the zoo's own definition; SpecTrHuMS publishes none)",
-        ),
-    )
-}
 # Rows of a model's autoencoder floor (the ground-truth future through its autoencoder alone: a
 # bound, not a prediction) are labelled <model>:autoencoder.
 FLOOR_SUFFIX = ":autoencoder"
@@ -266,3 +229,92 @@ def vertex_rmse(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     rmse = (pred - target).pow(2).sum(dim=-1).mean(dim=-1).sqrt()
     diagonal = torch.linalg.vector_norm(target.amax(dim=-2) - target.amin(dim=-2), dim=-1)
     return rmse / diagonal
+
+
+# ---- declarations ------------------------------------------------------------------------------
+
+
+class BatchTruth(Protocol):
+    """What a metric reads from one batch of ground truth, as the evaluator gives it for a
+    view: the future frames (``target``), the per-frame joint errors of a prediction in the
+    view's own points under each joint protocol of the benchmark (``joint_errors``: predicted
+    vertices are regressed to joints first; none where the benchmark has no joints to score),
+    and for mesh rows the edge lengths MELV compares (``melv_lengths``, ``reference_lengths``)."""
+
+    target: torch.Tensor
+    reference_lengths: torch.Tensor | None
+
+    def joint_errors(self, pred: torch.Tensor) -> dict[str, torch.Tensor]: ...
+
+    def melv_lengths(self, frames: torch.Tensor) -> torch.Tensor: ...
+
+
+@dataclass(frozen=True)
+class Metric:
+    """A metric, declared once: what the tables and the protocol records say of it, how far a
+    recomputation may stray, and how a batch is scored.
+
+    ``unit`` heads its tables, ``fmt`` prints its values; ``with_std``: its tables print the
+    standard deviation over windows beside the mean; ``description``: its entry in the mesh
+    protocol records' ``metrics`` (hashed into ``protocol_id``: change it and every stored mesh
+    result stops matching new ones); ``tolerance``: the absolute floor of the tolerance of a
+    recomputed value, in its unit (:mod:`zoo.evaluation.tolerance`); ``score(pred, truth)``: the
+    per-frame errors ``(B, T)`` of a batch's predictions, by joint protocol (``vertices`` for
+    the mesh's own); ``ground_truth_rows``: the ground-truth future is scored too, as model
+    ``ground_truth`` (the data's own figure, a baseline)."""
+
+    name: str
+    unit: str
+    fmt: str
+    with_std: bool
+    description: str
+    tolerance: float
+    score: Callable[[torch.Tensor, BatchTruth], dict[str, torch.Tensor]] = field(compare=False)
+    ground_truth_rows: bool = False
+
+
+# The floor of a tolerance in mm: 32 float32 units in the last place of a coordinate at one
+# metre (docs/reproducibility.md, "The tolerance and its error model").
+MM_TOLERANCE = 2.0**-9
+
+
+METRICS = {
+    m.name: m
+    for m in (
+        Metric(
+            "mpjpe",
+            "mm",
+            ".2f",
+            False,
+            "mean L2 error of the regressed joints (mm)",
+            tolerance=MM_TOLERANCE,
+            score=lambda pred, truth: truth.joint_errors(pred),
+        ),
+        # The SpecTrHuMS paper prints MELV as mean and standard deviation.
+        Metric(
+            "melv",
+            "mm",
+            ".3f",
+            True,
+            "mean over unique edges of |len_t - len_ref| (mm), reference = last observed "
+            "ground-truth frame, on the frames of `melv_frames`; model `ground_truth` rows: the "
+            "same for the ground-truth future (the data baseline)",
+            tolerance=MM_TOLERANCE,
+            score=lambda pred, truth: {
+                "vertices": length_variation(truth.melv_lengths(pred), truth.reference_lengths)
+            },
+            ground_truth_rows=True,
+        ),
+        Metric(
+            "rmse",
+            "per vertex, normalised by the ground-truth frame's bounding-box diagonal",
+            ".4f",
+            False,
+            "sqrt(mean_v |v_hat - v|^2) / |max_v v - min_v v| of the ground-truth "
+            "frame (the zoo's own definition; SpecTrHuMS publishes none)",
+            # an error normalised by a bounding-box diagonal near 2 m: the mm floor's share
+            tolerance=2.0**-18,
+            score=lambda pred, truth: {"vertices": vertex_rmse(pred, truth.target)},
+        ),
+    )
+}

@@ -27,10 +27,10 @@ from zoo.protocol.metrics import (
     ACTION_AVERAGING,
     AVERAGING,
     FLOOR_SUFFIX,
-    METRICS,
     STD_DESCRIPTION,
     joint_protocols,
 )
+from zoo.protocol.views import View
 
 
 @dataclass(frozen=True, eq=False)
@@ -254,13 +254,11 @@ def mesh_record(
         ),
         "joint_protocols": joints,
         "metrics": {
-            "melv": METRICS["melv"].description,
-            "rmse": METRICS["rmse"].description,
+            **{metric.name: metric.description for metric in View.MESH.metrics},
             "std": STD_DESCRIPTION,
             "floor": f"model `<name>{FLOOR_SUFFIX}` rows: the ground-truth future through the "
             f"model's autoencoder alone (it sees the future: a bound, not a "
             f"prediction)",
-            "mpjpe": METRICS["mpjpe"].description,
         },
         "averaging": AVERAGING,
         "action_averaging": ACTION_AVERAGING,

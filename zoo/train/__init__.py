@@ -4,10 +4,11 @@ A recipe (:mod:`zoo.models.recipe`, a registry entry's ``train`` mapping) says h
 the split (:mod:`.split`) which frames train and which validate; a step (:mod:`.step`) is what
 the cost columns time too; validation (:mod:`.validation`) picks the best epoch; the state
 (:mod:`.state`) is what ``best.pt`` and ``last.pt`` hold; the loop (:mod:`.loop`) runs them,
-seeded, so that a resumed run ends with the weights of an uninterrupted one, carried out as its
-options (:mod:`.options`: seed, device, folders, resume or a new stage, time limits) say. The model hooks
-it calls: :mod:`zoo.models.hooks`. docs/training.md says how to train and what each recipe
-ran. It imports the layers below it (evaluation, hub, store, models, protocol, data, core).
+seeded, so that a resumed run ends with the weights of an uninterrupted one, carried out as
+its options (:mod:`.options`: seed, device, folders, resume or a new stage, time limits) say.
+The model hooks it calls: :mod:`zoo.models.hooks`. docs/training.md says how to train and what
+each recipe ran. It imports the layers below it (evaluation, hub, store, models, protocol, data,
+core).
 """
 
 from __future__ import annotations

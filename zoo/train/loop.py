@@ -25,6 +25,7 @@ from zoo.models.recipe import Recipe, learning_rate, patience_spent, training_re
 from zoo.models.registry import ModelEntry, Registry, load_registry
 from zoo.paths import REPO_ROOT
 from zoo.protocol.benchmark import Benchmark, get_benchmark
+from zoo.protocol.views import View
 from zoo.train.host import cpu_has_native_bfloat16, device_name
 from zoo.train.options import RunOptions
 from zoo.train.split import (
@@ -89,7 +90,7 @@ def train(
     _warn_slow_bfloat16(model_name, recipe, device)
     view = bench.view_for(entry.representation)
     dataset = bench.load(data_root, split=bench.train_split)
-    if bench.representation == "mesh" and view == "joints":
+    if bench.representation == "mesh" and view is View.JOINTS:
         dataset = dataset.joints_view()  # a skeleton model on a mesh benchmark's joints
     _, hparams = model_args_for(
         registry, model_name, bench, data_root=data_root, dataset=dataset, overrides=overrides
@@ -99,19 +100,7 @@ def train(
         if options.out_dir
         else REPO_ROOT / "checkpoints" / bench.name / model_name
     )
-    if init_from is not None and Path(init_from).resolve() in {
-        (out_dir / f).resolve() for f in ("best.pt", "last.pt")
-    }:
-        raise TrainingError(
-            f"init_from: {init_from}: this run would overwrite it; give the new stage its own "
-            f"out_dir",
-            parameter="init_from",
-        )
-    initial = (
-        initial_weights(init_from, model_name, bench, registry, data_root, dataset)
-        if init_from is not None
-        else None
-    )
+    initial = _initial_stage(init_from, out_dir, model_name, bench, registry, data_root, dataset)
 
     model = _new_model(registry, model_name, hparams, options.seed, device, initial, init_from)
     hooks = model_hooks(model, model_name)  # refuses a model defining half a group of hooks
@@ -122,21 +111,15 @@ def train(
     run = _Run(first_epoch=0, best={"val_mpjpe": math.inf, "epoch": -1}, history=[])
     run.init_record = initial[1] if initial is not None else None
     if options.resume:
-        restored = restore_paused(out_dir, bench.name, model_name)
-        if restored is not None and dist_info.rank == 0:
-            print(f"resuming {model_name} from its paused state in {repo_relative(restored)}")
-        run = _resumed(out_dir / "last.pt", model_name, hparams, model, optimizer)
-        run.recipe_changes += resume_changes(
-            out_dir / "last.pt", run.state, recipe, options.seed, options.max_batches
-        )
-        optimizer_for_device(optimizer, device, graphed)
-        if "cuda_rng" in run.state and torch.device(device).type == "cuda":
-            torch.cuda.set_rng_state(run.state["cuda_rng"], torch.device(device))
+        run = _resumed(
+            out_dir, bench, model_name, hparams, model, optimizer, recipe, options, graphed,
+            dist_info.rank,
+        )  # fmt: skip
 
     epochs = _Epochs(
         model_name, model, optimizer, recipe, data, options, dist_info, graphed, task=entry.task,
         fps=getattr(dataset, "mesh", dataset).fps,  # a JointsView: its mesh's rate
-        mesh=bench.representation == "mesh" and view == "mesh",
+        mesh=view is View.MESH,
     )  # fmt: skip
     # a resumed run knows how long its epochs take on this machine (not on another one)
     here = device_name(device)
@@ -215,6 +198,20 @@ def _check_trainable(entry: ModelEntry) -> None:
             if entry.weights_of
             else f"model {entry.name!r} has nothing to train (registry: trainable: false)"
         )
+
+
+def _initial_stage(init_from, out_dir: Path, model_name, bench, registry, data_root, dataset):
+    """The weights and record a new stage starts from (``init_from``; None: a first stage),
+    refused where this run would overwrite them."""
+    if init_from is None:
+        return None
+    if Path(init_from).resolve() in {(out_dir / f).resolve() for f in ("best.pt", "last.pt")}:
+        raise TrainingError(
+            f"init_from: {init_from}: this run would overwrite it; give the new stage its own "
+            f"out_dir",
+            parameter="init_from",
+        )
+    return initial_weights(init_from, model_name, bench, registry, data_root, dataset)
 
 
 def _new_model(registry, model_name, hparams, seed, device, initial, init_from) -> nn.Module:
@@ -340,8 +337,16 @@ class _Run:
         self.recipe_changes = self.recipe_changes or []
 
 
-def _resumed(path: Path, model_name, hparams, model, optimizer) -> _Run:
-    """The run ``last.pt`` holds, its weights, optimiser and RNG state loaded."""
+def _resumed(
+    out_dir: Path, bench, model_name, hparams, model, optimizer, recipe, options, graphed, rank
+) -> _Run:
+    """The run ``out_dir/last.pt`` holds (copied there from its committed paused state where
+    there is none), its weights, optimiser and RNG states loaded onto the run's device, and the
+    budget changes this resume makes recorded."""
+    restored = restore_paused(out_dir, bench.name, model_name)
+    if restored is not None and rank == 0:
+        print(f"resuming {model_name} from its paused state in {repo_relative(restored)}")
+    path = out_dir / "last.pt"
     state = read_checkpoint(path)
     if state["model"] != model_name or state["hparams"] != stored_hparams(hparams)[0]:
         raise CheckpointError(
@@ -354,13 +359,18 @@ def _resumed(path: Path, model_name, hparams, model, optimizer) -> _Run:
     for record in history:  # epochs written before they named their device and precision
         record.setdefault("device", (state.get("training") or {}).get("device_name"))
         record.setdefault("precision", (state.get("recipe") or {}).get("precision", "float32"))
-    return _Run(
+    run = _Run(
         first_epoch=state["epoch"] + 1,
         best=state["best"],
         history=history,
         init_record=state.get("init_from"),
         state=state,
     )
+    run.recipe_changes += resume_changes(path, state, recipe, options.seed, options.max_batches)
+    optimizer_for_device(optimizer, options.device, graphed)
+    if "cuda_rng" in state and torch.device(options.device).type == "cuda":
+        torch.cuda.set_rng_state(state["cuda_rng"], torch.device(options.device))
+    return run
 
 
 def _print_plan(model_name, bench, data: _Data, recipe, steps, first_epoch, seed, out_dir) -> None:
