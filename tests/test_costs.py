@@ -10,7 +10,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 import torch
-from test_leaderboard import cmu_and_registry
+from test_leaderboard import cmu_and_registry, trained_tiny
 
 import zoo.leaderboard.costs
 import zoo.leaderboard.efficiency
@@ -19,8 +19,6 @@ from zoo.leaderboard.efficiency import LATENCY_REPEATS, TRAINING_STEPS, measure
 from zoo.leaderboard.plan import Plan
 from zoo.leaderboard.rebuild import regenerate
 from zoo.models.recipe import DEFAULT_RECIPE
-from zoo.train.loop import train
-from zoo.train.options import RunOptions
 from zoo.train.step import forward_precision
 
 
@@ -50,15 +48,8 @@ def no_measuring(*args, **kwargs):
 def test_costs_are_measured_only_by_zoo_costs_and_shown_with_their_machine(
     tmp_path, monkeypatch, capsys
 ):
-    root, registry = cmu_and_registry(tmp_path)
-    checkpoints, out = tmp_path / "checkpoints", tmp_path / "results"
-    train(
-        "tiny",
-        "cmu",
-        RunOptions(data_root=root, progress=False, out_dir=checkpoints / "cmu" / "tiny"),
-        registry=registry,
-        recipe_overrides={"epochs": 1},
-    )
+    root, registry, checkpoints = trained_tiny(tmp_path)
+    out = tmp_path / "results"
     monkeypatch.setattr(zoo.leaderboard.efficiency, "measure", no_measuring)
     monkeypatch.setattr(zoo.leaderboard.costs, "measure", no_measuring)
     # An older costs.json (timings in each recipe's precision) is not read, and not rewritten.
