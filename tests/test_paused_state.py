@@ -74,6 +74,7 @@ def test_pausing_again_replaces_the_state_and_a_tensor_past_float16_stays_float3
 ):
     run(setup, tmp_path / "r", epochs=2, stop_after_epoch=1)
     dest = pause_run(tmp_path / "r", root=weights_root)
+    first = (dest / "best.pt").read_bytes()
     (dest / "stray.pt").write_bytes(b"from an older pause")
     last = read_checkpoint(tmp_path / "r" / "last.pt")
     name = next(k for k, t in last["state_dict"].items() if t.is_floating_point())
@@ -81,6 +82,8 @@ def test_pausing_again_replaces_the_state_and_a_tensor_past_float16_stays_float3
     torch.save(last, tmp_path / "r" / "last.pt")
     pause_run(tmp_path / "r", root=weights_root)
     assert sorted(p.name for p in dest.iterdir()) == ["best.pt", "last.pt", "state.json"]
+    # an unchanged best.pt is stored byte for byte as before: a pause adds no copy to history
+    assert (dest / "best.pt").read_bytes() == first
     paused = read_checkpoint(dest / "last.pt")
     assert paused["state_dict"][name].dtype == torch.float32
     assert paused["stored_as"]["weights_kept_float32"] == [name]

@@ -260,8 +260,10 @@ def _expanded(payload: dict[str, Any]) -> dict[str, Any]:
 
 
 def save_checkpoint(path: Path, payload: dict[str, Any]) -> None:
-    with atomic_path(path) as tmp:
-        torch.save(payload, tmp)
+    # through a file object: torch.save names the archive inside after the file it writes, and
+    # the temporary name is new each time, so an unchanged state would differ in its bytes
+    with atomic_path(path) as tmp, open(tmp, "wb") as f:
+        torch.save(payload, f)
 
 
 def pause_run(
