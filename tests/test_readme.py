@@ -4,6 +4,7 @@ printed as the tables print it, and every row the README names exists."""
 from __future__ import annotations
 
 import re
+import shutil
 
 from zoo.evaluation.markdown import metric_unit
 from zoo.evaluation.results import read_table
@@ -38,7 +39,7 @@ def test_readme_headline_numbers_are_the_committed_ones():
                 )
 
 
-def test_zoo_cards_rewrites_a_stale_headline(tmp_path):
+def test_zoo_cards_rewrites_a_stale_headline(tmp_path, capsys):
     """The README's headline tables are generated: a number edited by hand is found stale by
     ``zoo cards --check`` and put back by ``zoo cards``."""
     from zoo.cli import main
@@ -51,9 +52,13 @@ def test_zoo_cards_rewrites_a_stale_headline(tmp_path):
     edited = "| " + " | ".join([model, "0.00", *rest]) + " |"
     assert edited != row
     readme.write_text(text.replace(row, edited))
-    out = tmp_path / "cards"
+    out = tmp_path / "cards"  # the committed cards, current: only the README is rewritten
+    shutil.copytree(REPO_ROOT / "docs" / "models", out)
     argv = ["cards", "--out", str(out), "--readme", str(readme)]
     assert main([*argv, "--check"]) == 1
+    stale = [line for line in capsys.readouterr().out.splitlines() if "up to date" not in line]
+    assert stale[0].startswith(f"{readme}: ")  # the README alone: one stale, then its diff
+    assert stale[-1].startswith("1 of ") and "card(s) stale" in stale[-1]
     assert main(argv) == 0
     assert readme.read_text() == text
 
