@@ -389,3 +389,88 @@ def test_base_with_an_unknown_model_writes_nothing(tmp_path, capsys):
     )  # fmt: skip
     assert code == 2 and "unknown model 'nosuch'" in capsys.readouterr().err
     assert not (tmp_path / "mine").exists()
+
+
+def test_a_plot_drawn_from_the_same_rows_is_copied_and_any_change_draws_it_again(
+    tmp_path, monkeypatch
+):
+    """A table's plot keeps a digest of what it shows (rows, title, styles, plotting code): a
+    rebuild with the same inputs copies the stored plot byte for byte, any change draws it."""
+    from zoo.core.io import figure_drawn_from, save_figure
+    from zoo.report.outputs import plot_average
+
+    frame = pd.DataFrame(
+        [
+            {"action": action, "metric": "mpjpe", "averaging": "frame", "joints": "all",
+             "model": model, "horizon_ms": h, "value": v * h / 80}
+            for action in ("walking", "average")
+            for model, v in (("repeat_last", 10.0), ("ltd", 7.0))
+            for h in (80, 160, 320)
+        ]
+    )  # fmt: skip
+    (drawn,) = plot_average(frame, tmp_path / "a", "a table")
+    key = figure_drawn_from(drawn)
+    assert key and len(key) == 64
+    draws = []
+    monkeypatch.setattr(
+        "zoo.report.outputs.save_figure", lambda *a, **k: draws.append(a[1]) or save_figure(*a, **k)
+    )
+    (copied,) = plot_average(frame, tmp_path / "b", "a table", previous=tmp_path / "a")
+    assert draws == [] and copied.read_bytes() == drawn.read_bytes()
+
+    changed = frame.copy()
+    changed.loc[changed["action"] == "average", "value"] += 1e-9  # below any printed digit
+    walking = frame.copy()
+    walking.loc[walking["action"] == "walking", "value"] += 1.0  # not drawn: no redraw
+    for other, title, where in (
+        (changed, "a table", "c"),
+        (frame, "another title", "d"),
+        (walking, "a table", "e"),
+    ):
+        (path,) = plot_average(other, tmp_path / where, title, previous=tmp_path / "a")
+        assert (path in draws) == (where != "e")
+        assert (figure_drawn_from(path) == key) == (where == "e")
+    # another colour for a model (the palette, or the registry's order) draws it again
+    monkeypatch.setattr("zoo.report.outputs.PALETTE", ("#000000", "#ffffff"))
+    (path,) = plot_average(frame, tmp_path / "g", "a table", previous=tmp_path / "a")
+    assert draws[-1] == path and figure_drawn_from(path) != key
+    monkeypatch.undo()
+    # a stored plot without a digest (as drawn before digests were kept), or not a PNG, is
+    # drawn again
+    import matplotlib.pyplot as plt
+
+    for stored in ("unkeyed", "not a png"):
+        folder = tmp_path / stored
+        folder.mkdir()
+        if stored == "unkeyed":
+            save_figure(plt.subplots()[0], folder / "mpjpe.png")
+        else:
+            (folder / "mpjpe.png").write_bytes(b"not a png")
+        draws.clear()
+        monkeypatch.setattr(
+            "zoo.report.outputs.save_figure",
+            lambda *a, **k: draws.append(a[1]) or save_figure(*a, **k),
+        )
+        (path,) = plot_average(frame, tmp_path / f"{stored}-again", "a table", previous=folder)
+        assert draws == [path] and figure_drawn_from(path) == key
+
+
+def test_every_committed_plot_carries_the_digest_of_what_it_shows_now():
+    """A plot whose digest is not the one the current code gives would be drawn again by the
+    next rebuild, rewriting a PNG whose pixels did not change: a change to the drawing code
+    redraws the committed plots in the same commit."""
+    from zoo.core.io import figure_drawn_from
+    from zoo.paths import REPO_ROOT
+    from zoo.report.outputs import plot_digests, table_title
+
+    tables = sorted((REPO_ROOT / "results").glob("*/*/leaderboard.md"))
+    assert len(tables) >= 10
+    stale = []
+    for md in tables:
+        digests = plot_digests(read_table(md.parent).frame, table_title(md.read_text()))
+        stale += [
+            str(md.parent / name)
+            for name, digest in digests.items()
+            if figure_drawn_from(md.parent / name) != digest
+        ]
+    assert not stale, f"plots to draw again (zoo leaderboard): {stale[:5]}"

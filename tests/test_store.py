@@ -421,19 +421,26 @@ def test_a_model_objects_identity_holds_its_settings(project):
         zoo.evaluate(spec["DampedVelocity"](10, 25, 25), "cmu", out=out, **run)
 
 
-def test_a_rebuild_that_agrees_changes_no_file(project, capsys):
+def test_a_rebuild_that_agrees_changes_no_file(project, capsys, monkeypatch):
     """A row recomputed within the tolerance of the stored one leaves its files byte for byte
-    (a stale identity alone is brought up to date); only a difference beyond the tolerance
-    rewrites, and says why. zoo eval likewise."""
+    (a stale identity alone is brought up to date), and its table's plots are copied, not
+    drawn; only a difference beyond the tolerance rewrites, and says why. zoo eval likewise."""
+    from zoo.report import outputs
+
     code, _, _ = cli(capsys, "leaderboard", *board_args(project))
     table = project / "results" / "cmu" / "all"
     before = {p: p.read_bytes() for p in table.rglob("*") if p.is_file()}
 
+    drawn = []
+    draw = outputs.save_figure
+    monkeypatch.setattr(outputs, "save_figure", lambda *a, **k: drawn.append(a[1]) or draw(*a, **k))
     code, _, err = cli(capsys, "leaderboard", *board_args(project), "--recompute")
     assert code == 0 and "repeat_last: recomputed (asked (--recompute)); agrees with the" in err
     assert "recomputing repeat_last" not in err  # nothing of it rewritten
     assert "kept as stored" in err
     assert {p: p.read_bytes() for p in table.rglob("*") if p.is_file()} == before
+    assert drawn == []
+    monkeypatch.undo()
 
     record_path = table / "repeat_last" / "protocol.json"
     record = json.loads(record_path.read_text())

@@ -207,14 +207,32 @@ def code_version() -> str:
     return __version__
 
 
-def save_figure(fig, path: str | Path) -> None:
-    """A matplotlib figure as PNG, atomically; the figure is closed."""
+# The PNG text field where a figure keeps the digest of what it was drawn from.
+DRAWN_FROM = "Drawn-From"
+
+
+def save_figure(fig, path: str | Path, drawn_from: str | None = None) -> None:
+    """A matplotlib figure as PNG, atomically; the figure is closed. ``drawn_from``: a digest of
+    everything the figure shows, kept in the PNG (:func:`figure_drawn_from`), so that a figure
+    asked for again from the same inputs is copied instead of drawn."""
     import matplotlib.pyplot as plt
 
     fig.tight_layout()
     with atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png", dpi=110)
+        fig.savefig(tmp, format="png", dpi=110, metadata={DRAWN_FROM: drawn_from or None})
     plt.close(fig)
+
+
+def figure_drawn_from(path: str | Path) -> str | None:
+    """The ``drawn_from`` digest a PNG of :func:`save_figure` keeps; None for a PNG without one,
+    or a missing or unreadable file (which is then drawn again)."""
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        with Image.open(path) as image:
+            return getattr(image, "text", {}).get(DRAWN_FROM)
+    except (OSError, UnidentifiedImageError, SyntaxError, ValueError):
+        return None
 
 
 def progress_bar(iterable=None, **options):

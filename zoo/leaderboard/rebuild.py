@@ -281,7 +281,7 @@ class Rebuild(Leaderboard):
                 restamp_record(record, identity, verification)
                 atomic_write_json(tmp / label / "protocol.json", record)
             notes = self.short_training(path, results)
-            write_leaderboard(results, tmp, bench.horizons_ms, efficiency, notes)
+            write_leaderboard(results, tmp, bench.horizons_ms, efficiency, notes, previous=path)
             if not fresh and not dropped and not refreshed and _same_files(path, tmp):
                 raise _Unchanged
         gone = f", dropped {', '.join(p.name for p in dropped)}" if dropped else ""

@@ -6,12 +6,21 @@ Nothing here evaluates."""
 
 from __future__ import annotations
 
+import hashlib
+import json
+import shutil
 from collections.abc import Iterable
 from pathlib import Path
 
 import pandas as pd
 
-from zoo.core.io import atomic_write_json, atomic_write_text, save_figure
+from zoo.core.io import (
+    atomic_path,
+    atomic_write_json,
+    atomic_write_text,
+    figure_drawn_from,
+    save_figure,
+)
 from zoo.evaluation.markdown import markdown_tables, metric_unit
 from zoo.evaluation.results import table_files
 from zoo.hub.records import WeightsRecord
@@ -26,6 +35,7 @@ def write_leaderboard(
     horizons_ms: Iterable[int] | None = None,
     efficiency: dict[str, dict] | None = None,
     short_training: dict[str, tuple[str, str | None]] | None = None,
+    previous: str | Path | None = None,
 ) -> Path:
     """Combine :class:`zoo.evaluation.results.EvalResult` objects of one protocol into ``out_dir``:
     ``leaderboard.md``, ``summary.json`` (the same table as data,
@@ -35,7 +45,8 @@ def write_leaderboard(
     :class:`zoo.leaderboard.efficiency.Costs`) fills the headline's cost columns and
     ``efficiency.csv`` (a dict without a row's label: its cost cells stay empty, and the table says
     how to fill them). ``short_training``: per row label trained short of its recipe, what its run
-    saw and a link to its model's card, marked in the headline."""
+    saw and a link to its model's card, marked in the headline. ``previous``: the table's folder
+    as stored, whose plots are copied where they were drawn from the same inputs."""
     out_dir = Path(out_dir)
     # Rows and runs in model order, whichever models were evaluated now and which were stored:
     # regenerating then rewrites no unchanged table.
@@ -58,8 +69,13 @@ def write_leaderboard(
     atomic_write_json(out_dir / "summary.json", summary)
     if efficiency:
         atomic_write_text(out_dir / "efficiency.csv", efficiency_csv(frame["model"], efficiency))
-    plot_average(frame, out_dir, title=tables.splitlines()[0].lstrip("# "))
+    plot_average(frame, out_dir, title=table_title(tables), previous=previous)
     return out_dir
+
+
+def table_title(leaderboard: str) -> str:
+    """A table's title, as its plots show it: the first line of its ``leaderboard.md``."""
+    return leaderboard.splitlines()[0].lstrip("# ")
 
 
 def efficiency_csv(models: Iterable[str], efficiency: dict[str, dict]) -> str:
@@ -102,9 +118,12 @@ def plot_files(frame: pd.DataFrame) -> list[str]:
     return [f"{m}.png" for m in sorted(set(frame["metric"]))]
 
 
-def plot_average(frame: pd.DataFrame, out_dir: str | Path, title: str = "") -> list[Path]:
+def plot_average(
+    frame: pd.DataFrame, out_dir: str | Path, title: str = "", previous: str | Path | None = None
+) -> list[Path]:
     """Error against horizon for the action average, one file per metric (:func:`plot_files`),
-    one panel per averaging and joint set in it."""
+    one panel per averaging and joint set in it. A plot of ``previous`` (a folder) whose digest
+    is the one :func:`plot_digests` gives now is copied, not drawn again."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -114,11 +133,18 @@ def plot_average(frame: pd.DataFrame, out_dir: str | Path, title: str = "") -> l
 
     order = load_registry().list_models()
     avg = frame[frame["action"] == "average"]
+    digests = plot_digests(frame, title)
     written = []
     for metric, name in zip(sorted(set(frame["metric"])), plot_files(frame)):
         mine = avg[avg["metric"] == metric]
         unit = metric_unit(metric)[0]
         panels = sorted(mine.groupby(["averaging", "joints"]).groups)
+        path, key = Path(out_dir) / name, digests[name]
+        if previous is not None and figure_drawn_from(Path(previous) / name) == key:
+            with atomic_path(path) as tmp:
+                shutil.copyfile(Path(previous) / name, tmp)
+            written.append(path)
+            continue
         fig, axes = plt.subplots(1, len(panels), figsize=(5 * len(panels), 4.0), squeeze=False)
         for ax, (averaging, joints) in zip(axes[0], panels):
             sub = mine[(mine["averaging"] == averaging) & (mine["joints"] == joints)]
@@ -131,9 +157,40 @@ def plot_average(frame: pd.DataFrame, out_dir: str | Path, title: str = "") -> l
             ax.grid(alpha=0.3)
             ax.legend(fontsize=7)
         fig.suptitle(f"{metric.upper()} ({unit}) against horizon: {title}", fontsize=9)
-        save_figure(fig, Path(out_dir) / name)
-        written.append(Path(out_dir) / name)
+        save_figure(fig, path, drawn_from=key)
+        written.append(path)
     return written
+
+
+def plot_digests(frame: pd.DataFrame, title: str) -> dict[str, str]:
+    """``{file: digest}`` of what :func:`plot_average` draws of ``frame``: per metric, the
+    action average's rows, the title and the metric's unit, each model's style, matplotlib's
+    version and the source of the functions that draw (a change elsewhere redraws nothing)."""
+    import inspect
+
+    import matplotlib
+
+    from zoo.core import io
+    from zoo.models.registry import load_registry
+
+    order = load_registry().list_models()
+    code = [inspect.getsource(f) for f in (plot_average, plot_digests, model_style, io.save_figure)]
+    avg = frame[frame["action"] == "average"]
+    columns = ["metric", "averaging", "joints", "model", "horizon_ms", "value"]
+    digests = {}
+    for metric, name in zip(sorted(set(frame["metric"])), plot_files(frame)):
+        rows = avg[avg["metric"] == metric][columns].sort_values(columns[:5])
+        styles = sorted((m, model_style(m, order)) for m in set(rows["model"]))
+        inputs = [
+            rows.to_csv(index=False, float_format="%.17g"),
+            title,
+            metric_unit(metric),
+            styles,
+            matplotlib.__version__,
+            code,
+        ]
+        digests[name] = hashlib.sha256(json.dumps(inputs, sort_keys=True).encode()).hexdigest()
+    return digests
 
 
 def training_curves(weights_root: str | Path | None, benchmark: str) -> dict[str, WeightsRecord]:
