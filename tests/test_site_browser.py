@@ -220,6 +220,8 @@ def test_the_mesh_viewer_advances_frames(browser, site):
     )
     last = int(browser.find_element("id", "frame").get_attribute("max"))
     assert int(viewer.get_attribute("data-frame")) == last
+    time.sleep(1.0)  # paused: no frame drawn since, whatever a frame takes to draw here
+    assert int(viewer.get_attribute("data-frame")) == last
     captions = [c.text for c in browser.find_elements("css selector", "#viewer figcaption")]
     assert any("mean vertex error" in c for c in captions)
 

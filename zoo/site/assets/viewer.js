@@ -154,13 +154,24 @@ var ZooViewer = (function () {
       viewer.setAttribute("data-frame", String(t));
     }
 
+    // a frame starts one frame interval after the last one started, and never sooner than that
+    // one took to draw after it ended: where drawing takes over half an interval, playback
+    // slows down and half the page's time stays free for the reader's clicks, instead of frames
+    // queueing ahead of them (data-interval-ms is the interval asked for)
     var timer = null;
     function play(on) {
       state.playing = on; $("play").textContent = on ? "pause" : "play";
-      if (timer) { clearInterval(timer); timer = null; }
+      if (timer) { clearTimeout(timer); timer = null; }
       var every = 1000 / (clips.fps * +$("speed").value);
       viewer.setAttribute("data-interval-ms", on ? String(every) : "");
-      if (on) { timer = setInterval(function () { state.frame = (state.frame + 1) % T; render(); }, every); }
+      function next() {
+        var began = performance.now();
+        try { state.frame = (state.frame + 1) % T; render(); } finally {
+          var spent = performance.now() - began;
+          timer = setTimeout(next, Math.max(every - spent, spent));
+        }
+      }
+      if (on) { timer = setTimeout(next, every); }
     }
     $("play").addEventListener("click", function () { play(!state.playing); });
     slider.addEventListener("input", function () { play(false); state.frame = +slider.value; render(); });
