@@ -215,10 +215,13 @@ def test_speed_anny(capsys):
 
 
 def test_speed_identity_prints_agreeing_fingerprints_and_a_finite_ratio(capsys):
-    rows = load("speed_identity").main(["--benchmark", "cmu", "--repeats", "1"])
+    rows = load("speed_identity").main(["--benchmark", "cmu", "--model", "ltd", "--repeats", "1"])
     out = capsys.readouterr().out.splitlines()
     assert out[0].startswith("benchmark") and out[1].startswith("cmu")
-    (row,) = rows
-    assert row["same"] and "agree" in out[1]
+    assert out[2].startswith("model") and out[3].startswith("ltd")
+    evaluator, model = rows
+    assert evaluator["same"] and "agree" in out[1] and model["same"] and "agree" in out[3]
     for key in ("cold", "anew", "kept", "ratio"):
-        assert math.isfinite(row[key]) and row[key] > 0, key
+        assert math.isfinite(evaluator[key]) and evaluator[key] > 0, key
+    for key in ("anew", "kept", "ratio"):
+        assert math.isfinite(model[key]) and model[key] > 0, key

@@ -772,7 +772,10 @@ root = Path(sys.argv[1])
 
 def now():
     closure = fp.code_closure("zoo/yy/user.py")
-    return [str(p.relative_to(root)) for p in closure], fp.code_fingerprint(*closure)
+    from zoo.yy.user import User  # a model class: its reachable code is kept too
+
+    closure = [str(p.relative_to(root)) for p in closure]
+    return closure, fp.code_fingerprint(*closure), fp.model_fingerprint(User)
 
 
 def changed(path, text):
@@ -791,9 +794,9 @@ print(json.dumps(seen))
 
 
 def test_fingerprints_kept_in_a_process_follow_edits_and_new_modules(tmp_path):
-    """A process keeps each module's fingerprint pieces, and gives what a fresh process would
-    after a module is added in another package (an import that named a function now names a
-    module) and after that module is edited."""
+    """A process keeps each module's fingerprint pieces and each model class's reachable code,
+    and gives what a fresh process would after a module is added in another package (an import
+    that named a function now names a module) and after that module is edited."""
     import subprocess
 
     shutil.copytree(
@@ -804,7 +807,7 @@ def test_fingerprints_kept_in_a_process_follow_edits_and_new_modules(tmp_path):
     (tmp_path / "zoo" / "yy").mkdir()
     (tmp_path / "zoo" / "yy" / "__init__.py").write_text("")
     (tmp_path / "zoo" / "yy" / "user.py").write_text(
-        "from zoo.xx import foo\n\n\ndef use(x):\n    return foo(x)\n"
+        "from zoo.xx import foo\n\n\nclass User:\n    def use(self, x):\n        return foo(x)\n"
     )
     script = tmp_path / "kept.py"
     script.write_text(KEPT_FINGERPRINTS)
@@ -816,10 +819,13 @@ def test_fingerprints_kept_in_a_process_follow_edits_and_new_modules(tmp_path):
         return json.loads(out.stdout)
 
     kept = run(script)
-    (closure_0, first), (closure_1, added), (closure_2, edited), (_, again) = kept
+    (closure_0, *first), (closure_1, *added), (closure_2, *edited), (_, *again) = kept
     assert "zoo/xx/foo.py" not in closure_0 and "zoo/xx/foo.py" in closure_1
-    assert len({first, added, edited}) == 3 and again == edited
-    # a fresh process on the final tree agrees with the value the first one kept
+    for module, model in (first, added, edited, again):
+        assert module and model
+    for i in (0, 1):  # the modules' fingerprint, the model's
+        assert len({first[i], added[i], edited[i]}) == 3 and again[i] == edited[i]
+    # a fresh process on the final tree agrees with the values the first one kept
     fresh = tmp_path / "fresh.py"
     fresh.write_text(KEPT_FINGERPRINTS.split("seen = [now()]")[0] + "print(json.dumps(now()))\n")
-    assert run(fresh) == [closure_2, edited]
+    assert run(fresh) == [closure_2, *edited]

@@ -11,13 +11,19 @@ changes (:func:`zoo.store.fingerprint.module_pieces`). This prints, per benchmar
 - ``kept``: the pieces kept, as every call after the first now is;
 - the ratio ``pieces anew / kept``, and whether all three fingerprints agree (they must).
 
-Run: python benchmarks/speed/speed_identity.py [--benchmark NAME ...] [--repeats N]
+Then, per model, its fingerprint (the code its class reaches, asked for once per row and once
+per cost key): ``reached anew`` (the module pieces kept, the class's reachable code recomputed:
+what each call cost before it was kept) against ``kept``, and whether the two agree.
+
+Run: python benchmarks/speed/speed_identity.py [--benchmark NAME ...] [--model NAME ...]
+[--repeats N]
 """
 
 import argparse
 import statistics
 import time
 
+from zoo.models.registry import load_registry
 from zoo.protocol.benchmark import get_benchmark
 from zoo.store import fingerprint
 from zoo.store.identity import evaluation_code
@@ -37,6 +43,11 @@ def _forget_pieces() -> None:
     for key in [k for k in fingerprint._KEPT if k[0] == "pieces"]:
         del fingerprint._KEPT[key]
     fingerprint._imported_names.cache_clear()
+
+
+def _forget_reached() -> None:
+    for key in [k for k in fingerprint._KEPT if k[0] == "reachable"]:
+        del fingerprint._KEPT[key]
 
 
 def _forget_all() -> None:
@@ -74,9 +85,31 @@ def measure(benchmark: str, repeats: int) -> dict:
     }
 
 
+def measure_model(name: str, repeats: int) -> dict:
+    cls = load_registry().get(name).load_class()
+
+    def anew() -> str:
+        _forget_reached()
+        return fingerprint.model_fingerprint(cls)
+
+    fingerprint.model_fingerprint(cls)  # syntax trees and definition digests kept for both
+    anew_s, anew_value = _timed(anew, repeats)
+    fingerprint.model_fingerprint(cls)
+    kept_s, kept_value = _timed(lambda: fingerprint.model_fingerprint(cls), repeats)
+    return {
+        "model": name,
+        "anew": anew_s,
+        "kept": kept_s,
+        "ratio": anew_s / kept_s,
+        "same": anew_value == kept_value,
+        "fingerprint": kept_value,
+    }
+
+
 def main(argv=None) -> list[dict]:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--benchmark", nargs="+", default=["cmu", "cloth"])
+    parser.add_argument("--model", nargs="+", default=["ltd", "spgsn", "spectrhums"])
     parser.add_argument("--repeats", type=int, default=5)
     args = parser.parse_args(argv)
     print("benchmark  cold (s)  pieces anew (s)  kept (s)  anew/kept  fingerprints")
@@ -89,6 +122,12 @@ def main(argv=None) -> list[dict]:
             f"{name:<10} {r['cold']:8.3f}  {r['anew']:15.3f}  {r['kept']:8.4f}  "
             f"{r['ratio']:8.0f}x  {agree}"
         )
+    print("model        reached anew (s)  kept (s)  anew/kept  fingerprints")
+    for name in args.model:
+        r = measure_model(name, args.repeats)
+        rows.append(r)
+        agree = f"agree ({r['fingerprint']})" if r["same"] else "DIFFER"
+        print(f"{name:<12} {r['anew']:16.3f}  {r['kept']:8.4f}  {r['ratio']:8.0f}x  {agree}")
     return rows
 
 

@@ -574,13 +574,19 @@ def reachable_code(cls: type) -> list[str] | None:
     start = Path(file).resolve()
     if cls.__name__ not in _parts(start)[0]:
         return None
+    # kept like a module's pieces: a rebuild asks for each row's model, many rows a model
+    return list(
+        _kept(("reachable", str(start), cls.__name__), lambda: _reached(start, cls.__name__))
+    )
 
+
+def _reached(start: Path, class_name: str) -> tuple[str, ...]:
     def label(path: Path) -> str:
         return str(path.relative_to(REPO_ROOT)) if path.is_relative_to(REPO_ROOT) else path.name
 
     pieces: set[str] = set()
     seen: set[tuple[Path, str | None]] = set()
-    todo: list[tuple[Path, str | None]] = [(start, cls.__name__)]
+    todo: list[tuple[Path, str | None]] = [(start, class_name)]
     while todo:
         path, name = todo.pop()
         if (path, name) in seen:
@@ -617,7 +623,7 @@ def reachable_code(cls: type) -> list[str] | None:
                     todo += [(target, n) for n in target_defs] + [(target, None)]
                 else:
                     todo.append((target, attribute))
-    return sorted(pieces)
+    return tuple(sorted(pieces))
 
 
 @_one_layout
