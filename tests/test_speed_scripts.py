@@ -23,6 +23,7 @@ SCRIPTS = [
     "speed_eval",
     "speed_identity",
     "speed_pass",
+    "speed_plots",
     "speed_public_cmu",
     "speed_spectral",
     "speed_spectrhums",
@@ -212,6 +213,16 @@ def test_speed_anny(capsys):
     load("speed_anny").main(["--trial", "09_03", "--frames", "8", "--batch", "4"])
     out = capsys.readouterr().out
     assert "cached load: full" in out and "end to end (09_03" in out
+
+
+def test_speed_plots_copies_the_drawn_bytes_and_prints_a_finite_ratio(capsys):
+    (row,) = load("speed_plots").main(["--table", str(REPO / "results" / "cmu" / "ltd8"),
+                                       "--repeats", "1"])  # fmt: skip
+    out = capsys.readouterr().out.splitlines()
+    assert out[1].startswith("cmu/ltd8") and "the same bytes, 0 redrawn" in out[1]
+    assert row["same"] and row["redrawn"] == 0
+    for key in ("drawn", "copied", "ratio"):
+        assert math.isfinite(row[key]) and row[key] > 0, key
 
 
 def test_speed_identity_prints_agreeing_fingerprints_and_a_finite_ratio(capsys):

@@ -1,0 +1,89 @@
+"""A table's plots drawn against copied from the stored table, side by side in one run.
+
+A rebuild draws each table's ``<metric>.png`` only when what it shows changed: the stored PNG
+keeps a digest of its rows, title, styles and plotting code (its ``Drawn-From`` text), and a
+plot with the same digest is copied (:func:`zoo.report.outputs.plot_average`). For each table
+given, this times ``plot_average`` drawing into an empty folder (``drawn``: what every rebuild
+paid before) and with the drawn folder as the stored one (``copied``), as medians of
+``--repeats`` runs taken in turn, and says whether the copies are the drawn files byte for byte
+and how many plots the copying runs drew (they must be, and none).
+
+Run: python benchmarks/speed/speed_plots.py [--table results/cmu/all ...] [--repeats 3]
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import tempfile
+import time
+from pathlib import Path
+
+from zoo.evaluation.results import read_table
+from zoo.paths import REPO_ROOT
+from zoo.report import outputs
+from zoo.report.outputs import plot_average, table_title
+
+
+def measure(table: Path, repeats: int) -> dict:
+    frame = read_table(table).frame
+    title = table_title((table / "leaderboard.md").read_text())
+    drawn_s, copied_s, same, redrawn = [], [], True, 0
+    draw = outputs.save_figure
+
+    def counted(*args, **kwargs):
+        nonlocal redrawn
+        redrawn += 1
+        draw(*args, **kwargs)
+
+    with tempfile.TemporaryDirectory() as tmp:
+        for i in range(repeats):
+            started = time.perf_counter()
+            drawn = plot_average(frame, Path(tmp) / f"drawn{i}", title)
+            drawn_s.append(time.perf_counter() - started)
+            outputs.save_figure = counted  # a copy draws nothing: counted, not assumed
+            try:
+                started = time.perf_counter()
+                copied = plot_average(frame, Path(tmp) / f"copied{i}", title, drawn[0].parent)
+                copied_s.append(time.perf_counter() - started)
+            finally:
+                outputs.save_figure = draw
+            same &= all(a.read_bytes() == b.read_bytes() for a, b in zip(drawn, copied))
+    drawn_m, copied_m = statistics.median(drawn_s), statistics.median(copied_s)
+    return {
+        "table": str(table),
+        "plots": len(drawn),
+        "drawn": drawn_m,
+        "copied": copied_m,
+        "ratio": drawn_m / copied_m,
+        "same": same,
+        "redrawn": redrawn,
+    }
+
+
+def main(argv=None) -> list[dict]:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument(
+        "--table",
+        nargs="+",
+        type=Path,
+        default=[REPO_ROOT / "results" / "cmu" / "all", REPO_ROOT / "results" / "cloth" / "all"],
+    )
+    parser.add_argument("--repeats", type=int, default=3)
+    args = parser.parse_args(argv)
+    print("table                 plots  drawn (s)  copied (s)  drawn/copied  files, redrawn")
+    rows = []
+    for table in args.table:
+        r = measure(table, args.repeats)
+        rows.append(r)
+        name = f"{table.parent.name}/{table.name}"
+        same = "the same bytes" if r["same"] else "DIFFER"
+        print(
+            f"{name:<21} {r['plots']:5d}  {r['drawn']:9.3f}  {r['copied']:10.4f}  "
+            f"{r['ratio']:11.0f}x  {same}, {r['redrawn']} redrawn"
+        )
+    return rows
+
+
+if __name__ == "__main__":
+    main()
