@@ -5,6 +5,7 @@ other is listed under its own heading with every difference named."""
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
@@ -19,7 +20,7 @@ class PublishedError(ZooError, ValueError):
     pass
 
 
-@dataclass
+@dataclass(frozen=True)  # shared by every reader of the same file's text (load_published)
 class Published:
     label: str
     model: str
@@ -45,7 +46,14 @@ class Placed:
 
 
 def load_published(path: str | Path = PUBLISHED_FILE) -> list[Published]:
-    entries = load_yaml(Path(path).read_text()) or []
+    """The entries of a published-figures file; its text parsed once per process while it
+    stays the same (a rebuild reads it for every table it writes)."""
+    return list(_parsed(str(path), Path(path).read_text()))
+
+
+@lru_cache(maxsize=4)
+def _parsed(path: str, text: str) -> tuple[Published, ...]:
+    entries = load_yaml(text) or []
     if not isinstance(entries, list):
         raise PublishedError(f"{path}: expected a list of entries, got {type(entries).__name__}")
     out = []
@@ -89,7 +97,7 @@ def load_published(path: str | Path = PUBLISHED_FILE) -> list[Published]:
                 differs=entry.get("differs"),
             )
         )
-    return out
+    return tuple(out)
 
 
 def place(
@@ -116,7 +124,7 @@ def place(
                 differences.append(f"{key}: {getattr(entry, key)} published, {mine} here")
         if entry.differs:
             differences.append(" ".join(entry.differs.split()))
-        values = entry.average or {}
+        values = dict(entry.average or {})  # the entry's own dict is every reader's
         if entry.per_action is not None:
             actions = list(record.get("actions_present", []))
             absent = [a for a in actions if a not in entry.per_action]
