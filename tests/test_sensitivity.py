@@ -1,5 +1,7 @@
 """The protocol-sensitivity table: every model under every protocol, ranks and rank changes."""
 
+import shutil
+
 import numpy as np
 import pandas as pd
 
@@ -75,3 +77,23 @@ def test_ranks_under_every_protocol_and_the_changes_are_marked(tmp_path):
 
 def test_one_protocol_has_no_sensitivity_table(tmp_path):
     assert protocol_sensitivity(tmp_path) is None
+
+
+def test_one_model_has_no_sensitivity_table_and_a_stale_one_is_removed(tmp_path):
+    """A single model ranks first under every protocol: no table. One left by a rebuild that
+    ranked two (a model since dropped) describes rows no longer there: removed."""
+    from zoo.stats.sensitivity import update_sensitivity
+
+    table(tmp_path, "all", {"a": 10.0})
+    table(tmp_path, "ltd8", {"a": 13.0})
+    assert protocol_sensitivity(tmp_path) is None and update_sensitivity(tmp_path) is None
+    table(tmp_path, "all", {"a": 10.0, "b": 12.0})
+    table(tmp_path, "ltd8", {"a": 13.0, "b": 11.0})
+    assert update_sensitivity(tmp_path) == f"wrote {tmp_path / 'sensitivity.md'}"
+    assert update_sensitivity(tmp_path) is None  # unchanged
+    for sampler, value in (("all", 10.0), ("ltd8", 13.0)):
+        shutil.rmtree(tmp_path / sampler / "b")
+        table(tmp_path, sampler, {"a": value})
+    said = update_sensitivity(tmp_path)
+    assert said.startswith("removed ") and "fewer than two models" in said
+    assert not any((tmp_path / name).exists() for name in ("sensitivity.md", "sensitivity.png"))

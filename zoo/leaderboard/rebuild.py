@@ -87,11 +87,11 @@ class Rebuild(Leaderboard):
             if outcome is not None:
                 written.append(self.root / bench.name / folder)
                 changed |= outcome
-        from zoo.stats.sensitivity import protocol_sensitivity
+        from zoo.stats.sensitivity import update_sensitivity
 
-        sensitivity = protocol_sensitivity(self.root / bench.name)
-        if sensitivity is not None and sensitivity.write(self.root / bench.name):
-            print(f"wrote {self.root / bench.name / 'sensitivity.md'}", file=sys.stderr)
+        said = update_sensitivity(self.root / bench.name)
+        if said:
+            print(said, file=sys.stderr)
         curves = training_curves(self.weights, bench.name) if self.weights else {}
         png = self.root / bench.name / "training.png"
         if curves and (changed or not png.is_file()):

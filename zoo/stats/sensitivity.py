@@ -155,9 +155,29 @@ class Sensitivity:
         return True
 
 
+def update_sensitivity(benchmark_dir: str | Path) -> str | None:
+    """``sensitivity.md`` and ``.png`` of a benchmark's results folder brought up to date with
+    its tables: written where :func:`protocol_sensitivity` has a table, removed where it has
+    none any more (a drop left one model, say); what was done, None where nothing changed."""
+    folder = Path(benchmark_dir)
+    sensitivity = protocol_sensitivity(folder)
+    if sensitivity is not None:
+        return f"wrote {folder / 'sensitivity.md'}" if sensitivity.write(folder) else None
+    stale = [p for p in (folder / "sensitivity.md", folder / "sensitivity.png") if p.is_file()]
+    for path in stale:
+        path.unlink()
+    if stale:
+        return (
+            f"removed {', '.join(str(p) for p in stale)}: its tables rank fewer than two models "
+            f"under more than one protocol"
+        )
+    return None
+
+
 def protocol_sensitivity(benchmark_dir: str | Path, horizons_ms=HORIZONS_MS) -> Sensitivity | None:
     """The protocol-sensitivity table of one benchmark's results folder (``results/<name>``),
-    prediction tables only; None when its tables measure a single protocol."""
+    prediction tables only; None when its tables measure a single protocol or rank a single
+    model (whose rank is 1 under every protocol: nothing can move)."""
     from zoo.evaluation.results import read_table, table_files
     from zoo.protocol.published import place
 
@@ -200,6 +220,8 @@ def protocol_sensitivity(benchmark_dir: str | Path, horizons_ms=HORIZONS_MS) -> 
     horizons = [h for h in horizons_ms if h in set(rows["horizon_ms"])]
     columns = pd.MultiIndex.from_tuples([(p, h) for p in protocols for h in horizons])
     models = sorted(set(rows["model"]))
+    if len(models) < 2:
+        return None
     values = pd.DataFrame(np.nan, index=models, columns=columns)
     reported: dict[tuple[str, str], dict[int, float]] = {}
     for t in tables:
