@@ -10,6 +10,8 @@ import sys
 os.environ.pop("PYTHONDONTWRITEBYTECODE", None)
 sys.dont_write_bytecode = False
 
+import shutil  # noqa: E402
+from collections.abc import Callable  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
@@ -44,3 +46,25 @@ def swinging_cmu(tmp_path) -> tuple[Path, float]:
     omega = 0.01
     write_cmu_file(tmp_path / "cmu" / "test" / "walking" / "walking_1.txt", omega * np.arange(200))
     return tmp_path / "cmu", omega
+
+
+class Pristine:
+    """A folder built once per test process by ``build(folder)`` (a board, a trained run), on
+    the first :meth:`restore`, and put back as first built for each test after, so that
+    end-to-end tests share one build rather than each making its own. Restored at the path it
+    was built at: what a build writes records paths (a checkpoint its registry file)."""
+
+    def __init__(self, folder: Path, build: Callable[[Path], object]) -> None:
+        self.folder, self._build = folder, build
+        self._copy = folder.with_name(f"{folder.name}.pristine")
+
+    def restore(self) -> Path:
+        """The folder as it was built, whatever an earlier test did to it."""
+        if not self._copy.is_dir():
+            shutil.rmtree(self.folder, ignore_errors=True)  # what a failed build left
+            self._build(self.folder)
+            shutil.copytree(self.folder, self._copy, symlinks=True)
+            return self.folder
+        shutil.rmtree(self.folder, ignore_errors=True)
+        shutil.copytree(self._copy, self.folder, symlinks=True)
+        return self.folder

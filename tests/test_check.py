@@ -10,7 +10,7 @@ import numpy as np
 import pandas as pd
 import pytest
 import torch
-from conftest import write_cmu_file
+from conftest import Pristine, write_cmu_file
 from tiny_models import REGISTRY
 
 from zoo.cli import main
@@ -36,19 +36,20 @@ def _train(tmp, root, out, seed=0):
 @pytest.fixture(scope="module")
 def built(tmp_path_factory):
     """Two actions of CMU (walking, running), a trained tiny model beside repeat_last, and the
-    leaderboard built from them; each test works on its own copy."""
-    tmp = tmp_path_factory.mktemp("check") / "board"
-    root = tmp / "cmu"
-    for split in ("train", "test"):
-        write_cmu_file(root / split / "walking" / "walking_1.txt", 0.01 * np.arange(800))
-        write_cmu_file(root / split / "running" / "running_1.txt", 0.03 * np.arange(300))
-    (tmp / "registry.yaml").write_text(REGISTRY)
-    shutil.copy(HERE / "tiny_models.py", tmp / "tiny_models.py")
-    _train(tmp, root, tmp / "checkpoints" / "cmu" / "tiny")
-    _train(tmp, root, tmp / "other", seed=1)  # another checkpoint of the same model
-    assert main(["leaderboard", "--benchmark", "cmu", *_common(tmp)]) == 0
-    shutil.copytree(tmp, tmp.with_name("pristine"))
-    return tmp
+    leaderboard built from them; each test works on it as built (:func:`board`)."""
+
+    def build(tmp):
+        root = tmp / "cmu"
+        for split in ("train", "test"):
+            write_cmu_file(root / split / "walking" / "walking_1.txt", 0.01 * np.arange(800))
+            write_cmu_file(root / split / "running" / "running_1.txt", 0.03 * np.arange(300))
+        (tmp / "registry.yaml").write_text(REGISTRY)
+        shutil.copy(HERE / "tiny_models.py", tmp / "tiny_models.py")
+        _train(tmp, root, tmp / "checkpoints" / "cmu" / "tiny")
+        _train(tmp, root, tmp / "other", seed=1)  # another checkpoint of the same model
+        assert main(["leaderboard", "--benchmark", "cmu", *_common(tmp)]) == 0
+
+    return Pristine(tmp_path_factory.mktemp("check") / "board", build)
 
 
 def _common(tmp):
@@ -68,10 +69,8 @@ def _common(tmp):
 
 @pytest.fixture
 def board(built):
-    """The built board as it was made (rows record their registry's path, so it stays put)."""
-    shutil.rmtree(built)
-    shutil.copytree(built.with_name("pristine"), built)
-    return built
+    """The built board as it was made."""
+    return built.restore()
 
 
 def _files(folder):

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
-from conftest import write_cmu_file
+from conftest import Pristine, write_cmu_file
 from tiny_models import REGISTRY
 
 from zoo.core.errors import EvaluationError
@@ -31,7 +31,12 @@ def cmu_and_registry(tmp_path):
             write_cmu_file(root / split / "walking" / f"walking_{i}.txt", 0.01 * i * np.arange(800))
     (tmp_path / "registry.yaml").write_text(REGISTRY)
     shutil.copy(HERE / "tiny_models.py", tmp_path / "tiny_models.py")
-    return root, Registry.from_files(HERE.parent / "registry.yaml", tmp_path / "registry.yaml")
+    return root, registry_in(tmp_path)
+
+
+def registry_in(folder):
+    """The zoo's registry plus the tiny test models' registry file in ``folder``."""
+    return Registry.from_files(HERE.parent / "registry.yaml", folder / "registry.yaml")
 
 
 def trained_tiny(tmp_path, **options):
@@ -46,9 +51,46 @@ def trained_tiny(tmp_path, **options):
     return root, registry, checkpoints
 
 
-def test_regenerate_with_checkpoint_and_stale_result(tmp_path, capsys):
-    root, registry, checkpoints = trained_tiny(tmp_path)
-    out = tmp_path / "results"
+@pytest.fixture(scope="module")
+def _boards(tmp_path_factory):
+    """The boards several tests start from, each built once for the module: ``baseline``,
+    :func:`cmu_and_registry` and repeat_last's tables; ``trained``, :func:`trained_tiny` and
+    the tables of tiny's checkpoint beside repeat_last."""
+    folder = tmp_path_factory.mktemp("leaderboard")
+
+    def baseline(tmp):
+        root, registry = cmu_and_registry(tmp)
+        regenerate("cmu", registry=registry, data_root=root, out_root=tmp / "results")
+
+    def trained(tmp):
+        root, registry, checkpoints = trained_tiny(tmp)
+        regenerate(
+            "cmu", registry=registry, data_root=root, out_root=tmp / "results",
+            checkpoints=checkpoints,
+        )  # fmt: skip
+
+    return {
+        "baseline": Pristine(folder / "baseline", baseline),
+        "trained": Pristine(folder / "trained", trained),
+    }
+
+
+@pytest.fixture
+def baseline(_boards):
+    """:func:`cmu_and_registry`'s folder with repeat_last's tables in ``results``, as built."""
+    return _boards["baseline"].restore()
+
+
+@pytest.fixture
+def trained_board(_boards):
+    """:func:`trained_tiny`'s folder with the tables of tiny (its checkpoint) and repeat_last
+    in ``results``, as built."""
+    return _boards["trained"].restore()
+
+
+def test_regenerate_with_checkpoint_and_stale_result(trained_board, tmp_path, capsys):
+    root, registry = trained_board / "cmu", registry_in(trained_board)
+    checkpoints, out = trained_board / "checkpoints", trained_board / "results"
     written = regenerate(
         "cmu", registry=registry, data_root=root, out_root=out, checkpoints=checkpoints
     )
@@ -141,9 +183,9 @@ def test_a_row_from_a_run_short_of_its_recipe_is_marked_where_its_number_is(tmp_
     assert said in (site / "table-cmu-all.html").read_text()
 
 
-def test_completion_models_get_their_own_tables(tmp_path, capsys):
-    root, registry = cmu_and_registry(tmp_path)
-    checkpoints, out = tmp_path / "checkpoints", tmp_path / "results"
+def test_completion_models_get_their_own_tables(baseline, capsys):
+    root, registry = baseline / "cmu", registry_in(baseline)
+    checkpoints, out = baseline / "checkpoints", baseline / "results"
     # Only baselines for completion: no completion table.
     regenerate("cmu", registry=registry, data_root=root, out_root=out, checkpoints=checkpoints)
     assert not (out / "cmu" / "all-completion").exists()
@@ -179,14 +221,14 @@ def test_results_folder_names_sampler_task_and_ground_truth():
     assert table_folder("all", truth="spectral", melv="raw") == "all-gt_spectral-melv_raw"
 
 
-def test_check_recomputes_every_row_and_names_what_differs(tmp_path, capsys):
+def test_check_recomputes_every_row_and_names_what_differs(trained_board, capsys):
     from zoo.cli import main
 
-    root, _ = cmu_and_registry(tmp_path)
-    checkpoints, out = tmp_path / "checkpoints", tmp_path / "results"
+    root = trained_board / "cmu"
+    checkpoints, out = trained_board / "checkpoints", trained_board / "results"
     common = [
         "--registry",
-        str(tmp_path / "registry.yaml"),
+        str(trained_board / "registry.yaml"),
         "--data-root",
         str(root),
         "--out",
@@ -194,15 +236,8 @@ def test_check_recomputes_every_row_and_names_what_differs(tmp_path, capsys):
         "--checkpoints",
         str(checkpoints),
         "--weights",
-        str(tmp_path / "weights"),
+        str(trained_board / "weights"),
     ]
-    train(
-        "tiny",
-        "cmu",
-        RunOptions(data_root=root, progress=False, out_dir=checkpoints / "cmu" / "tiny"),
-        registry=Registry.from_files(HERE.parent / "registry.yaml", tmp_path / "registry.yaml"),
-        recipe_overrides={"epochs": 1},
-    )
     assert main(["leaderboard", "--benchmark", "cmu", *common]) == 0
     before = {p: p.stat().st_mtime_ns for p in out.rglob("*") if p.is_file()}
     capsys.readouterr()
@@ -268,13 +303,10 @@ def test_check_recomputes_every_row_and_names_what_differs(tmp_path, capsys):
     assert "all/tiny: cannot be recomputed" in capsys.readouterr().err
 
 
-def test_results_index_lists_every_table_with_its_headline(tmp_path):
+def test_results_index_lists_every_table_with_its_headline(baseline):
     from zoo.report.outputs import write_index
 
-    root, registry = cmu_and_registry(tmp_path)
-    out = tmp_path / "results"
-    regenerate("cmu", registry=registry, data_root=root, out_root=out)
-    text = write_index(out).read_text()
+    text = write_index(baseline / "results").read_text()
     assert text.startswith("# Results") and "zoo leaderboard --check" in text
     for folder in ("cmu/all", "cmu/ltd8"):
         assert f"### {folder}\n" in text and f"]({folder}/leaderboard.md)" in text
@@ -294,10 +326,8 @@ def test_the_committed_results_index_is_what_the_tables_write():
     )
 
 
-def test_an_interrupted_leaderboard_leaves_the_old_folder_whole(tmp_path, monkeypatch):
-    root, registry = cmu_and_registry(tmp_path)
-    out = tmp_path / "results"
-    regenerate("cmu", registry=registry, data_root=root, out_root=out)
+def test_an_interrupted_leaderboard_leaves_the_old_folder_whole(baseline, monkeypatch):
+    root, registry, out = baseline / "cmu", registry_in(baseline), baseline / "results"
     folder = out / "cmu" / "all"
     before = {p.relative_to(folder): p.read_bytes() for p in folder.rglob("*") if p.is_file()}
 
@@ -350,17 +380,15 @@ def test_a_model_asked_for_by_name_without_weights_is_an_error_naming_where_it_l
     assert "Traceback" not in err
 
 
-def test_base_shows_ones_rows_beside_the_committed_ones_and_never_writes_them(tmp_path):
+def test_base_shows_ones_rows_beside_the_committed_ones_and_never_writes_them(baseline, tmp_path):
     """--base RESULTS: the committed tables are the start, the user's rows go under --results
     beside them, and RESULTS is left byte for byte as it was."""
     from zoo.cli import main
 
-    root, registry = cmu_and_registry(tmp_path)
-    base, mine = tmp_path / "committed", tmp_path / "mine"
-    common = ["--registry", str(tmp_path / "registry.yaml"), "--benchmark", "cmu",
+    root, registry = baseline / "cmu", registry_in(baseline)
+    base, mine = baseline / "results", tmp_path / "mine"  # base: repeat_last's tables
+    common = ["--registry", str(baseline / "registry.yaml"), "--benchmark", "cmu",
               "--data-root", str(root), "--weights-dir", str(tmp_path / "no_weights")]  # fmt: skip
-    none = str(tmp_path / "no_checkpoints")
-    assert main(["leaderboard", *common, "--results", str(base), "--checkpoints", none]) == 0
     before = {p: p.read_bytes() for p in base.rglob("*") if p.is_file()}
     checkpoints = tmp_path / "checkpoints"
     train(

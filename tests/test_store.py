@@ -2,7 +2,9 @@
 replaced silently; the leaderboard reuses what still holds, recomputes what is new or stale, and
 never deletes a row it did not make."""
 
+import contextlib
 import copy
+import io
 import json
 import pickle
 import shutil
@@ -14,7 +16,7 @@ import numpy as np
 import pandas as pd
 import pytest
 import torch
-from conftest import write_cmu_file
+from conftest import Pristine, write_cmu_file
 from tiny_models import REGISTRY
 
 from zoo.cli import main
@@ -47,6 +49,10 @@ class DampedVelocity(nn.Module):
 
 @pytest.fixture
 def project(tmp_path):
+    return write_project(tmp_path)
+
+
+def write_project(tmp_path):
     """CMU data (two training files, one test file), the tiny models' registry and a user's
     registry with a constant-velocity baseline, each in its own folder."""
     root = tmp_path / "cmu"
@@ -114,6 +120,25 @@ def shipped_tiny(project, epochs=1, seed=0):
         recipe_overrides={"epochs": epochs},
     )
     return export_weights(best, root=project / "weights", dtype="float32")
+
+
+@pytest.fixture(scope="module")
+def _tiny_board(tmp_path_factory):
+    def build(folder):
+        write_project(folder)
+        shipped_tiny(folder)
+        with contextlib.redirect_stderr(io.StringIO()) as err:
+            assert main([str(a) for a in ("leaderboard", *board_args(folder, "tiny"))]) == 0
+        (folder / "leaderboard.err").write_text(err.getvalue())
+
+    return Pristine(tmp_path_factory.mktemp("store") / "project", build)
+
+
+@pytest.fixture
+def tiny_board(_tiny_board):
+    """A project with tiny trained and shipped (:func:`shipped_tiny`) and the leaderboard built
+    with its registry, as built; what the build said on stderr in ``leaderboard.err``."""
+    return _tiny_board.restore()
 
 
 def test_a_users_row_survives_a_rebuild_without_its_registry(project, capsys):
@@ -220,10 +245,9 @@ def test_eval_never_replaces_a_result_of_another_identity(project, capsys, tmp_p
     assert json.loads((place / "protocol.json").read_text())["input_frames"] == 12
 
 
-def test_a_stale_row_is_recomputed_and_a_current_one_reused(project, capsys):
-    shipped_tiny(project)
-    code, _, err = cli(capsys, "leaderboard", *board_args(project, "tiny"))
-    assert code == 0 and "recomputing tiny: new" in err
+def test_a_stale_row_is_recomputed_and_a_current_one_reused(tiny_board, capsys):
+    project = tiny_board
+    assert "recomputing tiny: new" in (project / "leaderboard.err").read_text()
     table = project / "results" / "cmu" / "all"
     written = {p: p.stat().st_mtime_ns for p in table.rglob("*") if p.is_file()}
 
@@ -294,11 +318,10 @@ def test_a_user_checkpoint_names_its_registry(project, capsys):
     )
 
 
-def test_readme_add_a_damped_velocity_baseline_to_the_cmu_ltd8_leaderboard(project, capsys):
+def test_readme_add_a_damped_velocity_baseline_to_the_cmu_ltd8_leaderboard(tiny_board, capsys):
     """The README's words: register a constant-velocity baseline from your own file and add it
     to the CMU leaderboard; no trained model is evaluated again."""
-    shipped_tiny(project)
-    assert cli(capsys, "leaderboard", *board_args(project, "tiny"))[0] == 0
+    project = tiny_board  # tiny shipped, and the leaderboard built with it
     table = project / "results" / "cmu" / "ltd8"
     tiny = (table / "tiny" / "protocol.json").read_bytes()
 

@@ -25,17 +25,29 @@ from zoo.train.options import RunOptions
 HERE = Path(__file__).resolve().parent
 
 
-@pytest.fixture
-def setup(tmp_path):
-    root = tmp_path / "cmu"
+def write_setup(folder: Path):
+    """Three training files and one test file of CMU walking in ``folder / "cmu"``, and the
+    tiny models' registry beside them: :func:`setup_in` of ``folder``."""
     for split, n in (("train", 3), ("test", 1)):
         for i in range(1, n + 1):
-            write_cmu_file(root / split / "walking" / f"walking_{i}.txt", 0.01 * i * np.arange(800))
-    reg_file = tmp_path / "registry.yaml"
-    reg_file.write_text(REGISTRY)
-    shutil.copy(HERE / "tiny_models.py", tmp_path / "tiny_models.py")
+            write_cmu_file(
+                folder / "cmu" / split / "walking" / f"walking_{i}.txt", 0.01 * i * np.arange(800)
+            )
+    (folder / "registry.yaml").write_text(REGISTRY)
+    shutil.copy(HERE / "tiny_models.py", folder / "tiny_models.py")
+    return setup_in(folder)
+
+
+def setup_in(folder: Path):
+    """The data root, registry and registry file :func:`write_setup` wrote in ``folder``."""
+    reg_file = folder / "registry.yaml"
     registry = Registry.from_files(Path(__file__).resolve().parents[1] / "registry.yaml", reg_file)
-    return root, registry, reg_file
+    return folder / "cmu", registry, reg_file
+
+
+@pytest.fixture
+def setup(tmp_path):
+    return write_setup(tmp_path)
 
 
 def run(setup, out, *, epochs=None, recipe=None, overrides=None, **options):

@@ -7,7 +7,8 @@ from dataclasses import asdict
 import pandas as pd
 import pytest
 import torch
-from test_train import run, setup  # noqa: F401  (setup is a fixture)
+from conftest import Pristine
+from test_train import run, setup_in, write_setup
 from tiny_models import weights_record
 
 import zoo
@@ -26,11 +27,24 @@ from zoo.hub.weights import (
 from zoo.leaderboard.rebuild import regenerate
 
 
+@pytest.fixture(scope="module")
+def built(tmp_path_factory):
+    """test_train's CMU data and registry, and tiny trained there for two epochs (``run``),
+    built once for the module."""
+    folder = tmp_path_factory.mktemp("weights") / "trained"
+    return Pristine(folder, lambda f: run(write_setup(f), f / "run", epochs=2))
+
+
 @pytest.fixture
-def trained(setup, tmp_path):  # noqa: F811
-    """A trained tiny model's run folder (best.pt, last.pt) on a written CMU data root."""
-    run(setup, tmp_path / "run", epochs=2)
-    return tmp_path / "run"
+def setup(built):
+    """test_train's ``setup``, in the built folder as it was built."""
+    return setup_in(built.restore())
+
+
+@pytest.fixture
+def trained(setup, built):
+    """A trained tiny model's run folder (best.pt, last.pt) on the setup's CMU data root."""
+    return built.folder / "run"
 
 
 @pytest.mark.parametrize("dtype", ["float32", "float16"])
@@ -127,7 +141,7 @@ def test_a_changed_weights_file_is_refused_naming_it(trained, tmp_path):
         read_weights(path)
 
 
-def test_foreign_weights_are_refused_naming_what_differs(trained, tmp_path, setup):  # noqa: F811
+def test_foreign_weights_are_refused_naming_what_differs(trained, tmp_path, setup):
     from safetensors.torch import save_file
 
     from zoo.core.io import sha256_file
@@ -151,7 +165,7 @@ def test_foreign_weights_are_refused_naming_what_differs(trained, tmp_path, setu
         read_weights(path)
 
 
-def test_weights_for_another_protocol_are_refused(trained, tmp_path, setup):  # noqa: F811
+def test_weights_for_another_protocol_are_refused(trained, tmp_path, setup):
     path = export_weights(trained / "best.pt", root=tmp_path / "w")
     record = json.loads(path.with_suffix(".json").read_text())
     record["protocol"]["output_frames"] = 10
@@ -165,7 +179,7 @@ def test_weights_for_another_protocol_are_refused(trained, tmp_path, setup):  # 
 def test_pretrained_model_comes_from_the_shipped_weights(
     trained,
     tmp_path,
-    setup,  # noqa: F811
+    setup,
     monkeypatch,
 ):
     monkeypatch.setattr(zoo.hub.weights, "WEIGHTS_DIR", tmp_path / "weights")
@@ -188,7 +202,7 @@ def test_pretrained_model_comes_from_the_shipped_weights(
 def test_eval_and_leaderboard_compute_the_row_from_the_weights(
     trained,
     tmp_path,
-    setup,  # noqa: F811
+    setup,
     capsys,
 ):
     root, registry, reg_file = setup
