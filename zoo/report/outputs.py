@@ -25,7 +25,7 @@ from zoo.evaluation.markdown import markdown_tables, metric_unit
 from zoo.evaluation.results import table_files
 from zoo.hub.records import WeightsRecord
 from zoo.protocol.comparable import check_comparable
-from zoo.report.tables import headline_table, table_summary
+from zoo.report.tables import headline_table, table_summary, table_views
 from zoo.stats.comparison import table_comparisons
 
 
@@ -54,17 +54,16 @@ def write_leaderboard(
     records = {r.protocol["protocol_id"]: r.protocol for r in results}
     check_comparable(records)
     frame = pd.concat([r.frame for r in results], ignore_index=True)
-    tables = markdown_tables(
-        frame,
-        records,
-        horizons_ms,
-        headline=headline_table(results, horizons_ms, efficiency, short_training=short_training),
+    views = table_views(results, horizons_ms)
+    headline = headline_table(
+        results, horizons_ms, efficiency, short_training=short_training, views=views
     )
+    tables = markdown_tables(frame, records, horizons_ms, headline=headline)
     protocol = dict(results[0].protocol)
     protocol["provenance"] = {"runs": [r.protocol.get("provenance", {}) for r in results]}
     atomic_write_text(out_dir / "leaderboard.md", tables)
     atomic_write_json(out_dir / "protocol.json", protocol)
-    summary = table_summary(results, horizons_ms)
+    summary = table_summary(results, horizons_ms, views)
     summary["comparisons"] = table_comparisons(results)
     atomic_write_json(out_dir / "summary.json", summary)
     if efficiency:

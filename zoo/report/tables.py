@@ -261,11 +261,28 @@ def view_words(view: TableView, reported: bool) -> str:
     return how
 
 
-def table_summary(results: list, horizons_ms: Iterable[int] | None = None) -> dict[str, Any]:
+def table_views(
+    results: list, horizons_ms: Iterable[int] | None = None
+) -> dict[tuple[str, str, str], TableView]:
+    """Every :class:`TableView` of ``results`` (one table's rows), by (metric, averaging,
+    joints): computed once for a table's headline and its summary (each view bootstraps
+    intervals and draws the bold rule's joint replicates)."""
+    frame = pd.concat([r.frame for r in results], ignore_index=True)
+    keys = frame[["metric", "averaging", "joints"]].drop_duplicates().itertuples(index=False)
+    views = {tuple(k): table_view(results, *k, horizons_ms, frame) for k in keys}
+    return {k: v for k, v in views.items() if v is not None}
+
+
+def table_summary(
+    results: list,
+    horizons_ms: Iterable[int] | None = None,
+    views: dict[tuple[str, str, str], TableView] | None = None,
+) -> dict[str, Any]:
     """A table as data (``summary.json`` beside ``leaderboard.md``), for readers other than
     Markdown's: per (metric, averaging, joints), each row's action average at the table's
     horizons with half its interval and whether it is bold, its value per action, its curve over
-    every predicted frame, and the published rows of that very protocol."""
+    every predicted frame, and the published rows of that very protocol. ``views``:
+    :func:`table_views` of ``results``, where the caller has them."""
     from zoo.protocol.published import load_published, place
 
     record = results[0].protocol
@@ -273,9 +290,10 @@ def table_summary(results: list, horizons_ms: Iterable[int] | None = None) -> di
     entries = load_published()  # read once for every view
     metric_h, joints_h = headline_key(record)
     order = _action_order(record)
+    computed = table_views(results, horizons_ms) if views is None else views
     views = []
     for (metric, averaging, joints), group in frame.groupby(["metric", "averaging", "joints"]):
-        view = table_view(results, metric, averaging, joints, horizons_ms, frame)
+        view = computed.get((metric, averaging, joints))
         if view is None:
             continue
         horizons = view.horizons
@@ -364,6 +382,7 @@ def headline_table(
     efficiency: dict[str, dict[str, Any]] | None = None,
     published: list | None = None,
     short_training: dict[str, tuple[str, str | None]] | None = None,
+    views: dict[tuple[str, str, str], TableView] | None = None,
 ) -> str:
     """Models as rows, horizons as columns: the benchmark's headline metric (frame averaging,
     action average) with half its 95% interval (:func:`interval_words` says which kind), in bold
@@ -378,12 +397,16 @@ def headline_table(
     ``zoo/protocol/published.yaml``); matching
     figures become ``reported`` rows, the others are listed below with their differences.
     ``short_training``: per row label whose weights were trained short of their recipe, what
-    its run saw and a link to its card: the row is marked (†) and the note is under the table."""
+    its run saw and a link to its card: the row is marked (†) and the note is under the table.
+    ``views``: :func:`table_views` of ``results``, where the caller has them."""
     from zoo.protocol.published import place
 
     record = results[0].protocol
     metric, joints = headline_key(record)
-    view = table_view(results, metric, "frame", joints, horizons_ms)
+    if views is None:
+        view = table_view(results, metric, "frame", joints, horizons_ms)
+    else:
+        view = views.get((metric, "frame", joints))
     if view is None:
         return ""
     horizons, values, half = view.horizons, view.values, view.half
