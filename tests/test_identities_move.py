@@ -80,7 +80,8 @@ def _probe_copy(tree: Path) -> dict:
 
 
 def _copy_tree(dest: Path) -> Path:
-    shutil.copytree(REPO_ROOT / "zoo", dest / "zoo", ignore=shutil.ignore_patterns("__pycache__"))
+    # compiled files too: each copied module unchanged is loaded, not compiled, by the probe
+    shutil.copytree(REPO_ROOT / "zoo", dest / "zoo")
     shutil.copy(REPO_ROOT / "registry.yaml", dest / "registry.yaml")
     (dest / "benchmarks").mkdir()
     for path in (REPO_ROOT / "benchmarks").iterdir():
