@@ -52,19 +52,29 @@ class Pristine:
     """A folder built once per test process by ``build(folder)`` (a board, a trained run), on
     the first :meth:`restore`, and put back as first built for each test after, so that
     end-to-end tests share one build rather than each making its own. Restored at the path it
-    was built at: what a build writes records paths (a checkpoint its registry file)."""
+    was built at: what a build writes records paths (a checkpoint its registry file). A build
+    that failed fails each test after with its error, unrepeated."""
 
     def __init__(self, folder: Path, build: Callable[[Path], object]) -> None:
         self.folder, self._build = folder, build
         self._copy = folder.with_name(f"{folder.name}.pristine")
+        self._failed: BaseException | None = None
 
     def restore(self) -> Path:
         """The folder as it was built, whatever an earlier test did to it."""
+        if self._failed is not None:
+            raise RuntimeError(f"{self.folder}: its build failed") from self._failed
+        if self.folder.exists():
+            shutil.rmtree(self.folder)
         if not self._copy.is_dir():
-            shutil.rmtree(self.folder, ignore_errors=True)  # what a failed build left
-            self._build(self.folder)
-            shutil.copytree(self.folder, self._copy, symlinks=True)
+            try:
+                self._build(self.folder)
+            except BaseException as e:
+                self._failed = e
+                raise
+            partial = self._copy.with_name(f"{self._copy.name}.partial")
+            shutil.copytree(self.folder, partial, symlinks=True)
+            partial.rename(self._copy)  # whole or absent
             return self.folder
-        shutil.rmtree(self.folder, ignore_errors=True)
         shutil.copytree(self._copy, self.folder, symlinks=True)
         return self.folder

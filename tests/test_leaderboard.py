@@ -10,6 +10,7 @@ import pytest
 from conftest import Pristine, write_cmu_file
 from tiny_models import REGISTRY
 
+from zoo.cli import main
 from zoo.core.errors import EvaluationError
 from zoo.evaluation.results import EvalResult, read_table
 from zoo.leaderboard.plan import Plan
@@ -58,16 +59,21 @@ def _boards(tmp_path_factory):
     the tables of tiny's checkpoint beside repeat_last."""
     folder = tmp_path_factory.mktemp("leaderboard")
 
-    def baseline(tmp):
-        root, registry = cmu_and_registry(tmp)
-        regenerate("cmu", registry=registry, data_root=root, out_root=tmp / "results")
+    def baseline(tmp):  # as a user builds it, results/README.md included
+        root, _ = cmu_and_registry(tmp)
+        assert main(
+            ["leaderboard", "--registry", str(tmp / "registry.yaml"), "--benchmark", "cmu",
+             "--data-root", str(root), "--results", str(tmp / "results"),
+             "--weights-dir", str(tmp / "no_weights"), "--checkpoints", str(tmp / "no_checkpoints")]
+        ) == 0  # fmt: skip
 
     def trained(tmp):
         root, registry, checkpoints = trained_tiny(tmp)
-        regenerate(
+        written = regenerate(
             "cmu", registry=registry, data_root=root, out_root=tmp / "results",
             checkpoints=checkpoints,
         )  # fmt: skip
+        assert [p.name for p in written] == ["ltd8", "all"]
 
     return {
         "baseline": Pristine(folder / "baseline", baseline),
@@ -222,8 +228,6 @@ def test_results_folder_names_sampler_task_and_ground_truth():
 
 
 def test_check_recomputes_every_row_and_names_what_differs(trained_board, capsys):
-    from zoo.cli import main
-
     root = trained_board / "cmu"
     checkpoints, out = trained_board / "checkpoints", trained_board / "results"
     common = [
@@ -355,7 +359,6 @@ def test_a_model_asked_for_by_name_without_weights_is_an_error_naming_where_it_l
     """--model of a trainable model with no shipped weights and no checkpoint: not '22 rows
     reused, 0 recomputed' and exit 0, but one error naming the files it looked for; nothing
     written."""
-    from zoo.cli import main
     from zoo.store.layout import StoreError
 
     root, registry = cmu_and_registry(tmp_path)
@@ -383,8 +386,6 @@ def test_a_model_asked_for_by_name_without_weights_is_an_error_naming_where_it_l
 def test_base_shows_ones_rows_beside_the_committed_ones_and_never_writes_them(baseline, tmp_path):
     """--base RESULTS: the committed tables are the start, the user's rows go under --results
     beside them, and RESULTS is left byte for byte as it was."""
-    from zoo.cli import main
-
     root, registry = baseline / "cmu", registry_in(baseline)
     base, mine = baseline / "results", tmp_path / "mine"  # base: repeat_last's tables
     common = ["--registry", str(baseline / "registry.yaml"), "--benchmark", "cmu",
@@ -407,8 +408,6 @@ def test_base_shows_ones_rows_beside_the_committed_ones_and_never_writes_them(ba
 
 
 def test_base_with_an_unknown_model_writes_nothing(tmp_path, capsys):
-    from zoo.cli import main
-
     root, _ = cmu_and_registry(tmp_path)
     (tmp_path / "committed" / "cmu" / "all").mkdir(parents=True)
     code = main(

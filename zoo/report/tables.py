@@ -266,7 +266,8 @@ def table_views(
 ) -> dict[tuple[str, str, str], TableView]:
     """Every :class:`TableView` of ``results`` (one table's rows), by (metric, averaging,
     joints): computed once for a table's headline and its summary (each view bootstraps
-    intervals and draws the bold rule's joint replicates)."""
+    intervals and draws the bold rule's joint replicates). A caller passing them on passes the
+    same ``horizons_ms``."""
     frame = pd.concat([r.frame for r in results], ignore_index=True)
     keys = frame[["metric", "averaging", "joints"]].drop_duplicates().itertuples(index=False)
     views = {tuple(k): table_view(results, *k, horizons_ms, frame) for k in keys}
@@ -291,7 +292,7 @@ def table_summary(
     metric_h, joints_h = headline_key(record)
     order = _action_order(record)
     computed = table_views(results, horizons_ms) if views is None else views
-    views = []
+    summaries = []
     for (metric, averaging, joints), group in frame.groupby(["metric", "averaging", "joints"]):
         view = computed.get((metric, averaging, joints))
         if view is None:
@@ -325,7 +326,7 @@ def table_summary(
                 }
             )
         placed = place(record, metric, averaging, joints, entries)
-        views.append(
+        summaries.append(
             {
                 "metric": metric,
                 "averaging": averaging,
@@ -367,12 +368,12 @@ def table_summary(
                 ],
             }
         )
-    views.sort(key=lambda v: not v["headline"])
+    summaries.sort(key=lambda v: not v["headline"])
     return {
         "benchmark": record["benchmark"],
         "protocol_id": record["protocol_id"],
         "actions": list(record.get("actions_present", [])),
-        "views": views,
+        "views": summaries,
     }
 
 

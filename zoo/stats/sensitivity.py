@@ -168,8 +168,8 @@ def update_sensitivity(benchmark_dir: str | Path) -> str | None:
         path.unlink()
     if stale:
         return (
-            f"removed {', '.join(str(p) for p in stale)}: its tables rank fewer than two models "
-            f"under more than one protocol"
+            f"removed {', '.join(str(p) for p in stale)}: its tables no longer rank two models "
+            f"under two protocols"
         )
     return None
 
