@@ -9,6 +9,11 @@ import sys
 # git ignores __pycache__. Set here, before the imports below and before the workers start.
 os.environ.pop("PYTHONDONTWRITEBYTECODE", None)
 sys.dont_write_bytecode = False
+# One thread per pytest-xdist worker, the workers sharing the machine's cores: numpy's and
+# scipy's BLAS read this before they load (below), and so does every command a test runs.
+if os.environ.get("PYTEST_XDIST_WORKER"):
+    for threads in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ.setdefault(threads, "1")
 
 import shutil  # noqa: E402
 from collections.abc import Callable  # noqa: E402
@@ -18,7 +23,6 @@ import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 import torch  # noqa: E402
 
-# One thread per pytest-xdist worker: the workers share the machine's cores.
 if os.environ.get("PYTEST_XDIST_WORKER"):
     torch.set_num_threads(1)
 
