@@ -341,15 +341,22 @@ def test_every_two_predictions_of_a_table_are_compared_once_the_readers_first(ta
 
 
 def test_a_row_trained_short_of_its_recipe_says_so_where_its_number_is(tmp_path):
-    """spgsn's shipped run capped its epochs at 50 batches (22% of the recipe's windows): its
-    rows carry a note in the table's data; a record with the epoch's window count gives the
-    share; a full run gives none."""
+    """A shipped run that capped its epochs at 50 batches (as SPGSN's first weights did, 22% of
+    the recipe's windows): its rows carry a note in the table's data; a record with the epoch's
+    window count gives the share; a full run gives none."""
     from zoo.report.cards import Shipped, budget_note, short_training_notes
 
     results = _copy_results(tmp_path, "cmu")
-    build_site(tmp_path / "site", results)
+    weights = tmp_path / "weights"
+    shutil.copytree(REPO_ROOT / "weights" / "cmu", weights / "cmu")
+    build_site(tmp_path / "full", results, weights_root=weights)
+    assert "its run saw" not in (tmp_path / "full" / "table-cmu-all.html").read_text()
+    short = json.loads((weights / "cmu" / "spgsn@last.json").read_text())
+    short["max_batches"], short["training"]["samples_seen"] = 50, 161_920
+    (weights / "cmu" / "spgsn@last.json").write_text(json.dumps(short))
+    build_site(tmp_path / "site", results, weights_root=weights)
     page = (tmp_path / "site" / "table-cmu-all.html").read_text()
-    assert '"spgsn@last":"its run capped each epoch at 50 batches (161,920' in page
+    assert '"spgsn@last":"its run saw 23% of its recipe\'s training windows (161,920' in page
     record = {
         "training": {"samples_seen": 161_920},
         "validation": {"training_windows": 14_389},
