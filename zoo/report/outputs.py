@@ -54,7 +54,7 @@ def write_leaderboard(
     records = {r.protocol["protocol_id"]: r.protocol for r in results}
     check_comparable(records)
     frame = pd.concat([r.frame for r in results], ignore_index=True)
-    views = table_views(results, horizons_ms)
+    views = table_views(results, horizons_ms, frame)
     headline = headline_table(
         results, horizons_ms, efficiency, short_training=short_training, views=views
     )

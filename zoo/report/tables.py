@@ -262,13 +262,14 @@ def view_words(view: TableView, reported: bool) -> str:
 
 
 def table_views(
-    results: list, horizons_ms: Iterable[int] | None = None
+    results: list, horizons_ms: Iterable[int] | None = None, frame: pd.DataFrame | None = None
 ) -> dict[tuple[str, str, str], TableView]:
     """Every :class:`TableView` of ``results`` (one table's rows), by (metric, averaging,
     joints): computed once for a table's headline and its summary (each view bootstraps
     intervals and draws the bold rule's joint replicates). A caller passing them on passes the
-    same ``horizons_ms``."""
-    frame = pd.concat([r.frame for r in results], ignore_index=True)
+    same ``horizons_ms``. ``frame``: the rows' frames concatenated, where the caller has it."""
+    if frame is None:
+        frame = pd.concat([r.frame for r in results], ignore_index=True)
     keys = frame[["metric", "averaging", "joints"]].drop_duplicates().itertuples(index=False)
     views = {tuple(k): table_view(results, *k, horizons_ms, frame) for k in keys}
     return {k: v for k, v in views.items() if v is not None}
@@ -291,7 +292,7 @@ def table_summary(
     entries = load_published()  # read once for every view
     metric_h, joints_h = headline_key(record)
     order = _action_order(record)
-    computed = table_views(results, horizons_ms) if views is None else views
+    computed = table_views(results, horizons_ms, frame) if views is None else views
     summaries = []
     for (metric, averaging, joints), group in frame.groupby(["metric", "averaging", "joints"]):
         view = computed.get((metric, averaging, joints))
