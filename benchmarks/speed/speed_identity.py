@@ -43,6 +43,7 @@ def _forget_pieces() -> None:
     for key in [k for k in fingerprint._KEPT if k[0] == "pieces"]:
         del fingerprint._KEPT[key]
     fingerprint._imported_names.cache_clear()
+    fingerprint._imported_module_files.cache_clear()
 
 
 def _forget_reached() -> None:
@@ -53,6 +54,7 @@ def _forget_reached() -> None:
 def _forget_all() -> None:
     fingerprint._KEPT.clear()
     fingerprint._imported_names.cache_clear()
+    fingerprint._imported_module_files.cache_clear()
     fingerprint._module_parts.cache_clear()
 
 

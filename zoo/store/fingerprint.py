@@ -14,10 +14,10 @@ the store's policy (:mod:`zoo.store.identity`).
 from __future__ import annotations
 
 import ast
-import copy
 import functools
 import hashlib
 import inspect
+import os
 import re
 from functools import cache
 from pathlib import Path
@@ -30,31 +30,36 @@ from zoo.paths import REPO_ROOT
 _NAMED_DEFINITION = re.compile(r"zoo(?:\.\w+)+:\w+")
 
 
-def _tree_text(node) -> str:
+def _tree_text(node, rewrite=None) -> str:
     """A syntax tree as text: node types and field values, docstrings and empty fields left
-    out (so the text is the same on every Python version that parses the file alike)."""
+    out (so the text is the same on every Python version that parses the file alike).
+    ``rewrite(node)``: a node written in that one's place as it is, or None to write the node
+    and go on into its fields (written in one pass: no copy of the tree is changed)."""
     if isinstance(node, ast.AST):
+        if rewrite is not None and (new := rewrite(node)) is not None:
+            return _tree_text(new)
         body = getattr(node, "body", None)
         fields = []
         for name in node._fields:
             value = getattr(node, name, None)
-            if name == "body" and isinstance(body, list) and _is_docstring(body):
+            if name == "body" and isinstance(body, list) and _is_docstring(body, rewrite):
                 value = body[1:]
             if value is None or value == [] or name in ("kind", "type_comment"):
                 continue
-            fields.append(f"{name}={_tree_text(value)}")
+            fields.append(f"{name}={_tree_text(value, rewrite)}")
         return f"{type(node).__name__}({','.join(fields)})"
     if isinstance(node, list):
-        return "[" + ",".join(_tree_text(v) for v in node) + "]"
+        return "[" + ",".join(_tree_text(v, rewrite) for v in node) + "]"
     return repr(node)
 
 
-def _is_docstring(body: list) -> bool:
+def _is_docstring(body: list, rewrite=None) -> bool:
     first = body[0] if body else None
     return (
         isinstance(first, ast.Expr)
         and isinstance(first.value, ast.Constant)
         and isinstance(first.value.value, str)
+        and (rewrite is None or rewrite(first.value) is None)  # a string naming code is code
     )
 
 
@@ -301,10 +306,10 @@ def _bound_names_of(node) -> list[str]:
     return [n for t in targets for n in _bound_names(t)]
 
 
-class _ByName(ast.NodeTransformer):
-    """A statement's tree with every reference to a definition (of its own module, or reached
-    through an import of a zoo module or one beside a model file) replaced by ``token(file,
-    name)``; imports of such modules removed."""
+class _ByName:
+    """Writes a statement's every reference to a definition (of its own module, or reached
+    through an import of a zoo module or one beside a model file) as ``token(file, name)``,
+    and imports of such modules as ``pass``: :meth:`rewrite`, for :func:`_tree_text`."""
 
     def __init__(self, path: Path, names: dict[str, tuple], defs: dict, shadowed: set, token):
         self.path, self.names, self.defs, self.shadowed = path, names, defs, shadowed
@@ -319,46 +324,45 @@ class _ByName(ast.NodeTransformer):
             return self.path, name, rest
         return None
 
-    def visit_Name(self, node):
-        found = self._lookup(node.id, [])
-        if found is None or not isinstance(node.ctx, ast.Load):
-            return node
-        return ast.Name(id=self.token(found[0], found[1]), ctx=node.ctx)
+    def rewrite(self, node):
+        """The node written in ``node``'s place, or None where it stays (its fields written)."""
+        if isinstance(node, ast.Name):
+            found = self._lookup(node.id, []) if isinstance(node.ctx, ast.Load) else None
+            return None if found is None else ast.Name(id=self.token(*found[:2]), ctx=node.ctx)
+        if isinstance(node, ast.Attribute):
+            return self._attribute(node)
+        if isinstance(node, ast.Constant):
+            return self._constant(node)
+        if isinstance(node, (ast.Import, ast.ImportFrom)):
+            bindings = _import_bindings(node, _package_of(self.path), self.path)
+            return None if all(b[0] == "outside" for b in bindings.values()) else ast.Pass()
+        return None
 
-    def visit_Attribute(self, node):
+    def _attribute(self, node):
         chain, base = [node.attr], node.value
         while isinstance(base, ast.Attribute):
             chain.insert(0, base.attr)
             base = base.value
         if not isinstance(base, ast.Name) or not isinstance(node.ctx, ast.Load):
-            return self.generic_visit(node)
+            return None
         found = self._lookup(base.id, chain)
         if found is None:
-            return self.generic_visit(node)
+            return None
         file, name, rest = found
         out: ast.expr = ast.Name(id=self.token(file, name), ctx=ast.Load())
         for attribute in rest:
             out = ast.Attribute(value=out, attr=attribute, ctx=ast.Load())
         return out
 
-    def visit_Constant(self, node):
+    @staticmethod
+    def _constant(node):
         # by its name alone: what a string names is loaded on demand, and its code is counted
         # where it is loaded (zoo.store.identity.dataset_code), not wherever it is named
         if isinstance(node.value, str) and _NAMED_DEFINITION.fullmatch(node.value):
             module, name = node.value.split(":")
             if zoo_module_file(module) is not None:
                 return ast.Name(id=f"@{name}", ctx=ast.Load())
-        return node
-
-    def visit_Import(self, node):
-        return self._kept_import(node)
-
-    def visit_ImportFrom(self, node):
-        return self._kept_import(node)
-
-    def _kept_import(self, node):
-        bindings = _import_bindings(node, _package_of(self.path), self.path)
-        return node if all(b[0] == "outside" for b in bindings.values()) else ast.Pass()
+        return None
 
 
 def _text_by_name(path: Path, node, level: int) -> str:
@@ -375,8 +379,7 @@ def _text_by_name(path: Path, node, level: int) -> str:
             return f"@{name}"
         return f"@{name}#{_definition_digest(file, name)}"
 
-    tree = _ByName(path, names, defs, _shadowed(node), token).visit(copy.deepcopy(node))
-    return _tree_text(tree)
+    return _tree_text(node, _ByName(path, names, defs, _shadowed(node), token).rewrite)
 
 
 def _definition_digest(file: Path, name: str) -> str:
@@ -396,12 +399,13 @@ _frames: list[tuple[dict[str, int], tuple]] = []  # (read so far, layout) of eac
 def _layout() -> tuple:
     """Every folder of the zoo package with its mtime: a module added, removed or renamed
     anywhere in it changes what an import of a zoo module binds."""
-    folders = [REPO_ROOT / "zoo"]
-    # not __pycache__: Python writes compiled files there as modules load, which moves no import
-    folders += sorted(
-        p for p in folders[0].rglob("*") if p.is_dir() and "__pycache__" not in p.parts
-    )
-    return tuple((str(f), f.stat().st_mtime_ns) for f in folders)
+    folders = []
+    for folder, subfolders, _ in os.walk(REPO_ROOT / "zoo"):
+        # not __pycache__: Python writes compiled files there as modules load, which moves no
+        # import; os.walk lists folders only (a glob would stat every file, compiled ones too)
+        subfolders[:] = sorted(f for f in subfolders if f != "__pycache__")
+        folders.append(folder)
+    return tuple((f, os.stat(f).st_mtime_ns) for f in folders)
 
 
 _scopes: list[tuple] = []  # the layout read once at a public entry point, for all it calls
@@ -492,12 +496,17 @@ def _imported_files(path: Path) -> set[Path]:
     """The zoo modules a file imports, at module level or inside functions, absolute or
     relative (``from zoo.models import dct`` names the module ``zoo.models.dct``)."""
     try:
-        names = _imported_names(str(path), path.stat().st_mtime_ns)
+        mtime_ns = path.stat().st_mtime_ns
     except OSError:
         return set()
-    # resolved now, not kept: which of these names are modules depends on the files that exist
-    found = {zoo_module_file(n) for n in names}
-    return {f for f in found if f is not None}
+    return set(_imported_module_files(str(path), mtime_ns, _current_layout()))
+
+
+@cache
+def _imported_module_files(file: str, mtime_ns: int, layout: tuple) -> frozenset[Path]:
+    # kept for the zoo's folders as they are: which names are modules depends on what exists
+    found = {zoo_module_file(n) for n in _imported_names(file, mtime_ns)}
+    return frozenset(f for f in found if f is not None)
 
 
 @cache
@@ -519,6 +528,7 @@ def _imported_names(file: str, mtime_ns: int) -> tuple[str, ...]:
     return tuple(names)
 
 
+@_one_layout
 def code_closure(*files: str | Path, skip: frozenset[Path] = frozenset()) -> list[Path]:
     """``files`` and every zoo module they import, transitively, but for ``skip`` (sorted)."""
     todo = [Path(f) if Path(f).is_absolute() else (REPO_ROOT / f) for f in files]
