@@ -138,7 +138,6 @@ class Sensitivity:
             ax.set_ylabel("rank (1 = lowest error)")
             ax.grid(alpha=0.3)
         fig.suptitle(f"{self.benchmark}: rank of each model under each protocol", fontsize=10)
-        fig.tight_layout()
         save_figure(fig, path)
 
     def write(self, folder: str | Path) -> bool:
