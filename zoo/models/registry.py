@@ -9,7 +9,9 @@ relative to the registry file that names it).
 
 from __future__ import annotations
 
+import copy
 import dataclasses
+import functools
 import importlib
 import importlib.util
 import inspect
@@ -200,6 +202,18 @@ def _check_siblings(file: Path, source: Path, model: str) -> None:
             )
 
 
+def _registry_file_data(path: Path) -> Any:
+    """A registry file's YAML as data, a copy of the parse kept for the file as it is (its
+    size and mtime): a command loads the registry many times (every table, every plot)."""
+    stat = path.stat()
+    return copy.deepcopy(_parsed_yaml(str(path.resolve()), stat.st_mtime_ns, stat.st_size))
+
+
+@functools.lru_cache(maxsize=16)
+def _parsed_yaml(path: str, mtime_ns: int, size: int) -> Any:
+    return load_yaml(Path(path).read_text())
+
+
 class Registry:
     def __init__(self, entries: dict[str, ModelEntry] | None = None) -> None:
         self.entries: dict[str, ModelEntry] = dict(entries or {})
@@ -216,7 +230,7 @@ class Registry:
         if not path.is_file():
             raise RegistryError(f"registry file {path} does not exist")
         try:
-            data = load_yaml(path.read_text()) or {}
+            data = _registry_file_data(path) or {}
         except yaml.YAMLError as e:
             raise RegistryError(f"{path}: not valid YAML ({e})") from e
         models = data.get("models") if isinstance(data, dict) else None
