@@ -201,13 +201,20 @@ def _bound_names(target) -> list[str]:
 
 
 @cache
+def _syntax_tree(file: str, mtime_ns: int) -> ast.Module:
+    """A file's syntax tree, parsed once for the file as it is; read, never changed (the
+    import scan and the module's parts share it)."""
+    return ast.parse(Path(file).read_text(), filename=file)
+
+
+@cache
 def _module_parts(path: str, mtime_ns: int, folder_mtime_ns: int, layout: tuple) -> tuple:
     """A module's top level: ``defs`` (name -> the statements that bind it: functions,
     classes, assignments), ``imports`` (name -> what :func:`_import_bindings` says it binds)
     and ``others`` (every other statement: it runs on import, whatever is reached). Kept for
     the file as it is, in its folder and the zoo's folders as they are (:func:`_layout`): what
     an import binds depends on which modules exist."""
-    tree = ast.parse(Path(path).read_text(), filename=path)
+    tree = _syntax_tree(path, mtime_ns)
     package = _package_of(Path(path))
     defs: dict[str, list] = {}
     imports: dict[str, tuple] = {}
@@ -514,7 +521,7 @@ def _imported_names(file: str, mtime_ns: int) -> tuple[str, ...]:
     """Every module name a file's imports could name (its parse kept for the file as it is)."""
     path = Path(file)
     try:
-        tree = ast.parse(path.read_text())
+        tree = _syntax_tree(file, mtime_ns)
     except (OSError, SyntaxError):
         return ()
     package = _package_of(path)
