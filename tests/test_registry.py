@@ -239,6 +239,22 @@ def test_entry_task_is_checked(tmp_path):
         Registry.from_files(path)
 
 
+def test_a_registry_file_rewritten_in_place_is_read_anew(tmp_path):
+    """A file edited to the same size with its time put back (an editor, a copy that keeps
+    times) is read as it is now, not as a kept parse of it."""
+    import os
+
+    path = tmp_path / "r.yaml"
+    entry = "models:\n  m:\n    class: zoo.models.repeat_last.RepeatLast\n"
+    path.write_text(entry + "    representation: joints\n    description: first\n")
+    stat = path.stat()
+    assert Registry.from_files(path).get("m").description == "first"
+    path.write_text(entry + "    representation: joints\n    description: again\n")
+    os.utime(path, ns=(stat.st_atime_ns, stat.st_mtime_ns))
+    assert path.stat().st_size == stat.st_size and path.stat().st_mtime_ns == stat.st_mtime_ns
+    assert Registry.from_files(path).get("m").description == "again"
+
+
 def test_a_known_name_needs_an_explicit_override_that_results_record(
     tmp_path, swinging_cmu, capsys
 ):

@@ -203,15 +203,14 @@ def _check_siblings(file: Path, source: Path, model: str) -> None:
 
 
 def _registry_file_data(path: Path) -> Any:
-    """A registry file's YAML as data, a copy of the parse kept for the file as it is (its
-    size and mtime): a command loads the registry many times (every table, every plot)."""
-    stat = path.stat()
-    return copy.deepcopy(_parsed_yaml(str(path.resolve()), stat.st_mtime_ns, stat.st_size))
+    """A registry file's YAML as data: a copy of the parse kept for that text, since a command
+    loads the registry many times (every table, every plot) and the parse is most of a load."""
+    return copy.deepcopy(_parsed_yaml(path.read_text()))
 
 
 @functools.lru_cache(maxsize=16)
-def _parsed_yaml(path: str, mtime_ns: int, size: int) -> Any:
-    return load_yaml(Path(path).read_text())
+def _parsed_yaml(text: str) -> Any:
+    return load_yaml(text)
 
 
 class Registry:

@@ -407,9 +407,10 @@ def _layout() -> tuple:
     """Every folder of the zoo package with its mtime: a module added, removed or renamed
     anywhere in it changes what an import of a zoo module binds."""
     folders = []
-    for folder, subfolders, _ in os.walk(REPO_ROOT / "zoo"):
+    for folder, subfolders, _ in os.walk(REPO_ROOT / "zoo", followlinks=True):
         # not __pycache__: Python writes compiled files there as modules load, which moves no
-        # import; os.walk lists folders only (a glob would stat every file, compiled ones too)
+        # import; os.walk lists folders only (a glob would stat every file), following links
+        # to folders as imports do
         subfolders[:] = sorted(f for f in subfolders if f != "__pycache__")
         folders.append(folder)
     return tuple((f, os.stat(f).st_mtime_ns) for f in folders)
