@@ -406,13 +406,13 @@ _frames: list[tuple[dict[str, int], tuple]] = []  # (read so far, layout) of eac
 def _layout() -> tuple:
     """Every folder of the zoo package with its mtime: a module added, removed or renamed
     anywhere in it changes what an import of a zoo module binds."""
-    folders = []
-    for folder, subfolders, _ in os.walk(REPO_ROOT / "zoo", followlinks=True):
+    folders = [str(REPO_ROOT / "zoo")]
+    for folder, subfolders, _ in os.walk(folders[0]):
         # not __pycache__: Python writes compiled files there as modules load, which moves no
-        # import; os.walk lists folders only (a glob would stat every file), following links
-        # to folders as imports do
+        # import; os.walk lists folders only (a glob would stat every file). A link to a folder
+        # is listed, with its target's mtime, but not walked into (a link may loop)
         subfolders[:] = sorted(f for f in subfolders if f != "__pycache__")
-        folders.append(folder)
+        folders += [os.path.join(folder, f) for f in subfolders]
     return tuple((f, os.stat(f).st_mtime_ns) for f in folders)
 
 
