@@ -15,6 +15,7 @@ if os.environ.get("PYTEST_XDIST_WORKER"):
     for threads in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ.setdefault(threads, "1")
 
+import io  # noqa: E402
 import shutil  # noqa: E402
 from collections.abc import Callable  # noqa: E402
 from pathlib import Path  # noqa: E402
@@ -34,13 +35,24 @@ JOINT5 = 3 + 3 * 5
 LEAF_OFFSET = 1.11249 * 70  # joint 6's bone length (mm): the only joint that joint 5 moves
 
 
+# A file's text by its angles: many tests write the same motion, and formatting it is most of
+# the writing.
+_CMU_TEXT: dict[bytes, str] = {}
+
+
 def write_cmu_file(path: Path, angles: np.ndarray) -> Path:
     """A CMU exp-map file whose only motion is joint 5 rotating about x by ``angles``."""
-    frames = np.zeros((len(angles), 117))
-    frames[:, :3] = [1.0, 2.0, 3.0]  # root position: never applied
-    frames[:, JOINT5] = angles
+    angles = np.asarray(angles, dtype=np.float64)
+    text = _CMU_TEXT.get(angles.tobytes())
+    if text is None:
+        frames = np.zeros((len(angles), 117))
+        frames[:, :3] = [1.0, 2.0, 3.0]  # root position: never applied
+        frames[:, JOINT5] = angles
+        buffer = io.StringIO()
+        np.savetxt(buffer, frames, delimiter=",", fmt="%.10f")
+        text = _CMU_TEXT.setdefault(angles.tobytes(), buffer.getvalue())
     path.parent.mkdir(parents=True, exist_ok=True)
-    np.savetxt(path, frames, delimiter=",", fmt="%.10f")
+    path.write_text(text)
     return path
 
 
