@@ -221,7 +221,7 @@ def test_speed_plots_copies_the_drawn_bytes_and_prints_a_finite_ratio(capsys):
     out = capsys.readouterr().out.splitlines()
     assert out[1].startswith("cmu/ltd8") and "the same bytes, 0 redrawn" in out[1]
     assert row["same"] and row["redrawn"] == 0
-    for key in ("drawn", "copied", "ratio"):
+    for key in ("drawn", "copied", "ratio", "tight", "tight_ratio"):
         assert math.isfinite(row[key]) and row[key] > 0, key
 
 

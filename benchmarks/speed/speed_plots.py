@@ -6,7 +6,9 @@ plot with the same digest is copied (:func:`zoo.report.outputs.plot_average`). F
 given, this times ``plot_average`` drawing into an empty folder (``drawn``: what every rebuild
 paid before) and with the drawn folder as the stored one (``copied``), as medians of
 ``--repeats`` runs taken in turn, and says whether the copies are the drawn files byte for byte
-and how many plots the copying runs drew (they must be, and none).
+and how many plots the copying runs drew (they must be, and none). ``tight`` times the drawing
+laid out by matplotlib's ``tight_layout``, as plots were before their margins were fixed
+(:func:`zoo.report.outputs.place_panels`), beside the drawing as it is.
 
 Run: python benchmarks/speed/speed_plots.py [--table results/cmu/all ...] [--repeats 3]
 """
@@ -28,7 +30,7 @@ from zoo.report.outputs import plot_average, table_title
 def measure(table: Path, repeats: int) -> dict:
     frame = read_table(table).frame
     title = table_title((table / "leaderboard.md").read_text())
-    drawn_s, copied_s, same, redrawn = [], [], True, 0
+    drawn_s, copied_s, tight_s, same, redrawn = [], [], [], True, 0
     draw = outputs.save_figure
 
     def counted(*args, **kwargs):
@@ -36,8 +38,18 @@ def measure(table: Path, repeats: int) -> dict:
         redrawn += 1
         draw(*args, **kwargs)
 
+    def laid_out_tight(fig, path, drawn_from=None, tight=False):
+        draw(fig, path, drawn_from, tight=True)
+
     with tempfile.TemporaryDirectory() as tmp:
         for i in range(repeats):
+            outputs.save_figure = laid_out_tight
+            try:
+                started = time.perf_counter()
+                plot_average(frame, Path(tmp) / f"tight{i}", title)
+                tight_s.append(time.perf_counter() - started)
+            finally:
+                outputs.save_figure = draw
             started = time.perf_counter()
             drawn = plot_average(frame, Path(tmp) / f"drawn{i}", title)
             drawn_s.append(time.perf_counter() - started)
@@ -50,12 +62,15 @@ def measure(table: Path, repeats: int) -> dict:
                 outputs.save_figure = draw
             same &= all(a.read_bytes() == b.read_bytes() for a, b in zip(drawn, copied))
     drawn_m, copied_m = statistics.median(drawn_s), statistics.median(copied_s)
+    tight_m = statistics.median(tight_s)
     return {
         "table": str(table),
         "plots": len(drawn),
         "drawn": drawn_m,
         "copied": copied_m,
         "ratio": drawn_m / copied_m,
+        "tight": tight_m,
+        "tight_ratio": tight_m / drawn_m,
         "same": same,
         "redrawn": redrawn,
     }
@@ -71,7 +86,10 @@ def main(argv=None) -> list[dict]:
     )
     parser.add_argument("--repeats", type=int, default=3)
     args = parser.parse_args(argv)
-    print("table                 plots  drawn (s)  copied (s)  drawn/copied  files, redrawn")
+    print(
+        "table                 plots  drawn (s)  copied (s)  drawn/copied  files, redrawn"
+        "  tight (s)  tight/drawn"
+    )
     rows = []
     for table in args.table:
         r = measure(table, args.repeats)
@@ -80,7 +98,8 @@ def main(argv=None) -> list[dict]:
         same = "the same bytes" if r["same"] else "DIFFER"
         print(
             f"{name:<21} {r['plots']:5d}  {r['drawn']:9.3f}  {r['copied']:10.4f}  "
-            f"{r['ratio']:11.0f}x  {same}, {r['redrawn']} redrawn"
+            f"{r['ratio']:11.0f}x  {same}, {r['redrawn']} redrawn  {r['tight']:9.3f}  "
+            f"{r['tight_ratio']:10.2f}x"
         )
     return rows
 

@@ -211,13 +211,17 @@ def code_version() -> str:
 DRAWN_FROM = "Drawn-From"
 
 
-def save_figure(fig, path: str | Path, drawn_from: str | None = None) -> None:
+def save_figure(
+    fig, path: str | Path, drawn_from: str | None = None, *, tight: bool = True
+) -> None:
     """A matplotlib figure as PNG, atomically; the figure is closed. ``drawn_from``: a digest of
     everything the figure shows, kept in the PNG (:func:`figure_drawn_from`), so that a figure
-    asked for again from the same inputs is copied instead of drawn."""
+    asked for again from the same inputs is copied instead of drawn. ``tight``: laid out by
+    matplotlib's ``tight_layout`` (False: the caller placed the axes)."""
     import matplotlib.pyplot as plt
 
-    fig.tight_layout()
+    if tight:
+        fig.tight_layout()
     with atomic_path(path) as tmp:
         fig.savefig(tmp, format="png", dpi=110, metadata={DRAWN_FROM: drawn_from or None})
     plt.close(fig)

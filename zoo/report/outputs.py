@@ -156,9 +156,26 @@ def plot_average(
             ax.grid(alpha=0.3)
             ax.legend(fontsize=7)
         fig.suptitle(f"{metric.upper()} ({unit}) against horizon: {title}", fontsize=9)
-        save_figure(fig, path, drawn_from=key)
+        place_panels(fig, len(panels))
+        save_figure(fig, path, drawn_from=key, tight=False)
         written.append(path)
     return written
+
+
+def place_panels(fig, panels: int) -> None:
+    """Fixed margins (inches) for :func:`plot_average`'s row of ``panels``: wide enough for the
+    y axis's tick labels and unit in every committed plot. tight_layout would measure each
+    figure's text in a layout pass of its own before the figure is drawn."""
+    left, right, bottom, top, between = 0.8, 0.15, 0.55, 0.65, 0.9
+    width, height = fig.get_size_inches()
+    axes_width = (width - left - right - (panels - 1) * between) / panels
+    fig.subplots_adjust(
+        left=left / width,
+        right=1 - right / width,
+        bottom=bottom / height,
+        top=1 - top / height,
+        wspace=between / axes_width,
+    )
 
 
 def plot_digests(frame: pd.DataFrame, title: str) -> dict[str, str]:
@@ -173,7 +190,8 @@ def plot_digests(frame: pd.DataFrame, title: str) -> dict[str, str]:
     from zoo.models.registry import load_registry
 
     order = load_registry().list_models()
-    code = [inspect.getsource(f) for f in (plot_average, plot_digests, model_style, io.save_figure)]
+    drawing = (plot_average, place_panels, plot_digests, model_style, io.save_figure)
+    code = [inspect.getsource(f) for f in drawing]
     avg = frame[frame["action"] == "average"]
     columns = ["metric", "averaging", "joints", "model", "horizon_ms", "value"]
     digests = {}
