@@ -46,29 +46,44 @@ KERNEL_SETS = {
     "mkl_compatible": ("avx512", "", "", {"MKL_CBWR": "COMPATIBLE"}),
 }
 
-SKIN = """
+
+def skinned(topology: str, paths: list[str | Path]) -> dict[str, np.ndarray]:
+    """The trials at ``paths`` skinned on the ``topology`` body with this process's kernels: in
+    float32, in float64 rounded once to float32 (as ``zoo.data.anny`` builds its datasets), and
+    in float64 before rounding."""
+    import torch
+
+    from zoo.data import anny
+    from zoo.data.bvh import CMU_BVH_JOINTS, read_bvh
+
+    out = {}
+    for dtype in (torch.float32, torch.float64):
+        model = anny.load_anny_model(topology, dtype=dtype)
+        rounded, unrounded = [], []
+        for path in paths:
+            bvh = read_bvh(path, CMU_BVH_JOINTS)
+            params = anny.retarget(model, bvh).pose_parameters(anny.motion_rotations(bvh))
+            rounded.append(anny.skin(model, params)["vertices"])
+            with torch.no_grad():  # what skin computes before it rounds
+                posed = model(
+                    pose_parameters=torch.as_tensor(params).to(dtype),
+                    phenotype_kwargs=anny.phenotype_tensor(model, None),
+                )
+            unrounded.append((posed["vertices"] * 1000.0).numpy())
+        name = str(dtype).removeprefix("torch.")
+        out[name] = np.concatenate(rounded)
+        if dtype == torch.float64:
+            out["float64, before rounding"] = np.concatenate(unrounded)
+    return out
+
+
+# A process of its own per kernel set: torch, numpy and the BLAS libraries pick their kernels
+# once, when they load.
+SKIN = f"""
 import sys, numpy as np, torch
-from zoo.data import anny
-from zoo.data.bvh import CMU_BVH_JOINTS, read_bvh
-out = {}
-for dtype in (torch.float32, torch.float64):
-    model = anny.load_anny_model(sys.argv[2], dtype=dtype)
-    rounded, unrounded = [], []
-    for path in sys.argv[3:]:
-        bvh = read_bvh(path, CMU_BVH_JOINTS)
-        params = anny.retarget(model, bvh).pose_parameters(anny.motion_rotations(bvh))
-        rounded.append(anny.skin(model, params)["vertices"])
-        with torch.no_grad():  # what skin computes before it rounds
-            posed = model(
-                pose_parameters=torch.as_tensor(params).to(dtype),
-                phenotype_kwargs=anny.phenotype_tensor(model, None),
-            )
-        unrounded.append((posed["vertices"] * 1000.0).numpy())
-    name = str(dtype).removeprefix("torch.")
-    out[name] = np.concatenate(rounded)
-    if dtype == torch.float64:
-        out["float64, before rounding"] = np.concatenate(unrounded)
-np.savez(sys.argv[1], **out)
+sys.path.insert(0, {str(Path(__file__).resolve().parent)!r})
+from skinning_kernels import skinned
+np.savez(sys.argv[1], **skinned(sys.argv[2], sys.argv[3:]))
 print(torch.backends.cpu.get_cpu_capability())
 """
 
