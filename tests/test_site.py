@@ -35,9 +35,15 @@ def _copy_results(tmp_path: Path, *benchmarks: str) -> Path:
     return root
 
 
-def test_summary_matches_the_rows_and_the_markdown_headline():
+@pytest.fixture(scope="module")
+def table():
+    """TABLE's rows and their summary, made once for the tests that read them."""
     rows = [EvalResult.read(TABLE / label) for label in table_labels(TABLE)]
-    summary = table_summary(rows)
+    return rows, table_summary(rows)
+
+
+def test_summary_matches_the_rows_and_the_markdown_headline(table):
+    rows, summary = table
     stored = json.loads((TABLE / "summary.json").read_text())
     metric, joints = headline_key(rows[0].protocol)
     view = summary["views"][0]
@@ -75,9 +81,8 @@ def test_summary_matches_the_rows_and_the_markdown_headline():
     assert [c.startswith("**") for c in cells] == mine["bold"]
 
 
-def test_cumulative_view_is_the_running_mean_of_the_frame_view():
-    rows = [EvalResult.read(TABLE / label) for label in table_labels(TABLE)]
-    views = {(v["metric"], v["averaging"]): v for v in table_summary(rows)["views"]}
+def test_cumulative_view_is_the_running_mean_of_the_frame_view(table):
+    views = {(v["metric"], v["averaging"]): v for v in table[1]["views"]}
     frame, cumulative = views[("rmse", "frame")], views[("rmse", "cumulative")]
     model = frame["models"][0]
     curve = np.array([v for _, v in model["curve"]])
