@@ -482,6 +482,35 @@ def test_a_plot_drawn_from_the_same_rows_is_copied_and_any_change_draws_it_again
         assert draws == [path] and figure_drawn_from(path) == key
 
 
+@pytest.mark.parametrize("table", ["cmu/ltd8", "cloth/all", "cmu_anny_oi/stride5_strict"])
+def test_the_fixed_margins_hold_every_label_of_a_committed_table(tmp_path, monkeypatch, table):
+    """The average plots' margins are fixed (no layout pass measures the text): every axis's
+    labels, ticks, title and legend lie inside the figure and clear of the next panel."""
+    import zoo.report.outputs as outputs
+    from zoo.core.io import save_figure
+    from zoo.paths import REPO_ROOT
+
+    drawn = []
+
+    def measured(fig, path, drawn_from=None, *, tight=True):
+        renderer = fig.canvas.get_renderer()
+        width, height = fig.bbox.width, fig.bbox.height
+        boxes = [ax.get_tightbbox(renderer) for ax in fig.axes]
+        assert all(b.x0 >= 0 and b.y0 >= 0 and b.x1 <= width and b.y1 <= height for b in boxes)
+        assert all(a.x1 < b.x0 for a, b in zip(boxes, boxes[1:]))
+        drawn.append(path)
+        save_figure(fig, path, drawn_from, tight=tight)
+
+    folder = REPO_ROOT / "results" / table
+    monkeypatch.setattr(outputs, "save_figure", measured)
+    outputs.plot_average(
+        read_table(folder).frame,
+        tmp_path,
+        outputs.table_title((folder / "leaderboard.md").read_text()),
+    )
+    assert drawn
+
+
 def test_every_committed_plot_carries_the_digest_of_what_it_shows_now():
     """A plot whose digest is not the one the current code gives would be drawn again by the
     next rebuild, rewriting a PNG whose pixels did not change: a change to the drawing code

@@ -38,7 +38,7 @@ def measure(table: Path, repeats: int) -> dict:
         redrawn += 1
         draw(*args, **kwargs)
 
-    def laid_out_tight(fig, path, drawn_from=None, tight=False):
+    def laid_out_tight(fig, path, drawn_from=None, **_):
         draw(fig, path, drawn_from, tight=True)
 
     with tempfile.TemporaryDirectory() as tmp:
