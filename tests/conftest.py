@@ -40,8 +40,7 @@ JOINT5 = 3 + 3 * 5
 LEAF_OFFSET = 1.11249 * 70  # joint 6's bone length (mm): the only joint that joint 5 moves
 
 
-# A file's text by its angles: many tests write the same motion, and formatting it is most of
-# the writing.
+# A file's text by its angles: many tests write the same motion, formatted once.
 _CMU_TEXT: dict[bytes, str] = {}
 
 

@@ -20,6 +20,7 @@ import statistics
 import tempfile
 import time
 from pathlib import Path
+from unittest import mock
 
 from zoo.evaluation.results import read_table
 from zoo.paths import REPO_ROOT
@@ -42,24 +43,21 @@ def measure(table: Path, repeats: int) -> dict:
         draw(fig, path, drawn_from, tight=True)
 
     with tempfile.TemporaryDirectory() as tmp:
+
+        def timed(save, folder, previous=None):
+            """plot_average's seconds and files, each figure saved through ``save``."""
+            with mock.patch.object(outputs, "save_figure", save):
+                started = time.perf_counter()
+                files = plot_average(frame, Path(tmp) / folder, title, previous)
+                return time.perf_counter() - started, files
+
         for i in range(repeats):
-            outputs.save_figure = laid_out_tight
-            try:
-                started = time.perf_counter()
-                plot_average(frame, Path(tmp) / f"tight{i}", title)
-                tight_s.append(time.perf_counter() - started)
-            finally:
-                outputs.save_figure = draw
-            started = time.perf_counter()
-            drawn = plot_average(frame, Path(tmp) / f"drawn{i}", title)
-            drawn_s.append(time.perf_counter() - started)
-            outputs.save_figure = counted  # a copy draws nothing: counted, not assumed
-            try:
-                started = time.perf_counter()
-                copied = plot_average(frame, Path(tmp) / f"copied{i}", title, drawn[0].parent)
-                copied_s.append(time.perf_counter() - started)
-            finally:
-                outputs.save_figure = draw
+            tight_s.append(timed(laid_out_tight, f"tight{i}")[0])
+            seconds, drawn = timed(draw, f"drawn{i}")
+            drawn_s.append(seconds)
+            # a copy draws nothing: counted, not assumed
+            seconds, copied = timed(counted, f"copied{i}", drawn[0].parent)
+            copied_s.append(seconds)
             same &= all(a.read_bytes() == b.read_bytes() for a, b in zip(drawn, copied))
     drawn_m, copied_m = statistics.median(drawn_s), statistics.median(copied_s)
     tight_m = statistics.median(tight_s)
