@@ -126,11 +126,25 @@ def test_every_page_loads_without_console_errors_or_outside_requests(browser, si
         assert browser.execute_script("return document.body.innerText.length") > 200
 
 
-def _column(browser, horizon: int) -> list[float | None]:
-    cells = browser.find_elements(
-        "css selector", f"#board tbody tr[data-model] td[data-horizon='{horizon}']"
+def _each(browser, selector: str, expression: str) -> list:
+    """``expression`` (JavaScript, of the element ``e``) for every element ``selector`` matches,
+    in one call: Selenium's get_attribute and is_displayed are a round trip per element, each
+    running a large script in the page."""
+    return browser.execute_script(
+        f"return [...document.querySelectorAll(arguments[0])].map(e => {expression})", selector
     )
-    return [float(v) if (v := c.get_attribute("data-value")) else None for c in cells]
+
+
+def _models(browser) -> list[str]:
+    """The board's rows, as shown."""
+    return _each(browser, "#board tbody tr[data-model]", "e.dataset.model")
+
+
+def _column(browser, horizon: int) -> list[float | None]:
+    values = _each(
+        browser, f"#board tbody tr[data-model] td[data-horizon='{horizon}']", "e.dataset.value"
+    )
+    return [float(v) if v else None for v in values]
 
 
 def test_sorting_a_column_orders_its_rows(browser, site):
@@ -144,10 +158,7 @@ def test_sorting_a_column_orders_its_rows(browser, site):
     browser.find_element("css selector", "#board th[data-key='3']").click()
     assert _column(browser, horizon) == sorted(numbers, reverse=True) + [None]
     browser.find_element("css selector", "#board th[data-key='model']").click()
-    names = [
-        r.get_attribute("data-model")
-        for r in browser.find_elements("css selector", "#board tbody tr[data-model]")
-    ]
+    names = _models(browser)
     assert names == sorted(names)
 
 
@@ -166,19 +177,19 @@ def test_switching_the_view_shows_the_stored_values(browser, site):
         v for v in summary["views"] if v["metric"] == "melv" and v["averaging"] == "cumulative"
     )
     h = view["horizons_ms"][2]
-    shown = {
-        r.get_attribute("data-model"): float(
-            r.find_element("css selector", f"td[data-horizon='{h}']").get_attribute("data-value")
+    shown = dict(
+        _each(
+            browser,
+            "#board tbody tr[data-model]",
+            f"[e.dataset.model, +e.querySelector(\"td[data-horizon='{h}']\").dataset.value]",
         )
-        for r in browser.find_elements("css selector", "#board tbody tr[data-model]")
-    }
+    )
     stored = {m["model"]: m["values"][2] for m in view["models"] if "@" not in m["model"]}
     assert shown == pytest.approx(stored) and len(shown) >= 3
     # @last rows appear only when asked for
     assert not any("@" in m for m in shown)
     browser.find_element("id", "show-last").click()
-    rows = browser.find_elements("css selector", "#board tbody tr[data-model]")
-    assert any("@last" in r.get_attribute("data-model") for r in rows)
+    assert any("@last" in m for m in _models(browser))
     # per action: the stored per-action value
     Select(browser.find_element("id", "action")).select_by_index(1)
     action = Select(browser.find_element("id", "action")).first_selected_option.text
@@ -262,16 +273,16 @@ def test_a_table_fits_the_screen_on_load_with_its_rows_ranked(browser, site, wid
         for page in ("table-cmu-all.html", "table-cmu_anny_oi_low-stride5_strict.html"):
             _open(browser, site / page)
             inner = browser.execute_script("return document.documentElement.clientWidth")
-            last = browser.find_elements("css selector", "#board thead th.sortable.num")
-            visible = [th for th in last if th.is_displayed()]
-            for th in (visible[-1], browser.find_element("css selector", "#board th.model")):
-                box = browser.execute_script("return arguments[0].getBoundingClientRect()", th)
-                assert 0 <= box["left"] and box["right"] <= inner, (page, th.text, box, inner)
-            assert visible[-1].get_attribute("class").split().count("asc") == 1
-            ranks = [
-                int(t) for t in (c.text for c in browser.find_elements(
-                    "css selector", "#board tbody tr[data-model] td.rank")) if t
-            ]  # fmt: skip
+            box = "[e.innerText, e.className, e.getBoundingClientRect().toJSON()]"
+            horizons = _each(
+                browser, "#board thead th.sortable.num", f"e.checkVisibility() && {box}"
+            )
+            horizons = [h for h in horizons if h]
+            (model,) = _each(browser, "#board th.model", box)
+            for text, _, box in (horizons[-1], model):
+                assert 0 <= box["left"] and box["right"] <= inner, (page, text, box, inner)
+            assert horizons[-1][1].split().count("asc") == 1
+            ranks = [int(t) for t in _each(browser, "#board tbody td.rank", "e.innerText") if t]
             assert ranks and ranks == sorted(ranks) and ranks[0] == 1
     finally:
         browser.set_window_size(1280, 1400)
@@ -285,16 +296,10 @@ def test_a_view_in_the_fragment_reopens(browser, site):
     browser.find_element("css selector", "#board th[data-key='3']").click()  # descending
     fragment = browser.execute_script("return location.hash")
     assert "sort=3" in fragment and "desc=1" in fragment and "last=1" in fragment
-    shown = [
-        r.get_attribute("data-model")
-        for r in browser.find_elements("css selector", "#board tbody tr[data-model]")
-    ]
+    shown = _models(browser)
     browser.get("about:blank")
     browser.get(page.as_uri() + fragment)
-    again = [
-        r.get_attribute("data-model")
-        for r in browser.find_elements("css selector", "#board tbody tr[data-model]")
-    ]
+    again = _models(browser)
     assert again == shown and any("@last" in m for m in again)
     assert browser.find_element("id", "show-last").is_selected()
 
@@ -448,14 +453,13 @@ def test_every_action_is_printed_beside_every_other_as_papers_do(browser, site):
     _open(browser, site / "table-cmu-all.html")
     pgbig = next(m for m in view["models"] if m["model"] == "pgbig")
     last = view["horizons_ms"][-1]
-    for action in summary["actions"]:
-        cell = browser.find_element(
-            "css selector",
-            f"#per-action tr[data-model='pgbig'] td[data-action='{action}'][data-horizon='{last}']",
-        )
-        assert cell.text == f"{pgbig['per_action'][action][-1]:.2f}"
-    headers = browser.find_elements("css selector", "#per-action th.action")
-    assert [h.text for h in headers] == summary["actions"]
+    cells = _each(
+        browser,
+        f"#per-action tr[data-model='pgbig'] td[data-action][data-horizon='{last}']",
+        "[e.dataset.action, e.innerText]",
+    )
+    assert cells == [[a, f"{pgbig['per_action'][a][-1]:.2f}"] for a in summary["actions"]]
+    assert _each(browser, "#per-action th.action", "e.innerText") == summary["actions"]
     assert browser.find_elements("css selector", "#per-action tr.reported")
 
 
@@ -463,8 +467,7 @@ def test_ranks_count_from_the_lowest_whatever_the_order_shown(browser, site):
     _open(browser, site / "table-cmu-all.html")
     header = browser.find_element("css selector", "#board th[data-key='7']")
     header.click()  # the longest horizon is the default sort: this click turns it descending
-    rows = browser.find_elements("css selector", "#board tbody tr[data-model]")
-    ranks = [r.find_element("css selector", "td.rank").text for r in rows]
+    ranks = _each(browser, "#board tbody tr[data-model]", "e.querySelector('td.rank').innerText")
     assert ranks[0] != "1" and ranks[-1] == "1"
 
 
@@ -475,10 +478,13 @@ def test_timings_of_two_machines_in_one_column_name_their_machine(browser, site)
     _open(browser, site / "table-cmu-all.html")
     browser.find_element("id", "show-costs").click()
     note = browser.find_element("id", "cost-note").text
-    latency = {
-        r.get_attribute("data-model"): r.find_elements("css selector", "td.cost")[2].text
-        for r in browser.find_elements("css selector", "#board tbody tr[data-model]")
-    }
+    latency = dict(
+        _each(
+            browser,
+            "#board tbody tr[data-model]",
+            "[e.dataset.model, e.querySelectorAll('td.cost')[2].innerText]",
+        )
+    )
     marks = {m: v[-1] for m, v in latency.items() if v and v[-1] in "¹²³⁴⁵⁶⁷⁸⁹"}
     assert len(set(marks.values())) >= 2, latency  # two machines, two marks
     assert "do not compare" in note and note.count("¹") == 1 and note.count("²") == 1
@@ -502,8 +508,9 @@ def test_the_index_filters_its_models(browser, site):
     _open(browser, site / "index.html")
 
     def shown():
-        items = browser.find_elements("css selector", "ul.models li")
-        return {li.get_attribute("data-model") for li in items if li.is_displayed()}
+        return set(_each(browser, "ul.models li", "e.checkVisibility() && e.dataset.model")) - {
+            False
+        }
 
     everything = shown()
     Select(browser.find_element("id", "filter-representation")).select_by_value("mesh")
@@ -525,11 +532,12 @@ def test_any_two_rows_are_compared_and_the_choice_reopens(browser, site):
     from selenium.webdriver.support.ui import Select
 
     def shown(table):
-        return [
-            (s.get_attribute("data-a"), s.get_attribute("data-b"))
-            for s in browser.find_elements("css selector", f"section.pair[data-table='{table}']")
-            if s.is_displayed()
-        ]
+        pairs = _each(
+            browser,
+            f"section.pair[data-table='{table}']",
+            "e.checkVisibility() && [e.dataset.a, e.dataset.b]",
+        )
+        return [tuple(p) for p in pairs if p]
 
     page = site / "compare-cmu.html"
     _open(browser, page)
