@@ -120,7 +120,7 @@ def test_a_bvh_with_an_unexpected_joint_is_named(tmp_path):
 def low_model():
     if importlib.util.find_spec("anny") is None:
         pytest.skip("the anny package is not installed (pip install anny==0.6.2); CI installs it")
-    return anny.load_anny_model("low")
+    return anny.shared_model("low")  # the one the zoo's own calls load, loaded once
 
 
 @pytest.fixture(scope="session")
@@ -412,7 +412,9 @@ def test_full_resolution_directions_and_edge_lengths(short_motion):
 @needs_anny
 @needs_data
 @pytest.mark.parametrize("topology", ["low", pytest.param("full", marks=pytest.mark.slow)])
-def test_the_shipped_regressor_fits_the_frames_skinned_here_as_recorded(low_model, topology):
+def test_the_shipped_regressor_fits_the_frames_skinned_here_as_recorded(
+    low_model, topology, fit_frames_once
+):
     """What holds on every CPU: the shipped file passes its checksum (load_regressor) and
     misses the bone heads of the fit frames skinned here by what its record says. A fit here
     may land on other weights (the full body's fit is ill-conditioned), which is why it ships."""
@@ -423,6 +425,25 @@ def test_the_shipped_regressor_fits_the_frames_skinned_here_as_recorded(low_mode
     for key, value in report["shipped_here"].items():
         assert abs(value - report["stats"][key][1]) <= anny.REGRESSOR_TOLERANCE_MM + 5e-4
     assert report["stats"]["fit_frames"] == (1280.0, 1280.0)
+
+
+_FIT_FRAMES: dict[tuple, tuple] = {}
+
+
+@pytest.fixture
+def fit_frames_once(monkeypatch):
+    """The regressor's fit frames skinned once per process, for the tests that fit, ship and
+    check a regressor: what they test is the fit and the files, not the skinning (tested
+    above), which takes each of them seconds."""
+    skinned = anny_regressor.regressor_fit_frames
+
+    def kept(model, bvh_files, **settings):
+        key = (id(model), tuple(map(str, bvh_files)), tuple(sorted(settings.items())))
+        if key not in _FIT_FRAMES:
+            _FIT_FRAMES[key] = (model, skinned(model, bvh_files, **settings))
+        return _FIT_FRAMES[key][1]  # the model kept beside its frames: its id stays its own
+
+    monkeypatch.setattr(anny_regressor, "regressor_fit_frames", kept)
 
 
 def forbid_refitting(monkeypatch) -> None:
@@ -450,7 +471,7 @@ def test_the_regressor_is_loaded_from_the_shipped_file_not_fitted(tmp_path, monk
 @needs_anny
 @needs_data
 def test_a_recipe_with_no_shipped_regressor_is_fitted_here_and_says_so(
-    low_model, tmp_path, monkeypatch, capsys
+    low_model, tmp_path, monkeypatch, capsys, fit_frames_once
 ):
     monkeypatch.setattr(anny_regressor, "SHIPPED_REGRESSORS", tmp_path / "none")
     fitted = anny.joint_regressor(CMU_BVH, "low", cache_dir=tmp_path, model=low_model)
@@ -495,7 +516,9 @@ def test_a_damaged_regressor_file_is_named(tmp_path):
 
 @needs_anny
 @needs_data
-def test_zoo_data_regressor_ships_a_fit_and_refuses_to_overwrite(low_model, tmp_path, monkeypatch):
+def test_zoo_data_regressor_ships_a_fit_and_refuses_to_overwrite(
+    low_model, tmp_path, monkeypatch, fit_frames_once
+):
     from zoo.cli import main
 
     monkeypatch.setattr(anny_regressor, "SHIPPED_REGRESSORS", tmp_path / "regressors")
