@@ -34,23 +34,36 @@ def _tree_text(node, rewrite=None) -> str:
     """A syntax tree as text: node types and field values, docstrings and empty fields left
     out (so the text is the same on every Python version that parses the file alike).
     ``rewrite(node)``: a node written in that one's place as it is, or None to write the node
-    and go on into its fields (written in one pass: no copy of the tree is changed)."""
+    and go on into its fields (written in one pass: no copy of the tree is changed); asked of
+    every node but a name's context (``Load()``, ``Store()``, ``Del()``), written as it is."""
     if isinstance(node, ast.AST):
         if rewrite is not None and (new := rewrite(node)) is not None:
             return _tree_text(new)
-        body = getattr(node, "body", None)
         fields = []
         for name in node._fields:
             value = getattr(node, name, None)
-            if name == "body" and isinstance(body, list) and _is_docstring(body, rewrite):
-                value = body[1:]
-            if value is None or value == [] or name in ("kind", "type_comment"):
+            if value is None or name in _UNWRITTEN_FIELDS:
                 continue
-            fields.append(f"{name}={_tree_text(value, rewrite)}")
+            if type(value) is list:
+                if name == "body" and _is_docstring(value, rewrite):
+                    value = value[1:]
+                if not value:
+                    continue
+                text = "[" + ",".join([_tree_text(v, rewrite) for v in value]) + "]"
+            elif isinstance(value, ast.expr_context):  # no fields; every name has one
+                text = f"{type(value).__name__}()"
+            elif isinstance(value, ast.AST):
+                text = _tree_text(value, rewrite)
+            else:
+                text = repr(value)
+            fields.append(f"{name}={text}")
         return f"{type(node).__name__}({','.join(fields)})"
     if isinstance(node, list):
-        return "[" + ",".join(_tree_text(v, rewrite) for v in node) + "]"
+        return "[" + ",".join([_tree_text(v, rewrite) for v in node]) + "]"
     return repr(node)
+
+
+_UNWRITTEN_FIELDS = frozenset({"kind", "type_comment"})
 
 
 def _is_docstring(body: list, rewrite=None) -> bool:
@@ -281,16 +294,23 @@ def _local_bindings(nodes: list, path: Path) -> dict[str, tuple]:
     """Imports written inside definitions bind names there too."""
     local: dict[str, tuple] = {}
     for node in nodes:
-        for sub in ast.walk(node):
-            if isinstance(sub, (ast.Import, ast.ImportFrom)):
-                local.update(_import_bindings(sub, _package_of(path), path))
+        for sub in _scan(node)[1]:
+            local.update(_import_bindings(sub, _package_of(path), path))
     return local
 
 
-def _shadowed(node) -> set[str]:
+def _shadowed(node) -> frozenset[str]:
     """Names a top-level statement binds inside itself (arguments, local variables), which
     its body reads as its own, not as the module's."""
+    return _scan(node)[0]
+
+
+@cache
+def _scan(node) -> tuple[frozenset[str], tuple]:
+    """One walk of a top-level statement of a kept syntax tree (:func:`_syntax_tree`, never
+    changed): the names it binds inside itself (:func:`_shadowed`) and the imports in it."""
     names: set[str] = set()
+    imports = []
     own = (
         set(_bound_names_of(node))
         if isinstance(node, (ast.Assign, ast.AnnAssign, ast.AugAssign))
@@ -305,7 +325,9 @@ def _shadowed(node) -> set[str]:
             sub is not node
         ):
             names.add(sub.name)
-    return names - own
+        elif isinstance(sub, (ast.Import, ast.ImportFrom)):
+            imports.append(sub)
+    return frozenset(names - own), tuple(imports)
 
 
 def _bound_names_of(node) -> list[str]:
@@ -333,14 +355,15 @@ class _ByName:
 
     def rewrite(self, node):
         """The node written in ``node``'s place, or None where it stays (its fields written)."""
-        if isinstance(node, ast.Name):
-            found = self._lookup(node.id, []) if isinstance(node.ctx, ast.Load) else None
+        kind = type(node)  # the parser makes no subclasses of these
+        if kind is ast.Name:
+            found = self._lookup(node.id, []) if type(node.ctx) is ast.Load else None
             return None if found is None else ast.Name(id=self.token(*found[:2]), ctx=node.ctx)
-        if isinstance(node, ast.Attribute):
+        if kind is ast.Attribute:
             return self._attribute(node)
-        if isinstance(node, ast.Constant):
+        if kind is ast.Constant:
             return self._constant(node)
-        if isinstance(node, (ast.Import, ast.ImportFrom)):
+        if kind is ast.Import or kind is ast.ImportFrom:
             bindings = _import_bindings(node, _package_of(self.path), self.path)
             return None if all(b[0] == "outside" for b in bindings.values()) else ast.Pass()
         return None
