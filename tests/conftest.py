@@ -98,3 +98,35 @@ class Pristine:
             return self.folder
         shutil.copytree(self._copy, self.folder, symlinks=True)
         return self.folder
+
+
+# A plot's digest (the Drawn-From text it keeps: zoo.report.outputs.plot_digests) names its
+# bytes: the zoo copies a plot whose digest a table's previous folder holds rather than draw it
+# again. Tests that build the same board, each in folders of their own, apply that rule across
+# their folders: each test process draws a plot once.
+_DRAWN: dict[tuple[str, bool], bytes] = {}
+
+
+@pytest.fixture(autouse=True)
+def _each_plot_drawn_once(monkeypatch):
+    from zoo.core.io import atomic_path
+    from zoo.report import outputs
+
+    draw = outputs.save_figure
+
+    def save_figure(fig, path, drawn_from=None, *, tight=True):
+        if drawn_from is None:
+            return draw(fig, path, drawn_from, tight=tight)
+        key = (drawn_from, tight)
+        if key not in _DRAWN:
+            draw(fig, path, drawn_from, tight=tight)
+            _DRAWN[key] = Path(path).read_bytes()
+            return None
+        import matplotlib.pyplot as plt
+
+        plt.close(fig)
+        with atomic_path(path) as tmp:
+            tmp.write_bytes(_DRAWN[key])
+        return None
+
+    monkeypatch.setattr(outputs, "save_figure", save_figure)
