@@ -1,8 +1,9 @@
 """repeat_last on the real CMU test files against an independent oracle of the official test code.
 
 The oracle below follows the LTD / SPGSN CMU test pipeline step by step, written independently
-of the zoo (plain numpy, one frame at a time): read the file, FK on every source frame, keep even
-frames, cut the windows (LTD's seeded 8 per file, or SPGSN's every window), write the predicted
+of the zoo (plain numpy, one frame at a time): read the file, keep even frames, FK on each (the
+official code runs FK on every source frame, then keeps the even ones: the same positions), cut
+the windows (LTD's seeded 8 per file, or SPGSN's every window), write the predicted
 joints into a copy of the ground truth, copy the duplicated joints, average the L2 error over
 joints, then over windows, then over actions.
 """
@@ -54,7 +55,7 @@ def oracle_fk(frame):
 @functools.cache
 def oracle_positions(path):
     raw = np.loadtxt(path, delimiter=",")
-    return np.stack([oracle_fk(f) for f in raw])[range(0, len(raw), 2)]
+    return np.stack([oracle_fk(f) for f in raw[range(0, len(raw), 2)]])
 
 
 def oracle_windows(seq, sampler, t_in, t_out):
