@@ -69,13 +69,13 @@ def make_step(precision: str, compiled: bool, tiny: bool):
     return step, seconds
 
 
-def where_time_goes(step, label: str) -> None:
-    """The operators that take the most of one step's time (self CPU time, 2 steps)."""
+def where_time_goes(step, label: str, steps: int = 2) -> None:
+    """The operators that take the most of one step's time (self CPU time over ``steps``)."""
     from torch.profiler import ProfilerActivity, profile
 
     step()
     with profile(activities=[ProfilerActivity.CPU]) as prof:
-        for _ in range(2):
+        for _ in range(steps):
             step()
     events = sorted(prof.key_averages(), key=lambda e: e.self_cpu_time_total, reverse=True)
     total = sum(e.self_cpu_time_total for e in events)
@@ -120,7 +120,7 @@ def main(argv: list[str] | None = None) -> None:
         print(f"{label:32s}{cells}{ratio:21.2f}x{note}")
     print("\nwhere the time goes (share of the step's self CPU time, 2 threads):")
     for label in ("float32 eager", "bfloat16 eager"):
-        where_time_goes(steps[label], label)
+        where_time_goes(steps[label], label, steps=1 if args.tiny else 2)
     print(f"load average after: {os.getloadavg()[0]:.2f}")
 
 
