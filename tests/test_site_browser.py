@@ -126,12 +126,21 @@ def test_every_page_loads_without_console_errors_or_outside_requests(browser, si
         assert browser.execute_script("return document.body.innerText.length") > 200
 
 
+# In the page, what Selenium's is_displayed and text say of an element: a hidden one, no text.
+_SHOWN = (
+    "const shown = e => e.checkVisibility({opacityProperty: true, visibilityProperty: true});"
+    "const text = e => (shown(e) ? e.innerText : '');"
+)
+
+
 def _each(browser, selector: str, expression: str) -> list:
-    """``expression`` (JavaScript, of the element ``e``) for every element ``selector`` matches,
-    in one call: Selenium's get_attribute and is_displayed are a round trip per element, each
-    running a large script in the page."""
+    """``expression`` (JavaScript, of the element ``e``; ``shown(e)`` and ``text(e)`` as
+    Selenium's is_displayed and text) for every element ``selector`` matches, in one call:
+    Selenium's get_attribute, is_displayed and text are a round trip per element, each running a
+    large script in the page."""
     return browser.execute_script(
-        f"return [...document.querySelectorAll(arguments[0])].map(e => {expression})", selector
+        f"{_SHOWN} return [...document.querySelectorAll(arguments[0])].map(e => {expression})",
+        selector,
     )
 
 
@@ -273,16 +282,14 @@ def test_a_table_fits_the_screen_on_load_with_its_rows_ranked(browser, site, wid
         for page in ("table-cmu-all.html", "table-cmu_anny_oi_low-stride5_strict.html"):
             _open(browser, site / page)
             inner = browser.execute_script("return document.documentElement.clientWidth")
-            box = "[e.innerText, e.className, e.getBoundingClientRect().toJSON()]"
-            horizons = _each(
-                browser, "#board thead th.sortable.num", f"e.checkVisibility() && {box}"
-            )
-            horizons = [h for h in horizons if h]
-            (model,) = _each(browser, "#board th.model", box)
-            for text, _, box in (horizons[-1], model):
-                assert 0 <= box["left"] and box["right"] <= inner, (page, text, box, inner)
+            described = "[text(e), e.className, e.getBoundingClientRect().toJSON()]"
+            headers = "#board thead th.sortable.num"
+            horizons = [h for h in _each(browser, headers, f"shown(e) && {described}") if h]
+            (model,) = _each(browser, "#board th.model", described)
+            for label, _, rect in (horizons[-1], model):
+                assert 0 <= rect["left"] and rect["right"] <= inner, (page, label, rect, inner)
             assert horizons[-1][1].split().count("asc") == 1
-            ranks = [int(t) for t in _each(browser, "#board tbody td.rank", "e.innerText") if t]
+            ranks = [int(t) for t in _each(browser, "#board tbody td.rank", "text(e)") if t]
             assert ranks and ranks == sorted(ranks) and ranks[0] == 1
     finally:
         browser.set_window_size(1280, 1400)
@@ -456,10 +463,10 @@ def test_every_action_is_printed_beside_every_other_as_papers_do(browser, site):
     cells = _each(
         browser,
         f"#per-action tr[data-model='pgbig'] td[data-action][data-horizon='{last}']",
-        "[e.dataset.action, e.innerText]",
+        "[e.dataset.action, text(e)]",
     )
     assert cells == [[a, f"{pgbig['per_action'][a][-1]:.2f}"] for a in summary["actions"]]
-    assert _each(browser, "#per-action th.action", "e.innerText") == summary["actions"]
+    assert _each(browser, "#per-action th.action", "text(e)") == summary["actions"]
     assert browser.find_elements("css selector", "#per-action tr.reported")
 
 
@@ -467,7 +474,7 @@ def test_ranks_count_from_the_lowest_whatever_the_order_shown(browser, site):
     _open(browser, site / "table-cmu-all.html")
     header = browser.find_element("css selector", "#board th[data-key='7']")
     header.click()  # the longest horizon is the default sort: this click turns it descending
-    ranks = _each(browser, "#board tbody tr[data-model]", "e.querySelector('td.rank').innerText")
+    ranks = _each(browser, "#board tbody tr[data-model]", "text(e.querySelector('td.rank'))")
     assert ranks[0] != "1" and ranks[-1] == "1"
 
 
@@ -482,7 +489,7 @@ def test_timings_of_two_machines_in_one_column_name_their_machine(browser, site)
         _each(
             browser,
             "#board tbody tr[data-model]",
-            "[e.dataset.model, e.querySelectorAll('td.cost')[2].innerText]",
+            "[e.dataset.model, text(e.querySelectorAll('td.cost')[2])]",
         )
     )
     marks = {m: v[-1] for m, v in latency.items() if v and v[-1] in "¹²³⁴⁵⁶⁷⁸⁹"}
@@ -508,9 +515,7 @@ def test_the_index_filters_its_models(browser, site):
     _open(browser, site / "index.html")
 
     def shown():
-        return set(_each(browser, "ul.models li", "e.checkVisibility() && e.dataset.model")) - {
-            False
-        }
+        return {m for m in _each(browser, "ul.models li", "shown(e) && e.dataset.model") if m}
 
     everything = shown()
     Select(browser.find_element("id", "filter-representation")).select_by_value("mesh")
@@ -535,7 +540,7 @@ def test_any_two_rows_are_compared_and_the_choice_reopens(browser, site):
         pairs = _each(
             browser,
             f"section.pair[data-table='{table}']",
-            "e.checkVisibility() && [e.dataset.a, e.dataset.b]",
+            "shown(e) && [e.dataset.a, e.dataset.b]",
         )
         return [tuple(p) for p in pairs if p]
 
