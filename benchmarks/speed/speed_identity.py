@@ -57,6 +57,7 @@ def _forget_all() -> None:
     fingerprint._imported_module_files.cache_clear()
     fingerprint._module_parts.cache_clear()
     fingerprint._syntax_tree.cache_clear()
+    fingerprint._scan.cache_clear()
 
 
 def measure(benchmark: str, repeats: int) -> dict:

@@ -28,6 +28,7 @@ from zoo.paths import REPO_ROOT
 # A string naming a zoo definition by its module, as the benchmark's mesh datasets are named
 # ("zoo.data.cloth:cloth_dataset"): a reference like an import, normalised like one.
 _NAMED_DEFINITION = re.compile(r"zoo(?:\.\w+)+:\w+")
+_UNWRITTEN_FIELDS = frozenset({"kind", "type_comment"})
 
 
 def _tree_text(node, rewrite=None) -> str:
@@ -49,7 +50,7 @@ def _tree_text(node, rewrite=None) -> str:
                     value = value[1:]
                 if not value:
                     continue
-                text = "[" + ",".join([_tree_text(v, rewrite) for v in value]) + "]"
+                text = _tree_text(value, rewrite)
             elif isinstance(value, ast.expr_context):  # no fields; every name has one
                 text = f"{type(value).__name__}()"
             elif isinstance(value, ast.AST):
@@ -61,9 +62,6 @@ def _tree_text(node, rewrite=None) -> str:
     if isinstance(node, list):
         return "[" + ",".join([_tree_text(v, rewrite) for v in node]) + "]"
     return repr(node)
-
-
-_UNWRITTEN_FIELDS = frozenset({"kind", "type_comment"})
 
 
 def _is_docstring(body: list, rewrite=None) -> bool:
@@ -340,7 +338,7 @@ class _ByName:
     through an import of a zoo module or one beside a model file) as ``token(file, name)``,
     and imports of such modules as ``pass``: :meth:`rewrite`, for :func:`_tree_text`."""
 
-    def __init__(self, path: Path, names: dict[str, tuple], defs: dict, shadowed: set, token):
+    def __init__(self, path: Path, names: dict[str, tuple], defs: dict, shadowed: frozenset, token):
         self.path, self.names, self.defs, self.shadowed = path, names, defs, shadowed
         self.token = token
 
@@ -373,7 +371,7 @@ class _ByName:
         while isinstance(base, ast.Attribute):
             chain.insert(0, base.attr)
             base = base.value
-        if not isinstance(base, ast.Name) or not isinstance(node.ctx, ast.Load):
+        if type(base) is not ast.Name or type(node.ctx) is not ast.Load:
             return None
         found = self._lookup(base.id, chain)
         if found is None:
