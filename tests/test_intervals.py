@@ -57,6 +57,22 @@ def overlapping_errors(rng, windows_per_action, frames=3, window=WINDOW):
     )
 
 
+@pytest.mark.parametrize("columns", [1, 2, 25])
+def test_drawn_blocks_are_summed_in_the_order_a_sum_over_the_draws_adds_them(columns):
+    """Block bootstrap sums, added draw by draw, have the bits of numpy's sum over the draws'
+    axis, which the committed intervals were computed with: a numpy that adds in another order
+    would move their last digits, and fails here first."""
+    from zoo.stats.intervals import _drawn_sums
+
+    rng = np.random.default_rng(columns)
+    cumsum = np.concatenate([np.zeros((1, columns)), np.cumsum(rng.random((500, columns)), 0)])
+    for draws in (2, 9, 40):
+        first = rng.integers(0, 440, size=(300, draws))
+        take = rng.integers(0, 60, size=(300, draws))
+        gathered = (cumsum[first + take] - cumsum[first]).sum(axis=1)
+        assert np.array_equal(_drawn_sums(cumsum, first, take), gathered), draws
+
+
 def test_window_sampling_intervals_cover_the_truth_where_naive_ones_do_not():
     rng = np.random.default_rng(0)
     repetitions, block_covered, naive_covered = 200, [], []
