@@ -115,18 +115,16 @@ def _each_plot_drawn_once(monkeypatch):
     draw = outputs.save_figure
 
     def save_figure(fig, path, drawn_from=None, *, tight=True):
-        if drawn_from is None:
-            return draw(fig, path, drawn_from, tight=tight)
         key = (drawn_from, tight)
-        if key not in _DRAWN:
+        if drawn_from is None or key not in _DRAWN:
             draw(fig, path, drawn_from, tight=tight)
-            _DRAWN[key] = Path(path).read_bytes()
-            return None
+            if drawn_from is not None:
+                _DRAWN[key] = Path(path).read_bytes()
+            return
         import matplotlib.pyplot as plt
 
-        plt.close(fig)
+        plt.close(fig)  # as save_figure leaves it
         with atomic_path(path) as tmp:
             tmp.write_bytes(_DRAWN[key])
-        return None
 
     monkeypatch.setattr(outputs, "save_figure", save_figure)
