@@ -73,6 +73,44 @@ def test_drawn_blocks_are_summed_in_the_order_a_sum_over_the_draws_adds_them(col
         assert np.array_equal(_drawn_sums(cumsum, first, take), gathered), draws
 
 
+def test_kept_draws_are_those_of_the_same_windows_and_seed_alone(monkeypatch):
+    """The blocks drawn for a set of windows are kept for the next model's errors over them;
+    windows that differ in a start, an action or a dtype, or another seed, draw their own."""
+    from zoo.stats import intervals
+
+    rng = np.random.default_rng(4)
+    errors, sequence, start, action, _ = overlapping_errors(rng, [120, 90])
+    other = rng.standard_normal(errors.shape) + errors
+    moved = start.copy()
+    moved[-1] += 1
+    renamed = action.copy()
+    renamed[:5] = "action9"
+    cases = [
+        (sequence, start, action, 0),
+        (sequence, moved, action, 0),
+        (sequence, start, renamed, 0),
+        (sequence.astype(np.int32), start, action, 0),
+        (sequence, start, action, 1),
+    ]
+
+    def replicates(e, windows):
+        *arrays, seed = windows
+        return block_replicates(e, *arrays, 2 * WINDOW, 200, seed, WINDOW).per_action
+
+    fresh = []
+    for windows in cases:  # each computed with nothing kept
+        monkeypatch.setattr(intervals, "_kept_draws", {})
+        fresh.append([replicates(e, windows) for e in (errors, other)])
+    monkeypatch.setattr(intervals, "_kept_draws", {})
+    for _ in range(2):  # every set drawn once, then each from what was kept (or drawn again)
+        for windows, expected in zip(cases, fresh):
+            for e, want in zip((errors, other), expected):
+                assert np.array_equal(replicates(e, windows), want)
+    assert len(intervals._kept_draws) <= intervals._KEPT_DRAWS
+    kept = next(iter(intervals._kept_draws.values()))[0]
+    assert not kept.first.flags.writeable and not kept.rows.flags.writeable
+
+
 def test_window_sampling_intervals_cover_the_truth_where_naive_ones_do_not():
     rng = np.random.default_rng(0)
     repetitions, block_covered, naive_covered = 200, [], []

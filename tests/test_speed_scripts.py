@@ -22,6 +22,7 @@ SCRIPTS = [
     "speed_check",
     "speed_eval",
     "speed_identity",
+    "speed_intervals",
     "speed_pass",
     "speed_plots",
     "speed_public_cmu",
@@ -222,6 +223,16 @@ def test_speed_plots_copies_the_drawn_bytes_and_prints_a_finite_ratio(capsys):
     assert out[1].startswith("cmu/ltd8") and "the same bytes, 0 redrawn" in out[1]
     assert row["same"] and row["redrawn"] == 0
     for key in ("drawn", "copied", "ratio", "tight", "tight_ratio"):
+        assert math.isfinite(row[key]) and row[key] > 0, key
+
+
+def test_speed_intervals_gives_the_same_bits_kept_or_drawn_and_a_finite_ratio(capsys):
+    (row,) = load("speed_intervals").main(["--table", str(REPO / "results" / "cmu" / "ltd8"),
+                                           "--repeats", "1"])  # fmt: skip
+    out = capsys.readouterr().out.splitlines()
+    assert out[1].startswith("cmu/ltd8") and out[1].endswith("the same bits")
+    assert row["same"] and row["rows"] > 1 and row["views"] > 0
+    for key in ("kept", "drawn", "ratio"):
         assert math.isfinite(row[key]) and row[key] > 0, key
 
 

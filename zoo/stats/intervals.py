@@ -7,6 +7,7 @@ sign test over actions. docs/protocols.md ("How sure a number is") says what eac
 
 from __future__ import annotations
 
+import hashlib
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -201,28 +202,81 @@ def block_replicates(
     for name, value in (("block_frames", block_frames), ("window_frames", window_frames)):
         if not isinstance(value, (int, np.integer)) or value < 1:
             raise ValueError(f"block_replicates: {name} must be a positive integer, got {value!r}")
-    rng = np.random.default_rng(seed)
-    per_action, df = [], []
-    for action in np.unique(actions):
-        rows = np.flatnonzero(actions == action)
-        blocks = _action_blocks(sequence, start, rows, int(block_frames), int(window_frames))
-        n = len(rows)
+    draws = _block_draws(
+        sequence, start, actions, int(block_frames), replicates, seed, int(window_frames)
+    )
+    per_action = []
+    for drawn in draws:
         # Running sums over the action's windows: a block's sum is a difference of two rows.
         cumsum = np.concatenate(
-            [np.zeros((1, errors.shape[1])), np.cumsum(errors[blocks.rows], axis=0)]
+            [np.zeros((1, errors.shape[1])), np.cumsum(errors[drawn.rows], axis=0)]
         )
-        draws = math.ceil(n / blocks.lengths.min()) + 1
-        chosen = rng.integers(0, len(blocks.offsets), size=(replicates, draws))
+        per_action.append(_drawn_sums(cumsum, drawn.first, drawn.take) / drawn.windows)
+    return Replicates(np.stack(per_action), np.asarray([drawn.df for drawn in draws]))
+
+
+@dataclass(frozen=True)
+class _ActionDraws:
+    """The blocks drawn for one action: its windows' rows in block order, and each
+    replicate's drawn blocks, ``first (R, draws)`` positions into ``rows`` and ``take`` windows
+    from each (the last block cut to reach the action's ``windows``)."""
+
+    rows: np.ndarray
+    first: np.ndarray
+    take: np.ndarray
+    windows: int
+    df: float
+
+
+# The draws of the last few sets of windows. They depend on the windows and the seed alone, and
+# a table draws them for each of its models' intervals and again for its bold set.
+_KEPT_DRAWS = 4
+_kept_draws: dict[bytes, tuple[_ActionDraws, ...]] = {}
+
+
+def _block_draws(
+    sequence: np.ndarray,
+    start: np.ndarray,
+    actions: np.ndarray,
+    block_frames: int,
+    replicates: int,
+    seed: int,
+    window_frames: int,
+) -> tuple[_ActionDraws, ...]:
+    """Each action's circular blocks (:func:`_action_blocks`) drawn ``replicates`` times with
+    one generator seeded ``seed``, action after action in sorted order."""
+    key = hashlib.blake2b(
+        repr((block_frames, replicates, seed, window_frames)).encode(), digest_size=20
+    )
+    for values in (sequence, start):
+        key.update(f"{values.dtype}{values.shape}".encode())
+        key.update(np.ascontiguousarray(values).tobytes())
+    key.update("\x1f".join(map(str, actions.tolist())).encode())
+    digest = key.digest()
+    if digest in _kept_draws:
+        _kept_draws[digest] = _kept_draws.pop(digest)  # the most recently used, kept longest
+        return _kept_draws[digest]
+    rng = np.random.default_rng(seed)
+    draws = []
+    for action in np.unique(actions):
+        rows = np.flatnonzero(actions == action)
+        blocks = _action_blocks(sequence, start, rows, block_frames, window_frames)
+        n = len(rows)
+        count = math.ceil(n / blocks.lengths.min()) + 1
+        chosen = rng.integers(0, len(blocks.offsets), size=(replicates, count))
         first, length = blocks.offsets[chosen], blocks.lengths[chosen]
         before = np.cumsum(length, axis=1) - length
         take = np.clip(n - before, 0, length)  # the last block is cut to reach n windows
-        sums = _drawn_sums(cumsum, first, take)
-        per_action.append(sums / n)
+        for array in (blocks.rows, first, take):
+            array.flags.writeable = False
         # As many degrees of freedom as non-overlapping blocks, less one (batch means). The 1.5
         # times as many that overlapping blocks would have (Meketon and Schmeiser) measured
         # too few: long-memory coverage 0.83, the bold rule's family-wise error 0.07.
-        df.append(max(1.0, blocks.blocks - 1))
-    return Replicates(np.stack(per_action), np.asarray(df))
+        draws.append(_ActionDraws(blocks.rows, first, take, n, max(1.0, blocks.blocks - 1)))
+    _kept_draws[digest] = drawn = tuple(draws)
+    while len(_kept_draws) > _KEPT_DRAWS:
+        del _kept_draws[next(iter(_kept_draws))]
+    return drawn
 
 
 def _drawn_sums(cumsum: np.ndarray, first: np.ndarray, take: np.ndarray) -> np.ndarray:

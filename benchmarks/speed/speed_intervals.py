@@ -1,0 +1,96 @@
+"""A table's intervals and bold sets with the bootstrap's draws kept against drawn for every
+model, side by side in one run.
+
+Every model of a table is resampled with the same blocks (the paired bootstrap), and the draws
+depend on the windows and the seed alone, so the zoo keeps the last few sets of draws
+(:func:`zoo.stats.intervals._block_draws`) rather than draw them again for each model's
+interval and again for the bold set. For each table given, this times
+:func:`zoo.report.tables.table_views` (every interval and bold set a table shows) with the draws
+kept (``kept``) and with nothing kept (``drawn``: each call draws its own, as before), as
+medians of ``--repeats`` runs taken in turn, and says whether the two give the same intervals
+and bold sets bit for bit (they must).
+
+Run: python benchmarks/speed/speed_intervals.py [--table results/cmu/all ...] [--repeats 3]
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+from pathlib import Path
+from unittest import mock
+
+import numpy as np
+
+from zoo.evaluation.results import EvalResult, table_labels
+from zoo.paths import REPO_ROOT
+from zoo.report.tables import table_views
+from zoo.stats import intervals
+
+
+def measure(table: Path, repeats: int) -> dict:
+    results = [EvalResult.read(table / label) for label in table_labels(table)]
+
+    def timed(kept: int):
+        with (
+            mock.patch.object(intervals, "_KEPT_DRAWS", kept),
+            mock.patch.object(intervals, "_kept_draws", {}),
+        ):
+            started = time.perf_counter()
+            views = table_views(results)
+            return time.perf_counter() - started, views
+
+    timed(0)  # imports and first-call costs, in neither column
+    kept_s, drawn_s, same = [], [], True
+    for _ in range(repeats):
+        seconds, kept = timed(intervals._KEPT_DRAWS)
+        kept_s.append(seconds)
+        seconds, drawn = timed(0)
+        drawn_s.append(seconds)
+        same &= kept.keys() == drawn.keys() and all(
+            kept[k].tied == drawn[k].tied
+            and kept[k].half.keys() == drawn[k].half.keys()
+            and all(np.array_equal(kept[k].half[m], drawn[k].half[m]) for m in kept[k].half)
+            for k in kept
+        )
+    kept_m, drawn_m = statistics.median(kept_s), statistics.median(drawn_s)
+    return {
+        "table": str(table),
+        "rows": len(results),
+        "views": len(kept),
+        "kept": kept_m,
+        "drawn": drawn_m,
+        "ratio": drawn_m / kept_m,
+        "same": same,
+    }
+
+
+def main(argv=None) -> list[dict]:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument(
+        "--table",
+        nargs="+",
+        type=Path,
+        default=[REPO_ROOT / "results" / "cmu" / "all", REPO_ROOT / "results" / "cmu" / "ltd8"],
+    )
+    parser.add_argument("--repeats", type=int, default=3)
+    args = parser.parse_args(argv)
+    print(
+        f"{'table':<31} rows  views  kept (s)  drawn (s)  drawn/kept  intervals, bold",
+    )
+    rows = []
+    for table in args.table:
+        r = measure(table, args.repeats)
+        rows.append(r)
+        name = f"{table.parent.name}/{table.name}"
+        same = "the same bits" if r["same"] else "DIFFER"
+        print(
+            f"{name:<31} {r['rows']:4d}  {r['views']:5d}  {r['kept']:8.3f}  {r['drawn']:9.3f}  "
+            f"{r['ratio']:9.2f}x  {same}"
+        )
+    return rows
+
+
+if __name__ == "__main__":
+    main()
