@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import math
@@ -190,8 +191,11 @@ def canonical_json(data: Any) -> str:
     return json.dumps(data, sort_keys=True, separators=(",", ":"))
 
 
+@functools.cache
 def code_version() -> str:
-    """The package version plus the git commit of the source tree (``+dirty`` if modified)."""
+    """The package version plus the git commit of the source tree (``+dirty`` if modified), asked
+    of git once per process: the code a process runs is the code it imported, and a rebuild that
+    rewrites tracked ``results/`` files would otherwise call its own later rows dirty."""
 
     try:
         commit = subprocess.run(
