@@ -15,18 +15,21 @@ Run: python benchmarks/speed/speed_intervals.py [--table results/cmu/all ...] [-
 
 from __future__ import annotations
 
-import argparse
 import statistics
+import sys
 import time
 from pathlib import Path
 from unittest import mock
 
 import numpy as np
 
-from zoo.evaluation.results import EvalResult, table_labels
-from zoo.paths import REPO_ROOT
-from zoo.report.tables import table_views
-from zoo.stats import intervals
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from speed_plots import over_tables  # noqa: E402
+
+from zoo.evaluation.results import EvalResult, table_labels  # noqa: E402
+from zoo.paths import REPO_ROOT  # noqa: E402
+from zoo.report.tables import table_views  # noqa: E402
+from zoo.stats import intervals  # noqa: E402
 
 
 def measure(table: Path, repeats: int) -> dict:
@@ -66,30 +69,23 @@ def measure(table: Path, repeats: int) -> dict:
     }
 
 
+def _line(name: str, r: dict) -> str:
+    same = "the same bits" if r["same"] else "DIFFER"
+    return (
+        f"{name:<31} {r['rows']:4d}  {r['views']:5d}  {r['kept']:8.3f}  {r['drawn']:9.3f}  "
+        f"{r['ratio']:9.2f}x  {same}"
+    )
+
+
 def main(argv=None) -> list[dict]:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument(
-        "--table",
-        nargs="+",
-        type=Path,
-        default=[REPO_ROOT / "results" / "cmu" / "all", REPO_ROOT / "results" / "cmu" / "ltd8"],
-    )
-    parser.add_argument("--repeats", type=int, default=3)
-    args = parser.parse_args(argv)
-    print(
+    return over_tables(
+        argv,
+        __doc__.split("\n\n")[0],
+        [REPO_ROOT / "results" / "cmu" / "all", REPO_ROOT / "results" / "cmu" / "ltd8"],
         f"{'table':<31} rows  views  kept (s)  drawn (s)  drawn/kept  intervals, bold",
+        measure,
+        _line,
     )
-    rows = []
-    for table in args.table:
-        r = measure(table, args.repeats)
-        rows.append(r)
-        name = f"{table.parent.name}/{table.name}"
-        same = "the same bits" if r["same"] else "DIFFER"
-        print(
-            f"{name:<31} {r['rows']:4d}  {r['views']:5d}  {r['kept']:8.3f}  {r['drawn']:9.3f}  "
-            f"{r['ratio']:9.2f}x  {same}"
-        )
-    return rows
 
 
 if __name__ == "__main__":

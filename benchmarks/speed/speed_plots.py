@@ -74,32 +74,43 @@ def measure(table: Path, repeats: int) -> dict:
     }
 
 
-def main(argv=None) -> list[dict]:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument(
-        "--table",
-        nargs="+",
-        type=Path,
-        default=[REPO_ROOT / "results" / "cmu" / "all", REPO_ROOT / "results" / "cloth" / "all"],
-    )
+def over_tables(
+    argv, description: str, default: list[Path], header: str, measure, line
+) -> list[dict]:
+    """A speed script over committed tables: ``--table`` folders (``default``) and
+    ``--repeats``; ``measure(table, repeats)`` each, printed under ``header`` as
+    ``line(name, row)``. Returns the rows."""
+    parser = argparse.ArgumentParser(description=description)
+    parser.add_argument("--table", nargs="+", type=Path, default=default)
     parser.add_argument("--repeats", type=int, default=3)
     args = parser.parse_args(argv)
-    print(
-        "table                 plots  drawn (s)  copied (s)  drawn/copied  files, redrawn"
-        "  tight (s)  tight/drawn"
-    )
+    print(header)
     rows = []
     for table in args.table:
-        r = measure(table, args.repeats)
-        rows.append(r)
-        name = f"{table.parent.name}/{table.name}"
-        same = "the same bytes" if r["same"] else "DIFFER"
-        print(
-            f"{name:<21} {r['plots']:5d}  {r['drawn']:9.3f}  {r['copied']:10.4f}  "
-            f"{r['ratio']:11.0f}x  {same}, {r['redrawn']} redrawn  {r['tight']:9.3f}  "
-            f"{r['tight_ratio']:10.2f}x"
-        )
+        rows.append(measure(table, args.repeats))
+        print(line(f"{table.parent.name}/{table.name}", rows[-1]))
     return rows
+
+
+def _line(name: str, r: dict) -> str:
+    same = "the same bytes" if r["same"] else "DIFFER"
+    return (
+        f"{name:<21} {r['plots']:5d}  {r['drawn']:9.3f}  {r['copied']:10.4f}  "
+        f"{r['ratio']:11.0f}x  {same}, {r['redrawn']} redrawn  {r['tight']:9.3f}  "
+        f"{r['tight_ratio']:10.2f}x"
+    )
+
+
+def main(argv=None) -> list[dict]:
+    return over_tables(
+        argv,
+        __doc__.split("\n\n")[0],
+        [REPO_ROOT / "results" / "cmu" / "all", REPO_ROOT / "results" / "cloth" / "all"],
+        "table                 plots  drawn (s)  copied (s)  drawn/copied  files, redrawn"
+        "  tight (s)  tight/drawn",
+        measure,
+        _line,
+    )
 
 
 if __name__ == "__main__":
