@@ -73,42 +73,61 @@ def test_drawn_blocks_are_summed_in_the_order_a_sum_over_the_draws_adds_them(col
         assert np.array_equal(_drawn_sums(cumsum, first, take), gathered), draws
 
 
-def test_kept_draws_are_those_of_the_same_windows_and_seed_alone(monkeypatch):
-    """The blocks drawn for a set of windows are kept for the next model's errors over them;
-    windows that differ in a start, an action or a dtype, or another seed, draw their own."""
+def test_kept_draws_serve_only_the_windows_and_seed_they_were_drawn_for(monkeypatch):
+    """The blocks drawn for a set of windows serve the next model's errors over them; windows
+    split into other recordings or started further apart, actions that sort in another order,
+    or another seed draw their own, and actions named otherwise but grouped alike share them."""
     from zoo.stats import intervals
 
     rng = np.random.default_rng(4)
     errors, sequence, start, action, _ = overlapping_errors(rng, [120, 90])
     other = rng.standard_normal(errors.shape) + errors
-    moved = start.copy()
-    moved[-1] += 1
-    renamed = action.copy()
-    renamed[:5] = "action9"
-    cases = [
-        (sequence, start, action, 0),
-        (sequence, moved, action, 0),
-        (sequence, start, renamed, 0),
-        (sequence.astype(np.int32), start, action, 0),
-        (sequence, start, action, 1),
-    ]
+    split = sequence.copy()
+    split[:60] += 10  # the first action's windows in two recordings
+    numbers = np.where(action == "action0", 2, 10)  # sorts as the names do
+    cases = {
+        "base": (sequence, start, action, 0),
+        "split": (split, start, action, 0),
+        "spaced": (sequence, 3 * start, action, 0),  # a third as many windows to a block
+        "text": (sequence, start, numbers.astype(str), 0),  # "10" sorts before "2"
+        "seed": (sequence, start, action, 1),
+        "numbers": (sequence, start, numbers, 0),  # grouped as base: base's draws
+    }
 
     def replicates(e, windows):
         *arrays, seed = windows
         return block_replicates(e, *arrays, 2 * WINDOW, 200, seed, WINDOW).per_action
 
-    fresh = []
-    for windows in cases:  # each computed with nothing kept
+    fresh = {}
+    for name, windows in cases.items():  # each computed with nothing kept
         monkeypatch.setattr(intervals, "_kept_draws", {})
-        fresh.append([replicates(e, windows) for e in (errors, other)])
+        fresh[name] = [replicates(e, windows) for e in (errors, other)]
+    for name in ("split", "spaced", "text", "seed"):
+        assert not np.array_equal(fresh[name][0], fresh["base"][0]), name
+    assert all(np.array_equal(a, b) for a, b in zip(fresh["numbers"], fresh["base"]))
+
+    drawn = []
+    action_blocks = intervals._action_blocks
+    monkeypatch.setattr(
+        intervals, "_action_blocks", lambda *a: drawn.append(1) or action_blocks(*a)
+    )
     monkeypatch.setattr(intervals, "_kept_draws", {})
-    for _ in range(2):  # every set drawn once, then each from what was kept (or drawn again)
-        for windows, expected in zip(cases, fresh):
-            for e, want in zip((errors, other), expected):
-                assert np.array_equal(replicates(e, windows), want)
-    assert len(intervals._kept_draws) <= intervals._KEPT_DRAWS
-    kept = next(iter(intervals._kept_draws.values()))[0]
-    assert not kept.first.flags.writeable and not kept.rows.flags.writeable
+    monkeypatch.setattr(intervals, "_KEPT_DRAWS", 5)  # every distinct set of draws here
+    for rounds in range(2):  # drawn once (the second model reuses them), then all kept
+        for name, windows in cases.items():
+            before = len(drawn)
+            for e, want in zip((errors, other), fresh[name]):
+                assert np.array_equal(replicates(e, windows), want), name
+            first_time = rounds == 0 and name != "numbers"
+            assert len(drawn) - before == (2 if first_time else 0), (rounds, name)
+    assert len(intervals._kept_draws) == intervals._KEPT_DRAWS
+    unseeded = [replicates(errors, (sequence, start, action, None)) for _ in range(2)]
+    assert not np.array_equal(*unseeded)  # no seed: fresh draws each time, none kept
+    # each of the two actions: once per distinct set of windows, and in both unseeded calls
+    assert len(drawn) == 2 * (len(cases) - 1) + 2 * 2
+    for kept in intervals._kept_draws.values():
+        for action in kept:
+            assert not any(a.flags.writeable for a in (action.rows, action.first, action.take))
 
 
 def test_window_sampling_intervals_cover_the_truth_where_naive_ones_do_not():

@@ -54,7 +54,7 @@ class TinyTemporal(nn.Module):
         last = history[:, -1:]
         x = (history - last).permute(0, 2, 3, 1)
         # Contiguous before the residual: the permuted layout would make the loss's norm over
-        # the coordinates a strided reduction, most of a tiny step's time.
+        # the coordinates a strided reduction.
         y = self.net(x).permute(0, 3, 1, 2).contiguous() + last
         return y * float("nan") if self.poison and self.training else y
 

@@ -35,9 +35,9 @@ from zoo.stats import intervals  # noqa: E402
 def measure(table: Path, repeats: int) -> dict:
     results = [EvalResult.read(table / label) for label in table_labels(table)]
 
-    def timed(kept: int):
+    def timed(keep: int):
         with (
-            mock.patch.object(intervals, "_KEPT_DRAWS", kept),
+            mock.patch.object(intervals, "_KEPT_DRAWS", keep),
             mock.patch.object(intervals, "_kept_draws", {}),
         ):
             started = time.perf_counter()

@@ -228,8 +228,10 @@ class _ActionDraws:
     df: float
 
 
-# The draws of the last few sets of windows. They depend on the windows and the seed alone, and
-# a table draws them for each of its models' intervals and again for its bold set.
+# The draws of the last few sets of windows. They depend on the windows, the block sizes, the
+# replicates and the seed, not on the errors, and a table draws them for each of its models'
+# intervals and again for its bold set. A set holds two (replicates, draws) index arrays per
+# action.
 _KEPT_DRAWS = 4
 _kept_draws: dict[bytes, tuple[_ActionDraws, ...]] = {}
 
@@ -244,22 +246,28 @@ def _block_draws(
     window_frames: int,
 ) -> tuple[_ActionDraws, ...]:
     """Each action's circular blocks (:func:`_action_blocks`) drawn ``replicates`` times with
-    one generator seeded ``seed``, action after action in sorted order."""
-    key = hashlib.blake2b(
-        repr((block_frames, replicates, seed, window_frames)).encode(), digest_size=20
+    one generator seeded ``seed``, action after action in sorted order; kept where the windows
+    and the seed can be named by their bytes."""
+    names, group = np.unique(actions, return_inverse=True)
+    keep = isinstance(seed, (int, np.integer)) and not (
+        sequence.dtype.hasobject or start.dtype.hasobject
     )
-    for values in (sequence, start):
-        key.update(f"{values.dtype}{values.shape}".encode())
-        key.update(np.ascontiguousarray(values).tobytes())
-    key.update("\x1f".join(map(str, actions.tolist())).encode())
-    digest = key.digest()
-    if digest in _kept_draws:
-        _kept_draws[digest] = _kept_draws.pop(digest)  # the most recently used, kept longest
-        return _kept_draws[digest]
+    if keep:
+        # The actions enter as the group of each window, in sorted order: all a draw depends on.
+        key = hashlib.blake2b(
+            repr((block_frames, replicates, int(seed), window_frames)).encode(), digest_size=20
+        )
+        for values in (sequence, start, group.astype(np.int64)):
+            key.update(f"{values.dtype}{values.shape}".encode())
+            key.update(np.ascontiguousarray(values).tobytes())
+        digest = key.digest()
+        if digest in _kept_draws:
+            _kept_draws[digest] = _kept_draws.pop(digest)  # the most recently used, kept longest
+            return _kept_draws[digest]
     rng = np.random.default_rng(seed)
     draws = []
-    for action in np.unique(actions):
-        rows = np.flatnonzero(actions == action)
+    for index in range(len(names)):
+        rows = np.flatnonzero(group == index)
         blocks = _action_blocks(sequence, start, rows, block_frames, window_frames)
         n = len(rows)
         count = math.ceil(n / blocks.lengths.min()) + 1
@@ -273,9 +281,11 @@ def _block_draws(
         # times as many that overlapping blocks would have (Meketon and Schmeiser) measured
         # too few: long-memory coverage 0.83, the bold rule's family-wise error 0.07.
         draws.append(_ActionDraws(blocks.rows, first, take, n, max(1.0, blocks.blocks - 1)))
-    _kept_draws[digest] = drawn = tuple(draws)
-    while len(_kept_draws) > _KEPT_DRAWS:
-        del _kept_draws[next(iter(_kept_draws))]
+    drawn = tuple(draws)
+    if keep:
+        _kept_draws[digest] = drawn
+        while len(_kept_draws) > _KEPT_DRAWS:
+            del _kept_draws[next(iter(_kept_draws))]
     return drawn
 
 
