@@ -2,9 +2,9 @@
 model, side by side in one run.
 
 Every model of a table is resampled with the same blocks (the paired bootstrap), and the draws
-depend on the windows and the seed alone, so the zoo keeps the last few sets of draws
-(:func:`zoo.stats.intervals._block_draws`) rather than draw them again for each model's
-interval and again for the bold set. For each table given, this times
+depend on the windows, block sizes and seed but not on a model's errors, so the zoo keeps the
+last few sets of draws (:func:`zoo.stats.intervals._block_draws`) rather than draw them again
+for each model's interval and again for the bold set. For each table given, this times
 :func:`zoo.report.tables.table_views` (every interval and bold set a table shows) with the draws
 kept (``kept``) and with nothing kept (``drawn``: each call draws its own, as before), as
 medians of ``--repeats`` runs taken in turn, and says whether the two give the same intervals

@@ -262,8 +262,8 @@ def _block_draws(
             key.update(np.ascontiguousarray(values).tobytes())
         digest = key.digest()
         if digest in _kept_draws:
-            _kept_draws[digest] = _kept_draws.pop(digest)  # the most recently used, kept longest
-            return _kept_draws[digest]
+            drawn = _kept_draws[digest] = _kept_draws.pop(digest)  # most recent: kept longest
+            return drawn
     rng = np.random.default_rng(seed)
     draws = []
     for index in range(len(names)):
