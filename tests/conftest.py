@@ -102,9 +102,29 @@ class Pristine:
 
 # A plot's digest (the Drawn-From text it keeps: zoo.report.outputs.plot_digests) names its
 # bytes: the zoo copies a plot whose digest a table's previous folder holds rather than draw it
-# again. Tests that build the same board, each in folders of their own, apply that rule across
-# their folders: each test process draws a plot once.
-_DRAWN: dict[tuple[str, bool], bytes] = {}
+# again. The tests apply that rule across their folders and runs: each plot is drawn once, kept
+# under cache/ (git ignores it) by its digest, and copied from there by every test and run after.
+DRAWN_PLOTS = REPO / "cache" / "drawn-plots"
+# Kept plots no run has copied for this long are removed: each change to a plot's code or data
+# leaves its old bytes under a digest nothing asks for again.
+_KEPT_PLOT_DAYS = 14
+
+
+def _remove_plots_left_unused() -> None:
+    import time
+
+    if not DRAWN_PLOTS.is_dir():
+        return
+    oldest = time.time() - _KEPT_PLOT_DAYS * 86400
+    for png in DRAWN_PLOTS.glob("*.png"):
+        try:
+            if png.stat().st_mtime < oldest:
+                png.unlink()
+        except FileNotFoundError:  # the other worker removed it first
+            pass
+
+
+_remove_plots_left_unused()
 
 
 @pytest.fixture(autouse=True)
@@ -115,16 +135,22 @@ def _each_plot_drawn_once(monkeypatch):
     draw = outputs.save_figure
 
     def save_figure(fig, path, drawn_from=None, *, tight=True):
-        key = (drawn_from, tight)
-        if drawn_from is None or key not in _DRAWN:
+        if drawn_from is None:
+            return draw(fig, path, tight=tight)
+        kept = DRAWN_PLOTS / f"{drawn_from}-{'tight' if tight else 'placed'}.png"
+        try:
+            os.utime(kept)  # used now: not removed as left unused
+            bytes_ = kept.read_bytes()
+        except FileNotFoundError:
             draw(fig, path, drawn_from, tight=tight)
-            if drawn_from is not None:
-                _DRAWN[key] = Path(path).read_bytes()
+            DRAWN_PLOTS.mkdir(parents=True, exist_ok=True)
+            with atomic_path(kept) as tmp:
+                shutil.copyfile(path, tmp)
             return
         import matplotlib.pyplot as plt
 
         plt.close(fig)  # as save_figure leaves it
         with atomic_path(path) as tmp:
-            tmp.write_bytes(_DRAWN[key])
+            tmp.write_bytes(bytes_)
 
     monkeypatch.setattr(outputs, "save_figure", save_figure)
