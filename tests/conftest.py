@@ -15,6 +15,7 @@ if os.environ.get("PYTEST_XDIST_WORKER"):
     for threads in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ.setdefault(threads, "1")
 
+import functools  # noqa: E402
 import gc  # noqa: E402
 import io  # noqa: E402
 import shutil  # noqa: E402
@@ -105,26 +106,52 @@ class Pristine:
 # again. The tests apply that rule across their folders and runs: each plot is drawn once, kept
 # under cache/ (git ignores it) by its digest, and copied from there by every test and run after.
 DRAWN_PLOTS = REPO / "cache" / "drawn-plots"
-# Kept plots no run has copied for this long are removed: each change to a plot's code or data
+# Kept plots no run has used for this long are removed: each change to a plot's code or data
 # leaves its old bytes under a digest nothing asks for again.
 _KEPT_PLOT_DAYS = 14
+_PNG_END = b"IEND\xaeB`\x82"  # a PNG's last chunk: a file cut short is drawn again
 
 
 def _remove_plots_left_unused() -> None:
     import time
 
-    if not DRAWN_PLOTS.is_dir():
-        return
     oldest = time.time() - _KEPT_PLOT_DAYS * 86400
-    for png in DRAWN_PLOTS.glob("*.png"):
+    for kept in DRAWN_PLOTS.glob("*/*"):
         try:
-            if png.stat().st_mtime < oldest:
-                png.unlink()
-        except FileNotFoundError:  # the other worker removed it first
+            if kept.stat().st_mtime < oldest:
+                kept.unlink()
+        except OSError:  # the other worker removed it first
             pass
 
 
 _remove_plots_left_unused()
+
+
+@functools.cache
+def _drawing_environment() -> Path:
+    """The folder of plots drawn here: a digest of what besides the product's digest sets a
+    PNG's bytes (matplotlib's settings, the Pillow that encodes it), so that another
+    environment draws its own."""
+    import hashlib
+
+    import matplotlib
+    import PIL
+
+    # the backend chosen so far is no drawing setting (save_figure draws with Agg)
+    drawing = {k: v for k, v in matplotlib.rcParams.items() if not k.startswith("backend")}
+    settings = repr(sorted(drawing.items())) + PIL.__version__
+    return DRAWN_PLOTS / hashlib.sha256(settings.encode()).hexdigest()[:16]
+
+
+def _kept_plot(path: Path) -> bytes | None:
+    """A kept plot's bytes, marked used now; None where there is none to use (missing, cut
+    short, unreadable)."""
+    try:
+        os.utime(path)  # used now: not removed as left unused
+        data = path.read_bytes()
+    except OSError:
+        return None
+    return data if data.endswith(_PNG_END) else None
 
 
 @pytest.fixture(autouse=True)
@@ -137,20 +164,20 @@ def _each_plot_drawn_once(monkeypatch):
     def save_figure(fig, path, drawn_from=None, *, tight=True):
         if drawn_from is None:
             return draw(fig, path, tight=tight)
-        kept = DRAWN_PLOTS / f"{drawn_from}-{'tight' if tight else 'placed'}.png"
-        try:
-            os.utime(kept)  # used now: not removed as left unused
-            bytes_ = kept.read_bytes()
-        except FileNotFoundError:
+        kept = _drawing_environment() / f"{drawn_from}-{'tight' if tight else 'placed'}.png"
+        data = _kept_plot(kept)
+        if data is None:
             draw(fig, path, drawn_from, tight=tight)
-            DRAWN_PLOTS.mkdir(parents=True, exist_ok=True)
-            with atomic_path(kept) as tmp:
-                shutil.copyfile(path, tmp)
+            try:
+                with atomic_path(kept) as tmp:
+                    shutil.copyfile(path, tmp)
+            except OSError:  # a folder not writable here: the plot is drawn again next time
+                pass
             return
         import matplotlib.pyplot as plt
 
         plt.close(fig)  # as save_figure leaves it
         with atomic_path(path) as tmp:
-            tmp.write_bytes(bytes_)
+            tmp.write_bytes(data)
 
     monkeypatch.setattr(outputs, "save_figure", save_figure)
