@@ -88,8 +88,19 @@ def browser():
     driver.quit()
 
 
-def _open(browser, page: Path):
-    browser.get(page.as_uri())
+def _load(browser, address: str) -> None:
+    """``address`` loaded and its scripts run: chromedriver can answer a navigation while the
+    page is still loading (seen with an address that holds a fragment), before its scripts ran."""
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    browser.get(address)
+    WebDriverWait(browser, 30).until(
+        lambda b: b.execute_script("return document.readyState") == "complete"
+    )
+
+
+def _open(browser, page: Path, fragment: str = ""):
+    _load(browser, page.as_uri() + fragment)
     browser.get_log("browser")  # drop what an earlier page logged
 
 
@@ -115,7 +126,7 @@ def test_every_page_loads_without_console_errors_or_outside_requests(browser, si
     pages = sorted(site.glob("*.html"))
     assert len(pages) >= 10
     for page in pages:
-        browser.get(page.as_uri())
+        _load(browser, page.as_uri())
         errors = [e for e in browser.get_log("browser") if e["level"] in ("SEVERE", "ERROR")]
         assert errors == [], f"{page.name}: {errors}"
         requested = browser.execute_script(
@@ -305,7 +316,7 @@ def test_a_view_in_the_fragment_reopens(browser, site):
     assert "sort=3" in fragment and "desc=1" in fragment and "last=1" in fragment
     shown = _models(browser)
     browser.get("about:blank")
-    browser.get(page.as_uri() + fragment)
+    _open(browser, page, fragment)
     again = _models(browser)
     assert again == shown and any("@last" in m for m in again)
     assert browser.find_element("id", "show-last").is_selected()
@@ -555,7 +566,7 @@ def test_any_two_rows_are_compared_and_the_choice_reopens(browser, site):
     assert shown("ltd8") == other_table  # a choice in one table leaves the other as it was
     fragment = browser.execute_script("return location.hash")
     browser.get("about:blank")
-    browser.get(page.as_uri() + fragment)
+    _open(browser, page, fragment)
     assert shown("all") == [("spgsn", "spgsn_1body")]
     form = browser.find_element("css selector", "form.pair-pick[data-table='all']")
     Select(form.find_element("name", "a")).select_by_visible_text("spgsn")
