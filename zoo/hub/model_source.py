@@ -213,13 +213,20 @@ class LoadedModel:
 
     def model_identity(self) -> dict[str, Any]:
         from zoo.core.io import registry_record
+        from zoo.models.registry import files_read_while_built
+        from zoo.store.identity import files_read_record
 
+        reads = files_read_record(
+            files_read_while_built(self.model), self.hparams, self.entry.source
+        )
         return {
             "name": self.entry.name,
             "class": self.entry.class_name,
             "registry": registry_record(self.entry.source),
             **({"replaces": self.entry.replaces} if self.entry.replaces else {}),
             "hparams": self.hparams,
+            # the data files it read while built, and those its hyper-parameters name
+            **({"reads": reads} if reads else {}),
         }
 
     def identity(self, bench, protocol_id: str) -> dict[str, Any]:

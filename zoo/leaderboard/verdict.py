@@ -469,6 +469,8 @@ def check_identity(label: str, stored: dict | None, fresh: dict, check: CheckRep
         what = (
             "weights are not the ones it records"
             if d.startswith("trained")
+            else "a file its model reads changed"
+            if d.startswith("model.reads.")
             else "recorded identity differs"
         )
         check.problem(f"{check.current}: {label}: {what}: {d}")

@@ -18,6 +18,7 @@ import inspect
 import os
 import re
 import sys
+import weakref
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -25,6 +26,7 @@ from typing import Any
 import yaml
 
 from zoo.core.errors import ZooError
+from zoo.core.files_read import recording_files_read
 from zoo.core.io import load_yaml
 from zoo.models.citation import CitationError, Paper, parse_paper, parse_url
 from zoo.paths import REPO_ROOT
@@ -52,6 +54,17 @@ _ENTRY_KEYS = {
 # What a model's forward does: prediction ``forward(history)``, or completion
 # ``forward(history, final_frame)`` (the window's last frame given). Tables keep them apart.
 ENTRY_TASKS = ("prediction", "completion")
+# The data files a model read while it was built (its constructor, and its module when first
+# run): an author's weights loaded in a wrapper's __init__ are part of what its results are.
+_ZOO_CODE = (REPO_ROOT / "zoo",)
+_READ_AT_IMPORT: dict[str, frozenset[Path]] = {}
+_READ_WHILE_BUILT: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def files_read_while_built(model) -> frozenset[Path]:
+    """The data files (resolved) that ``model``'s module and constructor opened while
+    :meth:`Registry.create_model` built it; empty for a model built otherwise."""
+    return _READ_WHILE_BUILT.get(model, frozenset())
 
 
 def _flag(raw: dict, key: str, where: str) -> bool:
@@ -138,7 +151,9 @@ class ModelEntry:
                     module = importlib.util.module_from_spec(spec)
                     sys.modules[module_name] = module
                     try:
-                        spec.loader.exec_module(module)
+                        with recording_files_read(_ZOO_CODE) as read:
+                            spec.loader.exec_module(module)
+                        _READ_AT_IMPORT[module_name] = frozenset(read)
                     except BaseException:
                         del sys.modules[module_name]  # a half-run file is not loaded
                         raise
@@ -328,7 +343,8 @@ class Registry:
                 f"not accept {', '.join(unused)}"
             )
         try:
-            return cls(**args)
+            with recording_files_read(_ZOO_CODE) as read:
+                model = cls(**args)
         except (ValueError, TypeError) as e:
             if cls.__module__.split(".")[0] == "zoo":
                 # the zoo's own models check their arguments: the message is the answer
@@ -340,6 +356,8 @@ class Registry:
                 file=sys.stderr,
             )
             raise
+        _READ_WHILE_BUILT[model] = frozenset(read) | _READ_AT_IMPORT.get(cls.__module__, set())
+        return model
 
 
 def _parse_entry(path: Path, name: str, raw: Any) -> ModelEntry:

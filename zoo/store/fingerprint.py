@@ -19,11 +19,15 @@ import hashlib
 import inspect
 import os
 import re
+import sys
+import time
+from collections import Counter
 from functools import cache
 from pathlib import Path
 from typing import Any
 
 from zoo.paths import REPO_ROOT
+from zoo.store.layout import StoreError
 
 # A string naming a zoo definition by its module, as the benchmark's mesh datasets are named
 # ("zoo.data.cloth:cloth_dataset"): a reference like an import, normalised like one.
@@ -130,6 +134,20 @@ def _beside(path: Path | None, module: str) -> Path | None:
     return None
 
 
+def _beside_namespace(path: Path | None, module: str) -> bool:
+    """Whether ``module`` is a namespace package of a researcher's (a folder with no
+    ``__init__.py``, as many research checkouts have) where :func:`_beside` looks: ``from
+    parts import layers`` then reaches ``parts/layers.py``."""
+    if path is None or not module or path.is_relative_to(REPO_ROOT / "zoo"):
+        return False
+    parts = module.split(".")
+    return any(
+        root.joinpath(*parts).is_dir()
+        and not root.joinpath(*parts).resolve().is_relative_to(REPO_ROOT / "zoo")
+        for root in (path.parent, *_researcher_folders())
+    )
+
+
 def _researcher_folders() -> list[Path]:
     """The folders of ``sys.path`` (as it is now: after a wrapper has added its own) that hold
     neither the standard library nor installed packages, nor the zoo's own code."""
@@ -141,14 +159,64 @@ def _researcher_folders() -> list[Path]:
     installed |= {Path(p).resolve() for p in site.getsitepackages()}
     installed |= {Path(p).resolve() for p in (sys.prefix, sys.base_prefix, sys.exec_prefix)}
     folders = []
-    for entry in sys.path:
+    for entry in tuple(sys.path):
         folder = Path(entry or ".").resolve()
         if not folder.is_dir() or folder == REPO_ROOT or folder in folders:
             continue
         if any(folder == p or folder.is_relative_to(p) for p in installed):
             continue
+        if _holds_installed(str(folder), folder.stat().st_mtime_ns):
+            continue
         folders.append(folder)
-    return folders
+    return [f for f in folders if f not in _named_by_path_files(tuple(folders))]
+
+
+@cache
+def _holds_installed(folder: str, mtime_ns: int) -> bool:
+    """Whether a folder is where packages are installed: it holds a ``*.dist-info`` or
+    ``*.egg-info`` (what pip and setuptools write) or a ``.pth`` file (what ``site`` reads),
+    as another environment's site-packages added with ``site.addsitedir`` does. Such a folder
+    is a library, never a researcher's code (walking it would fingerprint all of torch)."""
+    try:
+        with os.scandir(folder) as entries:
+            return any(
+                e.name.endswith((".dist-info", ".egg-info"))
+                or (e.name.endswith(".pth") and _is_path_file(e.path))
+                for e in entries
+            )
+    except OSError:
+        return False
+
+
+def _is_path_file(file: str) -> bool:
+    """A ``.pth`` of ``site`` (lines of text naming folders), not a ``.pth`` of weights (a
+    zip or pickle of tensors, which a researcher's checkout may keep beside its code)."""
+    try:
+        with open(file, "rb") as f:
+            head = f.read(4096)
+        head.decode("utf-8")
+    except (OSError, UnicodeDecodeError):
+        return False
+    return not head.startswith((b"PK", b"\x80"))
+
+
+def _named_by_path_files(folders: tuple[Path, ...]) -> frozenset[Path]:
+    """Folders that a ``.pth`` file in an installed-packages folder of ``sys.path`` adds:
+    libraries too (an editable install's source is named so, and so is the zoo's own)."""
+    named = set()
+    for entry in sys.path:
+        folder = Path(entry or ".")
+        if not folder.is_dir() or not _holds_installed(str(folder), folder.stat().st_mtime_ns):
+            continue
+        for pth in folder.glob("*.pth"):
+            try:
+                lines = pth.read_text(errors="replace").splitlines()
+            except OSError:
+                continue
+            for line in lines:
+                if line and not line.startswith(("#", "import ", "import\t")):
+                    named.add((folder / line.strip()).resolve())
+    return frozenset(named)
 
 
 def _import_bindings(node, package: str, path: Path | None = None) -> dict[str, tuple]:
@@ -159,7 +227,8 @@ def _import_bindings(node, package: str, path: Path | None = None) -> dict[str, 
     if isinstance(node, ast.Import):
         for alias in node.names:
             top = alias.name.split(".")[0]
-            if _beside(path, alias.name if alias.asname else top) is not None:
+            named = alias.name if alias.asname else top
+            if _beside(path, named) is not None or _beside_namespace(path, named):
                 # import a.b as m binds the module a.b; import a.b binds a (a.b reached by name)
                 bindings[alias.asname or top] = (
                     "beside",
@@ -177,7 +246,7 @@ def _import_bindings(node, package: str, path: Path | None = None) -> dict[str, 
                 )
         return bindings
     base = _import_base(node, package)
-    beside = not node.level and _beside(path, base) is not None
+    beside = not node.level and (_beside(path, base) is not None or _beside_namespace(path, base))
     for alias in node.names:
         bound = alias.asname or alias.name
         if beside and alias.name != "*":
@@ -626,11 +695,13 @@ def _reached(start: Path, class_name: str) -> tuple[str, ...]:
     pieces: set[str] = set()
     seen: set[tuple[Path, str | None]] = set()
     todo: list[tuple[Path, str | None]] = [(start, class_name)]
+    walk = _Walk(f"{label(start)}:{class_name}")
     while todo:
         path, name = todo.pop()
         if (path, name) in seen:
             continue
         seen.add((path, name))
+        walk.visit(path)
         defs, imports, others = _parts(path)
         if (path, "") not in seen:  # a module's other statements, once
             seen.add((path, ""))
@@ -663,6 +734,42 @@ def _reached(start: Path, class_name: str) -> tuple[str, ...]:
                 else:
                     todo.append((target, attribute))
     return tuple(sorted(pieces))
+
+
+class FingerprintError(StoreError):
+    pass
+
+
+class _Walk:
+    """The files a model's code walk reaches, bounded: it says what it is doing once it takes
+    longer than a few seconds, and past ``MAX_FILES`` researcher files it stops, naming the
+    folders that brought them in (a library reached as code: install it, or mark it one)."""
+
+    MAX_FILES = 2000
+    QUIET_SECONDS = 5.0
+
+    def __init__(self, what: str) -> None:
+        self.what, self.files, self.started, self.told = what, set(), time.monotonic(), False
+
+    def visit(self, path: Path) -> None:
+        if path in self.files:
+            return
+        self.files.add(path)
+        if not self.told and time.monotonic() - self.started > self.QUIET_SECONDS:
+            self.told = True
+            print(
+                f"zoo: fingerprinting the code of {self.what}: {len(self.files)} files so far",
+                file=sys.stderr,
+            )
+        if len(self.files) > self.MAX_FILES:
+            outside = [f for f in self.files if not f.is_relative_to(REPO_ROOT)]
+            folders = Counter(next(iter(f.parents)) for f in outside).most_common(3)
+            raise FingerprintError(
+                f"the code of {self.what} reaches more than {self.MAX_FILES} files outside the "
+                f"zoo (most from {', '.join(str(f) for f, _ in folders)}): a library is being "
+                "read as a researcher's code; install the author's dependencies with pip (or "
+                "pip install --target DIR and PYTHONPATH=DIR), see docs/adding-a-model.md"
+            )
 
 
 @_one_layout

@@ -76,6 +76,56 @@ def evaluation_code(model_class: type | None, dataset: str | None = None) -> dic
     return code
 
 
+# ---- the data files a model reads ------------------------------------------------------------
+
+
+def files_read_record(
+    files: frozenset[Path] | set[Path], hparams: dict[str, Any], registry_file: str | Path
+) -> dict[str, str]:
+    """The ``reads`` part of a model's identity: each data file its module or constructor
+    opened while it was built (:func:`zoo.models.registry.files_read_while_built`), and each
+    file a hyper-parameter names, as ``{name: sha256}``. Named relative to the registry file's
+    folder where inside it, else to the repository, else by the file's name: no machine's
+    folders. Empty for a model that reads none (the zoo's own)."""
+    from zoo.core.files_read import is_data_file
+    from zoo.core.io import sha256_file
+    from zoo.paths import REPO_ROOT
+
+    base = Path(registry_file).resolve().parent
+    named = set(files)
+    for value in hparams.values():
+        if isinstance(value, str) and value and len(value) < 4096:
+            for candidate in (Path(value).expanduser(), base / value):
+                if candidate.is_file() and is_data_file(candidate, (REPO_ROOT / "zoo",)):
+                    named.add(candidate.resolve())
+                    break
+    record = {}
+    for file in sorted(named):
+        label = next(
+            (
+                str(file.relative_to(root))
+                for root in (base, REPO_ROOT)
+                if file.is_relative_to(root)
+            ),
+            file.name,
+        )
+        stat = file.stat()
+        record[label] = _file_digest(str(file), stat.st_mtime_ns, stat.st_size, sha256_file)
+    return record
+
+
+_DIGESTS: dict[tuple[str, int, int], str] = {}
+
+
+def _file_digest(path: str, mtime_ns: int, size: int, digest) -> str:
+    """A file's sha256, hashed once per process while it is unchanged (a rebuild asks for a
+    model's identity once per row)."""
+    key = (path, mtime_ns, size)
+    if key not in _DIGESTS:
+        _DIGESTS[key] = digest(path)
+    return _DIGESTS[key]
+
+
 # ---- identities ------------------------------------------------------------------------------
 
 

@@ -1,0 +1,219 @@
+"""A researcher's own model and weights from outside the repository: a row's identity covers
+the files its model reads while built, its code fingerprint follows namespace packages and never
+walks into an installed library."""
+
+from __future__ import annotations
+
+import sys
+import textwrap
+import time
+
+import torch
+from test_store import board_args, cli, write_project
+
+from zoo.evaluation.results import read_table
+
+SCALED = """\
+from pathlib import Path
+
+import torch
+from torch import nn
+
+
+class Scaled(nn.Module):
+    \"\"\"The last velocity, scaled by a factor from a file: read in the constructor from
+    {where}.\"\"\"
+
+    def __init__(self, input_frames, output_frames, num_points, factors="factors.pth"):
+        super().__init__()
+        self.output_frames = output_frames
+        path = {path}
+        self.scale = nn.Parameter(torch.load(path, weights_only=True)["scale"])
+
+    def forward(self, history):
+        last, velocity = history[:, -1:], history[:, -1:] - history[:, -2:-1]
+        steps = torch.arange(1, self.output_frames + 1, dtype=history.dtype)
+        return last + self.scale * velocity * steps.view(1, -1, 1, 1)
+"""
+
+
+def write_scaled(project, path_expression: str, where: str, hparams: str = "{}"):
+    folder = project / "scaled"
+    folder.mkdir()
+    (folder / "scaled.py").write_text(SCALED.format(path=path_expression, where=where))
+    (folder / "registry.yaml").write_text(
+        textwrap.dedent(f"""\
+        models:
+          scaled:
+            class: scaled.py:Scaled
+            representation: joints
+            hparams: {hparams}
+        """)
+    )
+    return folder
+
+
+def write_chain(package, name: str, files: int) -> None:
+    """A package whose ``name`` reaches ``files`` modules, one calling the next (a library's
+    depth, as torch's ``relu`` reaches much of torch)."""
+    package.mkdir(parents=True)
+    top = package.name
+    (package / "__init__.py").write_text(f"from {top}.m0 import f as {name}\n")
+    for i in range(files):
+        call = f"from {top}.m{i + 1} import f as g\n" if i + 1 < files else "g = abs\n"
+        (package / f"m{i}.py").write_text(f"{call}\n\ndef f(x):\n    return g(x) + {i}\n")
+
+
+def save_factor(file, scale: float) -> None:
+    torch.save({"scale": torch.tensor(scale)}, file)
+
+
+def scaled_value(project) -> float:
+    frame = read_table(project / "results" / "cmu" / "ltd8").frame
+    return float(frame[frame.model == "scaled"]["value"].sum())
+
+
+def test_a_weights_file_swapped_beside_an_outside_class_makes_its_row_stale(tmp_path, capsys):
+    """The trial's swap: the wrapper loads its weights in its constructor; the file is replaced
+    at the same path; a plain rebuild recomputes the row and names the file, and --check
+    names it as the cause."""
+    project = write_project(tmp_path)
+    folder = write_scaled(project, 'Path(__file__).parent / "factors.pth"', "a file beside it")
+    save_factor(folder / "factors.pth", 0.5)
+    code, _, err = cli(capsys, "leaderboard", *board_args(project, "scaled"))
+    assert code == 0, err
+    before = scaled_value(project)
+
+    save_factor(folder / "factors.pth", 0.9)  # another model's weights, the same path
+    code, _, err = cli(capsys, "leaderboard", *board_args(project, "scaled"))
+    assert code == 0, err
+    assert "recomputing scaled: model.reads.factors.pth: stored" in err
+    assert "scaled: reused" not in err
+    assert scaled_value(project) != before
+
+    save_factor(folder / "factors.pth", 0.5)
+    check = [a for a in board_args(project, "scaled") if a != "--out"]
+    check[check.index(project / "results")] = "--results"
+    check.insert(check.index("--results") + 1, project / "results")
+    code, _, err = cli(capsys, "leaderboard", "--check", *check)
+    assert code == 1
+    assert "scaled: a file its model reads changed: model.reads.factors.pth" in err
+
+
+def test_a_file_named_by_a_hyper_parameter_is_part_of_the_identity(tmp_path, capsys):
+    """A file a hyper-parameter names is covered even where the constructor opens it in a way
+    Python's audit hook does not see (here: it is read at the first forward, lazily)."""
+    project = write_project(tmp_path)
+    folder = write_scaled(
+        project,
+        "Path(__file__).parent / factors",
+        "the file its hyper-parameter names",
+        hparams="{factors: " + str(tmp_path / "scaled" / "mine.pth") + "}",
+    )
+    save_factor(folder / "mine.pth", 0.5)
+    assert cli(capsys, "leaderboard", *board_args(project, "scaled"))[0] == 0
+    protocol = (project / "results" / "cmu" / "ltd8" / "scaled" / "protocol.json").read_text()
+    assert '"mine.pth"' in protocol
+
+    save_factor(folder / "mine.pth", 0.7)
+    code, _, err = cli(capsys, "leaderboard", *board_args(project, "scaled"))
+    assert code == 0 and "recomputing scaled: model.reads.mine.pth: stored" in err
+
+
+def test_an_edit_inside_a_namespace_package_beside_the_class_moves_its_fingerprint(
+    tmp_path, monkeypatch
+):
+    """``from parts import layers`` where ``parts/`` has no ``__init__.py``, as many research
+    checkouts have: an edit in ``parts/layers.py`` makes the model's rows stale."""
+    from zoo.models.registry import Registry
+    from zoo.store.fingerprint import model_fingerprint
+
+    monkeypatch.setattr(sys, "path", list(sys.path))
+
+    def fingerprint(folder, activation: str, import_line: str) -> str:
+        (folder / "parts").mkdir(parents=True)
+        (folder / "parts" / "layers.py").write_text(
+            f"from torch import nn\n\n\ndef block():\n    return nn.{activation}()\n"
+        )
+        (folder / "wrapper.py").write_text(
+            f"from torch import nn\n{import_line}\n\n\nclass Wrapper(nn.Module):\n"
+            "    def __init__(self, **_):\n        super().__init__()\n"
+            "        self.act = layers.block()\n\n"
+            "    def forward(self, history):\n        return self.act(history)\n"
+        )
+        (folder / "my.yaml").write_text(
+            "models:\n  mine:\n    class: wrapper.py:Wrapper\n    representation: joints\n"
+        )
+        for name in ("parts", "parts.layers"):
+            sys.modules.pop(name, None)
+        return model_fingerprint(Registry.from_files(folder / "my.yaml").get("mine").load_class())
+
+    for i, line in enumerate(("from parts import layers", "import parts.layers as layers")):
+        tanh = fingerprint(tmp_path / f"a{i}", "Tanh", line)
+        assert fingerprint(tmp_path / f"b{i}", "Tanh", line) == tanh  # another folder
+        assert fingerprint(tmp_path / f"c{i}", "ReLU", line) != tanh
+
+
+def test_another_environments_site_packages_is_a_library_not_researcher_code(tmp_path, monkeypatch):
+    """The trial's layered environment: a second environment's site-packages added with
+    ``site.addsitedir`` (torch among them) is not walked as researcher code; the fingerprint
+    finishes in seconds and covers no file there."""
+    import site
+
+    from zoo.models.registry import Registry
+    from zoo.store.fingerprint import reachable_code
+
+    monkeypatch.setattr(sys, "path", list(sys.path))
+    other = tmp_path / "other-env" / "site-packages"
+    (other / "einops_like").mkdir(parents=True)
+    (other / "einops_like" / "__init__.py").write_text("def rearrange(x):\n    return x\n")
+    (other / "einops_like-0.8.dist-info").mkdir()
+    # torch as the other environment has it: a large package by the same name
+    write_chain(other / "torch", "relu", 300)
+    (other / "extra.pth").write_text(str(tmp_path / "other-env" / "lib-extra") + "\n")
+    site.addsitedir(str(other))
+    folder = tmp_path / "mine"
+    folder.mkdir()
+    (folder / "wrapper.py").write_text(
+        "import torch\nfrom einops_like import rearrange\nfrom torch import nn\n\n\n"
+        "class Wrapper(nn.Module):\n    def forward(self, history):\n"
+        "        return rearrange(torch.relu(history))\n"
+    )
+    (folder / "my.yaml").write_text(
+        "models:\n  mine:\n    class: wrapper.py:Wrapper\n    representation: joints\n"
+    )
+    cls = Registry.from_files(folder / "my.yaml").get("mine").load_class()
+    started = time.monotonic()
+    pieces = reachable_code(cls)
+    assert time.monotonic() - started < 30
+    assert pieces and all(not p.startswith(("torch/", "m1.py", "__init__.py")) for p in pieces)
+    assert any(p.endswith("import::from einops_like import rearrange") for p in pieces)
+
+
+def test_a_walk_into_thousands_of_files_stops_with_one_line(tmp_path, monkeypatch):
+    """Past its bound the walk stops, naming the folder that brought the files in."""
+    from zoo.store import fingerprint
+
+    monkeypatch.setattr(sys, "path", list(sys.path))
+    monkeypatch.setattr(fingerprint._Walk, "MAX_FILES", 20)
+    checkout = tmp_path / "checkout"
+    write_chain(checkout / "big", "relu", 40)
+    (tmp_path / "wrapper.py").write_text(
+        "import big\nfrom torch import nn\n\n\nclass Wrapper(nn.Module):\n"
+        "    def forward(self, history):\n        return big.relu(history)\n"
+    )
+    sys.path.insert(0, str(checkout))
+    monkeypatch.delitem(sys.modules, "big", raising=False)
+    (tmp_path / "my.yaml").write_text(
+        "models:\n  mine:\n    class: wrapper.py:Wrapper\n    representation: joints\n"
+    )
+    from zoo.models.registry import Registry
+
+    cls = Registry.from_files(tmp_path / "my.yaml").get("mine").load_class()
+    try:
+        fingerprint.reachable_code(cls)
+    except fingerprint.FingerprintError as e:
+        message = str(e)
+    else:
+        raise AssertionError("the walk was not bounded")
+    assert "more than 20 files outside the zoo" in message and str(checkout / "big") in message
