@@ -1,11 +1,19 @@
-"""``zoo weights export|list``: a checkpoint's weights made shippable, and the shipped ones."""
+"""``zoo weights export|import|pause|list``: a checkpoint's weights made shippable, weights from
+outside the zoo imported, a paused training stored, and the shipped ones listed."""
 
 from __future__ import annotations
 
 import json
 from pathlib import Path
 
-from zoo.cli.common import Deprecated, add_command, weights_dir_option
+from zoo.cli.common import (
+    Deprecated,
+    UsageError,
+    add_command,
+    common_options,
+    registry_of,
+    weights_dir_option,
+)
 
 
 def add(sub) -> None:
@@ -42,6 +50,48 @@ def add(sub) -> None:
         "recorded as a recipe change, as zoo train --epochs on resume records it",
     )
     weights_dir_option(pause, "weights folder whose in_progress/ holds the paused states")
+    imp = add_command(
+        actions,
+        "import",
+        "make weights from outside the zoo (an authors' .pth state dict) shipped weights of a "
+        "registered model, their keys mapped onto its own; the record names each source file's "
+        "sha256 and address",
+        import_foreign,
+    )
+    imp.add_argument(
+        "sources",
+        nargs="+",
+        metavar="[PREFIX=]FILE",
+        help="state dict file(s) (.pth, .pt, .bin); PREFIX= puts a file's keys under that "
+        "prefix (a model of several parts saved apart: position.=model_position.pth)",
+    )
+    common_options(imp)
+    imp.add_argument("--model", required=True, help="registered model the weights are for")
+    imp.add_argument("--benchmark", required=True, help="benchmark the weights were trained on")
+    imp.add_argument(
+        "--key-map",
+        metavar="YAML",
+        help="{source prefix: zoo prefix} (null drops those keys); the longest prefix applies",
+    )
+    imp.add_argument(
+        "--state-key",
+        help="the key of the state dict inside a training script's saved dictionary "
+        "(default: the file itself, or state_dict, model, net, ...)",
+    )
+    imp.add_argument("--label", help="label of the weights and their rows (default: MODEL@authors)")
+    imp.add_argument(
+        "--source",
+        metavar="ADDRESS",
+        help="where the files come from, recorded with the rows (e.g. "
+        "github.com/OWNER/REPO/blob/COMMIT/checkpoints/model.pth)",
+    )
+    imp.add_argument("--licence", help="the licence the weights come under, as their authors say")
+    imp.add_argument(
+        "--redistributable",
+        action="store_true",
+        help="the licence allows shipping the weights in this repository (recorded)",
+    )
+    weights_dir_option(imp, "weights folder to write <benchmark>/<label>.safetensors in")
     listing = add_command(actions, "list", "the shipped weights, with their training budgets", show)
     weights_dir_option(listing, "weights folder")
     listing.add_argument("--root", dest="weights_dir", action=Deprecated, new="--weights-dir")
@@ -54,6 +104,37 @@ def export(args) -> int:
         args.checkpoint, label=args.label, root=Path(args.weights_dir), dtype=args.dtype
     )
     print(f"wrote {path} and {path.with_suffix('.json').name}")
+    return 0
+
+
+def import_foreign(args) -> int:
+    from zoo.hub.foreign import import_weights, read_key_map
+    from zoo.protocol.benchmark import get_benchmark
+
+    sources = []
+    for item in args.sources:
+        prefix, _, file = item.rpartition("=") if "=" in item else ("", "", item)
+        if not Path(file).is_file():
+            raise UsageError(f"{item}: no such file (expected [PREFIX=]FILE, a state dict)")
+        sources.append((prefix, Path(file)))
+    path = import_weights(
+        sources,
+        model=args.model,
+        benchmark=get_benchmark(args.benchmark),
+        registry=registry_of(args),
+        key_map=read_key_map(args.key_map),
+        state_key=args.state_key,
+        label=args.label,
+        origin=args.source,
+        licence=args.licence,
+        redistributable=args.redistributable,
+        root=Path(args.weights_dir),
+        data_root=args.data_root,
+    )
+    print(
+        f"wrote {path} and {path.with_suffix('.json').name}; score it with: zoo eval --weights "
+        f"{path}" + "".join(f" --registry {r}" for r in args.registry)
+    )
     return 0
 
 

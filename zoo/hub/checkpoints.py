@@ -25,6 +25,7 @@ from zoo.core.errors import NamesParameter, ZooError
 from zoo.core.io import atomic_path, atomic_write_json, replace_folder, repo_relative, sha256_file
 from zoo.hub.build import benchmark_inputs
 from zoo.hub.records import RECORD_FORMAT, RunRecord, WeightsError, WeightsRecord
+from zoo.hub.state_dicts import fit_summary, foreign_pointer
 from zoo.hub.weights import (
     PAUSED_SUMMARY,
     STORAGE_DTYPES,
@@ -375,6 +376,8 @@ def read_checkpoint(path: str | Path) -> dict[str, Any]:
             f"checkpoint ({type(e).__name__}: {first}); train again, or "
             f"restore the file"
         ) from e
+    if isinstance(payload, dict) and "format" not in payload:
+        raise CheckpointError(foreign_pointer(path, "--checkpoint"))
     if not isinstance(payload, dict) or payload.get("format") != CHECKPOINT_FORMAT:
         raise CheckpointError(
             f"checkpoint {path} is not a motion-zoo checkpoint (format "
@@ -470,12 +473,10 @@ def trained_model(
                 )
             hparams[key] = supplied[key]
     model = registry.create_model(entry.name, **hparams)
-    try:
-        model.load_state_dict(state_dict)
-    except RuntimeError as e:
-        raise CheckpointError(
-            f"{source}: weights do not fit model {entry.name!r} ({str(e).splitlines()[0]})"
-        ) from e
+    problem = fit_summary(model, state_dict)
+    if problem:
+        raise CheckpointError(f"{source}: weights do not fit model {entry.name!r}: {problem}")
+    model.load_state_dict(state_dict)
     return model.eval()
 
 

@@ -74,6 +74,9 @@ class WeightsRecord(RunRecord):
     checkpoint: str | None = None
     # later changes to the record itself (no trained tensor changed), oldest first
     upgrades: list[dict[str, Any]] = field(default_factory=list)
+    # weights made elsewhere (an authors' .pth) and imported: whose, each source file's name and
+    # sha256, where they came from, the key map, the licence (zoo.hub.foreign)
+    imported: dict[str, Any] | None = None
 
     @classmethod
     def from_json(cls, data: Any, source: str) -> WeightsRecord:
@@ -111,7 +114,7 @@ class WeightsRecord(RunRecord):
         run's record (``world_size`` where recorded, ``upgrades`` where there are some)."""
         values = asdict(self)
         data = {"format": RECORD_FORMAT, **{name: values.pop(name) for name in _HEAD}, **values}
-        for name in ("world_size", "upgrades"):
+        for name in ("world_size", "upgrades", "imported"):
             if not data[name]:
                 del data[name]
         return data

@@ -23,6 +23,7 @@ import torch
 
 from zoo.core.io import repo_relative, sha256_file
 from zoo.hub.records import WeightsError, WeightsRecord
+from zoo.hub.state_dicts import FOREIGN_SUFFIXES, foreign_pointer
 from zoo.paths import REPO_ROOT
 
 WEIGHTS_DIR = REPO_ROOT / "weights"
@@ -46,6 +47,8 @@ def read_weights_record(path: str | Path) -> WeightsRecord:
     """The record of shipped weights (tensors neither read nor checked)."""
     path = Path(path)
     record_path = record_file(path)
+    if path.suffix in FOREIGN_SUFFIXES:
+        raise WeightsError(foreign_pointer(path, "--weights"))
     for p in (path, record_path):
         if not p.is_file():
             raise WeightsError(
@@ -189,4 +192,5 @@ def weights_provenance(path: str | Path, record: WeightsRecord) -> dict[str, Any
         "weights_dtype": record.dtype,
         "hparams": record.hparams,
         "training": record.training,
+        **({"imported": record.imported} if record.imported else {}),
     }
