@@ -217,3 +217,49 @@ def test_a_walk_into_thousands_of_files_stops_with_one_line(tmp_path, monkeypatc
     else:
         raise AssertionError("the walk was not bounded")
     assert "more than 20 files outside the zoo" in message and str(checkout / "big") in message
+
+
+def test_an_outside_models_rows_get_a_card_and_nothing_is_written_in_the_repository(
+    tmp_path, capsys
+):
+    """With --results outside the repository, zoo cards and zoo site write only there; the
+    outside model gets a card from its registry entry, its site row links to it, and its
+    command to compute the row again names its registry and results folder."""
+    from zoo.paths import REPO_ROOT
+
+    project = write_project(tmp_path)
+    folder = write_scaled(project, 'Path(__file__).parent / "factors.pth"', "a file beside it")
+    save_factor(folder / "factors.pth", 0.5)
+    registry = folder / "registry.yaml"
+    registry.write_text(
+        registry.read_text() + "    description: the last velocity, scaled by a factor\n"
+    )
+    assert cli(capsys, "leaderboard", *board_args(project, "scaled"))[0] == 0
+
+    def repository_files():
+        watched = [REPO_ROOT / "README.md", *(REPO_ROOT / "docs" / "models").iterdir()]
+        return {p: p.stat().st_mtime_ns for p in watched} | {
+            "site": (REPO_ROOT / "site").stat().st_mtime_ns
+            if (REPO_ROOT / "site").exists()
+            else None
+        }
+
+    before = repository_files()
+    results = project / "results"
+    common = ["--registry", registry, "--results", results, "--weights-dir", project / "weights"]
+    code, out, err = cli(capsys, "cards", *common)
+    assert code == 0, err
+    card = (results / "cards" / "scaled.md").read_text()
+    assert "the last velocity, scaled by a factor" in card
+    assert "(../cmu/ltd8/leaderboard.md)" in card
+    code, out, err = cli(capsys, "site", *common)
+    assert code == 0, err
+    assert (
+        f"wrote {len(list((results / 'site').glob('*.html')))} pages to {results / 'site'}" in out
+    )
+    assert "warning: " + str(results / "cards") not in err
+    assert (results / "site" / "model-scaled.html").is_file()
+    table = (results / "site" / "table-cmu-ltd8.html").read_text()
+    assert "zoo eval --model scaled --registry registry.yaml --benchmark cmu" in table
+    assert f"--out {(results / 'cmu' / 'ltd8' / 'scaled').resolve()}" in table
+    assert repository_files() == before

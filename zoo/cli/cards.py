@@ -25,28 +25,35 @@ def add(sub) -> None:
     )
     registry_option(p)
     p.add_argument("--check", action="store_true", help="write nothing; exit 1 if a card is stale")
-    p.add_argument("--out", default=str(REPO_ROOT / "docs" / "models"), help="cards folder")
+    p.add_argument(
+        "--out",
+        help="cards folder (default: docs/models for the repository's results, else "
+        "<results>/cards: nothing is written into the repository unless asked)",
+    )
     weights_dir_option(p, "shipped weights folder")
     p.add_argument("--weights", dest="weights_dir", action=Deprecated, new="--weights-dir")
     results_option(p)
     p.add_argument(
         "--readme",
-        default=str(REPO_ROOT / "README.md"),
         help="a Markdown file whose headline tables (<!-- headline ... --> blocks) are "
-        "rewritten from --results too; '' for none",
+        "rewritten from --results too (default: the repository's README.md for its own "
+        "results, else none; '' for none)",
     )
 
 
 def run(args) -> int:
-    from zoo.report.cards import build_cards
+    from zoo.report.cards import build_cards, cards_dir_for
 
+    results = Path(args.results)
+    own = results.resolve() == (REPO_ROOT / "results").resolve()
+    readme = args.readme if args.readme is not None else str(REPO_ROOT / "README.md") * own
     statuses = build_cards(
-        Path(args.out),
+        Path(args.out) if args.out else cards_dir_for(results),
         registry=registry_of(args),
         weights_root=Path(args.weights_dir),
-        results_root=Path(args.results),
+        results_root=results,
         write=not args.check,
-        readme=Path(args.readme) if args.readme else None,
+        readme=Path(readme) if readme else None,
     )
     stale = [s for s in statuses if not s.fresh]
     for s in statuses:

@@ -25,11 +25,19 @@ def add(sub) -> None:
         "opens from file://, offline)",
         run,
     )
-    p.add_argument("--out", default=str(REPO_ROOT / "site"), help="site folder (replaced whole)")
+    p.add_argument(
+        "--out",
+        help="site folder, replaced whole (default: site/ for the repository's results, else "
+        "<results>/site)",
+    )
     results_option(p, "results root to read")
     weights_dir_option(p, "shipped weights folder")
     p.add_argument("--weights", dest="weights_dir", action=Deprecated, new="--weights-dir")
-    p.add_argument("--cards", default=str(REPO_ROOT / "docs" / "models"), help="model cards folder")
+    p.add_argument(
+        "--cards",
+        help="model cards folder (default: where zoo cards writes them for --results: "
+        "docs/models, or <results>/cards)",
+    )
     p.add_argument(
         "--clips",
         action="store_true",
@@ -63,11 +71,13 @@ def run(args) -> int:
                 name, registry, Path(args.weights_dir), results / name / CLIPS_FILE, args.data_root
             )
             print(f"wrote {path}")
+    own = results.resolve() == (REPO_ROOT / "results").resolve()
+    out = Path(args.out) if args.out else REPO_ROOT / "site" if own else results / "site"
     build = build_site(
-        Path(args.out),
+        out,
         results,
         weights_root=Path(args.weights_dir),
-        cards_dir=Path(args.cards),
+        cards_dir=Path(args.cards) if args.cards else _cards(results),
         registry=registry_of(args),
     )
     for line in build.warnings:
@@ -78,6 +88,14 @@ def run(args) -> int:
         f"{build.out / 'index.html'} in a browser (file://, offline)"
     )
     return 0
+
+
+def _cards(results: Path) -> Path:
+    """The cards ``zoo cards --results`` wrote for ``results``, else the repository's."""
+    from zoo.report.cards import CARDS_DIR, cards_dir_for
+
+    cards = cards_dir_for(results)
+    return cards if cards.is_dir() else CARDS_DIR
 
 
 def _mesh_benchmarks(results: Path) -> list[str]:

@@ -40,7 +40,7 @@ from zoo.models.registry import Registry, load_registry
 from zoo.paths import REPO_ROOT
 from zoo.protocol.metrics import FLOOR_SUFFIX
 from zoo.protocol.published import load_published
-from zoo.store.layout import RESULTS_DIR
+from zoo.store.layout import BESIDE_BENCHMARKS, RESULTS_DIR
 
 CARDS_DIR = REPO_ROOT / "docs" / "models"
 
@@ -181,11 +181,35 @@ def budget_note(
     return None
 
 
-def card_models(registry: Registry, shipped: dict[str, list[Shipped]]) -> list[str]:
-    """Models with a card: every registered model with shipped weights or published figures,
-    in registry order."""
+def cards_dir_for(results_root: str | Path) -> Path:
+    """Where the cards of a results folder go: docs/models for the repository's own results,
+    ``<results>/cards`` for a folder of one's own (so nothing is written into the checkout
+    the zoo runs from, and the site built from that folder finds them)."""
+    results_root = Path(results_root)
+    own = results_root.resolve() == RESULTS_DIR.resolve()
+    return CARDS_DIR if own else results_root / BESIDE_BENCHMARKS[0]
+
+
+def card_models(
+    registry: Registry,
+    shipped: dict[str, list[Shipped]],
+    tables: list[tuple[Path, EvalResult]] = (),
+) -> list[str]:
+    """Models with a card: every registered model with shipped weights, published figures or
+    a row in ``tables`` (a researcher's own model from its registry entry), in registry
+    order."""
     published = {p.model for p in load_published()}
-    return [n for n in registry.list_models() if _files(registry, n, shipped) or n in published]
+    with_rows = {
+        name
+        for name in registry.list_models()
+        for _, table in tables
+        if any(_belongs(str(label), name) for label in table.frame["model"].unique())
+    }
+    return [
+        n
+        for n in registry.list_models()
+        if _files(registry, n, shipped) or n in published or n in with_rows
+    ]
 
 
 def _files(registry: Registry, name: str, shipped: dict[str, list[Shipped]]) -> list[Shipped]:
@@ -381,7 +405,11 @@ def read_tables(results_root: Path) -> list[tuple[Path, EvalResult]]:
     return [(table, read_table(table.parent)) for table in table_files(results_root, depth=2)]
 
 
-def _row_tables(name: str, tables: list[tuple[Path, EvalResult]]) -> list[str]:
+def _row_tables(
+    name: str, tables: list[tuple[Path, EvalResult]], results_link: str = "../../results"
+) -> list[str]:
+    """The headline rows of ``name`` in every table, each table linked through
+    ``results_link`` (the results root as the card's folder reaches it)."""
     out = []
     for table, result in tables:
         frame = result.frame
@@ -398,7 +426,8 @@ def _row_tables(name: str, tables: list[tuple[Path, EvalResult]]) -> list[str]:
         ]
         horizons = default_horizons(rows)
         unit, fmt = metric_unit(metric)
-        shown = labels + ([BASELINE] if BASELINE in set(rows["model"]) else [])
+        baseline = BASELINE in set(rows["model"]) and BASELINE not in labels
+        shown = labels + ([BASELINE] if baseline else [])
         costs = _costs(table.parent.parent)
         body = []
         for label in shown:
@@ -414,7 +443,7 @@ def _row_tables(name: str, tables: list[tuple[Path, EvalResult]]) -> list[str]:
             )
         bench, table = table.parent.parent.name, table.parent.name
         out += [
-            f"### [{bench}/{table}](../../results/{bench}/{table}/leaderboard.md): "
+            f"### [{bench}/{table}]({results_link}/{bench}/{table}/leaderboard.md): "
             f"{metric.upper()}{f' ({unit})' if 0 < len(unit) <= 6 else ''}, frame averaging, "
             f"{joints}, "
             "mean over actions",
@@ -510,10 +539,13 @@ def generated_card(
     files: list[Shipped],
     results_root: Path = RESULTS_DIR,
     tables: list[tuple[Path, EvalResult]] | None = None,
+    results_link: str = "../../results",
 ) -> str:
     """The generated part of ``name``'s card, ending with :data:`END_MARKER` (``tables``: the
-    tables of ``results_root`` already read, :func:`read_tables`)."""
+    tables of ``results_root`` already read, :func:`read_tables`; ``results_link``: the results
+    root as the card's folder reaches it)."""
     entry = registry.get(name)
+    trained = entry.trainable or bool(entry.weights_of)
     params = sorted({(s.record.parameters, s.benchmarks[0]) for s in files})
     out = [f"# {name}", "", GENERATED_NOTE, ""]
     if entry.description:
@@ -538,11 +570,22 @@ def generated_card(
             + " (the parameters alone: each row's cost columns, `zoo costs`)"
             if params
             else "no weights shipped yet"
+            if trained
+            else "none (not trained)"
         ),
         "",
         "## Hyper-parameters",
         "",
         *_hparam_lines(entry.hparams, files),
+    ]
+    if not trained and not files:  # a baseline: nothing to train, ship or draw
+        tables = read_tables(results_root) if tables is None else tables
+        out += ["## Rows", "", *_row_tables(name, tables, results_link)]
+        out += ["## Published figures", "", *_published_lines(name)]
+        if entry.paper:
+            out += ["## Citation", "", "```bibtex", entry.paper.bibtex(), "```", ""]
+        return "\n".join(out) + END_MARKER + "\n"
+    out += [
         "## Recipe",
         "",
         *_recipe_lines(registry.get(entry.weights_of or name).train, files),
@@ -576,7 +619,7 @@ def generated_card(
         out += ["None yet.", ""]
     out += ["## Training curve", "", *_curve_lines(name, files)]
     tables = read_tables(results_root) if tables is None else tables
-    out += ["## Rows", "", *_row_tables(name, tables)]
+    out += ["## Rows", "", *_row_tables(name, tables, results_link)]
     out += ["## Published figures", "", *_published_lines(name)]
     if entry.paper:
         out += ["## Citation", "", "```bibtex", entry.paper.bibtex(), "```", ""]
@@ -664,13 +707,21 @@ def build_cards(
     cards_dir, results_root = Path(cards_dir), Path(results_root)
     registry = registry or load_registry()
     shipped = shipped_weights(weights_root or WEIGHTS_DIR)
-    names = card_models(registry, shipped)
     tables = read_tables(results_root)
+    names = card_models(registry, shipped, tables)
+    # the repository's cards link its results as docs/models reaches them, wherever they are
+    # written (a copy checked elsewhere is the same card); a folder of one's own, from its cards
+    own = results_root.resolve() == RESULTS_DIR.resolve()
+    results_link = (
+        "../../results"
+        if own
+        else Path(os.path.relpath(results_root.resolve(), cards_dir.resolve())).as_posix()
+    )
     statuses = []
     for name in names:
         path = cards_dir / f"{name}.md"
         files = _files(registry, name, shipped)
-        generated = generated_card(name, registry, files, results_root, tables)
+        generated = generated_card(name, registry, files, results_root, tables, results_link)
         current = _generated_part(path)
         if current == generated:
             statuses.append(CardStatus(name, path, True))

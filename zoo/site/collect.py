@@ -14,6 +14,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from zoo.evaluation.results import TABLE_FILE, table_files, table_labels
+from zoo.paths import REPO_ROOT
+from zoo.store.layout import BESIDE_BENCHMARKS, RESULTS_DIR
 
 if TYPE_CHECKING:  # the cards import pandas: a site that only reads tables does not need it
     from zoo.report.cards import Shipped
@@ -236,8 +238,18 @@ def row_source(folder: Path, benchmark: str, protocol: dict[str, Any]) -> dict[s
         return {}
     weights, sampler = provenance.get("weights"), protocol.get("sampler")
     model = provenance.get("model") or folder.name
+    # a results folder of one's own: its commands run from anywhere (the repository's own run
+    # from the clone, as its README says)
+    own_folder = not folder.resolve().is_relative_to(RESULTS_DIR.resolve())
+    if weights and own_folder and not Path(weights).is_absolute():
+        weights = str(REPO_ROOT / weights)
     options = [f"--weights {weights}" if weights else f"--model {model}"]
+    registry = str(provenance.get("registry") or "")
+    if registry.startswith("outside:"):  # a researcher's registry, named by its file alone
+        options += ["--registry", registry.removeprefix("outside:")]
     options += ["--benchmark", benchmark, "--sampler", str(sampler)]
+    if own_folder:
+        options += ["--out", str(folder.resolve())]
     task = protocol.get("task", "prediction")
     if task != "prediction":
         options += ["--task", task]
@@ -318,7 +330,9 @@ def benchmark_about(name: str) -> str:
 def read_benchmarks(results_root: Path) -> list[Benchmark]:
     out = []
     for bench_dir in sorted(
-        p for p in results_root.iterdir() if p.is_dir() and not p.name.startswith(".")
+        p
+        for p in results_root.iterdir()
+        if p.is_dir() and not p.name.startswith(".") and p.name not in BESIDE_BENCHMARKS
     ):
         folders = [t.parent for t in table_files(bench_dir)]
         bench = Benchmark(bench_dir.name, [read_table(bench_dir.name, f) for f in folders])

@@ -17,6 +17,9 @@ from zoo.core.io import canonical_json
 from zoo.paths import REPO_ROOT
 
 RESULTS_DIR = REPO_ROOT / "results"
+# what the zoo writes beside the benchmarks of a results folder of one's own (zoo cards, zoo
+# site): never read as a benchmark
+BESIDE_BENCHMARKS = ("cards", "site")
 LABEL_PATTERN = r"[A-Za-z0-9_][A-Za-z0-9_.@+=,-]*"
 
 
