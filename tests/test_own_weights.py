@@ -263,3 +263,40 @@ def test_an_outside_models_rows_get_a_card_and_nothing_is_written_in_the_reposit
     assert "zoo eval --model scaled --registry registry.yaml --benchmark cmu" in table
     assert f"--out {(results / 'cmu' / 'ltd8' / 'scaled').resolve()}" in table
     assert repository_files() == before
+
+
+def test_a_model_answering_in_metres_is_refused_naming_the_unit(tmp_path, capsys):
+    """The trial's third mistake: a model predicting in metres where CMU gives millimetres
+    scored about 474 mm at 1000 ms, exit 0. Now one line, naming the likely unit."""
+    project = write_project(tmp_path)
+    folder = project / "metres"
+    folder.mkdir()
+    (folder / "metres.py").write_text(
+        "from torch import nn\n\n\nclass Metres(nn.Module):\n"
+        "    def __init__(self, input_frames, output_frames, num_points):\n"
+        "        super().__init__()\n        self.output_frames = output_frames\n\n"
+        "    def forward(self, history):\n"
+        "        return history[:, -1:].repeat(1, self.output_frames, 1, 1) / 1000\n"
+    )
+    (folder / "registry.yaml").write_text(
+        "models:\n  metres:\n    class: metres.py:Metres\n    representation: joints\n"
+    )
+    code, _, err = cli(
+        capsys,
+        "eval",
+        "--registry",
+        folder / "registry.yaml",
+        "--model",
+        "metres",
+        "--data-root",
+        project / "cmu",
+        "--sampler",
+        "ltd8",
+        "--out",
+        tmp_path / "out",
+    )
+    errors = [line for line in err.splitlines() if not line.startswith("warning: ")]
+    assert code == 2 and len(errors) == 1, err
+    assert "predicted coordinates 0.001 times the scale of the history" in err
+    assert "likely metres where the benchmark gives millimetres" in err
+    assert not (tmp_path / "out").exists()

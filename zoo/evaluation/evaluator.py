@@ -11,6 +11,7 @@ from __future__ import annotations
 import copy
 import datetime as _dt
 import inspect
+import math
 import sys
 import traceback
 from dataclasses import dataclass, field
@@ -224,7 +225,9 @@ def _evaluate_skeleton(
         pred = predict(
             scored.model, history, task, t_out, windows[:, -1, used].to(device), hooks=scored.hooks
         )
-        pred = checked_prediction(pred, (len(history), t_out, len(used), 3), scored.name, start)
+        pred = checked_prediction(
+            pred, (len(history), t_out, len(used), 3), scored.name, start, history
+        )
         truth = _JointsTruth(windows[:, t_in:], partial(skeleton_errors, skeleton=skeleton))
         return _scored_errors({scored.name: pred}, View.JOINTS.metrics, truth)
 
@@ -301,8 +304,11 @@ def predict(
     return torch.cat(out, dim=1)[:, :frames]
 
 
-def checked_prediction(pred, expected: tuple, model_name: str, start: int) -> torch.Tensor:
-    """A model's output on CPU in float32, or an error if it breaks the contract."""
+def checked_prediction(
+    pred, expected: tuple, model_name: str, start: int, history: torch.Tensor | None = None
+) -> torch.Tensor:
+    """A model's output on CPU in float32, or an error if it breaks the contract (the shape,
+    finite values and, given the ``history`` it saw, the history's units)."""
     if not isinstance(pred, torch.Tensor) or tuple(pred.shape) != expected:
         got = tuple(pred.shape) if isinstance(pred, torch.Tensor) else type(pred).__name__
         raise EvaluationError(
@@ -314,7 +320,38 @@ def checked_prediction(pred, expected: tuple, model_name: str, start: int) -> to
             f"model {model_name!r} predicted non-finite values (windows "
             f"{start}..{start + len(pred) - 1})"
         )
+    if history is not None:
+        _check_units(pred, history.detach().to("cpu", torch.float32), model_name)
     return pred
+
+
+# what a factor of 10^k between a prediction's scale and its history's most likely is
+_UNIT_SLIPS = {
+    -3: "metres where the benchmark gives millimetres",
+    -2: "decimetres where the benchmark gives millimetres, or metres where it gives centimetres",
+    -1: "centimetres where the benchmark gives millimetres",
+    1: "millimetres where the benchmark gives centimetres",
+    3: "millimetres where the benchmark gives metres",
+}
+
+
+def _check_units(pred: torch.Tensor, history: torch.Tensor, model_name: str) -> None:
+    """Refuse a prediction whose scale (mean absolute coordinate) is two or more orders of
+    magnitude from its history's: a model answering in other units, not a worse prediction
+    (a model that predicts nothing at all, zeros, is scored as it is)."""
+    seen, said = history.abs().mean().item(), pred.abs().mean().item()
+    if seen == 0 or said == 0:
+        return
+    ratio = said / seen
+    if 1e-2 < ratio < 1e2:
+        return
+    power = round(math.log10(ratio))
+    unit = _UNIT_SLIPS.get(power, f"a unit 10^{power} times the benchmark's")
+    raise EvaluationError(
+        f"model {model_name!r} predicted coordinates {ratio:.3g} times the scale of the history "
+        f"it was given (mean absolute coordinate {said:.4g} against {seen:.4g}): likely "
+        f"{unit}; a model answers in the dataset's units (zoo.models)"
+    )
 
 
 def _sealed(protocol: Protocol, model_name: str, device, provenance: dict | None) -> dict[str, Any]:
@@ -540,7 +577,7 @@ class _MeshScoring:
             hooks=scored.hooks,
         )
         expected = (len(windows), self.t_out, *windows.shape[2:])
-        return checked_prediction(pred, expected, scored.name, start)
+        return checked_prediction(pred, expected, scored.name, start, windows[:, : self.t_in])
 
     def errors(self, scored: Scored, truth: _MeshTruth, start: int) -> dict:
         """A model's errors on a batch: a mesh model's on the vertices it predicts (its
