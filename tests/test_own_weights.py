@@ -234,10 +234,10 @@ def test_an_outside_models_rows_get_a_card_and_nothing_is_written_in_the_reposit
     registry.write_text(
         registry.read_text() + "    description: the last velocity, scaled by a factor\n"
     )
-    assert cli(capsys, "leaderboard", *board_args(project, "scaled"))[0] == 0
 
     def repository_files():
         watched = [REPO_ROOT / "README.md", *(REPO_ROOT / "docs" / "models").iterdir()]
+        watched += [*(REPO_ROOT / "results").iterdir(), *(REPO_ROOT / "weights").iterdir()]
         return {p: p.stat().st_mtime_ns for p in watched} | {
             "site": (REPO_ROOT / "site").stat().st_mtime_ns
             if (REPO_ROOT / "site").exists()
@@ -245,6 +245,7 @@ def test_an_outside_models_rows_get_a_card_and_nothing_is_written_in_the_reposit
         }
 
     before = repository_files()
+    assert cli(capsys, "leaderboard", *board_args(project, "scaled"))[0] == 0
     results = project / "results"
     common = ["--registry", registry, "--results", results, "--weights-dir", project / "weights"]
     code, out, err = cli(capsys, "cards", *common)
@@ -300,3 +301,19 @@ def test_a_model_answering_in_metres_is_refused_naming_the_unit(tmp_path, capsys
     assert "predicted coordinates 0.001 times the scale of the history" in err
     assert "likely metres where the benchmark gives millimetres" in err
     assert not (tmp_path / "out").exists()
+
+
+def test_refreshing_one_model_does_not_build_the_others(tmp_path, capsys):
+    """``zoo leaderboard --model M`` keeps every other row as it is without building its model
+    (what it costs beyond evaluating M): here another model that can no longer be built."""
+    project = write_project(tmp_path)
+    folder = write_scaled(project, 'Path(__file__).parent / "factors.pth"', "a file beside it")
+    save_factor(folder / "factors.pth", 0.5)
+    assert cli(capsys, "leaderboard", *board_args(project, "scaled"))[0] == 0
+    before = scaled_value(project)
+    (folder / "factors.pth").unlink()  # scaled cannot be built any more
+    code, _, err = cli(
+        capsys, "leaderboard", "--model", "repeat_last", *board_args(project, "scaled")
+    )
+    assert code == 0, err
+    assert scaled_value(project) == before

@@ -23,6 +23,7 @@ SCRIPTS = [
     "speed_eval",
     "speed_identity",
     "speed_intervals",
+    "speed_leaderboard_model",
     "speed_pass",
     "speed_plots",
     "speed_public_cmu",
@@ -145,6 +146,26 @@ def test_speed_check(swinging_cmu, tmp_path, capsys):
     assert all(math.isfinite(v) and v > 0 for v in (check, full, faster)), lines[3]
     # against a floor of no arithmetic (repeat_last alone) the ratio is infinite, never NaN
     assert ratio > 0 and (math.isfinite(ratio) or floor == 0), lines[3]
+
+
+def test_speed_leaderboard_model(swinging_cmu, tmp_path, capsys):
+    from zoo.cli import main
+
+    root, _ = swinging_cmu
+    base = tmp_path / "results"
+    paths = ["--data-root", str(root), "--weights", str(tmp_path / "none")]
+    paths += ["--checkpoints", str(tmp_path / "none")]
+    assert main(["leaderboard", "--benchmark", "cmu", "--out", str(base), *paths]) == 0
+    capsys.readouterr()
+    load("speed_leaderboard_model").main(
+        ["--data-root", str(root), "--base", str(base), "--work", "1", "--repeats", "1"]
+    )
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[1].startswith("cheap: zoo eval --sampler all ") and "ratio" in lines[1]
+    assert lines[2].startswith("rollout: zoo eval --sampler all ")
+    for line in lines[1:]:
+        evaluated, board, ratio, repeats = figures(line.split(": ", 1)[1])
+        assert evaluated > 0 and board > 0 and ratio == pytest.approx(board / evaluated, rel=0.1)
 
 
 def test_speed_pass(swinging_cmu, tmp_path, capsys):

@@ -256,6 +256,12 @@ class Costs:
             return None
         return {k: v for k, v in entry.items() if k != "architecture"}
 
+    def as_stored(self, label: str) -> dict[str, Any] | None:
+        """The stored costs of row ``label`` whatever architecture they were measured for (a
+        row a rebuild keeps as it is, unchecked)."""
+        entry = self.rows.get(label)
+        return None if entry is None else {k: v for k, v in entry.items() if k != "architecture"}
+
     def save(self) -> None:
         from zoo.core.io import atomic_write_json
 

@@ -332,15 +332,15 @@ class Leaderboard:
                 )
             except Exception as e:  # noqa: BLE001 - every failure is reported, none stops
                 return RowPlan(row, "failed", stored=old, error=e)
-        if plan.models and row.name not in plan.models and old is None and not plan.recompute:
-            return RowPlan(row, "skip")  # neither asked for nor stored: not even loaded
+        if plan.models and row.name not in plan.models and not plan.recompute:
+            # not asked for: a stored row is kept as it is, its model not even loaded (a plain
+            # rebuild says which rows are stale); one not stored is skipped
+            return RowPlan(row, "skip" if old is None else "keep", stored=old)
         loaded = self.load(row)
         identity = loaded.identity(self.bench, protocol.id)
         step = partial(RowPlan, row, loaded=loaded, identity=identity, stored=old)
         if plan.recompute:
             return step("compute", why="asked (--recompute)")
-        if plan.models and row.name not in plan.models:
-            return step("keep")
         if plan.models:
             return step("compute", why="asked (--model)")
         if old is None:
@@ -372,9 +372,14 @@ class Leaderboard:
 
     def stored_cost(self, efficiency: dict, label: str, loaded, task: str) -> None:
         """A row's cost columns as ``zoo costs`` stored them (this measures nothing), while
-        they are those of its model (:func:`zoo.leaderboard.efficiency.cost_key`); else none."""
-        key = cost_key(loaded, self.bench, self.dataset, task)
-        stored = self.costs.get(label, architecture(key))
+        they are those of its model (:func:`zoo.leaderboard.efficiency.cost_key`); else none.
+        A row kept as it is (``loaded`` None: its model not loaded) keeps its stored costs."""
+        if loaded is None:
+            stored = self.costs.as_stored(label)
+        else:
+            stored = self.costs.get(
+                label, architecture(cost_key(loaded, self.bench, self.dataset, task))
+            )
         if stored is not None:
             efficiency[label] = stored
 

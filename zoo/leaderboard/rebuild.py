@@ -164,14 +164,6 @@ class Rebuild(Leaderboard):
                 reused.append(r.stored)
                 self.counts["reused"] += 1
                 self.stored_cost(efficiency, r.row.label, r.loaded, task)
-                if r.action == "keep" and identity_differences(
-                    stored_identity(r.stored), r.identity
-                ):
-                    print(
-                        f"{where}: {r.row.label}: kept as stored although stale (only "
-                        f"{', '.join(sorted(self.plan.models))} asked)",
-                        file=sys.stderr,
-                    )
         pending = [r for r in table.rows if r.action == "compute"]
         for r, verification in self._verify([r for r in table.rows if r.action == "verify"], table):
             if verification is None:  # the sample disagreed: recomputed on every window
