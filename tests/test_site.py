@@ -78,7 +78,8 @@ def test_summary_matches_the_rows_and_the_markdown_headline(table):
     markdown = (TABLE / "leaderboard.md").read_text().split("## Headline", 1)[1]
     line = next(row for row in markdown.splitlines() if row.startswith(f"| {model} "))
     cells = [c.strip() for c in line.strip("|").split("|")][1 : 1 + len(view["horizons_ms"])]
-    assert [c.startswith("**") for c in cells] == mine["bold"]
+    assert [c.startswith("**") for c in cells] == mine["lowest"]
+    assert [c.startswith("*") for c in cells] == mine["bold"]  # italic: not distinguishable
 
 
 def test_cumulative_view_is_the_running_mean_of_the_frame_view(table):
@@ -291,7 +292,7 @@ def test_the_index_names_the_lowest_row_the_table_shows_and_how_many_are_bold(tm
     best = min(shown, key=lambda m: m["values"][last])
     bold = sum(bool(m["bold"][last]) for m in shown)
     assert f'{best["model"]}<br><span class="num">{best["values"][last]:.2f}</span>' in index
-    assert f"{bold} of {len(shown)} bold" in index
+    assert f"{bold - 1} of the other {len(shown) - 1} not distinguishable from it" in index
     assert "@last<br>" not in index
 
 

@@ -107,14 +107,16 @@ def interval_words(windows, models: int = 0) -> str:
             )
     if models > 1:
         text += (
-            f". **Bold**: the lowest error at that horizon and every model not distinguishable "
-            f"from it by one simultaneous comparison of the table's {models} models (max-t over "
-            f"all paired differences)"
+            f". **Bold**: the lowest error at that horizon; *italic*: not distinguishable from "
+            f"it by one simultaneous comparison of the table's {models} models (max-t over all "
+            f"paired differences). A row far above the lowest but with a wide interval can be "
+            f"italic where a closer row with a narrow one is plain: the mark is about the "
+            f"evidence, not the distance"
         )
         fwe = record.get("bold", {}).get("fwe")
         if fwe is not None:
             text += (
-                f"; among equally good models, at least one was wrongly left unbolded in "
+                f"; among equally good models, at least one was wrongly left unmarked in "
                 f"{_pct(fwe)} of simulated tables of {record['bold']['models']} (each model's "
                 f"paired interval against the data's best, uncorrected: "
                 f"{_pct(record['bold']['fwe_unadjusted'])})"
@@ -147,9 +149,15 @@ class TableView:
     unranked: dict[str, str]  # rows that are no prediction to rank: why (unranked_reason)
 
     def is_bold(self, model: str, horizon: int) -> bool:
+        """The lowest at ``horizon``, or not distinguishable from it (its set of the best)."""
         if model in self.unranked:
             return False
         return self.tied.get((model, horizon), model == self.best[horizon])
+
+    def is_lowest(self, model: str, horizon: int) -> bool:
+        """The lowest error at ``horizon`` (bold in the table; the rest of the best set is
+        marked apart, so "lowest" and "not distinguishable from it" are never read as one)."""
+        return model not in self.unranked and model == self.best[horizon]
 
 
 def table_view(
@@ -319,6 +327,7 @@ def table_summary(
                     "values": [json_number(view.values.loc[m, h]) for h in horizons],
                     "half": [json_number(x) for x in view.half[m]] if m in view.half else None,
                     "bold": [view.is_bold(m, h) for h in horizons],
+                    "lowest": [view.is_lowest(m, h) for h in horizons],
                     "per_action": per_action,
                     "curve": [
                         [int(h), json_number(v)]
@@ -419,7 +428,11 @@ def headline_table(
         cells = []
         for i, h in enumerate(horizons):
             text = f"{values.loc[m, h]:{fmt}}" + (f" ±{half[m][i]:{fmt}}" if m in half else "")
-            cells.append(f"**{text}**" if view.is_bold(m, h) else text)
+            if view.is_lowest(m, h):
+                text = f"**{text}**"
+            elif view.is_bold(m, h):
+                text = f"*{text}*"
+            cells.append(text)
         marked = f"{m} {SHORT_MARK}" if m in (short_training or {}) else m
         table.append([marked, *cells, *_cost_cells(m, efficiency, costs)])
     placed = place(record, metric, "frame", joints) if published is None else published

@@ -168,7 +168,17 @@ _VIEW_KEYS = (
     "reported",
     "other_protocols",
 )
-_ROW_KEYS = ("model", "floor", "unranked", "values", "half", "bold", "per_action", "curve")
+_ROW_KEYS = (
+    "model",
+    "floor",
+    "unranked",
+    "values",
+    "half",
+    "bold",
+    "lowest",
+    "per_action",
+    "curve",
+)
 _COMPARISON_KEYS = ("a", "b", "metric", "joints", "averaging", "kind", "units", "design", "rows")
 _COMPARISON_ROW_KEYS = (
     "horizon_ms",
@@ -209,7 +219,9 @@ def summary_fault(summary: dict[str, Any]) -> str | None:
             fault = missing(row, _ROW_KEYS, where)
             if fault:
                 return fault
-            for key in ("values", "bold") + (("half",) if row["half"] is not None else ()):
+            for key in ("values", "bold", "lowest") + (
+                ("half",) if row["half"] is not None else ()
+            ):
                 if not isinstance(row[key], list) or len(row[key]) != width:
                     return f"{where}.{key} does not have one entry per horizon"
     for i, pair in enumerate(summary.get("comparisons") or []):

@@ -31,12 +31,14 @@ var ZooSite = (function () {
     return e;
   }
 
-  // The interval and bold paragraphs are written with Markdown's ** and `: shown as such.
+  // The interval and bold paragraphs are written with Markdown's **, * and `: shown as such
+  // (the bold and italic words name the table's two marks, drawn as its cells draw them).
   function richText(node, text) {
     node.textContent = "";
-    var parts = String(text).split(/(\*\*[^*]+\*\*|`[^`]+`)/);
+    var parts = String(text).split(/(\*\*[^*]+\*\*|\*[^*\s][^*]*\*|`[^`]+`)/);
     parts.forEach(function (p) {
-      if (/^\*\*.*\*\*$/.test(p)) { node.appendChild(el("strong", {}, p.slice(2, -2))); }
+      if (/^\*\*.*\*\*$/.test(p)) { node.appendChild(el("strong", {"class": "mark-lowest"}, p.slice(2, -2))); }
+      else if (/^\*.*\*$/.test(p)) { node.appendChild(el("em", {"class": "mark-tied"}, p.slice(1, -1))); }
       else if (/^`.*`$/.test(p)) { node.appendChild(el("code", {}, p.slice(1, -1))); }
       else if (p) { node.appendChild(document.createTextNode(p)); }
     });
@@ -250,7 +252,8 @@ var ZooSite = (function () {
       var value = average ? row.values[i] : ((row.per_action || {})[state.action] || [])[i];
       return {value: value === undefined ? null : value,
               half: average && row.half ? row.half[i] : null,
-              bold: average && row.bold ? row.bold[i] : false};
+              bold: average && row.bold ? row.bold[i] : false,
+              lowest: average && row.lowest ? row.lowest[i] : false};
     }
     function render() {
       var v = state.view, fmt = v.format;
@@ -314,7 +317,9 @@ var ZooSite = (function () {
           var c = cell(r, i);
           var td = el("td", {"class": "num" + (shown(i) ? "" : " off"), "data-horizon": String(h), "data-value": c.value === null ? "" : String(c.value)});
           td.textContent = format(c.value, fmt) + (c.half !== null && c.half !== undefined ? " ±" + format(c.half, fmt) : "");
-          if (c.bold) { td.classList.add("bold"); }
+          // the lowest, and apart from it the rows not distinguishable from it
+          if (c.lowest) { td.classList.add("bold"); }
+          else if (c.bold) { td.classList.add("tied"); td.title = "not distinguishable from the lowest (what the marks mean: below the table)"; }
           tr.appendChild(td);
         });
         var k = costs[r.model] || {};
