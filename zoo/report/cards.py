@@ -578,52 +578,34 @@ def generated_card(
         "",
         *_hparam_lines(entry.hparams, files),
     ]
-    if not trained and not files:  # a baseline: nothing to train, ship or draw
-        tables = read_tables(results_root) if tables is None else tables
-        out += ["## Rows", "", *_row_tables(name, tables, results_link)]
-        out += ["## Published figures", "", *_published_lines(name)]
-        if entry.paper:
-            out += ["## Citation", "", "```bibtex", entry.paper.bibtex(), "```", ""]
-        return "\n".join(out) + END_MARKER + "\n"
-    out += [
-        "## Recipe",
-        "",
-        *_recipe_lines(registry.get(entry.weights_of or name).train, files),
-        "## Shipped weights and their budgets",
-        "",
-    ]
-    if files:
-        out += _table(
-            [
-                "weights",
-                "scores",
-                "stored values",
-                "dtype",
-                "epochs",
-                "optimizer steps",
-                "samples",
-                "minutes",
-                "device",
-                "best validation (mm)",
-                "sha256",
-            ],
-            _budget_rows(files),
-        )
-        out += _earlier_stage_lines(files)
+    if trained or files:  # a baseline has nothing to train, ship or draw
         out += [
-            f"`zoo.create_model({name!r}, benchmark=..., pretrained=True)` loads one; "
-            "`zoo weights list` lists them all.",
+            "## Recipe",
             "",
+            *_recipe_lines(registry.get(entry.weights_of or name).train, files),
         ]
-    else:
-        out += ["None yet.", ""]
-    out += ["## Training curve", "", *_curve_lines(name, files)]
+        out += ["## Shipped weights and their budgets", "", *_shipped_lines(name, files)]
+        out += ["## Training curve", "", *_curve_lines(name, files)]
     tables = read_tables(results_root) if tables is None else tables
     out += ["## Rows", "", *_row_tables(name, tables, results_link)]
     out += ["## Published figures", "", *_published_lines(name)]
     if entry.paper:
         out += ["## Citation", "", "```bibtex", entry.paper.bibtex(), "```", ""]
     return "\n".join(out) + END_MARKER + "\n"
+
+
+def _shipped_lines(name: str, files: list[Shipped]) -> list[str]:
+    if not files:
+        return ["None yet.", ""]
+    header = ["weights", "scores", "stored values", "dtype", "epochs", "optimizer steps",
+              "samples", "minutes", "device", "best validation (mm)", "sha256"]  # fmt: skip
+    return [
+        *_table(header, _budget_rows(files)),
+        *_earlier_stage_lines(files),
+        f"`zoo.create_model({name!r}, benchmark=..., pretrained=True)` loads one; "
+        "`zoo weights list` lists them all.",
+        "",
+    ]
 
 
 def models_index(registry: Registry, names: list[str], shipped: dict[str, list[Shipped]]) -> str:
