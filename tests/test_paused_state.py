@@ -270,3 +270,29 @@ def test_a_pilot_paused_with_a_larger_budget_resumes_to_it(setup, tmp_path, weig
     ckpt = read_checkpoint(tmp_path / "long" / "last.pt")
     assert [h["epoch"] for h in ckpt["history"]] == [1, 2, 3]
     assert ckpt["recipe_changes"] == [{"field": "epochs", "from": 1, "to": 3, "from_epoch": 2}]
+
+
+def test_a_study_run_pauses_under_its_own_name_beside_the_models_queue(
+    setup, tmp_path, weights_root
+):
+    """A run of a study (the bfloat16 study's ltd_bf16_seed0) is paused under its own name, not
+    as its model's one queued state, and resumes into the folder of that name."""
+    run(setup, tmp_path / "queued", epochs=3, stop_after_epoch=1)
+    queued = pause_run(tmp_path / "queued", root=weights_root)
+    run(setup, tmp_path / "tiny_study", epochs=3, stop_after_epoch=2, seed=1)
+    with pytest.raises(CheckpointError, match="expected a run name other than the model's"):
+        pause_run(tmp_path / "tiny_study", root=weights_root, name="tiny")
+    dest = pause_run(tmp_path / "tiny_study", root=weights_root, name="tiny_study")
+    assert dest == weights_root / "in_progress" / "cmu" / "tiny_study"
+    summary = json.loads((dest / "state.json").read_text())
+    assert summary["run"] == "tiny_study" and summary["resume"].endswith(
+        "--out checkpoints/cmu/tiny_study"
+    )
+    assert json.loads((queued / "state.json").read_text())["epochs_run"] == 1  # untouched
+
+    out = tmp_path / "elsewhere" / "tiny_study"  # a new machine: resumed from its own state
+    run(setup, out, epochs=3, resume=True, seed=1)
+    history = read_checkpoint(out / "last.pt")["history"]
+    study = read_checkpoint(tmp_path / "tiny_study" / "last.pt")["history"]
+    assert [h["epoch"] for h in history] == [1, 2, 3]
+    assert [h["val_mpjpe"] for h in history[:2]] == [h["val_mpjpe"] for h in study]

@@ -49,6 +49,14 @@ def add(sub) -> None:
         help="the run's budget from here, larger than its recipe's (a run begun as a pilot); "
         "recorded as a recipe change, as zoo train --epochs on resume records it",
     )
+    pause.add_argument(
+        "--as",
+        dest="name",
+        metavar="NAME",
+        help="store it as a run of its own under this name, beside the model's queue (a "
+        "study's run: ltd_bf16_seed0); zoo train --out checkpoints/<benchmark>/NAME --resume "
+        "continues it",
+    )
     weights_dir_option(pause, "weights folder whose in_progress/ holds the paused states")
     imp = add_command(
         actions,
@@ -141,7 +149,7 @@ def import_foreign(args) -> int:
 def pause_run(args) -> int:
     from zoo.hub.checkpoints import pause_run
 
-    dest = pause_run(args.run, root=Path(args.weights_dir), epochs=args.epochs)
+    dest = pause_run(args.run, root=Path(args.weights_dir), epochs=args.epochs, name=args.name)
     summary = json.loads((dest / "state.json").read_text())
     sizes = ", ".join(f"{name} {size / 1e6:.1f} MB" for name, size in summary["files"].items())
     print(

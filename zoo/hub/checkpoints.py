@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import hashlib
 import math
+import re
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -268,13 +269,18 @@ def save_checkpoint(path: Path, payload: dict[str, Any]) -> None:
 
 
 def pause_run(
-    run_dir: str | Path, root: str | Path | None = None, epochs: int | None = None
+    run_dir: str | Path,
+    root: str | Path | None = None,
+    epochs: int | None = None,
+    name: str | None = None,
 ) -> Path:
     """Store the paused training of ``run_dir`` (its ``last.pt`` and ``best.pt``) as the one
     committed state of its model (:func:`zoo.hub.weights.paused_dir`), in the paused storage
     (:func:`compact_payload`), with a ``state.json`` summary; the previous state of that model is
     replaced as a whole. ``epochs``: the run's budget from here, larger than its recipe's (a run
-    begun as a pilot), recorded as ``--epochs`` on resume records it. Returns the folder."""
+        begun as a pilot), recorded as ``--epochs`` on resume records it. ``name``: a run of its own
+    beside the model's queue (a study's run, ``ltd_bf16_seed0``), stored under that name and
+    resumed into ``checkpoints/<benchmark>/<name>``. Returns the folder."""
     run_dir = Path(run_dir)
     last = read_checkpoint(run_dir / "last.pt")
     best_path = run_dir / "best.pt"
@@ -287,8 +293,15 @@ def pause_run(
         raise CheckpointError(
             f"{best_path} holds {best['model']!r}, {run_dir / 'last.pt'} holds {model!r}"
         )
-    dest = paused_dir(benchmark, model, root)
-    summary = paused_summary(last)
+    if name is not None and (
+        not re.fullmatch(r"[A-Za-z0-9_][A-Za-z0-9_.-]*", name) or name == model
+    ):
+        raise CheckpointError(
+            f"--as {name!r}: expected a run name other than the model's, a plain file name "
+            f"(e.g. {model}_bf16_seed0)"
+        )
+    dest = paused_dir(benchmark, name or model, root)
+    summary = paused_summary(last, run=name)
     with replace_folder(dest, markers=(PAUSED_SUMMARY,)) as tmp:
         save_checkpoint(tmp / "last.pt", compact_payload(last))
         if best is not None:
@@ -317,7 +330,7 @@ def _grow_budget(state: dict[str, Any], epochs: int, done: int, path: Path) -> N
         state["training"] = {**state["training"], "epochs_planned": epochs}
 
 
-def paused_summary(last: dict[str, Any]) -> dict[str, Any]:
+def paused_summary(last: dict[str, Any], run: str | None = None) -> dict[str, Any]:
     """Where a run stands, from its ``last.pt``: what ``zoo list``, the tables and the site say
     of a model still training, and how to resume it."""
     from zoo.models.recipe import Recipe, patience_spent
@@ -359,7 +372,9 @@ def paused_summary(last: dict[str, Any]) -> dict[str, Any]:
             if recipe.get("precision", "float32") != "float32"
             else ""
         )
-        + (f" --max-batches {last['max_batches']}" if last.get("max_batches") else ""),
+        + (f" --max-batches {last['max_batches']}" if last.get("max_batches") else "")
+        + (f" --out checkpoints/{last['protocol']['benchmark']}/{run}" if run else ""),
+        **({"run": run} if run else {}),
     }
 
 

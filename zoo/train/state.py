@@ -138,7 +138,10 @@ def restore_paused(out_dir: Path, benchmark: str, model: str, root=None) -> Path
 
     from zoo.hub.weights import paused_dir
 
-    source = paused_dir(benchmark, model, root)
+    # a run of its own, paused under its folder's name (zoo weights pause --as), else the model's
+    own = paused_dir(benchmark, out_dir.name, root)
+    source = own if own.name != model and _paused_model(own) == model else None
+    source = source or paused_dir(benchmark, model, root)
     if (out_dir / "last.pt").is_file() or not (source / "last.pt").is_file():
         return None
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -147,6 +150,16 @@ def restore_paused(out_dir: Path, benchmark: str, model: str, root=None) -> Path
             with atomic_path(out_dir / name) as tmp:
                 shutil.copyfile(source / name, tmp)
     return source
+
+
+def _paused_model(folder: Path) -> str | None:
+    """The model a paused state holds (its ``state.json``), or None where there is none."""
+    import json
+
+    try:
+        return json.loads((folder / "state.json").read_text()).get("model")
+    except (OSError, ValueError):
+        return None
 
 
 def initial_weights(
