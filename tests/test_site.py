@@ -267,8 +267,21 @@ def test_a_model_without_weights_says_where_its_training_stands(tmp_path, capsys
     shutil.copytree(REPO_ROOT / "weights" / "cmu", weights / "cmu")
     paused = weights / "in_progress" / "cmu" / "msrgcn"
     paused.mkdir(parents=True)
-    (paused / "state.json").write_text(json.dumps({"epochs_run": 3, "epochs_planned": 58}))
-    status = "training: no weights shipped yet (3 of 58 epochs done)"
+    resume = "zoo train --model msrgcn --benchmark cmu --seed 0 --resume"
+    (paused / "state.json").write_text(
+        json.dumps(
+            {
+                "epochs_run": 3,
+                "epochs_planned": 58,
+                "best": {"val_mpjpe": 44.125, "epoch": 2},
+                "resume": resume,
+            }
+        )
+    )
+    status = (
+        "training: no weights shipped yet (3 of 58 epochs done; best validation 44.12 mm at "
+        f"epoch 2; resume: {resume})"
+    )
     unshipped = unshipped_models(load_registry(), weights)
     assert unshipped["msrgcn"] == status and "spgsn" not in unshipped and "ltd" not in unshipped
     (tmp_path / "results").mkdir()

@@ -137,10 +137,17 @@ def paused_runs(root: str | Path | None = None) -> dict[tuple[str, str], dict[st
 def training_status(paused: dict[str, Any] | None, epochs_planned: int | None) -> str:
     """What a trainable model without shipped weights shows where its rows would be: the
     epochs its paused training has done (``paused``: its summary, or None where none is paused)
-    of those planned (the paused run's, else the registry recipe's ``epochs_planned``)."""
+    of those planned (the paused run's, else the registry recipe's ``epochs_planned``), its best
+    validation so far and the command that resumes it."""
     done = paused["epochs_run"] if paused else 0
     planned = paused["epochs_planned"] if paused else epochs_planned
-    return f"training: no weights shipped yet ({done} of {planned or '?'} epochs done)"
+    best = (paused or {}).get("best") or {}
+    said = [f"{done} of {planned or '?'} epochs done"]
+    if best.get("val_mpjpe") is not None:
+        said.append(f"best validation {best['val_mpjpe']:.2f} mm at epoch {best['epoch']}")
+    if (paused or {}).get("resume"):
+        said.append(f"resume: {paused['resume']}")
+    return f"training: no weights shipped yet ({'; '.join(said)})"
 
 
 def unshipped_models(
