@@ -84,7 +84,8 @@ def files_read_record(
 ) -> dict[str, str]:
     """The ``reads`` part of a model's identity: each data file its module or constructor
     opened while it was built (:func:`zoo.models.registry.files_read_while_built`), and each
-    file a hyper-parameter names, as ``{name: sha256}``. Named relative to the registry file's
+    file a hyper-parameter names (absolute, or relative to the registry file), as
+    ``{name: sha256}``. Named relative to the registry file's
     folder where inside it, else to the repository, else by the file's name: no machine's
     folders. Empty for a model that reads none (the zoo's own)."""
     from zoo.core.files_read import is_data_file
@@ -95,10 +96,12 @@ def files_read_record(
     named = set(files)
     for value in hparams.values():
         if isinstance(value, str) and value and len(value) < 4096:
-            for candidate in (Path(value).expanduser(), base / value):
-                if candidate.is_file() and is_data_file(candidate, (REPO_ROOT / "zoo",)):
-                    named.add(candidate.resolve())
-                    break
+            # absolute, or relative to the registry file (as a class path is): never to the
+            # folder a command runs in, which would make the identity depend on it
+            candidate = Path(value).expanduser()
+            candidate = candidate if candidate.is_absolute() else base / candidate
+            if candidate.is_file() and is_data_file(candidate, (REPO_ROOT / "zoo",)):
+                named.add(candidate.resolve())
     record = {}
     for file in sorted(named):
         label = next(
