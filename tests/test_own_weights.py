@@ -317,3 +317,34 @@ def test_refreshing_one_model_does_not_build_the_others(tmp_path, capsys):
     )
     assert code == 0, err
     assert scaled_value(project) == before
+
+
+def test_nested_recordings_each_see_their_files_and_leave_none_behind(tmp_path):
+    """A wrapper whose constructor builds another registered model records inside a
+    recording: each sees what was opened within it, and both end cleanly."""
+    from zoo.core import files_read
+
+    first, second = tmp_path / "a.npy", tmp_path / "b.npy"
+    first.write_bytes(b"a")
+    second.write_bytes(b"b")
+    with files_read.recording_files_read() as outer:
+        first.read_bytes()
+        with files_read.recording_files_read() as inner:
+            second.read_bytes()
+    assert inner == {second.resolve()} and outer == {first.resolve(), second.resolve()}
+    assert files_read._recorders == []
+
+
+def test_a_weights_pth_beside_the_code_leaves_the_folder_researcher_code(tmp_path):
+    """A folder is a library when it holds a site .pth, but a git-lfs pointer or a weights
+    file named .pth beside the authors' code is neither."""
+    from zoo.store.fingerprint import _holds_installed
+
+    (tmp_path / "model.pth").write_text(
+        "version https://git-lfs.github.com/spec/v1\noid sha256:abc\nsize 604729\n"
+    )
+    (tmp_path / "empty.pth").write_text("")
+    assert not _holds_installed(str(tmp_path), 1)
+    (tmp_path / "lib").mkdir()
+    (tmp_path / "extra.pth").write_text("lib\n")
+    assert _holds_installed(str(tmp_path), 2)

@@ -134,3 +134,11 @@ def test_a_pth_given_where_the_zoos_own_files_go_points_to_the_import(tmp_path, 
     torch.save({"a": object()}, tmp_path / "pickled.pth")
     code, _, err = cli(capsys, *import_args(project, tmp_path / "pickled.pth"))
     assert code == 2 and "not a state dict that loads without running code" in err
+
+
+def test_a_file_whose_name_holds_an_equals_sign_imports_as_a_file(tmp_path, capsys):
+    project = write_project(tmp_path)
+    name = tmp_path / "epoch=49-step=9999.ckpt"  # Lightning's default name
+    torch.save(authors_state(project, prefix=""), name)
+    code, _, err = cli(capsys, *import_args(project, name))
+    assert code == 0, err

@@ -121,8 +121,9 @@ def import_foreign(args) -> int:
 
     sources = []
     for item in args.sources:
-        prefix, _, file = item.rpartition("=") if "=" in item else ("", "", item)
-        if not Path(file).is_file():
+        # a file's own name may hold "=" (epoch=49-step=9999.ckpt): a file is a file
+        prefix, _, file = ("", "", item) if Path(item).is_file() else item.partition("=")
+        if not file or "/" in prefix or not Path(file).is_file():
             raise UsageError(f"{item}: no such file (expected [PREFIX=]FILE, a state dict)")
         sources.append((prefix, Path(file)))
     path = import_weights(

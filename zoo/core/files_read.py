@@ -28,17 +28,19 @@ _installed = False
 def _on_audit(event: str, args: tuple) -> None:
     if event != "open" or not _recorders or not args:
         return
-    path, mode = args[0], args[1] if len(args) > 1 else None
+    path = args[0]
+    mode = args[1] if len(args) > 1 else None
+    flags = args[2] if len(args) > 2 else None  # os.open: (path, None, flags)
     if isinstance(mode, str) and any(c in mode for c in "wax+"):
         return  # written, not read
-    if isinstance(mode, int) and mode & (os.O_WRONLY | os.O_RDWR):
+    if isinstance(flags, int) and flags & (os.O_WRONLY | os.O_RDWR):
         return
     if not isinstance(path, (str, bytes, os.PathLike)):
         return  # a file descriptor: opened before, by name
     thread = threading.get_ident()
-    for owner, files in list(_recorders):
-        if owner == thread:
-            files.add(os.fsdecode(path))
+    for owner, files in tuple(_recorders):
+        if owner == thread:  # resolved now: the block may change folder before it ends
+            files.add(os.path.abspath(os.fsdecode(path)))
 
 
 @cache
@@ -53,12 +55,23 @@ def _library_folders() -> tuple[Path, ...]:
     return tuple(sorted({f.resolve() for f in folders}))
 
 
+@cache
+def _machine_folders() -> tuple[Path, ...]:
+    """Where libraries keep what belongs to this machine, never to a model: caches, settings."""
+    home = Path.home()
+    cache_home = Path(os.environ.get("XDG_CACHE_HOME") or home / ".cache")
+    config_home = Path(os.environ.get("XDG_CONFIG_HOME") or home / ".config")
+    return (cache_home, config_home, Path("/etc"))
+
+
 def is_data_file(path: str | Path, code_folders: tuple[Path, ...] = ()) -> bool:
     """Whether an opened file is data a computation read: a regular file, not code, not in an
     installed library or the interpreter, not under ``code_folders`` (the zoo's own code)."""
     text = str(path)
     if text.startswith(_PSEUDO) or Path(text).suffix in _CODE_SUFFIXES:
         return False
+    if any(Path(text).is_relative_to(f) for f in _machine_folders()):
+        return False  # a library's cache or settings (matplotlib's font list): this machine's
     try:
         if not stat.S_ISREG(os.stat(text).st_mode):
             return False
@@ -84,5 +97,6 @@ def recording_files_read(code_folders: tuple[Path, ...] = ()) -> Iterator[set[Pa
     try:
         yield found
     finally:
-        _recorders.remove(entry)
-        found |= {Path(p).resolve() for p in opened if is_data_file(p, code_folders)}
+        # this recording's own entry (a nested one holds an equal tuple until both are filled)
+        del _recorders[next(i for i, e in enumerate(_recorders) if e is entry)]
+        found |= {Path(p).resolve() for p in tuple(opened) if is_data_file(p, code_folders)}

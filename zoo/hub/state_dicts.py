@@ -17,6 +17,8 @@ FOREIGN_SUFFIXES = (".pth", ".pt", ".bin", ".ckpt", ".tar")
 
 def foreign_pointer(path: str | Path, flag: str) -> str:
     """What a command given an outside state dict where it wants the zoo's own file says."""
+    if flag == "--weights" and Path(path).name in ("best.pt", "last.pt"):
+        return f"{path} is a training checkpoint: score it with --checkpoint {path}"
     return (
         f"{path} is a state dict from outside the zoo, not what {flag} reads; import it first: "
         f"zoo weights import {path} --model NAME --benchmark BENCH [--key-map MAP.yaml] "

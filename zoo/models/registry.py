@@ -54,16 +54,18 @@ _ENTRY_KEYS = {
 # What a model's forward does: prediction ``forward(history)``, or completion
 # ``forward(history, final_frame)`` (the window's last frame given). Tables keep them apart.
 ENTRY_TASKS = ("prediction", "completion")
-# The data files a model read while it was built (its constructor, and its module when first
-# run): an author's weights loaded in a wrapper's __init__ are part of what its results are.
+# The data files a model's constructor read while it was built: an author's weights loaded in a
+# wrapper's __init__ are part of what its results are. Kept per class and keywords for the
+# process, so a second build that a cache spares the reading records the same files.
 _ZOO_CODE = (REPO_ROOT / "zoo",)
-_READ_AT_IMPORT: dict[str, frozenset[Path]] = {}
+_READ_BY_BUILD: dict[tuple, frozenset[Path]] = {}
 _READ_WHILE_BUILT: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
 def files_read_while_built(model) -> frozenset[Path]:
-    """The data files (resolved) that ``model``'s module and constructor opened while
-    :meth:`Registry.create_model` built it; empty for a model built otherwise."""
+    """The data files (resolved) that ``model``'s constructor opened while
+    :meth:`Registry.create_model` built it (or an earlier build of its class with the same
+    keywords, in this process); empty for a model built otherwise."""
     return _READ_WHILE_BUILT.get(model, frozenset())
 
 
@@ -151,9 +153,7 @@ class ModelEntry:
                     module = importlib.util.module_from_spec(spec)
                     sys.modules[module_name] = module
                     try:
-                        with recording_files_read(_ZOO_CODE) as read:
-                            spec.loader.exec_module(module)
-                        _READ_AT_IMPORT[module_name] = frozenset(read)
+                        spec.loader.exec_module(module)
                     except BaseException:
                         del sys.modules[module_name]  # a half-run file is not loaded
                         raise
@@ -356,7 +356,9 @@ class Registry:
                 file=sys.stderr,
             )
             raise
-        _READ_WHILE_BUILT[model] = frozenset(read) | _READ_AT_IMPORT.get(cls.__module__, set())
+        key = (cls.__module__, cls.__qualname__, repr(sorted(args.items(), key=lambda kv: kv[0])))
+        _READ_BY_BUILD[key] = _READ_BY_BUILD.get(key, frozenset()) | frozenset(read)
+        _READ_WHILE_BUILT[model] = _READ_BY_BUILD[key]
         return model
 
 

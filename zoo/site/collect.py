@@ -175,7 +175,6 @@ _ROW_KEYS = (
     "values",
     "half",
     "bold",
-    "lowest",
     "per_action",
     "curve",
 )
@@ -219,9 +218,9 @@ def summary_fault(summary: dict[str, Any]) -> str | None:
             fault = missing(row, _ROW_KEYS, where)
             if fault:
                 return fault
-            for key in ("values", "bold", "lowest") + (
-                ("half",) if row["half"] is not None else ()
-            ):
+            # "lowest" since 2026-12: a table written before has "bold" alone
+            lengths = ("values", "bold") + (("lowest",) if "lowest" in row else ())
+            for key in lengths + (("half",) if row["half"] is not None else ()):
                 if not isinstance(row[key], list) or len(row[key]) != width:
                     return f"{where}.{key} does not have one entry per horizon"
     for i, pair in enumerate(summary.get("comparisons") or []):

@@ -137,10 +137,14 @@ def _beside(path: Path | None, module: str) -> Path | None:
 def _beside_namespace(path: Path | None, module: str) -> bool:
     """Whether ``module`` is a namespace package of a researcher's (a folder with no
     ``__init__.py``, as many research checkouts have) where :func:`_beside` looks: ``from
-    parts import layers`` then reaches ``parts/layers.py``."""
+    parts import layers`` then reaches ``parts/layers.py``. Not where a regular module of that
+    name is importable (an installed ``datasets`` wins over a data folder of that name, as in
+    Python's own import)."""
     if path is None or not module or path.is_relative_to(REPO_ROOT / "zoo"):
         return False
     parts = module.split(".")
+    if _regular_module(parts[0]):
+        return False
     return any(
         root.joinpath(*parts).is_dir()
         and not root.joinpath(*parts).resolve().is_relative_to(REPO_ROOT / "zoo")
@@ -148,18 +152,35 @@ def _beside_namespace(path: Path | None, module: str) -> bool:
     )
 
 
+def _regular_module(name: str) -> bool:
+    """Whether a top-level module or package with a file of its own is importable by ``name``."""
+    import importlib.machinery
+
+    try:
+        spec = importlib.machinery.PathFinder.find_spec(name)
+    except (ImportError, ValueError):
+        return False
+    return spec is not None and spec.origin not in (None, "namespace")
+
+
 def _researcher_folders() -> list[Path]:
+    import sys
+
+    return list(_researcher_folders_of(tuple(sys.path)))
+
+
+@cache
+def _researcher_folders_of(path: tuple[str, ...]) -> tuple[Path, ...]:
     """The folders of ``sys.path`` (as it is now: after a wrapper has added its own) that hold
     neither the standard library nor installed packages, nor the zoo's own code."""
     import site
-    import sys
     import sysconfig
 
     installed = {Path(p).resolve() for p in sysconfig.get_paths().values()}
     installed |= {Path(p).resolve() for p in site.getsitepackages()}
     installed |= {Path(p).resolve() for p in (sys.prefix, sys.base_prefix, sys.exec_prefix)}
     folders = []
-    for entry in tuple(sys.path):
+    for entry in path:
         folder = Path(entry or ".").resolve()
         if not folder.is_dir() or folder == REPO_ROOT or folder in folders:
             continue
@@ -168,7 +189,7 @@ def _researcher_folders() -> list[Path]:
         if _holds_installed(str(folder), folder.stat().st_mtime_ns):
             continue
         folders.append(folder)
-    return [f for f in folders if f not in _named_by_path_files(tuple(folders))]
+    return tuple(f for f in folders if f not in _named_by_path_files(path))
 
 
 @cache
@@ -194,17 +215,22 @@ def _is_path_file(file: str) -> bool:
     try:
         with open(file, "rb") as f:
             head = f.read(4096)
-        head.decode("utf-8")
+        lines = [line.strip() for line in head.decode("utf-8").splitlines()]
     except (OSError, UnicodeDecodeError):
         return False
-    return not head.startswith((b"PK", b"\x80"))
+    lines = [line for line in lines if line and not line.startswith("#")]
+    folder = Path(file).parent
+    # what site reads: folders that exist, or import lines; a git-lfs pointer is neither
+    return bool(lines) and all(
+        line.startswith(("import ", "import\t")) or (folder / line).is_dir() for line in lines
+    )
 
 
-def _named_by_path_files(folders: tuple[Path, ...]) -> frozenset[Path]:
-    """Folders that a ``.pth`` file in an installed-packages folder of ``sys.path`` adds:
-    libraries too (an editable install's source is named so, and so is the zoo's own)."""
+def _named_by_path_files(path: tuple[str, ...]) -> frozenset[Path]:
+    """Folders that a ``.pth`` file in an installed-packages folder of ``path`` (``sys.path``)
+    adds: libraries too (an editable install's source is named so, and so is the zoo's own)."""
     named = set()
-    for entry in sys.path:
+    for entry in path:
         folder = Path(entry or ".")
         if not folder.is_dir() or not _holds_installed(str(folder), folder.stat().st_mtime_ns):
             continue

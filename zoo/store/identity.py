@@ -98,10 +98,13 @@ def files_read_record(
         if isinstance(value, str) and value and len(value) < 4096:
             # absolute, or relative to the registry file (as a class path is): never to the
             # folder a command runs in, which would make the identity depend on it
-            candidate = Path(value).expanduser()
-            candidate = candidate if candidate.is_absolute() else base / candidate
-            if candidate.is_file() and is_data_file(candidate, (REPO_ROOT / "zoo",)):
-                named.add(candidate.resolve())
+            try:  # a value that is no path (too long a name, ~nosuchuser) names no file
+                candidate = Path(value).expanduser()
+                candidate = candidate if candidate.is_absolute() else base / candidate
+                if candidate.is_file() and is_data_file(candidate, (REPO_ROOT / "zoo",)):
+                    named.add(candidate.resolve())
+            except (OSError, RuntimeError, ValueError):
+                continue
     record = {}
     for file in sorted(named):
         label = next(

@@ -253,7 +253,8 @@ var ZooSite = (function () {
       return {value: value === undefined ? null : value,
               half: average && row.half ? row.half[i] : null,
               bold: average && row.bold ? row.bold[i] : false,
-              lowest: average && row.lowest ? row.lowest[i] : false};
+              // a table written before "lowest" was stored: its bold cells, as they were
+              lowest: average ? (row.lowest || row.bold || [])[i] || false : false};
     }
     function render() {
       var v = state.view, fmt = v.format;
