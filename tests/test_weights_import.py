@@ -142,3 +142,24 @@ def test_a_file_whose_name_holds_an_equals_sign_imports_as_a_file(tmp_path, caps
     torch.save(authors_state(project, prefix=""), name)
     code, _, err = cli(capsys, *import_args(project, name))
     assert code == 0, err
+
+
+def test_imported_weights_rank_beside_the_models_own_rows(tmp_path, capsys):
+    """A leaderboard plans <model>@authors from the weights folder, beside the model's own
+    rows; imported weights do not end the model's training (it still shows as pending)."""
+    from test_store import board_args
+
+    from zoo.evaluation.results import read_table
+    from zoo.hub.weights import unshipped_models
+    from zoo.models.registry import Registry
+
+    project = write_project(tmp_path)
+    torch.save(authors_state(project, prefix=""), tmp_path / "model.pth")
+    assert cli(capsys, *import_args(project, tmp_path / "model.pth"))[0] == 0
+    code, _, err = cli(capsys, "leaderboard", *board_args(project, "tiny"))
+    assert code == 0, err
+    assert "tiny@authors" in set(read_table(project / "results" / "cmu" / "ltd8").frame.model)
+    registry = Registry.from_files(project / "tiny" / "registry.yaml")
+    assert unshipped_models(registry, project / "weights")["tiny"].startswith(
+        "training: no weights"
+    )

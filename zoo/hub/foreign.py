@@ -22,6 +22,8 @@ from zoo.hub.records import RECORD_FORMAT, WeightsError, WeightsRecord
 from zoo.hub.state_dicts import fit_summary
 from zoo.hub.weights import record_file, weights_file
 
+# the label suffix of imported weights: their rows sit beside the model's own as <model>@authors
+AUTHORS_SUFFIX = "@authors"
 # where a training script keeps the state dict inside what it saved, most specific first
 _STATE_KEYS = ("state_dict", "model_state_dict", "model", "net", "network", "weights")
 
@@ -114,7 +116,7 @@ def import_weights(
     ``.safetensors`` path. Refused unless the mapped keys fit the model exactly."""
     from safetensors.torch import save_file
 
-    label = label or f"{model}@authors"
+    label = label or f"{model}{AUTHORS_SUFFIX}"
     if not re.fullmatch(r"[A-Za-z0-9_][A-Za-z0-9_.@+=-]*", label):
         raise WeightsError(f"--label {label!r}: expected a plain file name, e.g. {model}@authors")
     state: dict[str, torch.Tensor] = {}

@@ -157,11 +157,10 @@ def unshipped_models(
     on any benchmark (a model running another's weights counts as that one), and of each whose
     shipped weights a paused retraining will replace. ``shipped``: the models with weights,
     where the caller has read the records already."""
-    if shipped is None:
-        shipped = {
-            read_weights_record(weights_file(b, label, root)).model
-            for b, label in available_weights(root)
-        }
+    if shipped is None:  # weights of its own: an authors' imported ones do not end a training
+        records = (read_weights_record(weights_file(b, label, root)) for b, label in
+                   available_weights(root))  # fmt: skip
+        shipped = {record.model for record in records if record.imported is None}
     paused = {model: summary for (_, model), summary in paused_runs(root).items()}
     out = {}
     for name in registry.list_models():

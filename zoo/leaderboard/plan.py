@@ -15,6 +15,7 @@ from typing import Any
 
 from zoo.core.io import repo_relative
 from zoo.evaluation.pipeline import Subject, compute_all
+from zoo.hub.foreign import AUTHORS_SUFFIX
 from zoo.hub.model_source import ModelSource
 from zoo.leaderboard.efficiency import COSTS_FILE, Costs, architecture, cost_key
 from zoo.leaderboard.verdict import (
@@ -226,6 +227,11 @@ class Leaderboard:
         planned = (n for n in names if registry.get(n).task == task)
         for name in (n for n in planned if registry.get(n).leaderboard):
             entry = registry.get(name)
+            # its authors' weights, imported (zoo weights import): a row beside its own
+            authors = None if entry.weights_of else self._shipped(name + AUTHORS_SUFFIX)
+            if authors is not None:
+                label = name + AUTHORS_SUFFIX
+                rows.append(Row(label, name, ModelSource.of(weights=authors, label=label)))
             # whose training gives this row its weights: its own, or (weights_of) another's
             trained_as = entry.weights_of or (name if entry.trainable else None)
             if trained_as is None:

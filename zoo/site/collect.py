@@ -65,7 +65,7 @@ class Table:
         rows = [
             m
             for m in view["models"]
-            if "@" not in m["model"] and not m.get("floor") and not m.get("unranked")
+            if "@last" not in m["model"] and not m.get("floor") and not m.get("unranked")
         ]
         out = []
         for i in key_horizons(view["horizons_ms"]):
@@ -374,7 +374,8 @@ def read_models(
         problems.append(f"{where}: the shipped weights' records cannot be read ({exc})")
         shipped, readable = {}, False
     try:  # no status where the records could not be read: "no weights" would be untrue
-        unshipped = unshipped_models(registry, weights_root, set(shipped)) if readable else {}
+        own = {m for m, files in shipped.items() if any(f.record.imported is None for f in files)}
+        unshipped = unshipped_models(registry, weights_root, own) if readable else {}
     except (ZooError, KeyError, TypeError, ValueError) as exc:
         problems.append(f"{weights_root or 'weights/'}: paused trainings cannot be read ({exc})")
         unshipped = {}

@@ -261,7 +261,7 @@ var ZooSite = (function () {
       controls();
       $("protocol-note").textContent = v.metric.toUpperCase() + " (" + v.unit + "), averaging " + v.averaging + ": " + v.averaging_words + (v.joints_words ? ". Joints " + v.joints + ": " + v.joints_words : "") + ". Every row below is this one protocol.";
       richText($("bold-note"), state.action === "average" ? v.interval_words + "." : "Per action: the mean over that action's windows; intervals and bold are computed for the mean over actions only.");
-      var rows = v.models.filter(function (r) { return state.last || r.model.indexOf("@") < 0; });
+      var rows = v.models.filter(function (r) { return state.last || r.model.indexOf("@last") < 0; });
       if (state.sort === null) { state.sort = v.horizons_ms.length - 1; }  // ranked at the longest horizon
       {
         rows = rows.slice().sort(function (a, b) {
