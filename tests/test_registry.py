@@ -448,3 +448,18 @@ def test_a_class_that_cannot_load_fails_before_any_data_is_read(tmp_path, capsys
         assert main([*argv, "--registry", str(reg), "--data-root", nowhere]) == 2, argv
         err = capsys.readouterr().err
         assert "defines no class 'Stil'; it defines Still" in err, (argv, err)
+
+
+def test_a_misspelt_recipe_field_is_refused_where_the_registry_is_read(tmp_path, capsys):
+    """A bad recipe fails at zoo list (any command reading the registry), not at zoo train."""
+    from zoo.cli import main
+
+    registry = tmp_path / "mine.yaml"
+    registry.write_text(
+        "models:\n  mine:\n    class: zoo.models.repeat_last.RepeatLast\n"
+        "    representation: joints\n    trainable: true\n    train: {lr: 0.001, epoch: 5}\n"
+    )
+    assert main(["list", "--registry", str(registry)]) == 2
+    err = capsys.readouterr().err
+    assert f"{registry}: model 'mine': field 'train': unknown training-recipe key(s) epoch" in err
+    assert len(err.strip().splitlines()) == 1

@@ -25,7 +25,7 @@ from typing import Any
 
 import yaml
 
-from zoo.core.errors import ZooError
+from zoo.core.errors import TrainingError, ZooError
 from zoo.core.files_read import recording_files_read
 from zoo.core.io import load_yaml
 from zoo.models.citation import CitationError, Paper, parse_paper, parse_url
@@ -431,6 +431,15 @@ def _parse_entry(path: Path, name: str, raw: Any) -> ModelEntry:
         code = parse_url(raw["code"], f"{where}: field 'code'") if "code" in raw else ""
     except CitationError as e:
         raise RegistryError(str(e)) from None
+    train = raw.get("train") or {}
+    if not isinstance(train, dict):
+        raise RegistryError(f"{where}: field 'train' must be a mapping (the training recipe)")
+    try:  # a bad recipe is refused where the registry is read (zoo list), not at zoo train
+        from zoo.models.recipe import training_recipe
+
+        training_recipe(train)
+    except TrainingError as e:
+        raise RegistryError(f"{where}: field 'train': {e}") from None
     return ModelEntry(
         name=name,
         class_path=raw["class"],
@@ -442,7 +451,7 @@ def _parse_entry(path: Path, name: str, raw: Any) -> ModelEntry:
         source=path,
         context=tuple(raw.get("context") or ()),
         description=str(raw.get("description", "")).strip(),
-        train=dict(raw.get("train") or {}),
+        train=dict(train),
         leaderboard=_flag(raw, "leaderboard", where),
         weights_of=weights_of,
         paper=paper,
