@@ -45,7 +45,9 @@ def run(args) -> int:
     from zoo.report.cards import build_cards, cards_dir_for
 
     results = Path(args.results)
-    own = results.resolve() == (REPO_ROOT / "results").resolve()
+    from zoo.store.layout import is_repository_results
+
+    own = is_repository_results(results)
     readme = args.readme if args.readme is not None else str(REPO_ROOT / "README.md") * own
     statuses = build_cards(
         Path(args.out) if args.out else cards_dir_for(results),

@@ -71,7 +71,9 @@ def run(args) -> int:
                 name, registry, Path(args.weights_dir), results / name / CLIPS_FILE, args.data_root
             )
             print(f"wrote {path}")
-    own = results.resolve() == (REPO_ROOT / "results").resolve()
+    from zoo.store.layout import is_repository_results
+
+    own = is_repository_results(results)
     out = Path(args.out) if args.out else REPO_ROOT / "site" if own else results / "site"
     build = build_site(
         out,

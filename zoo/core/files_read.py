@@ -44,7 +44,7 @@ def _on_audit(event: str, args: tuple) -> None:
 
 
 @cache
-def _library_folders() -> tuple[Path, ...]:
+def library_folders() -> tuple[Path, ...]:
     """Folders of the interpreter and of installed packages (this environment's)."""
     folders = {Path(p) for p in sysconfig.get_paths().values()}
     folders |= {Path(p) for p in site.getsitepackages()}
@@ -78,7 +78,7 @@ def is_data_file(path: str | Path, code_folders: tuple[Path, ...] = ()) -> bool:
     except OSError:
         return False
     resolved = Path(text).resolve()
-    return not any(resolved.is_relative_to(f) for f in (*_library_folders(), *code_folders))
+    return not any(resolved.is_relative_to(f) for f in (*library_folders(), *code_folders))
 
 
 @contextmanager

@@ -40,7 +40,7 @@ from zoo.models.registry import Registry, load_registry
 from zoo.paths import REPO_ROOT
 from zoo.protocol.metrics import FLOOR_SUFFIX
 from zoo.protocol.published import load_published
-from zoo.store.layout import BESIDE_BENCHMARKS, RESULTS_DIR
+from zoo.store.layout import BESIDE_BENCHMARKS, RESULTS_DIR, is_repository_results
 
 CARDS_DIR = REPO_ROOT / "docs" / "models"
 
@@ -186,7 +186,7 @@ def cards_dir_for(results_root: str | Path) -> Path:
     ``<results>/cards`` for a folder of one's own (so nothing is written into the checkout
     the zoo runs from, and the site built from that folder finds them)."""
     results_root = Path(results_root)
-    own = results_root.resolve() == RESULTS_DIR.resolve()
+    own = is_repository_results(results_root)
     return CARDS_DIR if own else results_root / BESIDE_BENCHMARKS[0]
 
 
@@ -693,7 +693,7 @@ def build_cards(
     names = card_models(registry, shipped, tables)
     # the repository's cards link its results as docs/models reaches them, wherever they are
     # written (a copy checked elsewhere is the same card); a folder of one's own, from its cards
-    own = results_root.resolve() == RESULTS_DIR.resolve()
+    own = is_repository_results(results_root)
     results_link = (
         "../../results"
         if own

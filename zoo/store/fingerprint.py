@@ -173,12 +173,9 @@ def _researcher_folders() -> list[Path]:
 def _researcher_folders_of(path: tuple[str, ...]) -> tuple[Path, ...]:
     """The folders of ``sys.path`` (as it is now: after a wrapper has added its own) that hold
     neither the standard library nor installed packages, nor the zoo's own code."""
-    import site
-    import sysconfig
+    from zoo.core.files_read import library_folders
 
-    installed = {Path(p).resolve() for p in sysconfig.get_paths().values()}
-    installed |= {Path(p).resolve() for p in site.getsitepackages()}
-    installed |= {Path(p).resolve() for p in (sys.prefix, sys.base_prefix, sys.exec_prefix)}
+    installed = library_folders()
     folders = []
     for entry in path:
         folder = Path(entry or ".").resolve()
@@ -212,18 +209,24 @@ def _holds_installed(folder: str, mtime_ns: int) -> bool:
 def _is_path_file(file: str) -> bool:
     """A ``.pth`` of ``site`` (lines of text naming folders), not a ``.pth`` of weights (a
     zip or pickle of tensors, which a researcher's checkout may keep beside its code)."""
-    try:
-        with open(file, "rb") as f:
-            head = f.read(4096)
-        lines = [line.strip() for line in head.decode("utf-8").splitlines()]
-    except (OSError, UnicodeDecodeError):
-        return False
-    lines = [line for line in lines if line and not line.startswith("#")]
+    lines = _site_lines(file)
     folder = Path(file).parent
     # what site reads: folders that exist, or import lines; a git-lfs pointer is neither
     return bool(lines) and all(
         line.startswith(("import ", "import\t")) or (folder / line).is_dir() for line in lines
     )
+
+
+def _site_lines(file: str | Path) -> list[str]:
+    """A ``.pth`` file's lines as ``site`` reads them (no blank or comment line); none for a
+    file that is not text."""
+    try:
+        with open(file, "rb") as f:
+            head = f.read(4096)
+        lines = [line.strip() for line in head.decode("utf-8").splitlines()]
+    except (OSError, UnicodeDecodeError):
+        return []
+    return [line for line in lines if line and not line.startswith("#")]
 
 
 def _named_by_path_files(path: tuple[str, ...]) -> frozenset[Path]:
@@ -235,13 +238,9 @@ def _named_by_path_files(path: tuple[str, ...]) -> frozenset[Path]:
         if not folder.is_dir() or not _holds_installed(str(folder), folder.stat().st_mtime_ns):
             continue
         for pth in folder.glob("*.pth"):
-            try:
-                lines = pth.read_text(errors="replace").splitlines()
-            except OSError:
-                continue
-            for line in lines:
-                if line and not line.startswith(("#", "import ", "import\t")):
-                    named.add((folder / line.strip()).resolve())
+            for line in _site_lines(pth):
+                if not line.startswith(("import ", "import\t")):
+                    named.add((folder / line).resolve())
     return frozenset(named)
 
 
@@ -778,18 +777,18 @@ class _Walk:
         self.what, self.files, self.started, self.told = what, set(), time.monotonic(), False
 
     def visit(self, path: Path) -> None:
-        if path in self.files:
+        if path in self.files or path.is_relative_to(REPO_ROOT):
             return
         self.files.add(path)
         if not self.told and time.monotonic() - self.started > self.QUIET_SECONDS:
             self.told = True
             print(
-                f"zoo: fingerprinting the code of {self.what}: {len(self.files)} files so far",
+                f"zoo: fingerprinting the code of {self.what}: {len(self.files)} files outside "
+                "the zoo so far",
                 file=sys.stderr,
             )
         if len(self.files) > self.MAX_FILES:
-            outside = [f for f in self.files if not f.is_relative_to(REPO_ROOT)]
-            folders = Counter(next(iter(f.parents)) for f in outside).most_common(3)
+            folders = Counter(f.parent for f in self.files).most_common(3)
             raise FingerprintError(
                 f"the code of {self.what} reaches more than {self.MAX_FILES} files outside the "
                 f"zoo (most from {', '.join(str(f) for f, _ in folders)}): a library is being "

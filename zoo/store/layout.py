@@ -20,6 +20,14 @@ RESULTS_DIR = REPO_ROOT / "results"
 # what the zoo writes beside the benchmarks of a results folder of one's own (zoo cards, zoo
 # site): never read as a benchmark
 BESIDE_BENCHMARKS = ("cards", "site")
+
+
+def is_repository_results(results_root: str | Path) -> bool:
+    """Whether ``results_root`` is the repository's own results folder (where cards, the README
+    and the site are the repository's), not a folder of one's own."""
+    return Path(results_root).resolve() == RESULTS_DIR.resolve()
+
+
 LABEL_PATTERN = r"[A-Za-z0-9_][A-Za-z0-9_.@+=,-]*"
 
 
