@@ -76,10 +76,15 @@ def test_a_changed_record_makes_its_card_stale_and_a_rebuild_keeps_the_hand_writ
     text = (cards / "spgsn.md").read_text()
     assert text.split(END_MARKER, 1)[1] == hand
     assert minutes in text
+    # a generated card whose model has no weights, figures or rows any more: reported, kept
+    shutil.copy(cards / "mlp.md", cards / "retired.md")
     after = build_cards(cards, weights_root=weights, write=False)
-    # only CMU's weights were copied: the entries whose only weights are mesh ones have none
     orphans = {s.name for s in after if s.reason == "no shipped weights or published figures"}
-    assert orphans == {"spectrhums_anchored", "spectrhums_residual", "spectrhums_residual_anchored"}
+    assert orphans == {"retired"}
+    assert (cards / "retired.md").is_file()
+    # only CMU's weights were copied; the mesh-only entries keep their cards by their rows
+    names = {s.name for s in after}
+    assert {"spectrhums_anchored", "spectrhums_residual", "spectrhums_residual_anchored"} <= names
     assert all(s.fresh for s in after if s.name not in orphans)
 
 
