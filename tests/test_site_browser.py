@@ -34,7 +34,7 @@ def site(tmp_path_factory) -> Path:
 
     tmp = tmp_path_factory.mktemp("site")
     results = tmp / "results"
-    for bench in ("cmu", "cmu_anny_oi_low"):
+    for bench in ("cmu", "cmu50", "cmu_anny_oi_low"):
         shutil.copytree(RESULTS / bench, results / bench, ignore=shutil.ignore_patterns("*.npz"))
     # one empty cell, where a sort must put it last either way
     table = results / "cmu" / "all" / "summary.json"
@@ -294,7 +294,12 @@ def test_a_table_fits_the_screen_on_load_with_its_rows_ranked(browser, site, wid
     size; rows ranked at the longest horizon, ranks in order."""
     browser.set_window_size(width, height)
     try:
-        for page in ("table-cmu-all.html", "table-cmu_anny_oi_low-stride5_strict.html"):
+        pages = (
+            "table-cmu-all.html",
+            "table-cmu50-all.html",
+            "table-cmu_anny_oi_low-stride5_strict.html",
+        )
+        for page in pages:
             _open(browser, site / page)
             inner = browser.execute_script("return document.documentElement.clientWidth")
             described = "[text(e), e.className, e.getBoundingClientRect().toJSON()]"
@@ -306,6 +311,30 @@ def test_a_table_fits_the_screen_on_load_with_its_rows_ranked(browser, site, wid
             assert horizons[-1][1].split().count("asc") == 1
             ranks = [int(t) for t in _each(browser, "#board tbody td.rank", "text(e)") if t]
             assert ranks and ranks == sorted(ranks) and ranks[0] == 1
+    finally:
+        browser.set_window_size(1280, 1400)
+
+
+def test_the_50_frame_table_shows_the_history_each_row_read(browser, site):
+    """cmu50: every hosted CMU model has a row, each tagged with the frames it read; the
+    10-frame table, where every row read all it was given, has no tag."""
+    browser.set_window_size(1366, 768)
+    try:
+        _open(browser, site / "table-cmu50-all.html")
+        tags = dict(
+            _each(
+                browser,
+                "#board tbody tr[data-model]",
+                "[e.getAttribute('data-model'), "
+                "(e.querySelector('.tag.history') || {}).textContent]",
+            )
+        )
+        assert {"ltd", "pgbig", "spgsn", "spgsn_1body", "mlp", "repeat_last"} <= set(tags)
+        assert (
+            tags["pgbig"] == "history: last 10 of 50" and tags["repeat_last"] == "history: all 50"
+        )
+        _open(browser, site / "table-cmu-all.html")
+        assert not browser.find_elements("css selector", "#board .tag.history")
     finally:
         browser.set_window_size(1280, 1400)
 

@@ -53,6 +53,10 @@ class Scored:
     name: str
     view: View = View.MESH
     provenance: dict[str, Any] | None = None
+    # the observed frames it reads, the last of those the protocol gives (None: all), and the
+    # length it pads them to itself (its ``history_frames``): both shown beside its row
+    history_frames: int | None = None
+    padded_to: int | None = None
     hooks: Hooks | None = field(default=None, init=False, repr=False)  # set by the pass
 
     def __post_init__(self) -> None:
@@ -60,6 +64,28 @@ class Scored:
         # refuse this model alone (_MeshScoring.check_view)
         if self.view in tuple(View):
             self.view = View(self.view)
+
+    def history(self, observed: torch.Tensor) -> torch.Tensor:
+        """What it reads of ``observed`` ``(B, T_in, ...)``: its last ``history_frames``."""
+        given = observed.shape[1]
+        if self.history_frames is None or self.history_frames == given:
+            return observed
+        if self.history_frames > given:
+            raise EvaluationError(
+                f"model {self.name!r} reads {self.history_frames} observed frames; this "
+                f"protocol gives {given}"
+            )
+        return observed[:, given - self.history_frames :]
+
+    def history_record(self, given: int) -> dict[str, Any]:
+        """``{"history": ...}`` where it says more than "all ``given`` frames, as they are"."""
+        read = self.history_frames or given
+        padded = self.padded_to if self.padded_to and self.padded_to > read else None
+        if read == given and padded is None:
+            return {}
+        return {
+            "history": {"given": given, "read": read, **({"padded_to": padded} if padded else {})}
+        }
 
 
 def evaluate_models(
@@ -166,7 +192,10 @@ def _finished(
     both averagings, per-window errors, and the sealed protocol record (with ``recorded``
     beside the model's own provenance)."""
     accumulators, log = _accumulate(batches, protocol.actions)
-    record = _sealed(protocol, scored.name, device, {**recorded, **(scored.provenance or {})})
+    history = scored.history_record(protocol.input_frames)
+    record = _sealed(
+        protocol, scored.name, device, {**recorded, **history, **(scored.provenance or {})}
+    )
     return EvalResult(
         frame=_frame(accumulators, record, record["windows_per_action"]),
         protocol=record,
@@ -221,7 +250,7 @@ def _evaluate_skeleton(
     run = _Pass(models, device, keep_going)
 
     def errors(scored: Scored, windows: torch.Tensor, start: int) -> dict:
-        history = windows[:, :t_in, used].to(device)
+        history = scored.history(windows[:, :t_in, used]).to(device)
         pred = predict(
             scored.model, history, task, t_out, windows[:, -1, used].to(device), hooks=scored.hooks
         )
@@ -567,17 +596,19 @@ class _MeshScoring:
         return edge_lengths(frames, self.edges)
 
     def _predicted(self, scored: Scored, windows: torch.Tensor, start: int) -> torch.Tensor:
-        """The model's checked prediction from the first ``t_in`` frames of ``windows``."""
+        """The model's checked prediction from the first ``t_in`` frames of ``windows`` (those of
+        them it reads)."""
+        history = scored.history(windows[:, : self.t_in])
         pred = predict(
             scored.model,
-            windows[:, : self.t_in].to(self.device),
+            history.to(self.device),
             self.protocol.task,
             self.t_out,
             windows[:, -1].to(self.device),
             hooks=scored.hooks,
         )
         expected = (len(windows), self.t_out, *windows.shape[2:])
-        return checked_prediction(pred, expected, scored.name, start, windows[:, : self.t_in])
+        return checked_prediction(pred, expected, scored.name, start, history)
 
     def errors(self, scored: Scored, truth: _MeshTruth, start: int) -> dict:
         """A model's errors on a batch: a mesh model's on the vertices it predicts (its

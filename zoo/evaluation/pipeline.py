@@ -33,10 +33,17 @@ class Subject:
     view: View
     provenance: dict[str, Any]
     identity_under: Callable[[Protocol], dict[str, Any]]
+    # the observed frames it was built to read (None: all a protocol gives) and the length it
+    # pads them to itself (hyper-parameter ``history_frames``, docs/adding-a-model.md)
+    history_frames: int | None = None
+    padded_to: int | None = None
 
     def scored(self) -> Scored:
-        """What the evaluator scores: the module, under its label, fed its view."""
-        return Scored(self.model, self.label, self.view, self.provenance)
+        """What the evaluator scores: the module, under its label, fed its view (the last
+        ``history_frames`` observed frames)."""
+        return Scored(
+            self.model, self.label, self.view, self.provenance, self.history_frames, self.padded_to
+        )
 
     @classmethod
     def of_loaded(cls, loaded) -> Subject:
@@ -47,6 +54,8 @@ class Subject:
             loaded.view,
             _jsonable(loaded.provenance),
             lambda protocol: loaded.identity(protocol.benchmark, protocol.id),
+            loaded.frames_read,
+            loaded.hparams.get("history_frames"),
         )
 
     @classmethod

@@ -211,6 +211,12 @@ class LoadedModel:
     hparams: dict[str, Any]
     trained: dict[str, Any] | None
 
+    @property
+    def frames_read(self) -> int | None:
+        """The observed frames it was built to read, the last of those a benchmark gives
+        (fewer where it was trained on the benchmark this one takes weights from)."""
+        return self.hparams.get("input_frames")
+
     def model_identity(self) -> dict[str, Any]:
         from zoo.core.io import registry_record
         from zoo.models.registry import files_read_while_built

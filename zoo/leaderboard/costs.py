@@ -100,7 +100,7 @@ def measure_costs(
         began = time.perf_counter()
         costs = measure(
             loaded.model,
-            input_frames=bench.input_frames,
+            input_frames=key["input_frames"],  # those it reads
             output_frames=bench.output_frames,
             points=key["points"],
             task=task,

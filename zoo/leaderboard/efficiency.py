@@ -222,7 +222,7 @@ def cost_key(loaded, bench, dataset, task: str) -> dict[str, Any]:
         "view": loaded.view,
         "task": task,
         "points": bench.model_inputs(dataset=dataset, view=loaded.view)["num_points"],
-        "input_frames": bench.input_frames,
+        "input_frames": loaded.frames_read or bench.input_frames,
         "output_frames": bench.output_frames,
         "batch_size": recipe.get("batch_size"),
         "grad_clip": recipe.get("grad_clip"),

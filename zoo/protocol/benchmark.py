@@ -88,7 +88,8 @@ class Benchmark:
     ground_truth: str = "raw"
     ground_truths: tuple[str, ...] = ()
     melv_frames: str | None = None  # None: spectral where there is a basis, else raw
-    # A benchmark whose trained models are also scored here (same mesh, basis and frames).
+    # A benchmark whose trained models are also scored here (same data, basis and predicted
+    # frames; a history at least as long, of which they read the last frames they take).
     weights_from: str | None = None
     # The validation rule of every model trained here (zoo.train.held_out_frames) unless its
     # recipe or the run names another: one rule per benchmark, so its models compare.
@@ -311,12 +312,18 @@ def _check_weights_from(path: Path, bench: Benchmark) -> None:
         other = get_benchmark(bench.weights_from)
     except BenchmarkError as e:
         raise BenchmarkError(f"{path}: field 'weights_from': {e}") from None
-    fields = ("representation", "input_frames", "output_frames", "spectral_k")
+    fields = ("representation", "output_frames", "spectral_k")
     differ = [
         f"{f} {getattr(bench, f)!r} here, {getattr(other, f)!r} there"
         for f in fields
         if getattr(bench, f) != getattr(other, f)
     ]
+    # its models read the last of the frames observed here: a longer history, never a shorter
+    if bench.input_frames < other.input_frames:
+        differ.append(
+            f"input_frames {bench.input_frames} here, {other.input_frames} there (its models "
+            f"read the last {other.input_frames} frames of the history given here)"
+        )
     if differ:
         raise BenchmarkError(
             f"{path}: field 'weights_from: {other.name}': its models cannot be "

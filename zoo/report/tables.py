@@ -301,6 +301,7 @@ def table_summary(
     metric_h, joints_h = headline_key(record)
     order = _action_order(record)
     computed = table_views(results, horizons_ms, frame) if views is None else views
+    histories = history_cells(results)
     summaries = []
     for (metric, averaging, joints), group in frame.groupby(["metric", "averaging", "joints"]):
         view = computed.get((metric, averaging, joints))
@@ -322,6 +323,7 @@ def table_summary(
             models.append(
                 {
                     "model": m,
+                    "history": histories.get(m, histories[None]),
                     "floor": is_floor(m),
                     "unranked": m in view.unranked,
                     "values": [json_number(view.values.loc[m, h]) for h in horizons],
@@ -423,6 +425,9 @@ def headline_table(
     horizons, values, half = view.horizons, view.values, view.half
     fmt = metric_unit(metric)[1]
     costs, efficiency = efficiency is not None, efficiency or {}
+    histories = history_cells(results)
+    # shown where some row read other than all the frames given, as they are
+    history = [HISTORY_HEADER] if any(h != histories.get(None) for h in histories.values()) else []
     table = []
     for m in values.index:
         cells = []
@@ -434,7 +439,8 @@ def headline_table(
                 text = f"*{text}*"
             cells.append(text)
         marked = f"{m} {SHORT_MARK}" if m in (short_training or {}) else m
-        table.append([marked, *cells, *_cost_cells(m, efficiency, costs)])
+        read = [histories.get(m, histories[None])] if history else []
+        table.append([marked, *cells, *read, *_cost_cells(m, efficiency, costs)])
     placed = place(record, metric, "frame", joints) if published is None else published
     for p in placed:
         if not p.differences:
@@ -442,6 +448,7 @@ def headline_table(
                 [
                     f"{p.entry.label}: {p.entry.source}",
                     *[f"{p.values[h]:{fmt}}" if h in p.values else "–" for h in horizons],
+                    *(["–"] if history else []),
                     *_cost_cells(None, {}, False),
                 ]
             )
@@ -455,7 +462,7 @@ def headline_table(
         "",
         tabulate(
             table,
-            headers=["model"] + [f"{h} ms" for h in horizons] + COST_HEADERS,
+            headers=["model"] + [f"{h} ms" for h in horizons] + history + COST_HEADERS,
             tablefmt="github",
             disable_numparse=True,
         ),
@@ -502,6 +509,24 @@ def headline_table(
 
 
 COST_HEADERS = ["parameters", "GFLOP / window", "latency (ms)", "training windows / s"]
+HISTORY_HEADER = "history (frames)"
+
+
+def history_cells(results: list) -> dict[str | None, str]:
+    """Per row label, the observed frames it read: "all 50", "last 10 of 50", or with
+    ", padded to 50" where the model lengthened them itself; ``None``: a row that read all."""
+    given = results[0].protocol["input_frames"]
+    cells: dict[str | None, str] = {None: f"all {given}"}
+    for r in results:
+        said = (r.protocol.get("provenance") or {}).get("history")
+        read = said["read"] if said else given
+        text = f"all {given}" if read == given else f"last {read} of {given}"
+        if said and said.get("padded_to"):
+            text += f", padded to {said['padded_to']}"
+        cells.update(dict.fromkeys(r.frame["model"].unique(), text))  # its floor rows too
+    return cells
+
+
 SHORT_MARK = "†"  # a row whose weights were trained short of their recipe
 
 

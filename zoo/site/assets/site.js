@@ -294,6 +294,9 @@ var ZooSite = (function () {
       function machineOf(k) { return (k.device || "a machine not recorded") + (k.date ? " (" + k.date + ")" : ""); }
       var machines = unique(Object.keys(costs).map(function (m) { return machineOf(costs[m]); }));
       var body = el("tbody");
+      // the observed frames each row read, where the rows did not all read every frame given
+      var histories = unique(rows.map(function (r) { return r.history || ""; }));
+      var showHistory = histories.length > 1 || histories.some(function (h) { return h && h.indexOf("all ") !== 0; });
       // rank: 1 + how many rows are lower at the sorted horizon (ties share), whatever the order shown
       var scores = ranked ? rows.filter(function (r) { return !r.floor && !r.unranked; }).map(function (r) { return cell(r, state.sort).value; }).filter(function (x) { return x !== null; }) : [];
       rows.forEach(function (r) {
@@ -312,6 +315,9 @@ var ZooSite = (function () {
           var tag = el(card ? "a" : "span", {"class": "tag warn short", title: budget}, "short training");
           if (card) { tag.setAttribute("href", card); }
           name.appendChild(tag);
+        }
+        if (showHistory && r.history) {
+          name.appendChild(el("span", {"class": "tag history", title: "observed frames this row's model read"}, "history: " + r.history));
         }
         tr.appendChild(name);
         v.horizons_ms.forEach(function (h, i) {
