@@ -33,6 +33,9 @@ def test_every_model_from_a_paper_links_it_and_its_code():
         entry = registry.get(name)
         if name in ("constant_velocity", "interpolate"):  # baselines no paper's figures follow
             continue
+        if name == "tfan":  # public code with no paper found (docs/models/tfan.md)
+            assert entry.paper is None and entry.code.startswith("https://github.com/")
+            continue
         assert entry.paper is not None and entry.code.startswith("https://github.com/"), name
         assert entry.paper.url.startswith(("https://arxiv.org/abs/", "https://hal.science/"))
         # the free-text reference names the same authors, in the same order

@@ -17,6 +17,7 @@ SCRIPTS = [
     "public_ggmotion",
     "public_msrgcn_training",
     "public_spgsn",
+    "public_tfan",
     "speed_anny",
     "speed_baselines",
     "speed_check",
@@ -104,6 +105,11 @@ def test_public_ggmotion_names_a_missing_checkout(tmp_path, capsys):
 def test_public_msrgcn_training_names_a_missing_checkout(tmp_path, capsys):
     assert load("public_msrgcn_training").main(["--public", str(tmp_path), "--steps", "1"]) == 0
     assert f"no public checkout at {tmp_path / 'MSRGCN'}" in capsys.readouterr().out
+
+
+def test_public_tfan_names_a_missing_checkout(tmp_path, capsys):
+    assert load("public_tfan").main(["--public", str(tmp_path), "--repeats", "1"]) == 0
+    assert f"no public checkout at {tmp_path / 'TFAN'}" in capsys.readouterr().out
 
 
 def test_speed_public_cmu_names_missing_checkouts_and_steps_the_zoo_models(tmp_path, capsys):

@@ -165,7 +165,9 @@ def unshipped_models(
     out = {}
     for name in registry.list_models():
         entry = registry.get(name)
-        if entry.trainable and (entry.weights_of or name) not in shipped:
+        if entry.trainable and entry.train is None and name not in shipped:
+            out[name] = "training: no recipe here yet (registry: train: null)"
+        elif entry.trainable and (entry.weights_of or name) not in shipped:
             out[name] = training_status(paused.get(name), (entry.train or {}).get("epochs"))
         elif entry.trainable and name in paused and not paused[name].get("finished"):
             run = paused[name]

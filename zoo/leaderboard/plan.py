@@ -225,13 +225,16 @@ class Leaderboard:
             names += [n for n in registry.list_models("joints") if n not in names]
         rows = []
         planned = (n for n in names if registry.get(n).task == task)
-        for name in (n for n in planned if registry.get(n).leaderboard):
+        for name in planned:
             entry = registry.get(name)
-            # its authors' weights, imported (zoo weights import): a row beside its own
+            # its authors' weights, imported (zoo weights import): a row beside its own, also
+            # for a model kept out of the tables otherwise (leaderboard: false, no recipe yet)
             authors = None if entry.weights_of else self._shipped(name + AUTHORS_SUFFIX)
             if authors is not None:
                 label = name + AUTHORS_SUFFIX
                 rows.append(Row(label, name, ModelSource.of(weights=authors, label=label)))
+            if not entry.leaderboard:
+                continue
             # whose training gives this row its weights: its own, or (weights_of) another's
             trained_as = entry.weights_of or (name if entry.trainable else None)
             if trained_as is None:

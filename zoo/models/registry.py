@@ -100,7 +100,8 @@ class ModelEntry:
     source: Path
     context: tuple[str, ...] = ()
     description: str = ""
-    train: dict[str, Any] = field(default_factory=dict)  # the training recipe (zoo.train)
+    # the training recipe (zoo.train); None: it learns, but has no recipe here yet
+    train: dict[str, Any] | None = field(default_factory=dict)
     task: str = "prediction"
     # False: scored on demand (zoo eval, zoo.evaluate, the coverage benchmark), never a row of
     # the committed leaderboards, whose untrained rows are the protocol's own baselines.
@@ -431,13 +432,15 @@ def _parse_entry(path: Path, name: str, raw: Any) -> ModelEntry:
         code = parse_url(raw["code"], f"{where}: field 'code'") if "code" in raw else ""
     except CitationError as e:
         raise RegistryError(str(e)) from None
-    train = raw.get("train") or {}
-    if not isinstance(train, dict):
+    # train: null says the model learns but has no recipe here yet (its weights come from
+    # elsewhere, zoo weights import); no field: the recipe's defaults
+    train = raw.get("train", {})
+    if train is not None and not isinstance(train, dict):
         raise RegistryError(f"{where}: field 'train' must be a mapping (the training recipe)")
     try:  # a bad recipe is refused where the registry is read (zoo list), not at zoo train
         from zoo.models.recipe import training_recipe
 
-        training_recipe(train)
+        training_recipe(train or {})
     except TrainingError as e:
         raise RegistryError(f"{where}: field 'train': {e}") from None
     return ModelEntry(
@@ -451,7 +454,7 @@ def _parse_entry(path: Path, name: str, raw: Any) -> ModelEntry:
         source=path,
         context=tuple(raw.get("context") or ()),
         description=str(raw.get("description", "")).strip(),
-        train=dict(train),
+        train=dict(train) if train is not None else None,
         leaderboard=_flag(raw, "leaderboard", where),
         weights_of=weights_of,
         paper=paper,

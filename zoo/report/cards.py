@@ -307,6 +307,11 @@ def _recipe_lines(entry_recipe: dict[str, Any], files: list[Shipped]) -> list[st
             "",
         ]
         out += _table(["field", "value"], [[k, f"`{_value(v)}`"] for k, v in entry_recipe.items()])
+    elif entry_recipe is None:
+        out += [
+            "The registry says `train: null`: no recipe here yet, so `zoo train` refuses it.",
+            "",
+        ]
     else:
         out += ["The registry gives no `train:` section: `zoo train` runs on its defaults.", ""]
     for s in files:

@@ -198,6 +198,11 @@ def _check_trainable(entry: ModelEntry) -> None:
             if entry.weights_of
             else f"model {entry.name!r} has nothing to train (registry: trainable: false)"
         )
+    if entry.train is None:
+        raise TrainingError(
+            f"model {entry.name!r} has no training recipe yet (registry: train: null): "
+            f"its weights come from elsewhere (zoo weights import, docs/adding-a-model.md)"
+        )
 
 
 def _initial_stage(init_from, out_dir: Path, model_name, bench, registry, data_root, dataset):

@@ -1,0 +1,177 @@
+"""TFAN ("Twin-Flow Axis Normalization"), as its public CMU code runs it: two MLP predictors of
+the same shape, one on joint positions and one on bones (three chain roots' positions and the
+22 bone vectors), each over the DCT of 50 observed frames; a learned gate fuses their
+predictions joint by joint down the kinematic tree; 10 frames a call, rolled out.
+
+Public code: Deante-dx/TFAN (models/Predictor.py, models/FusionModel.py, exp/cmu/fusion). Its
+CMU positions are in metres (mm / 1000), which its published weights expect. docs/models/tfan.md
+says where this follows the code and where the paper.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import nn
+
+from zoo.models.dct import dct_matrix, idct_matrix
+from zoo.models.history import pad_history
+
+MM_PER_UNIT = 1000.0  # the code's scale: positions in mm divided by 1000
+
+
+class JointNorm(nn.Module):
+    """Normalisation across the joints of each coordinate and time step (the code's ``LN_mid``
+    over ``(B, J, 3, T)``), with one scale and shift per joint."""
+
+    def __init__(self, joints: int, eps: float = 1e-5) -> None:
+        super().__init__()
+        self.eps = eps
+        self.alpha = nn.Parameter(torch.ones(1, joints, 1, 1))
+        self.beta = nn.Parameter(torch.zeros(1, joints, 1, 1))
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        mean = x.mean(dim=1, keepdim=True)
+        var = ((x - mean) ** 2).mean(dim=1, keepdim=True)
+        return (x - mean) / (var + self.eps).sqrt() * self.alpha + self.beta
+
+
+class TemporalBlock(nn.Module):
+    """``x + JointNorm(Linear_time(x))`` on ``(B, J * 3, T)``; the linear starts near zero
+    (Xavier gain 1e-8), so every block starts as the identity (the code's ``MAN``)."""
+
+    def __init__(self, frames: int, joints: int) -> None:
+        super().__init__()
+        self.joints = joints
+        self.fc = nn.Linear(frames, frames)
+        self.norm = JointNorm(joints)
+        nn.init.xavier_uniform_(self.fc.weight, gain=1e-8)
+        nn.init.zeros_(self.fc.bias)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        b, d, t = x.shape
+        y = self.fc(x).view(b, self.joints, d // self.joints, t)
+        return x + self.norm(y).reshape(b, d, t)
+
+
+class Predictor(nn.Module):
+    """Spatial linear, ``blocks`` temporal blocks, spatial linear (initialised near zero): one
+    stream's DCT coefficients ``(B, T, J * 3)`` to their residual."""
+
+    def __init__(self, blocks: int, frames: int, joints: int) -> None:
+        super().__init__()
+        dim = 3 * joints
+        self.fc_in = nn.Linear(dim, dim)
+        self.fc = nn.Sequential(*[TemporalBlock(frames, joints) for _ in range(blocks)])
+        self.fc_out = nn.Linear(dim, dim)
+        nn.init.xavier_uniform_(self.fc_out.weight, gain=1e-8)
+        nn.init.zeros_(self.fc_out.bias)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        y = self.fc(self.fc_in(x).transpose(1, 2)).transpose(1, 2)
+        return self.fc_out(y)
+
+
+def _integer(name: str, value, low: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or value < low:
+        raise ValueError(f"TFAN: {name} must be an integer >= {low}, got {value!r}")
+    return value
+
+
+class TFAN(nn.Module):
+    """``forward(history (B, T_in, J, 3) in mm) -> (B, T_out, J, 3)``.
+
+    ``roots``: the joints whose positions start the bone stream; ``bones``: ``[parent, child]``
+    pairs, parents before children, every other joint a child once. The bone layout is the
+    roots, then the bones' children in the order given; each fused joint is its bone added to
+    a gated mix of its parent's predicted position and its parent's fused one, then gated
+    against its own predicted position. ``history_frames``: the frames the predictors read (a
+    shorter history is padded with its oldest frame, :func:`zoo.models.history.pad_history`);
+    ``chunk``: frames predicted a call."""
+
+    def __init__(
+        self,
+        input_frames: int,
+        output_frames: int,
+        num_points: int,
+        roots: list[int],
+        bones: list[list[int]],
+        blocks: int = 48,
+        history_frames: int = 50,
+        chunk: int = 10,
+    ) -> None:
+        super().__init__()
+        self.input_frames = _integer("input_frames", input_frames, 1)
+        self.output_frames = _integer("output_frames", output_frames, 1)
+        self.history_frames = _integer("history_frames", history_frames, 1)
+        self.chunk = _integer("chunk", chunk, 1)
+        if self.chunk > self.history_frames:
+            raise ValueError(
+                f"TFAN: chunk ({chunk}) must not exceed history_frames ({history_frames})"
+            )
+        joints = _integer("num_points", num_points, 1)
+        children = [child for _, child in bones]
+        layout = [*roots, *children]
+        if sorted(layout) != list(range(joints)):
+            raise ValueError(
+                f"TFAN: roots {roots} and the bones' children must name each of the "
+                f"{joints} joints once, got {sorted(layout)}"
+            )
+        where = {joint: i for i, joint in enumerate(layout)}
+        parents = [where[parent] for parent, _ in bones]
+        late = [(p, c) for (p, c), i in zip(bones, parents) if i >= where[c]]
+        if late:
+            raise ValueError(f"TFAN: bones must list parents before children; {late} do not")
+        self.register_buffer("layout", torch.tensor(layout), persistent=False)
+        self.register_buffer("starts", torch.tensor([p for p, _ in bones]), persistent=False)
+        self.register_buffer("ends", torch.tensor(children), persistent=False)
+        self.roots = len(roots)
+        self.parents = [None] * self.roots + parents  # in the layout
+        self.position = Predictor(blocks, self.history_frames, joints)
+        self.bone = Predictor(blocks, self.history_frames, joints)
+        self.gate = nn.Linear(6 * joints, 2)
+        self.register_buffer("dct", dct_matrix(self.history_frames), persistent=False)
+        self.register_buffer("idct", idct_matrix(self.history_frames), persistent=False)
+
+    def to_bones(self, joints: torch.Tensor) -> torch.Tensor:
+        """``(B, T, J, 3)`` positions to the bone layout: the roots' positions, then each
+        bone's vector from its parent to its child."""
+        vectors = joints[:, :, self.ends] - joints[:, :, self.starts]
+        return torch.cat([joints[:, :, self.layout[: self.roots]], vectors], dim=2)
+
+    def _stream(self, predictor: Predictor, x: torch.Tensor) -> torch.Tensor:
+        """The next ``chunk`` frames of one stream ``(B, T, D)``: its last frame plus the inverse
+        DCT of the predicted coefficients."""
+        coefficients = predictor(self.dct @ x)
+        return (self.idct @ coefficients)[:, : self.chunk] + x[:, -1:]
+
+    def fuse(self, bones: torch.Tensor, positions: torch.Tensor, gates: torch.Tensor):
+        """Joint positions ``(B, T, J, 3)`` from both streams' predictions (``bones`` in the bone
+        layout, ``positions`` in joint order) and the gates ``(B, T, 2)``."""
+        placed = positions[:, :, self.layout]  # positions in the bone layout
+        alpha, beta = gates[..., :1], gates[..., 1:]
+        fused = [(placed[:, :, i] + bones[:, :, i]) / 2 for i in range(self.roots)]
+        for i in range(self.roots, len(self.parents)):
+            p = self.parents[i]
+            chained = bones[:, :, i] + alpha * placed[:, :, p] + (1 - alpha) * fused[p]
+            fused.append(chained * (1 - beta) + beta * placed[:, :, i])
+        out = torch.stack(fused, dim=2)
+        return out[:, :, torch.argsort(self.layout)]
+
+    def forward(self, history: torch.Tensor) -> torch.Tensor:
+        b, t, j, _ = history.shape
+        positions = pad_history(history / MM_PER_UNIT, self.history_frames)
+        bones = self.to_bones(positions)
+        positions, bones = positions.reshape(b, -1, 3 * j), bones.reshape(b, -1, 3 * j)
+        out = []
+        for _ in range(math.ceil(self.output_frames / self.chunk)):
+            p = self._stream(self.position, positions)
+            q = self._stream(self.bone, bones)
+            gates = torch.sigmoid(self.gate(torch.cat([q, p], dim=-1)))
+            step = self.fuse(q.view(b, -1, j, 3), p.view(b, -1, j, 3), gates)
+            out.append(step)
+            positions = torch.cat([positions[:, self.chunk :], step.reshape(b, -1, 3 * j)], 1)
+            stepped = self.to_bones(step).reshape(b, -1, 3 * j)
+            bones = torch.cat([bones[:, self.chunk :], stepped], 1)
+        return torch.cat(out, dim=1)[:, : self.output_frames] * MM_PER_UNIT
