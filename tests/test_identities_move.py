@@ -134,8 +134,16 @@ def _move_function(tree: Path, name: str, source: str, dest: str) -> None:
         + "\n\n\n"
         + "".join(lines[start : node.end_lineno])
     )
+    # an import of it beside other names keeps those from the source
     _replace_everywhere(
-        tree, rf"from {re.escape(source)} import {name}\b", f"from {dest} import {name}"
+        tree,
+        rf"(?m)^([ \t]*)from {re.escape(source)} import {name}, (.+)$",
+        f"\\1from {dest} import {name}\n\\1from {source} import \\2",
+    )
+    _replace_everywhere(
+        tree,
+        rf"(?m)^([ \t]*)from {re.escape(source)} import {name}$",
+        f"\\1from {dest} import {name}",
     )
 
 
@@ -191,6 +199,6 @@ def test_a_real_change_to_the_code_a_row_reaches_makes_it_stale(tmp_path, commit
     changed = _probe_copy(tree)
     # every row's evaluator, and each DCT model's own code
     assert sum("evaluator" in s for s in changed["stale"]) == committed["rows"]
-    dct_models = {"ltd", "pgbig", "mlp", "spgsn", "spgsn_1body"}
+    dct_models = {"ltd", "pgbig", "mlp", "spgsn", "spgsn_1body", "tfan"}
     for name, fingerprint in changed["models"].items():
         assert (fingerprint != committed["models"][name]) == (name in dct_models), name

@@ -163,3 +163,44 @@ def test_imported_weights_rank_beside_the_models_own_rows(tmp_path, capsys):
     assert unshipped_models(registry, project / "weights")["tiny"].startswith(
         "training: no weights"
     )
+
+
+def test_weights_their_licence_keeps_out_leave_their_row_and_say_how_to_make_them(tmp_path, capsys):
+    """Not redistributable: the record ships, the tensors do not. Without them the row is kept
+    and --check passes, saying which files and which import make them; made again, they are
+    the recorded bytes and the row is checked."""
+    from test_store import board_args
+
+    from zoo.core.io import sha256_file
+    from zoo.hub.records import WeightsError
+    from zoo.hub.weights import read_weights, read_weights_record
+
+    project = write_project(tmp_path)
+    pth = tmp_path / "model.pth"
+    torch.save(authors_state(project, prefix=""), pth)
+    assert cli(capsys, *import_args(project, pth, "--licence", "none stated"))[0] == 0
+    weights = project / "weights" / "cmu" / "tiny@authors.safetensors"
+    digest = sha256_file(weights)
+    assert cli(capsys, "leaderboard", *board_args(project, "tiny"))[0] == 0
+
+    weights.unlink()  # a fresh clone: the record alone
+    assert read_weights_record(weights).sha256 == digest
+    try:
+        read_weights(weights)
+        raise AssertionError("withheld weights loaded")
+    except WeightsError as e:
+        said = str(e)
+    assert "not shipped (licence: none stated)" in said and "model.pth (sha256 " in said
+    assert "zoo weights import FOLDER/model.pth --model tiny --benchmark cmu" in said
+    code, _, err = cli(capsys, "leaderboard", *board_args(project, "tiny"))
+    assert code == 0, err
+    assert "tiny@authors: kept as stored (its authors' weights are not shipped" in err
+    code, out, err = cli(capsys, "leaderboard", "--check", *board_args(project, "tiny"))
+    assert code == 0, err
+    assert "passed; not checked here: tiny@authors: its authors' weights are not shipped" in out
+
+    assert cli(capsys, *import_args(project, pth, "--licence", "none stated"))[0] == 0
+    assert sha256_file(weights) == digest  # the very bytes its record and rows name
+    code, out, err = cli(capsys, "leaderboard", "--check", *board_args(project, "tiny"))
+    assert code == 0, err
+    assert "not checked here" not in out

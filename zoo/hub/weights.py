@@ -44,22 +44,49 @@ def checkpoint_label(checkpoint: str | Path, model: str) -> str:
 
 
 def read_weights_record(path: str | Path) -> WeightsRecord:
-    """The record of shipped weights (tensors neither read nor checked)."""
+    """The record of shipped weights (tensors neither read nor checked); for weights whose
+    licence keeps them out of the repository (:func:`withheld`), the record alone."""
     path = Path(path)
     record_path = record_file(path)
     if path.suffix in FOREIGN_SUFFIXES:
         raise WeightsError(foreign_pointer(path, "--weights"))
-    for p in (path, record_path):
-        if not p.is_file():
-            raise WeightsError(
-                f"weights {path}: {p} does not exist (a shipped model needs its "
-                f".safetensors file and the .json record beside it)"
-            )
+    missing = "(a shipped model needs its .safetensors file and the .json record beside it)"
+    if not record_path.is_file():
+        raise WeightsError(f"weights {path}: {record_path} does not exist {missing}")
     try:
         data = json.loads(record_path.read_text())
     except (OSError, ValueError) as e:
         raise WeightsError(f"weights record {record_path} is not readable JSON ({e})") from e
-    return WeightsRecord.from_json(data, str(record_path))
+    record = WeightsRecord.from_json(data, str(record_path))
+    if not path.is_file() and not withheld(record):
+        raise WeightsError(f"weights {path}: {path} does not exist {missing}")
+    return record
+
+
+def withheld(record: WeightsRecord) -> bool:
+    """Imported weights whose licence does not let them be shipped: their record is, naming
+    each source file, and the tensors are made where they are needed (:func:`fetch_command`)."""
+    return bool(record.imported) and not record.imported.get("redistributable")
+
+
+def fetch_command(path: Path, record: WeightsRecord) -> str:
+    """What makes withheld weights ``path`` here: where their files are and the import that
+    rebuilds the very file their record names (its sha256 is checked when they load)."""
+    imported = record.imported
+    files = ", ".join(f"{f['file']} (sha256 {f['sha256'][:12]}...)" for f in imported["files"])
+    sources = " ".join(
+        f"{f.get('prefix') or ''}{'=' if f.get('prefix') else ''}FOLDER/{f['file']}"
+        for f in imported["files"]
+    )
+    mapping = imported.get("key_map") or {}
+    licence = imported.get("licence") or "none stated"
+    return (
+        f"its authors' weights are not shipped (licence: {licence}): "
+        f"get {files} from {imported.get('source') or 'their authors'} into FOLDER, then "
+        f"zoo weights import {sources} --model {record.model} --benchmark {record.benchmark} "
+        f"--label {record.label} --weights-dir {path.parent.parent}"
+        + (f" --key-map MAP.yaml (MAP.yaml: {json.dumps(mapping)})" if mapping else "")
+    )
 
 
 def read_weights(path: str | Path) -> tuple[dict[str, torch.Tensor], WeightsRecord]:
@@ -71,6 +98,8 @@ def read_weights(path: str | Path) -> tuple[dict[str, torch.Tensor], WeightsReco
     path = Path(path)
     record_path = record_file(path)
     record = read_weights_record(path)
+    if not path.is_file():
+        raise WeightsError(f"weights {path}: {fetch_command(path, record)}")
     digest = sha256_file(path)
     if digest != record.sha256:
         raise WeightsError(
@@ -87,10 +116,9 @@ def read_weights(path: str | Path) -> tuple[dict[str, torch.Tensor], WeightsReco
 
 
 def available_weights(root: str | Path | None = None) -> list[tuple[str, str]]:
-    """``(benchmark, label)`` of every shipped model under ``root``."""
-    return sorted(
-        (p.parent.name, p.stem) for p in Path(root or WEIGHTS_DIR).glob("*/*.safetensors")
-    )
+    """``(benchmark, label)`` of every shipped model under ``root``: each record, with its
+    tensors beside it or withheld by their licence (:func:`withheld`)."""
+    return sorted((p.parent.name, p.stem) for p in Path(root or WEIGHTS_DIR).glob("*/*.json"))
 
 
 def training_points(record: WeightsRecord) -> list[tuple[int, float]]:

@@ -8,6 +8,7 @@ import time
 from pathlib import Path
 
 from zoo.evaluation.results import table_files
+from zoo.hub.weights import fetch_command
 from zoo.leaderboard.plan import Leaderboard, TablePlan, why_not_planned
 from zoo.leaderboard.rounding import rounding_margins
 from zoo.leaderboard.verdict import (
@@ -73,7 +74,11 @@ class Check(Leaderboard):
                 fresh.append(result)
                 computed.append((r.row.label, r.loaded.model, r.loaded.view, result))
         for p in table.foreign:
-            check.problem(f"{p}: cannot be recomputed ({why_not_planned(p, self)})")
+            held = self.withheld(p.name)
+            if held is not None:  # the weights' licence keeps them out: what makes them here
+                check.needs_files(f"{p.name}: {fetch_command(*held)}")
+            else:
+                check.problem(f"{p}: cannot be recomputed ({why_not_planned(p, self)})")
         if fresh:
             # a row not recomputed is named once, above, not once per committed value
             unplanned = {p.name for p in table.foreign} | failed

@@ -274,6 +274,18 @@ class Leaderboard:
                     )
         return rows
 
+    def withheld(self, label: str):
+        """``(path, record)`` of ``label``'s weights where their record is here and their licence
+        keeps the tensors out of the repository, and they have not been made here yet."""
+        from zoo.hub.weights import read_weights_record, record_file, weights_file, withheld
+
+        for name in (self.bench.name, self.bench.weights_from) if self.weights else ():
+            path = weights_file(name, label, self.weights) if name else None
+            if path is not None and not path.is_file() and record_file(path).is_file():
+                record = read_weights_record(path)
+                return (path, record) if withheld(record) else None
+        return None
+
     def _shipped(self, label: str) -> Path | None:
         """Shipped weights of ``label``: this benchmark's own, else those of the benchmark it
         takes weights from (``weights_from``)."""
@@ -409,6 +421,11 @@ def why_not_planned(folder: Path, board: Leaderboard) -> str:
             f"registry {recorded} not loaded: --registry with that file recomputes it, "
             f"--drop {folder.name} removes it"
         )
+    held = board.withheld(folder.name)
+    if held is not None:
+        from zoo.hub.weights import fetch_command
+
+        return f"{fetch_command(*held)}; --drop {folder.name} removes it"
     provenance = stored_provenance(folder)
     if provenance.get("made_by", MADE_BY) != MADE_BY:
         return (
