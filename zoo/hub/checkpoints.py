@@ -34,6 +34,7 @@ from zoo.hub.weights import (
     paused_dir,
     read_weights,
     record_file,
+    save_safetensors,
     weights_file,
 )
 from zoo.models.registry import ModelEntry, Registry, class_name, load_registry
@@ -559,8 +560,6 @@ def export_weights(
 ) -> Path:
     """Write a checkpoint's weights and record under ``<root>/<benchmark>/``; returns the
     ``.safetensors`` path. Both files are written atomically, the record last."""
-    from safetensors.torch import save_file
-
     if dtype not in STORAGE_DTYPES:
         raise WeightsError(f"weights dtype {dtype!r} unknown; valid: {', '.join(STORAGE_DTYPES)}")
     ckpt = read_checkpoint(checkpoint)
@@ -595,7 +594,7 @@ def export_weights(
             f"export with --dtype float32"
         )
     with atomic_path(path) as tmp:
-        save_file(tensors, str(tmp), metadata={"format": RECORD_FORMAT, "model": ckpt["model"]})
+        save_safetensors(tensors, tmp, {"format": RECORD_FORMAT, "model": ckpt["model"]})
         digest = sha256_file(tmp)
     record = WeightsRecord(
         **asdict(RunRecord.of_checkpoint(ckpt)),

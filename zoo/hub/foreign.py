@@ -20,7 +20,7 @@ from zoo.hub.build import model_args_for
 from zoo.hub.checkpoints import model_origin, model_protocol, stored_hparams
 from zoo.hub.records import RECORD_FORMAT, WeightsError, WeightsRecord
 from zoo.hub.state_dicts import fit_summary
-from zoo.hub.weights import record_file, weights_file
+from zoo.hub.weights import record_file, save_safetensors, weights_file
 
 # the label suffix of imported weights: their rows sit beside the model's own as <model>@authors
 AUTHORS_SUFFIX = "@authors"
@@ -114,8 +114,6 @@ def import_weights(
     """Write ``sources`` (``(prefix, file)`` pairs: each file's keys under that prefix, ""
     for one file) as shipped float32 weights of registry ``model`` on ``benchmark``; returns the
     ``.safetensors`` path. Refused unless the mapped keys fit the model exactly."""
-    from safetensors.torch import save_file
-
     label = label or f"{model}{AUTHORS_SUFFIX}"
     if not re.fullmatch(r"[A-Za-z0-9_][A-Za-z0-9_.@+=-]*", label):
         raise WeightsError(f"--label {label!r}: expected a plain file name, e.g. {model}@authors")
@@ -147,7 +145,7 @@ def import_weights(
     path = weights_file(benchmark.name, label, root)
     path.parent.mkdir(parents=True, exist_ok=True)
     with atomic_path(path) as tmp:
-        save_file(tensors, str(tmp), metadata={"format": RECORD_FORMAT, "model": model})
+        save_safetensors(tensors, tmp, {"format": RECORD_FORMAT, "model": model})
         digest = sha256_file(tmp)
     record = WeightsRecord(
         model=model,

@@ -89,6 +89,25 @@ def fetch_command(path: Path, record: WeightsRecord) -> str:
     )
 
 
+def save_safetensors(tensors: dict[str, torch.Tensor], path: Path, metadata: dict[str, str]):
+    """``tensors`` written to ``path`` as safetensors, the same bytes for the same tensors and
+    metadata: the library writes its metadata in a hash map's order, which varies from call to
+    call, so the header is written again with that map's keys sorted (its length unchanged)."""
+    from safetensors.torch import save_file
+
+    save_file(tensors, str(path), metadata=metadata)
+    with open(path, "r+b") as f:
+        size = int.from_bytes(f.read(8), "little")
+        raw = f.read(size)
+        header = json.loads(raw)
+        header["__metadata__"] = dict(sorted(header.get("__metadata__", {}).items()))
+        text = json.dumps(header, separators=(",", ":"), ensure_ascii=False).encode()
+        if len(text) > size:  # never here: the same keys, compact, as the library writes
+            raise WeightsError(f"{path}: its safetensors header could not be ordered")
+        f.seek(8)
+        f.write(text + b" " * (size - len(text)))
+
+
 def read_weights(path: str | Path) -> tuple[dict[str, torch.Tensor], WeightsRecord]:
     """The float32 state dict and the record of shipped weights, after checking the file's
     sha256 against its record."""

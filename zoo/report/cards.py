@@ -35,6 +35,7 @@ from zoo.hub.weights import (
     read_weights_record,
     training_points,
     weights_file,
+    withheld,
 )
 from zoo.models.registry import Registry, load_registry
 from zoo.paths import REPO_ROOT
@@ -247,9 +248,11 @@ def _budget_rows(files: list[Shipped]) -> list[list[str]]:
         r, t = s.record, s.record.training
         best = t.get("best") or {}
         steps = _steps(r.recipe, t, training_points(r))
+        # imported weights their licence keeps out: the record ships, the file is made here
+        kept_out = " (not shipped: its licence; `zoo leaderboard --check` says how to make it)"
         rows.append(
             [
-                f"`{repo_relative(s.path)}`",
+                f"`{repo_relative(s.path)}`" + (kept_out if withheld(r) else ""),
                 ", ".join(s.benchmarks),
                 f"{r.parameters:,}",
                 r.dtype,
