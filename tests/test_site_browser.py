@@ -482,6 +482,11 @@ def test_each_row_says_when_it_was_computed_and_how_to_compute_it_again(browser,
     baseline = browser.find_element("css selector", "#board tr[data-model='repeat_last'] td.source")
     assert "zoo eval --model repeat_last --benchmark cmu --sampler all" in baseline.text
     assert "src=1" in browser.execute_script("return location.hash")
+    # authors' weights their licence keeps out: the line says to make them first
+    _open(browser, site / "table-cmu50-all.html", "#src=1")
+    authors = browser.find_element("css selector", "#board tr[data-model='tfan@authors'] td.source")
+    assert "first make its weights, which their licence keeps out" in authors.text
+    assert "zoo eval --weights" in authors.find_element("css selector", "code").text
 
 
 def test_curves_take_a_log_scale_and_hide_the_baselines(browser, site):

@@ -276,6 +276,12 @@ def row_source(folder: Path, benchmark: str, protocol: dict[str, Any]) -> dict[s
     }
     if weights is None and provenance.get("training"):
         source["command"] = ""  # a checkpoint's row: not from shipped weights
+    imported = provenance.get("imported") or {}
+    if imported and not imported.get("redistributable"):
+        source["needs"] = (
+            "first make its weights, which their licence keeps out of the repository: "
+            "zoo leaderboard --check names the files and the import"
+        )
     return source
 
 

@@ -337,6 +337,7 @@ var ZooSite = (function () {
          k.train_per_s ? (+k.train_per_s).toPrecision(3) + mark : ""].forEach(function (t) { tr.appendChild(el("td", {"class": "num cost" + (state.costs ? "" : " off")}, t)); });
         var src = (data.sources || {})[r.model] || {}, where = el("td", {"class": "source" + (state.sources ? "" : " off")});
         where.appendChild(document.createTextNode((src.created || "") + (src.code ? " · " + src.code : "") + " "));
+        if (src.needs) { where.appendChild(el("span", {"class": "needs"}, src.needs + "; then ")); }
         if (src.command) { where.appendChild(el("code", {}, src.command)); }
         tr.appendChild(where);
         body.appendChild(tr);
