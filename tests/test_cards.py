@@ -31,16 +31,20 @@ def test_committed_cards_are_up_to_date():
         assert hand.strip(), f"{s.path}: nothing written by hand below the marker"
 
 
-def _copy_weights(tmp_path: Path, benchmark: str) -> Path:
-    """The shipped weights of one benchmark: tensors linked, records copied (to be edited)."""
+def _copy_weights(tmp_path: Path, *benchmarks: str) -> Path:
+    """The shipped weights of some benchmarks: tensors linked, records copied (to be edited), and
+    a link between benchmarks (cmu50's to cmu's) kept a link, so an edit shows in both."""
     root = tmp_path / "weights"
-    (root / benchmark).mkdir(parents=True)
-    for path in (WEIGHTS / benchmark).iterdir():
-        target = root / benchmark / path.name
-        if path.suffix == ".json":
-            shutil.copy(path, target)
-        else:
-            target.symlink_to(path.resolve())
+    for benchmark in benchmarks:
+        (root / benchmark).mkdir(parents=True)
+        for path in (WEIGHTS / benchmark).iterdir():
+            target = root / benchmark / path.name
+            if path.is_symlink() and path.suffix == ".json":
+                target.symlink_to(path.readlink())
+            elif path.suffix == ".json":
+                shutil.copy(path, target)
+            else:
+                target.symlink_to(path.resolve())
     return root
 
 
@@ -48,7 +52,8 @@ def _copy_weights(tmp_path: Path, benchmark: str) -> Path:
 def test_a_changed_record_makes_its_card_stale_and_a_rebuild_keeps_the_hand_written_part(
     tmp_path, capsys
 ):
-    weights = _copy_weights(tmp_path, "cmu")
+    # cmu50's rows read cmu's weights through links, so the cards list both benchmarks
+    weights = _copy_weights(tmp_path, "cmu", "cmu50")
     cards = tmp_path / "cards"
     shutil.copytree(CARDS_DIR, cards)
     fresh = {s.name: s.fresh for s in build_cards(cards, weights_root=weights, write=False)}
@@ -82,7 +87,7 @@ def test_a_changed_record_makes_its_card_stale_and_a_rebuild_keeps_the_hand_writ
     orphans = {s.name for s in after if s.reason == "no shipped weights or published figures"}
     assert orphans == {"retired"}
     assert (cards / "retired.md").is_file()
-    # only CMU's weights were copied; the mesh-only entries keep their cards by their rows
+    # only CMU's weights were copied (cmu, cmu50); mesh-only entries keep their cards by rows
     names = {s.name for s in after}
     assert {"spectrhums_anchored", "spectrhums_residual", "spectrhums_residual_anchored"} <= names
     assert all(s.fresh for s in after if s.name not in orphans)
