@@ -8,6 +8,7 @@ import sys
 import textwrap
 import time
 
+import pytest
 import torch
 from test_store import board_args, cli, write_project
 
@@ -16,6 +17,7 @@ from zoo.evaluation.results import read_table
 SCALED = """\
 from pathlib import Path
 
+import pytest
 import torch
 from torch import nn
 
@@ -348,3 +350,116 @@ def test_a_weights_pth_beside_the_code_leaves_the_folder_researcher_code(tmp_pat
     (tmp_path / "lib").mkdir()
     (tmp_path / "extra.pth").write_text("lib\n")
     assert _holds_installed(str(tmp_path), 2)
+
+
+LAST = """\
+import pytest
+import torch
+from torch import nn
+
+
+class Last(nn.Module):
+    def __init__(self, input_frames, output_frames, num_points, gain=1.0):
+        super().__init__()
+        self.output_frames = output_frames
+        self.gain = nn.Parameter(torch.tensor(gain))
+
+    def forward(self, history):
+        return self.gain * history[:, -1:].repeat(1, self.output_frames, 1, 1)
+
+
+class Unchanged(Last):
+    def forward(self, history):
+        return history
+"""
+
+# A researcher's slips with a model of their own: (files beside the registry, the registry's
+# entry or text, the command after `zoo`, what the one line must say)
+MISTAKES = {
+    "registry not there": ({}, None, ["--registry", "{f}/nope.yaml"], "nope.yaml does not exist"),
+    "registry not YAML": ({}, "models:\n  last: [\n", [], "not valid YAML: line 3, column 1"),
+    "class file not there": ({}, "nothere.py:Last", [], "nothere.py does not exist"),
+    "class misspelt": ({}, "last.py:Lats", [], "defines no class 'Lats'; it defines Last"),
+    "a dependency missing": (
+        {"needs.py": "import einops\n"},
+        "needs.py:X",
+        [],
+        "No module named 'einops'",
+    ),
+    "a syntax error": ({"broken.py": "def f(:\n"}, "broken.py:X", [], "broken.py, line 1"),
+    "a field misspelt": ({}, "last.py:Last\n    hparam: {gain: 2}", [], "did you mean hparams?"),
+    "a hyper-parameter misspelt": (
+        {},
+        "last.py:Last\n    hparams: {gian: 2}",
+        [],
+        "does not accept gian",
+    ),
+    "the model misspelt": ({}, "last.py:Last", ["--model", "lats"], "did you mean last?"),
+    "the wrong output shape": ({}, "last.py:Unchanged", [], "expects (8, 25, 25, 3)"),
+    "the authors' .pth as --weights": (
+        {},
+        "last.py:Last",
+        ["--weights", "{m}/model.pth"],
+        "import it first: zoo weights import",
+    ),
+    "the authors' .pth as --checkpoint": (
+        {},
+        "last.py:Last",
+        ["--checkpoint", "{m}/model.pth"],
+        "import it first: zoo weights import",
+    ),
+    "a state dict that does not fit": (
+        {},
+        "last.py:Last",
+        ["weights", "import", "{m}/model.pth", "--benchmark", "cmu", "--weights-dir", "{f}/w"],
+        "gain (3,) vs the model's ()",
+    ),
+    "the sampler misspelt": ({}, "last.py:Last", ["--sampler", "ltd9"], "--sampler 'ltd9'"),
+    "the data elsewhere": ({}, "last.py:Last", ["--data-root", "{f}/none"], "--data-root"),
+}
+
+
+@pytest.fixture(scope="module")
+def mistakes_project(tmp_path_factory):
+    project = write_project(tmp_path_factory.mktemp("mistakes"))
+    (project / "m").mkdir()
+    torch.save({"gain": torch.ones(3)}, project / "m" / "model.pth")
+    return project
+
+
+@pytest.mark.parametrize("mistake", list(MISTAKES))
+def test_each_mistake_of_the_trial_gets_one_line_naming_what_to_mend(
+    mistake, mistakes_project, capsys
+):
+    """The trial's 14 mistakes and kin: each ends the command with one line (no traceback, no
+    torch key list), naming the file, field or argument."""
+    project = mistakes_project
+    m = project / "m"
+    files, entry, command, expected = MISTAKES[mistake]
+    folder = m / mistake.replace(" ", "_").replace("'", "").replace(".", "")
+    folder.mkdir()
+    for name, text in files.items():
+        (folder / name).write_text(text)
+    registry = folder / "registry.yaml"
+    if entry is not None and entry.startswith("models:"):
+        registry.write_text(entry)
+    elif entry is not None:
+        (folder / "last.py").write_text(LAST)
+        registry.write_text(f"models:\n  last:\n    class: {entry}\n    representation: joints\n")
+    command = [a.format(m=m, f=folder) for a in command]
+    if command[:1] == ["weights"]:
+        args = [*command, "--model", "last", "--registry", registry]
+    else:  # zoo eval, the mistake's arguments taking the place of the defaults they name
+        defaults = {"--registry": registry, "--model": "last", "--data-root": project / "cmu"}
+        defaults |= {"--sampler": "ltd8", "--out": folder / "out"}
+        args = [
+            "eval",
+            *command,
+            *(x for k, v in defaults.items() if k not in command for x in (k, v)),
+        ]
+    code, _, err = cli(capsys, *args)
+    errors = [line for line in err.splitlines() if line and not line.startswith("warning: ")]
+    assert code == 2, err
+    assert len(errors) == 1 and "Traceback" not in err, err
+    assert expected in errors[0], err
+    assert not (folder / "out").exists()

@@ -271,3 +271,12 @@ def load_yaml(text: str) -> Any:
             raise
         # the pure-Python parser's message quotes the line and points at the character
         return yaml.load(text, Loader=yaml.SafeLoader)  # noqa: S506
+
+
+def yaml_problem(error: yaml.YAMLError) -> str:
+    """A YAML error in one line, where and what (PyYAML's message spans several lines, quoting
+    the text and a caret under it)."""
+    mark = getattr(error, "problem_mark", None)
+    words = [getattr(error, "context", None), getattr(error, "problem", None)]
+    what = ", ".join(w for w in words if w) or str(error).splitlines()[0]
+    return f"line {mark.line + 1}, column {mark.column + 1}: {what}" if mark else what

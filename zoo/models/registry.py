@@ -27,7 +27,7 @@ import yaml
 
 from zoo.core.errors import TrainingError, ZooError
 from zoo.core.files_read import recording_files_read
-from zoo.core.io import load_yaml
+from zoo.core.io import load_yaml, yaml_problem
 from zoo.models.citation import CitationError, Paper, parse_paper, parse_url
 from zoo.paths import REPO_ROOT
 
@@ -174,6 +174,11 @@ class ModelEntry:
                     f"{cls_name!r}; it defines {', '.join(defined) or 'no class'}"
                 )
             return getattr(module, cls_name)
+        except SyntaxError as e:  # the file's own line, not a traceback through the loader
+            raise RegistryError(
+                f"{self.source}: model {self.name!r}: cannot load class {path!r}: {e.filename}, "
+                f"line {e.lineno}: {e.msg}"
+            ) from e
         except (ImportError, AttributeError, ValueError) as e:
             raise RegistryError(
                 f"{self.source}: model {self.name!r}: cannot load class {path!r} ({e})"
@@ -247,7 +252,7 @@ class Registry:
         try:
             data = _registry_file_data(path) or {}
         except yaml.YAMLError as e:
-            raise RegistryError(f"{path}: not valid YAML ({e})") from e
+            raise RegistryError(f"{path}: not valid YAML: {yaml_problem(e)}") from e
         models = data.get("models") if isinstance(data, dict) else None
         if not isinstance(models, dict):
             raise RegistryError(f"{path}: expected a top-level mapping 'models: {{name: entry}}'")
