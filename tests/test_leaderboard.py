@@ -540,3 +540,20 @@ def test_every_committed_plot_carries_the_digest_of_what_it_shows_now():
             if figure_drawn_from(md.parent / name) != digest
         ]
     assert not stale, f"plots to draw again (zoo leaderboard): {stale[:5]}"
+
+
+def test_a_base_gives_its_costs_and_training_curves_to_a_results_folder_without_them(tmp_path):
+    """The curves of the shipped models come with --base, so an outside model's leaderboard
+    does not draw them again; a results folder's own files are never replaced."""
+    from zoo.leaderboard.rebuild import copy_benchmark_tables
+
+    base, mine = tmp_path / "base" / "cmu", tmp_path / "mine" / "cmu"
+    base.mkdir(parents=True)
+    (base / "costs.json").write_text("{}")
+    (base / "training.png").write_bytes(b"curves")
+    copy_benchmark_tables(tmp_path / "base", tmp_path / "mine", "cmu")
+    assert (mine / "training.png").read_bytes() == b"curves"
+    assert (mine / "costs.json").read_text() == "{}"
+    (base / "training.png").write_bytes(b"other curves")
+    copy_benchmark_tables(tmp_path / "base", tmp_path / "mine", "cmu")
+    assert (mine / "training.png").read_bytes() == b"curves"

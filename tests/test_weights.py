@@ -257,9 +257,8 @@ def test_eval_and_leaderboard_compute_the_row_from_the_weights(
 
 
 def test_training_plot_draws_each_validation_horizon_beside_repeat_last(tmp_path, monkeypatch):
-    import matplotlib.figure
-
     from zoo.hub.weights import training_horizons
+    from zoo.report import outputs
     from zoo.report.outputs import plot_training_curves
 
     horizons = lambda m: {  # noqa: E731
@@ -278,13 +277,11 @@ def test_training_plot_draws_each_validation_horizon_beside_repeat_last(tmp_path
     )
     assert training_horizons(record) == [(20, horizons(0.03)), (30, horizons(0.005))]
     drawn = []
-    save = matplotlib.figure.Figure.savefig
+    save = outputs.save_figure  # each figure it is given, drawn or copied by its digest
     monkeypatch.setattr(
-        matplotlib.figure.Figure,
-        "savefig",
-        lambda fig, *a, **k: (drawn.append(fig), save(fig, *a, **k))[1],
+        outputs, "save_figure", lambda fig, *a, **k: (drawn.append(fig), save(fig, *a, **k))[1]
     )
-    plot_training_curves({"m": record}, tmp_path / "training.png")
+    assert plot_training_curves({"m": record}, tmp_path / "training.png")
     axes = drawn[0].axes
     assert [a.get_title() for a in axes] == [
         "mean over predicted frames",
@@ -294,3 +291,9 @@ def test_training_plot_draws_each_validation_horizon_beside_repeat_last(tmp_path
     model, reference = axes[2].get_lines()
     assert list(model.get_ydata()) == [0.06, 0.01] and list(reference.get_ydata()) == [0.02, 0.02]
     assert (tmp_path / "training.png").stat().st_size > 0
+    # the same records again: the file keeps their digest and is left as it is
+    assert not plot_training_curves({"m": record}, tmp_path / "training.png")
+    assert len(drawn) == 1
+    record.history[-1]["val_mpjpe"] = 0.5  # another run's records: drawn again
+    assert plot_training_curves({"m": record}, tmp_path / "training.png")
+    assert len(drawn) == 2

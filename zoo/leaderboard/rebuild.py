@@ -28,7 +28,12 @@ from zoo.leaderboard.verdict import (
 )
 from zoo.paths import REPO_ROOT
 from zoo.protocol.comparable import protocol_differences
-from zoo.report.outputs import plot_training_curves, training_curves, write_leaderboard
+from zoo.report.outputs import (
+    TRAINING_PLOT,
+    plot_training_curves,
+    training_curves,
+    write_leaderboard,
+)
 from zoo.store.identity import (
     identity_differences,
     restamp_record,
@@ -93,10 +98,11 @@ class Rebuild(Leaderboard):
         if said:
             print(said, file=sys.stderr)
         curves = training_curves(self.weights, bench.name) if self.weights else {}
-        png = self.root / bench.name / "training.png"
-        if curves and (changed or not png.is_file()):
+        if curves:  # drawn only where its records changed (the PNG keeps their digest)
             plot_training_curves(
-                curves, png, title=f"{bench.name}: validation MPJPE while training (shipped models)"
+                curves,
+                self.root / bench.name / TRAINING_PLOT,
+                title=f"{bench.name}: validation MPJPE while training (shipped models)",
             )
         c = self.counts
         print(
@@ -412,9 +418,10 @@ def copy_benchmark_tables(base: str | Path, out: str | Path, benchmark: str) -> 
             with replace_folder(folder) as tmp:
                 shutil.copytree(table.parent, tmp, dirs_exist_ok=True)
             copied.append(folder)
-    costs = source / COSTS_FILE
-    if costs.is_file() and not (target / COSTS_FILE).exists():
-        target.mkdir(parents=True, exist_ok=True)
-        with atomic_path(target / COSTS_FILE) as tmp:
-            shutil.copy2(costs, tmp)
+    # its training curves too: drawn again only where the weights folder's records differ
+    for name in (COSTS_FILE, TRAINING_PLOT):
+        if (source / name).is_file() and not (target / name).exists():
+            target.mkdir(parents=True, exist_ok=True)
+            with atomic_path(target / name) as tmp:
+                shutil.copy2(source / name, tmp)
     return copied

@@ -230,12 +230,40 @@ def training_curves(weights_root: str | Path | None, benchmark: str) -> dict[str
     return records
 
 
+# A benchmark's training curves of its shipped models, beside its tables.
+TRAINING_PLOT = "training.png"
+
+
+def training_curves_digest(records: dict[str, WeightsRecord], title: str) -> str:
+    """What :func:`plot_training_curves` draws: each record's training history, the title,
+    matplotlib's version and the drawing code (a table's change elsewhere redraws nothing)."""
+    import inspect
+
+    import matplotlib
+
+    from zoo.core import io
+    from zoo.hub.weights import training_horizons, training_points
+
+    drawing = (plot_training_curves, training_curves_digest, io.save_figure)
+    inputs = [
+        sorted((label, training_points(r), training_horizons(r)) for label, r in records.items()),
+        title,
+        matplotlib.__version__,
+        [inspect.getsource(f) for f in drawing],
+    ]
+    return hashlib.sha256(json.dumps(inputs, sort_keys=True).encode()).hexdigest()
+
+
 def plot_training_curves(
     records: dict[str, WeightsRecord], path: str | Path, title: str = ""
-) -> None:
+) -> bool:
     """Validation error against optimizer steps, one line per trained model (``{label: weights
     record}``); where the histories log them, one panel more per validation horizon, each
-    model's line beside repeat-last's error on the same windows (dashed, same colour)."""
+    model's line beside repeat-last's error on the same windows (dashed, same colour). A file
+    already drawn from the same records is left as it is; returns whether it was drawn."""
+    digest = training_curves_digest(records, title)
+    if figure_drawn_from(path) == digest:
+        return False
     import matplotlib
 
     matplotlib.use("Agg")
@@ -284,7 +312,8 @@ def plot_training_curves(
         ax.legend(fontsize=7)
         ax.set_title(f"{metric} at {name}", fontsize=9)
     fig.suptitle(title, fontsize=9)
-    save_figure(fig, path)
+    save_figure(fig, path, drawn_from=digest)
+    return True
 
 
 INDEX_PREAMBLE = """# Results
@@ -354,7 +383,7 @@ def index_text(out_root: str | Path) -> str:
                 f"[{bench_dir.name}/sensitivity.md]({bench_dir.name}/sensitivity.md)",
                 "",
             ]
-        if (bench_dir / "training.png").is_file():
+        if (bench_dir / TRAINING_PLOT).is_file():
             lines += [
                 f"Training curves of the shipped models: "
                 f"[{bench_dir.name}/training.png]({bench_dir.name}/training.png)",
