@@ -154,6 +154,7 @@ def test_speed_check(swinging_cmu, tmp_path, capsys):
     assert ratio > 0 and (math.isfinite(ratio) or floor == 0), lines[3]
 
 
+@pytest.mark.slow  # four zoo processes, each importing torch: "several processes"
 def test_speed_leaderboard_model(swinging_cmu, tmp_path, capsys):
     from zoo.cli import main
 
