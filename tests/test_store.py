@@ -852,3 +852,20 @@ def test_fingerprints_kept_in_a_process_follow_edits_and_new_modules(tmp_path):
     fresh = tmp_path / "fresh.py"
     fresh.write_text(KEPT_FINGERPRINTS.split("seen = [now()]")[0] + "print(json.dumps(now()))\n")
     assert run(fresh) == [closure_2, *edited]
+
+
+def test_a_module_that_says_it_computes_no_number_is_outside_the_evaluators_code():
+    """A module that only presents, stores or moves results says so in a comment line of its
+    own, so the evaluator's code leaves it out (no list of names above it in store.identity,
+    and no fingerprint moves with the line); what it alone imports is left out with it."""
+    from zoo.store import identity
+    from zoo.store.fingerprint import COMPUTES_NO_NUMBER, code_closure, zoo_module_file
+
+    evaluator = zoo_module_file(identity.EVALUATOR)
+    everything, computing = code_closure(evaluator), code_closure(evaluator, computing_only=True)
+    declared = {p for p in everything if COMPUTES_NO_NUMBER in p.read_text().splitlines()}
+    assert zoo_module_file("zoo.core.io") in declared
+    assert zoo_module_file("zoo.evaluation.results") in declared
+    assert not declared & set(computing)
+    assert {evaluator, zoo_module_file("zoo.protocol.metrics")} <= set(computing)
+    assert "zoo.report" not in Path(identity.__file__).read_text()

@@ -4,6 +4,8 @@ The API (:mod:`zoo.api`) is loaded on first use, so ``import zoo`` and the ``zoo
 help do not import torch.
 """
 
+# zoo: computes no number
+
 from zoo.core.version import __version__
 
 _API = ("compare", "create_model", "evaluate", "list_models", "load_results")

@@ -2,6 +2,8 @@
 or time, which move no number (so no row's identity records them), kept free of heavy imports
 for the ``zoo`` command's help."""
 
+# zoo: computes no number
+
 # Windows a table's sampled check scores: a fault in 5% of a row's windows escapes it with
 # probability 0.95**n (docs/reproducibility.md gives the sizes and times).
 CHECK_WINDOWS = 32

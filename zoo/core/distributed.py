@@ -1,6 +1,8 @@
 """Several processes (``torchrun``): which one this is, and how their shares come together.
 Training uses it for data-parallel steps, the evaluator to split windows across processes."""
 
+# zoo: computes no number
+
 from __future__ import annotations
 
 import os

@@ -1,6 +1,8 @@
 """The zoo's error base: every error a user can cause derives from ZooError, so the command line
 reports it as a one-line message while genuine bugs still show their traceback."""
 
+# zoo: computes no number
+
 
 class ZooError(Exception):
     pass

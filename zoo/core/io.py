@@ -1,5 +1,7 @@
 """Atomic file writes and provenance: nothing half-written is ever left behind."""
 
+# zoo: computes no number
+
 from __future__ import annotations
 
 import functools

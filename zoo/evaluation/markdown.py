@@ -3,6 +3,8 @@ leaderboard's per-protocol tables (each table one protocol, horizons as columns)
 metric's unit and printed precision and the headline's metric (:func:`headline_key`).
 """
 
+# zoo: computes no number
+
 from __future__ import annotations
 
 from collections.abc import Iterable

@@ -4,6 +4,8 @@ one model under one protocol, read and written atomically; and a leaderboard's t
 one result (:func:`read_table`: its rows' folders, listed by the table's ``protocol.json``).
 Nothing here computes a number (the evaluator, :mod:`zoo.evaluation.evaluator`, does)."""
 
+# zoo: computes no number
+
 from __future__ import annotations
 
 import json

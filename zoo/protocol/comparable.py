@@ -3,6 +3,8 @@ provenance agree; rows whose records differ raise :class:`ProtocolMismatchError`
 the fields that differ.
 """
 
+# zoo: computes no number
+
 from __future__ import annotations
 
 from typing import Any

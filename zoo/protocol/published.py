@@ -2,6 +2,8 @@
 a figure is a ``reported`` row of a table only where its protocol matches the table's record; any
 other is listed under its own heading with every difference named."""
 
+# zoo: computes no number
+
 from __future__ import annotations
 
 from dataclasses import dataclass

@@ -3,6 +3,8 @@ site (:func:`table_view`, :func:`table_summary`), and the words that say what it
 mean. The per-protocol Markdown beneath it is :mod:`zoo.evaluation.markdown`.
 """
 
+# zoo: computes no number
+
 from __future__ import annotations
 
 import re

@@ -5,6 +5,8 @@ window-sampling interval from a studentised circular block bootstrap within reco
 sign test over actions. docs/protocols.md ("How sure a number is") says what each means.
 """
 
+# zoo: computes no number
+
 from __future__ import annotations
 
 import hashlib

@@ -3,6 +3,8 @@ are references beside the ranking, and a row with a missing horizon is left out 
 why (:func:`unranked_reason`).
 """
 
+# zoo: computes no number
+
 from __future__ import annotations
 
 import pandas as pd

@@ -651,14 +651,29 @@ def _imported_names(file: str, mtime_ns: int) -> tuple[str, ...]:
     return tuple(names)
 
 
+# The line by which a zoo module that only presents, stores or moves results says it cannot
+# change a number: a comment, so that no fingerprint moves with it.
+COMPUTES_NO_NUMBER = "# zoo: computes no number"
+
+
+@cache
+def _computes_no_number(file: str, mtime_ns: int) -> bool:
+    with open(file, encoding="utf-8") as f:
+        return any(line.rstrip() == COMPUTES_NO_NUMBER for line in f)
+
+
 @_one_layout
-def code_closure(*files: str | Path, skip: frozenset[Path] = frozenset()) -> list[Path]:
-    """``files`` and every zoo module they import, transitively, but for ``skip`` (sorted)."""
+def code_closure(*files: str | Path, computing_only: bool = False) -> list[Path]:
+    """``files`` and every zoo module they import, transitively (sorted); with
+    ``computing_only``, less the modules that say they compute no number
+    (:data:`COMPUTES_NO_NUMBER`) and what is reached only through them."""
     todo = [Path(f) if Path(f).is_absolute() else (REPO_ROOT / f) for f in files]
     seen: set[Path] = set()
     while todo:
         path = todo.pop().resolve()
-        if path in seen or path in skip:
+        if path in seen:
+            continue
+        if computing_only and _computes_no_number(str(path), path.stat().st_mtime_ns):
             continue
         seen.add(path)
         todo += sorted(_imported_files(path) - seen)

@@ -19,36 +19,12 @@ from zoo.store.layout import StoreError
 IDENTITY_VERSION = 2  # 2: code fingerprints that do not depend on where the code lives
 # The evaluator's code is zoo.evaluation.evaluator and every zoo module it imports, directly or
 # through others (metrics, windows, benchmarks, data loaders and forward kinematics, spectral
-# bases). Left out: modules that only present, store or move results and cannot change a number
-# (the result files and their Markdown, tables, intervals, ranking, files and locks, paths,
-# errors, the process group, the check's and costs' budgets). Named as modules: one renamed is
-# renamed here in the same change.
+# bases), less the modules that say, by a line of their own, that they cannot change a number
+# (zoo.store.fingerprint.COMPUTES_NO_NUMBER: result files, tables, intervals, paths, errors).
 EVALUATOR = "zoo.evaluation.evaluator"
-NOT_COMPUTING = frozenset(
-    {
-        "zoo.evaluation.results",
-        "zoo.evaluation.markdown",
-        "zoo.protocol.comparable",
-        "zoo.protocol.published",
-        "zoo.report.tables",
-        "zoo.stats.intervals",
-        "zoo.stats.ranking",
-        "zoo.core.io",
-        "zoo.paths",
-        "zoo.core.errors",
-        "zoo.core.distributed",
-        "zoo.core.budgets",
-    }
-)
 
 
 # ---- the code a result's identity covers ----------------------------------------------------
-
-
-def _skipped() -> frozenset[Path]:
-    return frozenset(
-        f for f in (zoo_module_file(m) for m in (*NOT_COMPUTING, "zoo")) if f is not None
-    )
 
 
 def dataset_code(dataset: str | None) -> list[Path]:
@@ -61,14 +37,14 @@ def dataset_code(dataset: str | None) -> list[Path]:
     if not isinstance(loader, str):
         return []
     file = zoo_module_file(loader.split(":")[0])
-    return code_closure(file, skip=_skipped()) if file is not None else []
+    return code_closure(file, computing_only=True) if file is not None else []
 
 
 def evaluation_code(model_class: type | None, dataset: str | None = None) -> dict[str, str | None]:
     """The ``code`` part of an identity: the evaluator's fingerprint (with the code that
     generates ``dataset``, a mesh dataset) and the model's (None where its source cannot be
     read, a class typed into an interpreter: such a result is never taken for another)."""
-    evaluator = code_closure(zoo_module_file(EVALUATOR), skip=_skipped())
+    evaluator = code_closure(zoo_module_file(EVALUATOR), computing_only=True)
     files = sorted(set(evaluator) | set(dataset_code(dataset)))
     code: dict[str, str | None] = {"evaluator": code_fingerprint(*files)}
     if model_class is not None:
