@@ -102,12 +102,11 @@ def evaluate(
 
     from zoo.core.errors import EvaluationError
     from zoo.core.options import EVAL_BATCH
-    from zoo.evaluation.pipeline import Subject, compute, place
+    from zoo.evaluation.pipeline import Subject, compute, plan_places
     from zoo.evaluation.pipeline import store as store_result
     from zoo.hub.model_source import ModelSource
     from zoo.protocol.benchmark import get_benchmark
-    from zoo.protocol.plan import plan_protocol
-    from zoo.store.layout import check_label, result_path, table_folder
+    from zoo.store.layout import check_label
 
     bench = get_benchmark(benchmark) if isinstance(benchmark, (str, Path)) else benchmark
     if dataset is not None and data_root is not None:
@@ -138,25 +137,19 @@ def evaluate(
             f"zoo.evaluate: unknown option(s) {', '.join(sorted(options))}; valid: task, "
             f"horizon, ground_truth, melv_frames, batch_size, view"
         )
-    protocol = plan_protocol(
+    [(protocol, where)] = plan_places(
+        subject,
         bench,
         dataset,
-        sampler=sampler,
+        [sampler],
         task=task,
         horizon=horizon,
         ground_truth=ground_truth,
         melv_frames=melv_frames,
+        out=out,
+        write=store,
+        replace=replace,
     )
-    target = Path(out) if out is not None else None
-    if store and target is None:
-        melv = melv_frames if melv_frames not in (None, getattr(bench, "melv_on", None)) else None
-        target = result_path(
-            None,
-            bench.name,
-            table_folder(protocol.sampler, task, ground_truth, horizon, melv),
-            subject.label,
-        )
-    where = place(subject, protocol, target, replace=replace)
     result = compute(
         subject,
         protocol,
@@ -165,7 +158,7 @@ def evaluate(
         device=device,
         batch_size=batch_size,
     )
-    if target is not None:
+    if where.folder is not None:
         store_result(result, where)
     return result
 

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 from zoo.cli.common import (
     UsageError,
     add_command,
@@ -69,10 +67,8 @@ def add(sub) -> None:
 
 def run(args) -> int:
     from zoo.core.distributed import init_distributed
-    from zoo.evaluation.pipeline import Subject, compute, place, store
+    from zoo.evaluation.pipeline import Subject, compute, plan_places, store
     from zoo.evaluation.tolerance import tolerance_text
-    from zoo.protocol.plan import plan_protocol
-    from zoo.store.layout import result_path, table_folder
 
     registry = registry_of(args)
     source = model_source(args)
@@ -94,30 +90,19 @@ def run(args) -> int:
         )
     if args.melv_frames is not None and bench.representation != "mesh":
         raise UsageError(f"--melv-frames: benchmark {bench.name} is not a mesh benchmark")
-    # Only a MELV other than the benchmark's default gets a folder of its own.
-    melv = (
-        args.melv_frames
-        if args.melv_frames not in (None, getattr(bench, "melv_on", None))
-        else None
+    plans = plan_places(  # every output place checked before any evaluation
+        subject,
+        bench,
+        dataset,
+        samplers,
+        task=args.task,
+        horizon=args.horizon_frames,
+        ground_truth=args.ground_truth,
+        melv_frames=args.melv_frames,
+        out=args.out,
+        results=args.results,
+        replace=args.replace,
     )
-    plans = []
-    for sampler in samplers:  # every output place checked before any evaluation
-        folder = table_folder(sampler, args.task, args.ground_truth, args.horizon_frames, melv)
-        out = (
-            Path(args.out)
-            if args.out
-            else result_path(args.results, bench.name, folder, loaded.label)
-        )
-        protocol = plan_protocol(
-            bench,
-            dataset,
-            sampler=sampler,
-            task=args.task,
-            horizon=args.horizon_frames,
-            ground_truth=args.ground_truth,
-            melv_frames=args.melv_frames,
-        )
-        plans.append((protocol, place(subject, protocol, out, replace=args.replace)))
     # Under torchrun every process scores its share of the windows and all get the whole
     # result; the first writes it.
     writer = init_distributed(args.device).rank == 0

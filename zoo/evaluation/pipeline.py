@@ -1,7 +1,8 @@
 """One path from a model to a stored result, shared by ``zoo eval``, ``zoo.evaluate`` and
 ``zoo leaderboard`` (nothing else orchestrates an evaluation): the subject (:class:`Subject`),
-its place checked (:func:`place`), the evaluation (:func:`compute`, :func:`compute_all`) and the
-result stored (:func:`store`). docs/architecture.md ("The path of one result") walks through it.
+its place checked (:func:`place`; for ``zoo eval`` and ``zoo.evaluate``, :func:`plan_places`),
+the evaluation (:func:`compute`, :func:`compute_all`) and the result stored (:func:`store`).
+docs/architecture.md ("The path of one result") walks through it.
 """
 
 from __future__ import annotations
@@ -103,6 +104,48 @@ def place(
     folder = Path(folder)
     check_output_folder(folder)
     return Place(folder, identity, check_replace(folder, identity, replace, protocol.record))
+
+
+def plan_places(
+    subject: Subject,
+    bench,
+    dataset,
+    samplers: list[str | None],
+    *,
+    task: str = "prediction",
+    horizon: int | None = None,
+    ground_truth: str | None = None,
+    melv_frames: str | None = None,
+    out: str | Path | None = None,
+    results: str | Path | None = None,
+    write: bool = True,
+    replace: bool = False,
+) -> list[tuple[Protocol, Place]]:
+    """Each sampler's protocol and its result's place, every place checked before anything is
+    evaluated: ``out``, else ``<results>/<benchmark>/<table>/<label>/`` where ``write``, else
+    none (nothing stored)."""
+    from zoo.protocol.plan import plan_protocol
+    from zoo.store.layout import result_path, table_folder
+
+    # Only a MELV other than the benchmark's default gets a table folder of its own.
+    melv = melv_frames if melv_frames not in (None, getattr(bench, "melv_on", None)) else None
+    plans = []
+    for sampler in samplers:
+        protocol = plan_protocol(
+            bench,
+            dataset,
+            sampler=sampler,
+            task=task,
+            horizon=horizon,
+            ground_truth=ground_truth,
+            melv_frames=melv_frames,
+        )
+        folder = Path(out) if out is not None else None
+        if folder is None and write:
+            table = table_folder(sampler or protocol.sampler, task, ground_truth, horizon, melv)
+            folder = result_path(results, bench.name, table, subject.label)
+        plans.append((protocol, place(subject, protocol, folder, replace=replace)))
+    return plans
 
 
 def compute(
