@@ -41,6 +41,7 @@ def _copy_weights(tmp_path: Path, *benchmarks: str) -> Path:
             target = root / benchmark / path.name
             if path.is_symlink() and path.suffix == ".json":
                 target.symlink_to(path.readlink())
+                assert target.resolve().is_relative_to(root), f"{path} links out of {benchmarks}"
             elif path.suffix == ".json":
                 shutil.copy(path, target)
             else:

@@ -521,7 +521,14 @@ def test_every_committed_plot_carries_the_digest_of_what_it_shows_now():
 
     from zoo.core.io import figure_drawn_from
     from zoo.paths import REPO_ROOT
-    from zoo.report.outputs import plot_digests, table_title
+    from zoo.report.outputs import (
+        TRAINING_PLOT,
+        plot_digests,
+        table_title,
+        training_curves,
+        training_curves_digest,
+        training_plot_title,
+    )
 
     tables = sorted((REPO_ROOT / "results").glob("*/*/leaderboard.md"))
     assert len(tables) >= 10
@@ -539,6 +546,12 @@ def test_every_committed_plot_carries_the_digest_of_what_it_shows_now():
             for name, digest in digests.items()
             if figure_drawn_from(md.parent / name) != digest
         ]
+    for png in sorted((REPO_ROOT / "results").glob(f"*/{TRAINING_PLOT}")):
+        curves = training_curves(REPO_ROOT / "weights", png.parent.name)
+        if figure_drawn_from(png) != training_curves_digest(
+            curves, training_plot_title(png.parent.name)
+        ):
+            stale.append(str(png))
     assert not stale, f"plots to draw again (zoo leaderboard): {stale[:5]}"
 
 

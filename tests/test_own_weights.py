@@ -17,7 +17,6 @@ from zoo.evaluation.results import read_table
 SCALED = """\
 from pathlib import Path
 
-import pytest
 import torch
 from torch import nn
 
@@ -353,7 +352,6 @@ def test_a_weights_pth_beside_the_code_leaves_the_folder_researcher_code(tmp_pat
 
 
 LAST = """\
-import pytest
 import torch
 from torch import nn
 

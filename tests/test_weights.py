@@ -277,7 +277,7 @@ def test_training_plot_draws_each_validation_horizon_beside_repeat_last(tmp_path
     )
     assert training_horizons(record) == [(20, horizons(0.03)), (30, horizons(0.005))]
     drawn = []
-    save = outputs.save_figure  # each figure it is given, drawn or copied by its digest
+    save = outputs.save_figure  # each figure drawn
     monkeypatch.setattr(
         outputs, "save_figure", lambda fig, *a, **k: (drawn.append(fig), save(fig, *a, **k))[1]
     )

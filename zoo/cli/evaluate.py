@@ -99,7 +99,7 @@ def run(args) -> int:
         horizon=args.horizon_frames,
         ground_truth=args.ground_truth,
         melv_frames=args.melv_frames,
-        out=args.out,
+        out=args.out or None,
         results=args.results,
         replace=args.replace,
     )

@@ -280,5 +280,6 @@ def yaml_problem(error: yaml.YAMLError) -> str:
     the text and a caret under it)."""
     mark = getattr(error, "problem_mark", None)
     words = [getattr(error, "context", None), getattr(error, "problem", None)]
-    what = ", ".join(w for w in words if w) or str(error).splitlines()[0]
+    said = str(error).splitlines() or [type(error).__name__]
+    what = ", ".join(w for w in words if w) or said[0]
     return f"line {mark.line + 1}, column {mark.column + 1}: {what}" if mark else what

@@ -122,8 +122,8 @@ def plan_places(
     replace: bool = False,
 ) -> list[tuple[Protocol, Place]]:
     """Each sampler's protocol and its result's place, every place checked before anything is
-    evaluated: ``out``, else ``<results>/<benchmark>/<table>/<label>/`` where ``write``, else
-    none (nothing stored)."""
+    evaluated: ``out`` where given; otherwise ``<results>/<benchmark>/<table>/<label>/`` when
+    ``write``, and no place (nothing stored) when not."""
     from zoo.protocol.plan import plan_protocol
     from zoo.store.layout import result_path, table_folder
 
@@ -142,7 +142,7 @@ def plan_places(
         )
         folder = Path(out) if out is not None else None
         if folder is None and write:
-            table = table_folder(sampler or protocol.sampler, task, ground_truth, horizon, melv)
+            table = table_folder(protocol.sampler, task, ground_truth, horizon, melv)
             folder = result_path(results, bench.name, table, subject.label)
         plans.append((protocol, place(subject, protocol, folder, replace=replace)))
     return plans

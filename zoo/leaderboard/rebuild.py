@@ -32,6 +32,7 @@ from zoo.report.outputs import (
     TRAINING_PLOT,
     plot_training_curves,
     training_curves,
+    training_plot_title,
     write_leaderboard,
 )
 from zoo.store.identity import (
@@ -102,7 +103,7 @@ class Rebuild(Leaderboard):
             plot_training_curves(
                 curves,
                 self.root / bench.name / TRAINING_PLOT,
-                title=f"{bench.name}: validation MPJPE while training (shipped models)",
+                title=training_plot_title(bench.name),
             )
         c = self.counts
         print(
@@ -406,8 +407,8 @@ def _same_files(old: Path, new: Path) -> bool:
 def copy_benchmark_tables(base: str | Path, out: str | Path, benchmark: str) -> list[Path]:
     """The tables of ``benchmark`` under the results folder ``base`` (e.g. the repository's
     ``results/``) copied to ``out`` where ``out`` has none of its own, with the benchmark's cost
-    cells: a rebuild under ``out`` then reuses their rows beside the user's and never writes
-    ``base``. Returns the tables copied."""
+    cells and training curves: a rebuild under ``out`` then reuses their rows beside the user's
+    and never writes ``base``. Returns the tables copied."""
     import shutil
 
     source, target = Path(base) / benchmark, Path(out) / benchmark

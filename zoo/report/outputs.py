@@ -234,6 +234,10 @@ def training_curves(weights_root: str | Path | None, benchmark: str) -> dict[str
 TRAINING_PLOT = "training.png"
 
 
+def training_plot_title(benchmark: str) -> str:
+    return f"{benchmark}: validation MPJPE while training (shipped models)"
+
+
 def training_curves_digest(records: dict[str, WeightsRecord], title: str) -> str:
     """What :func:`plot_training_curves` draws: each record's training history, the title,
     matplotlib's version and the drawing code (a table's change elsewhere redraws nothing)."""
