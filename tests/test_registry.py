@@ -49,7 +49,7 @@ def test_missing_shape_args_say_benchmark_supplies_them():
 def test_bad_registry_entry_names_file_and_field(tmp_path):
     path = tmp_path / "bad.yaml"
     path.write_text("models:\n  x:\n    class: a.B\n    representation: pointcloud\n")
-    with pytest.raises(RegistryError, match=r"bad.yaml: model 'x': field 'representation'"):
+    with pytest.raises(RegistryError, match=r"bad.yaml, line 4: model 'x': field 'representation'"):
         Registry.from_files(path)
 
 
@@ -57,8 +57,13 @@ def test_a_misspelt_field_gets_a_did_you_mean(tmp_path):
     path = tmp_path / "typo.yaml"
     path.write_text("models:\n  x:\n    class: a.B\n    representation: joints\n    hparam: {}\n")
     with pytest.raises(
-        RegistryError, match=r"unknown field\(s\) hparam \(did you mean hparams\?\)"
+        RegistryError,
+        match=r"typo.yaml, line 5: model 'x': unknown field\(s\) hparam \(did you mean hparams\?\)",
     ):
+        Registry.from_files(path)
+    # a field that is missing is placed at its model's line
+    path.write_text("models:\n  y:\n    representation: joints\n")
+    with pytest.raises(RegistryError, match=r"typo.yaml, line 2: model 'y': field 'class'"):
         Registry.from_files(path)
 
 
@@ -461,5 +466,8 @@ def test_a_misspelt_recipe_field_is_refused_where_the_registry_is_read(tmp_path,
     )
     assert main(["list", "--registry", str(registry)]) == 2
     err = capsys.readouterr().err
-    assert f"{registry}: model 'mine': field 'train': unknown training-recipe key(s) epoch" in err
+    assert (
+        f"{registry}, line 6: model 'mine': field 'train': unknown training-recipe key(s) epoch"
+        in err
+    )
     assert len(err.strip().splitlines()) == 1

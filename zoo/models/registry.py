@@ -257,7 +257,10 @@ class Registry:
         if not isinstance(models, dict):
             raise RegistryError(f"{path}: expected a top-level mapping 'models: {{name: entry}}'")
         for name, raw in models.items():
-            entry = _parse_entry(path, name, raw)
+            try:
+                entry = _parse_entry(path, name, raw)
+            except RegistryError as e:
+                raise RegistryError(_located(str(e), path, name)) from e.__cause__
             previous = self.entries.get(name)
             if previous is not None:
                 # A second model under a known name would publish rows under the first one's
@@ -366,6 +369,28 @@ class Registry:
         _READ_BY_BUILD[key] = _READ_BY_BUILD.get(key, frozenset()) | frozenset(read)
         _READ_WHILE_BUILT[model] = _READ_BY_BUILD[key]
         return model
+
+
+def _located(message: str, path: Path, name: str) -> str:
+    """``message`` about model ``name`` of ``path`` with the line it is about: the line of the
+    field it names, else the model's. Found only when there is an error to place, so a
+    registry that reads well is parsed once."""
+    try:
+        root = yaml.compose(path.read_text(), Loader=yaml.SafeLoader)
+        models = next(v for k, v in root.value if k.value == "models")
+        key, entry = next((k, v) for k, v in models.value if k.value == str(name))
+    except (yaml.YAMLError, AttributeError, StopIteration, TypeError):
+        return message
+    line = key.start_mark.line + 1
+    named = re.search(r"field(?:\(s\))? '?([A-Za-z_]+)", message)
+    if named and isinstance(entry, yaml.MappingNode):
+        line = next(
+            (k.start_mark.line + 1 for k, _ in entry.value if k.value == named.group(1)), line
+        )
+    prefix = f"{path}: "
+    if not message.startswith(prefix):
+        return message
+    return f"{path}, line {line}: {message[len(prefix) :]}"
 
 
 def _parse_entry(path: Path, name: str, raw: Any) -> ModelEntry:
