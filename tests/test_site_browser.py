@@ -68,7 +68,7 @@ def site(tmp_path_factory) -> Path:
 def pristine_site(tmp_path_factory) -> Path:
     """The site of the committed results as they are: what the README's pictures show."""
     tmp = tmp_path_factory.mktemp("pristine")
-    for bench in ("cmu", "cmu_anny_oi_low"):
+    for bench in ("cmu", "cmu50", "cmu_anny_oi_low"):
         shutil.copytree(RESULTS / bench, tmp / "results" / bench)
     return build_site(tmp / "site", tmp / "results").out
 
@@ -280,6 +280,8 @@ def test_screenshots_are_not_blank(browser, pristine_site, tmp_path):
     )
     pictured = {"table": "results/cmu/all", "rows": {m: dict(cells) for m, cells in shown}}
     picture.with_suffix(".json").write_text(json.dumps(pictured, indent=1) + "\n")
+    _open(browser, site / "table-cmu50-all.html")  # each row's history, read and padded
+    _not_blank(_shot(browser, "table-cmu50.png", tmp_path))
     _open(browser, site / "meshes-cmu_anny_oi_low.html")
     browser.execute_script(
         "var s = document.getElementById('frame'); s.value = s.max;"
