@@ -67,7 +67,7 @@ def test_a_bad_paper_or_code_field_is_one_line_naming_it(tmp_path, paper, said):
     with pytest.raises(RegistryError) as caught:
         Registry.from_files(path)
     message = str(caught.value)
-    assert message.startswith(f"{path}: model 'x'") and said in message
+    assert message.startswith(f"{path}, line 5: model 'x'") and said in message
     assert "\n" not in message
 
 

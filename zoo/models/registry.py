@@ -382,11 +382,14 @@ def _located(message: str, path: Path, name: str) -> str:
     except (yaml.YAMLError, AttributeError, StopIteration, TypeError):
         return message
     line = key.start_mark.line + 1
-    named = re.search(r"field(?:\(s\))? '?([A-Za-z_]+)", message)
-    if named and isinstance(entry, yaml.MappingNode):
-        line = next(
-            (k.start_mark.line + 1 for k, _ in entry.value if k.value == named.group(1)), line
-        )
+    body = message.split(f"model {name!r}", 1)[-1]
+    if isinstance(entry, yaml.MappingNode):  # the entry's field the message names first
+        found = [
+            (m.start(), k.start_mark.line + 1)
+            for k, _ in entry.value
+            if (m := re.search(rf"(?<![\w.]){re.escape(str(k.value))}(?!\w)", body))
+        ]
+        line = min(found)[1] if found else line
     prefix = f"{path}: "
     if not message.startswith(prefix):
         return message
