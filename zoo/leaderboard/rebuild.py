@@ -79,7 +79,7 @@ class Rebuild(Leaderboard):
 
     def run(self) -> list[Path]:
         bench = self.bench
-        written, changed = [], False
+        written = []
         self._refuse_models_without_rows()
         self._preflight()
         for sampler, task, truth, folder in self.tables():
@@ -92,7 +92,6 @@ class Rebuild(Leaderboard):
                 )
             if outcome is not None:
                 written.append(self.root / bench.name / folder)
-                changed |= outcome
         from zoo.stats.sensitivity import update_sensitivity
 
         said = update_sensitivity(self.root / bench.name)
