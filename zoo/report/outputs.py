@@ -100,7 +100,9 @@ def model_style(model: str, order: list[str]) -> dict:
     from zoo.protocol.metrics import FLOOR_SUFFIX
 
     base = model.partition("@")[0].removesuffix(FLOOR_SUFFIX)
-    i = order.index(base) if base in order else len(order) + sum(map(ord, base))
+    # a name outside the registry (ground_truth) by its letters alone, so that registering a
+    # model moves no other colour; the site's script (site.js, style) does the same
+    i = order.index(base) if base in order else sum(map(ord, base))
     variant = "@" in model or model.endswith(FLOOR_SUFFIX)
     return {
         "color": PALETTE[i % len(PALETTE)],

@@ -12,7 +12,10 @@ var ZooSite = (function () {
   function style(row) {
     var names = window.ZOO_PALETTE_MODELS || [];
     var i = names.indexOf(row.base);
-    if (i < 0) { i = names.length; }
+    if (i < 0) {  // outside the registry: by its letters, as zoo.report.outputs.model_style
+      i = 0;
+      for (var c = 0; c < row.base.length; c++) { i += row.base.charCodeAt(c); }
+    }
     return {colour: COLOURS[i % COLOURS.length],
             marker: MARKERS[i % MARKERS.length],
             dashed: !!row.variant || !!row.floor};
