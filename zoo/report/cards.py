@@ -197,8 +197,8 @@ def card_models(
     tables: list[tuple[Path, EvalResult]] = (),
 ) -> list[str]:
     """Models with a card: every registered model with shipped weights, published figures or
-    a row in ``tables`` (a researcher's own model from its registry entry), in registry
-    order."""
+    a row in ``tables`` (a researcher's own model from its registry entry), and every trainable
+    one (a model waiting in the training queue has its recipe to show), in registry order."""
     published = {p.model for p in load_published()}
     with_rows = {
         name
@@ -209,7 +209,10 @@ def card_models(
     return [
         n
         for n in registry.list_models()
-        if _files(registry, n, shipped) or n in published or n in with_rows
+        if _files(registry, n, shipped)
+        or n in published
+        or n in with_rows
+        or registry.get(n).trainable
     ]
 
 
@@ -642,9 +645,10 @@ def models_index(registry: Registry, names: list[str], shipped: dict[str, list[S
             "",
             GENERATED_NOTE.replace("edit only below the end marker", "do not edit"),
             "",
-            "Every model in `registry.yaml`; each with shipped weights or published figures has a "
-            "card (paper, architecture and parameters, recipe, budget and device, training "
-            "curve, its rows in every table, departures from the paper), written by `zoo cards`.",
+            "Every model in `registry.yaml`; each trainable one, and each with shipped weights or "
+            "published figures, has a card (paper, architecture and parameters, recipe, budget "
+            "and device, training curve, its rows in every table, departures from the paper), "
+            "written by `zoo cards`.",
             "",
             *_table(
                 ["model", "representation", "trained", "weights shipped for", "what it is"], rows
