@@ -15,12 +15,13 @@ from zoo.models.spgsn import SPGSN
 from zoo.paths import REPO_ROOT
 
 CMU_ROOT = (REPO_ROOT / "../shared/data/cmu_mocap").resolve()
-SKELETON_MODELS = ["mlp", "spgsn", "spgsn_1body"]
+SKELETON_MODELS = ["mlp", "spgsn", "spgsn_1body", "auxformer"]
 # Small configurations for the tests that only need the wiring, not the paper's size.
 SMALL = {
     "mlp": {"blocks": 4},
     "spgsn": {"blocks": 2, "hidden": 16, "aggregation_dim": 8},
     "spgsn_1body": {"blocks": 2, "hidden": 16, "aggregation_dim": 8},
+    "auxformer": {"depth": 2, "width": 32, "mlp_dim": 32, "head_hidden": 32, "aux_head_hidden": 32},
 }
 CMU_PARTS = {"upper": list(range(10, 25)), "lower": list(range(10))}
 

@@ -14,6 +14,7 @@ REPO = Path(__file__).resolve().parents[1]
 SPEED = REPO / "benchmarks" / "speed"
 CMU_BVH = REPO.parent / "shared" / "data" / "cmu_bvh"
 SCRIPTS = [
+    "public_auxformer",
     "public_ggmotion",
     "public_msrgcn_training",
     "public_spgsn",
@@ -95,6 +96,11 @@ def test_speed_baselines(capsys):
     out = capsys.readouterr().out
     assert "ltd training step" in out and "pgbig training step" in out and "ratio" in out
     assert_finite(out, at_least=6)
+
+
+def test_public_auxformer_names_a_missing_checkout(tmp_path, capsys):
+    assert load("public_auxformer").main(["--public", str(tmp_path), "--repeats", "1"]) == 0
+    assert f"no public checkout at {tmp_path / 'AuxFormer'}" in capsys.readouterr().out
 
 
 def test_public_ggmotion_names_a_missing_checkout(tmp_path, capsys):

@@ -38,7 +38,7 @@ REPO = Path(__file__).resolve().parents[2]
 if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 
-QUEUE = ("spgsn", "ggmotion", "msrgcn", "spgsn_1body")
+QUEUE = ("spgsn", "ggmotion", "msrgcn", "spgsn_1body", "auxformer")
 PACKED_DATA = REPO / "cache" / "cmu_train.tar.xz"
 PART_BYTES = 15 * 2**20
 RETURN_FILES, RETURN_BYTES = 8, 64 * 2**20  # what the device tool brings back from $OUT
