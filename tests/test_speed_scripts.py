@@ -22,6 +22,7 @@ SCRIPTS = [
     "speed_anny",
     "speed_baselines",
     "speed_check",
+    "speed_compile",
     "speed_eval",
     "speed_identity",
     "speed_intervals",
@@ -96,6 +97,14 @@ def test_speed_baselines(capsys):
     out = capsys.readouterr().out
     assert "ltd training step" in out and "pgbig training step" in out and "ratio" in out
     assert_finite(out, at_least=6)
+
+
+def test_speed_compile_times_both_steps(capsys):
+    args = ["--model", "mlp", "--set", "blocks=2", "--batch", "4", "--repeats", "1"]
+    assert load("speed_compile").main([*args, "--backend", "eager"]) == 0
+    out = capsys.readouterr().out
+    assert "mlp training step, batch 4" in out and "compiled (eager)" in out
+    assert_finite(out, at_least=3)
 
 
 def test_public_auxformer_names_a_missing_checkout(tmp_path, capsys):

@@ -724,6 +724,57 @@ def test_a_cuda_graph_trains_as_the_eager_step_and_resumes_on_the_cpu(setup, tmp
     assert read_checkpoint(tmp_path / "cut_cpu" / "last.pt")["epoch"] == 2
 
 
+def _compiling_with(monkeypatch, backend):
+    """torch.compile, as the engine calls it, with ``backend`` (a name, or a callable)."""
+    compile_ = torch.compile
+    monkeypatch.setattr(torch, "compile", lambda module: compile_(module, backend=backend))
+
+
+def test_a_compiled_run_trains_as_the_eager_one_and_each_epoch_says_so(
+    setup, tmp_path, monkeypatch
+):
+    # dynamo's capture with the eager backend: the engine's compiled path, without the minutes
+    # inductor takes to generate code (test_inductor_compiles_a_training_step runs that)
+    _compiling_with(monkeypatch, "eager")
+    eager = run(setup, tmp_path / "eager", epochs=2)
+    compiled = run(setup, tmp_path / "compiled", epochs=2, compile=True)
+    for key, value in read_checkpoint(eager)["state_dict"].items():
+        torch.testing.assert_close(read_checkpoint(compiled)["state_dict"][key], value)
+    history = read_checkpoint(compiled)["history"]
+    assert [h.get("compiled") for h in history] == [True, True]
+    from zoo.hub.checkpoints import paused_summary
+
+    summary = paused_summary(read_checkpoint(compiled.parent / "last.pt"))
+    assert summary["resume"].endswith(" --compile") and summary["epochs"][0]["compiled"]
+    assert all("compiled" not in h for h in read_checkpoint(eager)["history"])
+
+
+def test_a_compiler_that_fails_is_said_once_and_the_run_goes_on_eagerly(
+    setup, tmp_path, monkeypatch, capsys
+):
+    from torch._dynamo.exc import BackendCompilerFailed
+
+    calls = []
+
+    def failing(graph, example_inputs):
+        calls.append(1)
+        raise BackendCompilerFailed(failing, RuntimeError("no C++ compiler found"))
+
+    _compiling_with(monkeypatch, failing)
+    eager = run(setup, tmp_path / "eager", epochs=2)
+    fallen = run(setup, tmp_path / "fallen", epochs=2, compile=True)
+    assert digest(fallen) == digest(eager) and len(calls) == 1
+    out = capsys.readouterr().out
+    assert out.count("torch.compile failed") == 1 and "training on eagerly" in out
+    assert all("compiled" not in h for h in read_checkpoint(fallen)["history"])
+
+
+@pytest.mark.slow
+def test_inductor_compiles_a_training_step(setup, tmp_path):
+    compiled = run(setup, tmp_path / "compiled", epochs=1, max_batches=2, compile=True)
+    assert read_checkpoint(compiled)["history"][0]["compiled"] is True
+
+
 WRONG_SHAPE = """\
 models:
   wrong_shape:

@@ -360,6 +360,7 @@ def paused_summary(last: dict[str, Any], run: str | None = None) -> dict[str, An
                 "seconds": round(h["seconds"], 1),
                 "precision": h.get("precision", recipe.get("precision", "float32")),
                 "device": h.get("device"),
+                **({"compiled": True} if h.get("compiled") else {}),
             }
             for h in history
         ],
@@ -374,6 +375,7 @@ def paused_summary(last: dict[str, Any], run: str | None = None) -> dict[str, An
             else ""
         )
         + (f" --max-batches {last['max_batches']}" if last.get("max_batches") else "")
+        + (" --compile" if history and history[-1].get("compiled") else "")
         + (f" --out checkpoints/{last['protocol']['benchmark']}/{run}" if run else ""),
         **({"run": run} if run else {}),
     }

@@ -413,6 +413,9 @@ class _Epochs:
             if dist_info.active
             else objective
         )
+        self.eager_net = self.net
+        if options.compile:
+            self.net = torch.compile(self.net)
         batch_size = recipe.batch_size
         if batch_size % dist_info.world:
             raise TrainingError(
@@ -453,6 +456,7 @@ class _Epochs:
             "samples": seen,
             "device": device_name(self.device),  # a resumed run may move between machines
             "precision": self.recipe.precision,
+            **({"compiled": True} if self.net is not self.eager_net else {}),
         }
 
     def frames(self):
@@ -538,9 +542,7 @@ class _Epochs:
             if step_graph is not None:
                 loss = step_graph(history, future, where)
             else:
-                loss = training_step(
-                    self.net, model, self.optimizer, history, future, recipe, self.device, where
-                )
+                loss = self.step(history, future, where)
             seen += len(rows) * world
             loss_sum += loss.item()
             bar.update(1)
@@ -550,6 +552,22 @@ class _Epochs:
             )
         bar.close()
         return lr, loss_sum / self.steps, started, seen
+
+    def step(self, history: torch.Tensor, future: torch.Tensor, where: str) -> torch.Tensor:
+        """One optimizer step; a compiler that fails (before any gradient is taken) is said
+        once, and the run goes on eagerly."""
+        args = (self.model, self.optimizer, history, future, self.recipe, self.device, where)
+        try:
+            return training_step(self.net, *args)
+        except Exception as e:
+            from torch._dynamo.exc import TorchDynamoException  # loaded once compiling ran
+
+            if self.net is self.eager_net or not isinstance(e, TorchDynamoException):
+                raise
+            reason = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+            print(f"{self.model_name}: torch.compile failed ({reason}); training on eagerly")
+            self.net = self.eager_net
+            return training_step(self.net, *args)
 
 
 def _finish_epoch(out_dir, record, model, optimizer, epoch, run: _Run, recipe, device, line):

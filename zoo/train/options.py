@@ -19,7 +19,9 @@ class RunOptions:
     and protocol to start from, with a fresh optimiser and schedule (a further stage, recorded
     with the source's budget). ``max_batches``: cap the batches of an epoch. ``cuda_graph``: on
     one CUDA device (one process), capture each epoch's step once as a CUDA graph and replay it
-    (:class:`zoo.train.step.CudaGraphStep`). ``stop_by`` (a ``time.time()``): the run ends by
+    (:class:`zoo.train.step.CudaGraphStep`). ``compile``: run the training loss through
+    ``torch.compile`` (the same model and recipe, float32 rounded as another CPU would; eager
+    again, said once, where the compiler fails). ``stop_by`` (a ``time.time()``): the run ends by
     then, its last finished epoch on disk: an epoch that the longest so far says cannot finish
     in time is not begun, one that runs past it is abandoned (a lent machine's time limit).
     ``stop_after_epoch``: end the run after that epoch as if interrupted (tests of ``resume``)."""
@@ -33,6 +35,7 @@ class RunOptions:
     max_batches: int | None = None
     progress: bool = True
     cuda_graph: bool = False
+    compile: bool = False
     stop_by: float | None = None
     stop_after_epoch: int | None = None
 
