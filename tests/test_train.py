@@ -725,9 +725,10 @@ def test_a_cuda_graph_trains_as_the_eager_step_and_resumes_on_the_cpu(setup, tmp
 
 
 def _compiling_with(monkeypatch, backend):
-    """torch.compile, as the engine calls it, with ``backend`` (a name, or a callable)."""
+    """torch.compile, as the engine calls it, with ``backend`` (a name, or a callable) in place
+    of inductor (whose options it then drops)."""
     compile_ = torch.compile
-    monkeypatch.setattr(torch, "compile", lambda module: compile_(module, backend=backend))
+    monkeypatch.setattr(torch, "compile", lambda module, **_: compile_(module, backend=backend))
 
 
 def test_a_compiled_run_trains_as_the_eager_one_and_each_epoch_says_so(
@@ -752,13 +753,11 @@ def test_a_compiled_run_trains_as_the_eager_one_and_each_epoch_says_so(
 def test_a_compiler_that_fails_is_said_once_and_the_run_goes_on_eagerly(
     setup, tmp_path, monkeypatch, capsys
 ):
-    from torch._dynamo.exc import BackendCompilerFailed
-
     calls = []
 
-    def failing(graph, example_inputs):
+    def failing(graph, example_inputs):  # dynamo reports it as BackendCompilerFailed
         calls.append(1)
-        raise BackendCompilerFailed(failing, RuntimeError("no C++ compiler found"))
+        raise RuntimeError("no C++ compiler found")
 
     _compiling_with(monkeypatch, failing)
     eager = run(setup, tmp_path / "eager", epochs=2)
@@ -767,6 +766,27 @@ def test_a_compiler_that_fails_is_said_once_and_the_run_goes_on_eagerly(
     out = capsys.readouterr().out
     assert out.count("torch.compile failed") == 1 and "training on eagerly" in out
     assert all("compiled" not in h for h in read_checkpoint(fallen)["history"])
+
+
+def test_a_backward_the_compiler_fails_on_is_taken_again_eagerly(
+    setup, tmp_path, monkeypatch, capsys
+):
+    from torch._dynamo.backends.common import aot_autograd
+    from torch._inductor.exc import InductorError
+
+    def failing(graph, example_inputs):  # as inductor reports its own failures
+        raise InductorError(RuntimeError("backward: out of registers"), None)
+
+    _compiling_with(monkeypatch, aot_autograd(fw_compiler=lambda g, _: g, bw_compiler=failing))
+    eager = run(setup, tmp_path / "eager", epochs=1)
+    fallen = run(setup, tmp_path / "fallen", epochs=1, compile=True)
+    assert digest(fallen) == digest(eager)
+    assert capsys.readouterr().out.count("torch.compile failed") == 1
+
+
+def test_compile_and_a_cuda_graph_are_refused_together():
+    with pytest.raises(TrainingError, match="--compile or --cuda-graph, not both"):
+        RunOptions(compile=True, cuda_graph=True)
 
 
 @pytest.mark.slow

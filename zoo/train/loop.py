@@ -413,9 +413,17 @@ class _Epochs:
             if dist_info.active
             else objective
         )
-        self.eager_net = self.net
+        self.eager_net, self.compile_proven = self.net, False
         if options.compile:
-            self.net = torch.compile(self.net)
+            if dist_info.active:
+                raise TrainingError(
+                    "--compile trains in one process: a data-parallel run trains eagerly "
+                    "(each process could fall back on its own)",
+                    parameter="compile",
+                )
+            # fallback_random: the compiled step draws eager's random numbers (dropout,
+            # AuxFormer's masks), so compiling changes float32 rounding and nothing else
+            self.net = torch.compile(self.net, options={"fallback_random": True})
         batch_size = recipe.batch_size
         if batch_size % dist_info.world:
             raise TrainingError(
@@ -554,20 +562,31 @@ class _Epochs:
         return lr, loss_sum / self.steps, started, seen
 
     def step(self, history: torch.Tensor, future: torch.Tensor, where: str) -> torch.Tensor:
-        """One optimizer step; a compiler that fails (before any gradient is taken) is said
-        once, and the run goes on eagerly."""
+        """One optimizer step. A compiler that fails (compiling the forward, or the backward
+        at its first call) is said once, and the step is taken again eagerly from the random
+        state it began with: no parameter has moved, so the run is the eager one (a BatchNorm's
+        running statistics may have taken that batch twice)."""
         args = (self.model, self.optimizer, history, future, self.recipe, self.device, where)
-        try:
+        if self.net is self.eager_net or self.compile_proven:
             return training_step(self.net, *args)
+        cuda = torch.device(self.device).type == "cuda"
+        rng = torch.get_rng_state(), (torch.cuda.get_rng_state(self.device) if cuda else None)
+        try:
+            loss = training_step(self.net, *args)
         except Exception as e:
             from torch._dynamo.exc import TorchDynamoException  # loaded once compiling ran
 
-            if self.net is self.eager_net or not isinstance(e, TorchDynamoException):
+            if not isinstance(e, TorchDynamoException):
                 raise
             reason = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
             print(f"{self.model_name}: torch.compile failed ({reason}); training on eagerly")
+            torch.set_rng_state(rng[0])
+            if cuda:
+                torch.cuda.set_rng_state(rng[1], self.device)
             self.net = self.eager_net
             return training_step(self.net, *args)
+        self.compile_proven = True
+        return loss
 
 
 def _finish_epoch(out_dir, record, model, optimizer, epoch, run: _Run, recipe, device, line):

@@ -51,6 +51,12 @@ class RunOptions:
                 f"max_batches: must be a positive integer, got {batches!r}",
                 parameter="max_batches",
             )
+        if self.compile and self.cuda_graph:
+            raise TrainingError(
+                "compile: give --compile or --cuda-graph, not both (a CUDA graph replays the "
+                "eager step)",
+                parameter="compile",
+            )
         if self.init_from is not None and self.resume:
             raise TrainingError(
                 "init_from: give init_from (a new stage from other weights) or resume (this "
