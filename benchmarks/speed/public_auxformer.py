@@ -11,9 +11,9 @@ the same by design). Both get one batch of 16 windows in the code's units (mm / 
   tokens, the noise deviation, the Gaussian and the noised share) recorded as it makes them and
   given to the zoo's ``corrupted_loss``; then every parameter's gradient;
 - one training step of each (forward with the zoo's or the code's own draws, loss, backward,
-  Adam), timed in turn so that they share the machine's load.
+  Adam), timed in turn, each first every other pair, so that they share the machine's load.
 
-Run: python benchmarks/speed/public_auxformer.py [--public DIR] [--repeats 5]
+Run: python benchmarks/speed/public_auxformer.py [--public DIR] [--repeats 5] [--threads 1]
 """
 
 from __future__ import annotations
@@ -110,11 +110,13 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--public", type=Path, default=REPO_ROOT.parent / "public")
     parser.add_argument("--repeats", type=int, default=5, help="timed steps (median)")
+    parser.add_argument("--threads", type=int, default=1)
     args = parser.parse_args(argv)
     folder = args.public / "AuxFormer"
     if not folder.is_dir():
         print(f"auxformer: no public checkout at {folder} (see speed_public_cmu.py); skipped")
         return 0
+    torch.set_num_threads(args.threads)
     cuda = torch.Tensor.cuda
     torch.Tensor.cuda = lambda self, *a, **k: self  # the public forward moves indices .cuda()
     try:
@@ -156,24 +158,28 @@ def main(argv=None) -> int:
         largest = max(p.grad.abs().max().item() for p in theirs.parameters())
         print(
             f"  training loss, the public draws replayed: {public_loss.item():.7f} public, "
-            f"{zoo_loss.item():.7f} zoo"
+            f"{zoo_loss.item():.7f} zoo, difference {abs(public_loss - zoo_loss).item():.3g}"
         )
         print(f"  gradients: largest difference {grad:.3g} (largest gradient {largest:.3g})")
-        times = {}
-        for name, model in (("public", theirs), ("zoo", ours)):
-            optimizer = torch.optim.Adam(model.parameters(), lr=5e-4, weight_decay=5e-6)
-            runs = []
-            for _ in range(args.repeats + 1):
+        losses = {
+            "public": lambda: code_loss(theirs, past, future, config)[0],
+            "zoo": lambda: ours.corrupted_loss(trajectory, ours.draw_corruption(trajectory)),
+        }
+        optimizers = {
+            name: torch.optim.Adam(model.parameters(), lr=5e-4, weight_decay=5e-6)
+            for name, model in (("public", theirs), ("zoo", ours))
+        }
+        runs = {name: [] for name in losses}
+        for repeat in range(args.repeats + 1):  # the two in turn; the first pair warms up
+            # each goes first every other pair, so neither always follows the other's work
+            for name in ("public", "zoo") if repeat % 2 else ("zoo", "public"):
+                loss = losses[name]
                 started = time.perf_counter()
-                optimizer.zero_grad()
-                if name == "public":
-                    loss = code_loss(model, past, future, config)[0]
-                else:
-                    loss = model.corrupted_loss(trajectory, model.draw_corruption(trajectory))
-                loss.backward()
-                optimizer.step()
-                runs.append(time.perf_counter() - started)
-            times[name] = statistics.median(runs[1:])
+                optimizers[name].zero_grad()
+                loss().backward()
+                optimizers[name].step()
+                runs[name].append(time.perf_counter() - started)
+        times = {name: statistics.median(values[1:]) for name, values in runs.items()}
         print(
             f"  training step, batch {BATCH}, {torch.get_num_threads()} thread(s): public "
             f"{times['public'] * 1e3:.0f} ms, zoo {times['zoo'] * 1e3:.0f} ms "

@@ -49,7 +49,8 @@ class Attention(nn.Module):
 
     def forward(self, x: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:
         b, n, _ = x.shape
-        q, k, v = self.to_qkv(x).view(b, n, 3, self.heads, -1).permute(2, 0, 3, 1, 4)
+        qkv = self.to_qkv(x).view(b, n, 3, self.heads, -1).permute(2, 0, 3, 1, 4)
+        q, k, v = qkv.contiguous()  # the products below run faster on contiguous heads
         attention = torch.softmax(q @ k.transpose(-1, -2) * self.scale, dim=-1)
         if mask is not None:
             attention = attention * mask[:, None]
@@ -304,23 +305,22 @@ class AuxFormer(nn.Module):
         """The code's training loss for tokens ``trajectory`` (observed and true predicted
         frames, its units) under ``corruption``: each block head's mean prediction error over
         ``depth``, the masked tokens' mean error (the predicted frames count as masked), and the
-        observed tokens' mean error after denoising. The three passes run as one batch."""
-        b, n, t, _ = trajectory.shape
+        observed tokens' mean error after denoising."""
         observed = self.observed_mask(trajectory)
         masked = torch.cat([corruption.visible, observed[:, :, self.input_frames :]], dim=2)
-        tokens = torch.cat([trajectory, trajectory, trajectory + corruption.noise])
-        out = self.encode(tokens, torch.cat([observed, masked, observed]))
         start = trajectory[:, :, self.input_frames - 1 : self.input_frames]
         target = trajectory[:, :, self.input_frames :]
+        blocks = self.encode(trajectory, observed)
         loss = 0
-        for head, decoded in zip(self.head, out):
-            prediction = head(decoded[:b, :, self.input_frames :]) + start
-            loss = loss + torch.linalg.vector_norm(prediction - target, dim=-1).mean() / len(out)
+        for head, decoded in zip(self.head, blocks):
+            prediction = head(decoded[:, :, self.input_frames :]) + start
+            loss = loss + torch.linalg.vector_norm(prediction - target, dim=-1).mean() / len(blocks)
         hidden = (1 - masked)[..., None]
-        recovered = (self.aux_head(out[-1][b : 2 * b]) + start) * hidden
+        recovered = (self.aux_head(self.encode(trajectory, masked)[-1]) + start) * hidden
         error = torch.linalg.vector_norm(recovered - trajectory * hidden, dim=-1)
         loss = loss + error.sum() / hidden.sum()
-        denoised = self.aux_head_2(out[-1][2 * b :, :, : self.input_frames]) + start
+        noisy = self.encode(trajectory + corruption.noise, observed)[-1]
+        denoised = self.aux_head_2(noisy[:, :, : self.input_frames]) + start
         past = trajectory[:, :, : self.input_frames]
         return loss + torch.linalg.vector_norm(denoised - past, dim=-1).mean()
 
