@@ -245,9 +245,9 @@ def build_site(
     env = _environment()
     build = SiteBuild(Path(out))
     model_pages = {m.page for m in models}
-    # registry order, as the leaderboards' PNG plots colour them (zoo.report.outputs.model_style)
-    known = registry.list_models()
-    model_names = known + sorted(_row_models(benchmarks) - set(known))
+    # registry order, as the leaderboards' PNG plots colour them (zoo.report.outputs.model_style);
+    # a row's model outside the registry takes its colour from its letters, there and here
+    model_names = registry.list_models()
     common = {
         "version": __version__,
         "benchmarks": benchmarks,
@@ -265,7 +265,7 @@ def build_site(
     )
     # what every model must beat: the registered models that learn nothing
     baselines = [
-        n for n in known if not registry.get(n).trainable and not registry.get(n).weights_of
+        n for n in model_names if not registry.get(n).trainable and not registry.get(n).weights_of
     ]
     for bench in benchmarks:
         notes = {label: note for (b, label), note in budgets.items() if b == bench.name}
@@ -386,16 +386,6 @@ def _model_page(render, model, card: str, benchmarks, model_names) -> str:
         rows=_model_rows(model.name, benchmarks),
         data={"curves": {k: v for k, v in curves.items() if v}, "models": model_names},
     )
-
-
-def _row_models(benchmarks: list[Benchmark]) -> set[str]:
-    """Every row's model (without ``@last``), so each gets one colour site-wide."""
-    names = set()
-    for bench in benchmarks:
-        for table in bench.tables:
-            for view in (table.summary or {}).get("views") or []:
-                names |= {_base(m["model"]) for m in view["models"] if m["model"] != "ground_truth"}
-    return names
 
 
 def _model_rows(name: str, benchmarks: list[Benchmark]) -> list[dict[str, Any]]:
