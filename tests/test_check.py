@@ -381,3 +381,17 @@ def test_check_names_an_edited_recording(board, capsys):
     assert main(["leaderboard", "--check", "--seed", "3", *_common(board)]) == 1
     out = capsys.readouterr().out
     assert "cmu/all: repeat_last: recorded identity differs: protocol_id: stored" in out
+
+
+def test_a_checkpoint_of_a_training_here_that_is_no_row_is_not_checked(board, capsys):
+    # a model still training: its checkpoint is here, its rows are in no committed table (the
+    # tables rebuilt without its rows and without its checkpoint)
+    common = _common(board)
+    elsewhere = common.index("--checkpoints") + 1
+    common[elsewhere] = str(board / "no_checkpoints")
+    assert main(["leaderboard", "--benchmark", "cmu", "--drop", "tiny", *common]) == 0
+    assert main(["leaderboard", "--check", "--seed", "3", *_common(board)]) == 0
+    captured = capsys.readouterr()
+    checkpoint = board / "checkpoints" / "cmu" / "tiny" / "best.pt"
+    assert f"cmu/ltd8: tiny: not checked (from {checkpoint}, not in the table)" in captured.err
+    assert "checked 2 leaderboard rows (1 models: repeat_last)" in captured.out

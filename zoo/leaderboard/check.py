@@ -4,6 +4,7 @@ windows and compared with its table (the verdict: :mod:`.verdict`); nothing is w
 
 from __future__ import annotations
 
+import sys
 import time
 from pathlib import Path
 
@@ -58,6 +59,9 @@ class Check(Leaderboard):
         check, where = self.plan.check, table.where
         failed = set()
         for r in table.rows:
+            if r.action == "skip":
+                print(f"{where}: {r.row.label}: not checked (from {r.why})", file=sys.stderr)
+                continue
             check.tables[where].rows.append(r.row.label)
             if r.action == "failed":
                 check.problem(f"{where}: {r.row.label}: not recomputed: {r.error}")
@@ -89,4 +93,5 @@ class Check(Leaderboard):
             check_table(
                 fresh, table.path, check, unplanned=unplanned, rows=table.sample, margins=margins
             )
-        return True if fresh or table.foreign or table.rows else None
+        checked = [r for r in table.rows if r.action != "skip"]
+        return True if fresh or table.foreign or checked else None

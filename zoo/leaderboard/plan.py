@@ -346,6 +346,9 @@ class Leaderboard:
     def _row_plan(self, row: Row, old: Path | None, protocol) -> RowPlan:
         plan = self.plan
         if plan.check is not None:  # every row recomputed; one that cannot load is reported
+            if old is None and row.source.checkpoint is not None:
+                # a training under way here, not a row of the table: nothing to check
+                return RowPlan(row, "skip", why=f"{row.source.checkpoint}, not in the table")
             try:
                 loaded = self.load(row)
                 return RowPlan(
