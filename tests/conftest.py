@@ -181,3 +181,16 @@ def _each_plot_drawn_once(monkeypatch):
             tmp.write_bytes(data)
 
     monkeypatch.setattr(outputs, "save_figure", save_figure)
+
+
+def use_toy_loader(monkeypatch, loader: Callable) -> None:
+    """Benchmark files whose loader is ``toy.py:...`` load ``loader``: a test's own data, built
+    in the test, with no file of its own; every other benchmark loads as it does."""
+    from zoo.protocol.benchmark import Benchmark
+
+    own = Benchmark.loader_function
+    monkeypatch.setattr(
+        Benchmark,
+        "loader_function",
+        lambda self: loader if self.loader.startswith("toy.py:") else own(self),
+    )

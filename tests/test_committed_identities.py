@@ -25,7 +25,7 @@ def test_committed_rows_carry_the_current_code_fingerprints():
         bench = path.parts[-4]
         code, model = identity["code"], identity["model"]
         if bench not in evaluators:
-            evaluators[bench] = evaluation_code(None, get_benchmark(bench).dataset)["evaluator"]
+            evaluators[bench] = evaluation_code(None, get_benchmark(bench))["evaluator"]
         if code["evaluator"] != evaluators[bench]:
             stale.append(f"{path}: evaluator {code['evaluator']}, now {evaluators[bench]}")
         name = model["name"]

@@ -38,7 +38,7 @@ def probe(results: str | Path) -> dict:
         identity = json.loads(path.read_text())["provenance"]["identity"]
         bench, model, code = path.parts[-4], identity["model"], identity["code"]
         if bench not in evaluators:
-            evaluators[bench] = evaluation_code(None, get_benchmark(bench).dataset)["evaluator"]
+            evaluators[bench] = evaluation_code(None, get_benchmark(bench))["evaluator"]
         if code["evaluator"] != evaluators[bench]:
             stale.append(f"{path}: evaluator {code['evaluator']}, now {evaluators[bench]}")
         entry = registry.entries.get(model["name"])

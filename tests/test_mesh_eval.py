@@ -9,6 +9,7 @@ import pytest
 import scipy.sparse as sp
 import torch
 import yaml
+from conftest import use_toy_loader
 
 import zoo
 from zoo import create_model
@@ -17,7 +18,6 @@ from zoo.data.spectral import SpectralBasis, SpectralError
 from zoo.evaluation.evaluator import EvaluationError
 from zoo.evaluation.markdown import markdown_tables
 from zoo.models.repeat_last import RepeatLast
-from zoo.protocol import benchmark as benchmark_module
 from zoo.protocol.benchmark import BenchmarkError, get_benchmark
 from zoo.protocol.metrics import melv, mpjpe, vertex_rmse
 
@@ -107,13 +107,14 @@ def toy_dataset() -> MeshDataset:
 def toy_bench(tmp_path, monkeypatch):
     """A mesh benchmark on the toy dataset: 2 frames in, 3 out, one window per sequence."""
     monkeypatch.setenv("ZOO_CACHE_DIR", str(tmp_path / "cache"))
-    monkeypatch.setitem(benchmark_module.MESH_DATASETS, "toy", lambda root, split: toy_dataset())
+    use_toy_loader(monkeypatch, lambda root, split: toy_dataset())
 
     def write(**fields):
         spec = {
             "name": "toy",
             "representation": "mesh",
             "dataset": "toy",
+            "loader": "toy.py:toy_dataset",
             "split": "test",
             "input_frames": 2,
             "output_frames": 3,
@@ -245,8 +246,10 @@ def test_mesh_benchmark_files_are_checked(toy_bench, tmp_path):
         toy_bench(spectral_k=2, ground_truth="spectral", ground_truths=["raw"])
     with pytest.raises(BenchmarkError, match="ground truth 'smooth' is not one of raw, spectral"):
         toy_bench(ground_truth="smooth")
-    with pytest.raises(BenchmarkError, match="unknown mesh dataset 'nope'"):
-        toy_bench(dataset="nope")
+    with pytest.raises(BenchmarkError, match="field 'loader': expected package.module:function"):
+        toy_bench(loader="nope")
+    with pytest.raises(BenchmarkError, match="field 'skeleton' belongs to joints benchmarks"):
+        toy_bench(skeleton="zoo.data.skeleton:CMU")
     with pytest.raises(BenchmarkError, match="spectral_k belong to mesh benchmarks"):
         toy_bench(representation="joints", dataset="cmu_mocap", spectral_k=8)
     cloth = get_benchmark("cloth")

@@ -238,12 +238,13 @@ def test_trained_checkpoint_evaluates_and_refuses_mismatches(setup, tmp_path, ca
     # another protocol
     other = tmp_path / "cmu_short.yaml"
     text = (Path(__file__).resolve().parents[1] / "benchmarks" / "cmu.yaml").read_text()
+    text = text.replace("data_root: ../../shared/data/cmu_mocap", f"data_root: {root}")
     other.write_text(text.replace("output_frames: 25", "output_frames: 10"))
     with pytest.raises(CheckpointError, match=r"output_frames \(checkpoint 25, benchmark 10\)"):
         load_checkpoint(best, registry=registry, benchmark=other)
     # another skeleton
     h36m = tmp_path / "h36m.yaml"
-    h36m.write_text(text.replace("dataset: cmu_mocap", "dataset: h36m"))
+    h36m.write_text(text.replace("skeleton:CMU", "skeleton:H36M"))
     with pytest.raises(CheckpointError, match=r"skeleton \(checkpoint 'cmu38', benchmark 'h36m32'"):
         load_checkpoint(best, registry=registry, benchmark=h36m)
     # corrupted file

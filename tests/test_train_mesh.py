@@ -9,6 +9,7 @@ import numpy as np
 import pandas as pd
 import pytest
 import torch
+from conftest import use_toy_loader
 from tiny_models import MESH_REGISTRY
 
 import zoo
@@ -52,11 +53,7 @@ def waving(topology, split, count=8, frames=12):
 @pytest.fixture
 def toy_mesh(tmp_path, monkeypatch):
     sizes = {"n": 4}
-    monkeypatch.setitem(
-        benchmark_module.MESH_DATASETS,
-        "toy_mesh",
-        lambda root, split: waving(grid(sizes["n"]), split),
-    )
+    use_toy_loader(monkeypatch, lambda root, split: waving(grid(sizes["n"]), split))
     monkeypatch.setenv("ZOO_CACHE_DIR", str(tmp_path / "cache"))
     bench = tmp_path / "toy.yaml"
     bench.write_text(
@@ -64,6 +61,7 @@ def toy_mesh(tmp_path, monkeypatch):
         name: toy
         representation: mesh
         dataset: toy_mesh
+        loader: toy.py:waving
         split: test
         input_frames: 4
         output_frames: 4
@@ -113,7 +111,7 @@ def test_skeleton_model_trains_on_a_mesh_benchmarks_regressed_joints(
         data.joint_regressor, data.joint_names = sp.csr_matrix(regressor), ["a", "b", "c"]
         return data
 
-    monkeypatch.setitem(benchmark_module.MESH_DATASETS, "toy_mesh", with_joints)
+    use_toy_loader(monkeypatch, with_joints)
     best = train(
         "mlp",
         bench,
@@ -160,11 +158,7 @@ def test_start_epoch_gets_every_training_frame_once_with_its_window_count(
     from zoo.train.split import split_train_val, usable_windows
 
     bench, registry, _ = toy_mesh
-    monkeypatch.setitem(
-        benchmark_module.MESH_DATASETS,
-        "toy_mesh",
-        lambda root, split: waving(grid(4), split, frames=30),
-    )
+    use_toy_loader(monkeypatch, lambda root, split: waving(grid(4), split, frames=30))
     seen = []
     model_class = registry.get("tiny_spectral").load_class()
     monkeypatch.setattr(

@@ -61,10 +61,10 @@ def _forget_all() -> None:
 
 
 def measure(benchmark: str, repeats: int) -> dict:
-    dataset = get_benchmark(benchmark).dataset
+    bench = get_benchmark(benchmark)
 
     def fingerprint_of() -> str:
-        return evaluation_code(None, dataset)["evaluator"]
+        return evaluation_code(None, bench)["evaluator"]
 
     def cold() -> str:
         _forget_all()

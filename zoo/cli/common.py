@@ -37,11 +37,12 @@ def in_flags(error: ZooError) -> str:
 
 def checked_sampler(name: str, bench=None) -> str:
     """``--sampler``'s value, refused in one line before any data is read; an unknown one lists
-    the samplers that apply to ``bench`` (rand256 only to Human3.6M's two sub-actions)."""
+    the samplers that apply to ``bench`` (rand256, drawn from Human3.6M's two sub-actions, only
+    where the benchmark offers it)."""
     from zoo.data.windows import SamplerError, check_sampler
 
     general = "allK, strideK, strideK_strict (K a positive integer, e.g. stride5, all50)"
-    h36m = bench is None or bench.dataset == "h36m"
+    h36m = bench is None or "rand256" in bench.samplers
     try:
         check_sampler(name)
     except SamplerError:

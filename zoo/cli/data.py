@@ -151,7 +151,7 @@ def _data_basis(bench, args) -> int:
 
     if bench.spectral_k is None:
         raise UsageError(f"benchmark {bench.name} has no spectral basis (no spectral_k)")
-    topology = bench.load_mesh(args.data_root).topology
+    topology = bench.load(args.data_root).topology
     path = reference_path(topology, bench.spectral_k)
     if not args.ship and not path.is_file():
         raise UsageError(
@@ -180,15 +180,13 @@ def _data_regressor(bench, args) -> int:
     import time
 
     from zoo.data import anny
-    from zoo.protocol.benchmark import MESH_DATASETS
 
-    loader, options = MESH_DATASETS.get(bench.dataset, (None, {}))
-    if not str(loader).endswith(":cmu_anny_dataset"):
+    if bench.loader_function() is not anny.cmu_anny_dataset:
         raise UsageError(
             f"benchmark {bench.name} has no fitted joint regressor (only the CMU-on-Anny "
             f"benchmarks fit one)"
         )
-    topology = options["topology"]
+    topology = bench.loader_options["topology"]
     root = args.data_root or bench.resolve_data_root()
     if root is None:
         raise UsageError(f"{bench.name}: give --data-root (the CMU BVH folder)")
@@ -229,13 +227,14 @@ def _data_regressor(bench, args) -> int:
 
 def _skipped_data(data_root) -> list[str]:
     """Files and folders in the CMU data roots that the loader passes over (each once)."""
-    from zoo.data.motion import CMU_ACTIONS, cmu_skipped
+    from zoo.data.motion import CMU_ACTIONS, cmu_skipped, load_cmu
     from zoo.protocol.benchmark import get_benchmark, list_benchmarks
 
     lines = []
     for name in list_benchmarks():
         bench = get_benchmark(name)
-        root = bench.resolve_data_root(data_root) if bench.dataset == "cmu_mocap" else None
+        cmu = bench.loader_function() is load_cmu
+        root = bench.resolve_data_root(data_root) if cmu else None
         if root is None or not root.is_dir():
             continue
         for split in dict.fromkeys((bench.split, bench.train_split)):

@@ -454,7 +454,7 @@ def load_cloth(
 
 
 def cloth_dataset(root: str | Path | None, split: str) -> MeshDataset:
-    """The benchmark loader (``zoo.protocol.benchmark.MESH_DATASETS``): the default recipe's
+    """A benchmark loader (field ``loader`` of ``benchmarks/*.yaml``): the default recipe's
     ``split``,
     cached under ``root`` (default ``<cache root>/datasets``), generated with a progress bar the
     first time."""

@@ -230,8 +230,6 @@ H36M = Skeleton(
     parts={"upper": tuple(range(10, 22)), "lower": tuple(range(0, 10))},
 )
 
-SKELETONS = {s.name: s for s in (CMU, H36M)}
-
 
 def rodrigues(rotvec: torch.Tensor, exact: bool = False) -> torch.Tensor:
     """Rotation matrices ``(..., 3, 3)`` from exponential maps / axis-angle vectors ``(..., 3)``.

@@ -244,7 +244,7 @@ class LoadedModel:
             label=self.label,
             model=self.model_identity(),
             trained=self.trained,
-            code=evaluation_code(type(self.model), bench.dataset),
+            code=evaluation_code(type(self.model), bench),
         )
 
     def warn_if_untrained(self) -> None:
@@ -285,5 +285,5 @@ def object_identity(model: nn.Module, label: str, bench, protocol_id: str) -> di
             "hparams": {"repr": repr(model), "attributes": settings},
         },
         trained={"kind": "object", "sha256": weights_digest(model)},
-        code=evaluation_code(cls, bench.dataset),
+        code=evaluation_code(cls, bench),
     )

@@ -12,8 +12,6 @@ from __future__ import annotations
 import copy
 import dataclasses
 import functools
-import importlib
-import importlib.util
 import inspect
 import os
 import re
@@ -25,6 +23,7 @@ from typing import Any
 
 import yaml
 
+from zoo.core.definitions import DefinitionError, load_definition
 from zoo.core.errors import TrainingError, ZooError
 from zoo.core.files_read import recording_files_read
 from zoo.core.io import load_yaml, yaml_problem
@@ -134,93 +133,15 @@ class ModelEntry:
         return sorted(set(self.hparams) | set(SHAPE_ARGS) | set(self.context))
 
     def load_class(self) -> type:
-        path = self.class_path
         try:
-            if ":" in path:
-                file_part, cls_name = path.rsplit(":", 1)
-                file = (self.source.parent / file_part).resolve()
-                if not file.is_file():
-                    raise RegistryError(
-                        f"{self.source}: model {self.name!r}: class file {file} does not exist"
-                    )
-                module_name = f"zoo_user_{abs(hash(str(file)))}"
-                module = sys.modules.get(module_name)
-                if module is None:
-                    # as Python runs a script: the files beside it import by their names
-                    _check_siblings(file, self.source, self.name)
-                    if str(file.parent) not in sys.path:
-                        sys.path.insert(0, str(file.parent))
-                    spec = importlib.util.spec_from_file_location(module_name, file)
-                    module = importlib.util.module_from_spec(spec)
-                    sys.modules[module_name] = module
-                    try:
-                        spec.loader.exec_module(module)
-                    except BaseException:
-                        del sys.modules[module_name]  # a half-run file is not loaded
-                        raise
-            else:
-                file = None
-                module_name, cls_name = path.rsplit(".", 1)
-                module = importlib.import_module(module_name)
-            if not hasattr(module, cls_name):
-                where = file if file is not None else f"module {module_name}"
-                defined = sorted(
-                    name
-                    for name, value in vars(module).items()
-                    if isinstance(value, type) and value.__module__ == module.__name__
-                )
-                raise RegistryError(
-                    f"{self.source}: model {self.name!r}: {where} defines no class "
-                    f"{cls_name!r}; it defines {', '.join(defined) or 'no class'}"
-                )
-            return getattr(module, cls_name)
-        except SyntaxError as e:  # the file's own line, not a traceback through the loader
-            raise RegistryError(
-                f"{self.source}: model {self.name!r}: cannot load class {path!r}: {e.filename}, "
-                f"line {e.lineno}: {e.msg}"
-            ) from e
-        except (ImportError, AttributeError, ValueError) as e:
-            raise RegistryError(
-                f"{self.source}: model {self.name!r}: cannot load class {path!r} ({e})"
-            ) from e
+            return load_definition(self.class_path, self.source.parent, "class")
+        except DefinitionError as e:
+            raise RegistryError(f"{self.source}: model {self.name!r}: {e}") from e
 
 
 def class_name(class_path: str) -> str:
     """``SPGSN`` of ``zoo.models.spgsn.SPGSN`` or ``wrapper.py:Wrapper``."""
     return re.split(r"[.:]", class_path)[-1]
-
-
-def _check_siblings(file: Path, source: Path, model: str) -> None:
-    """Refuse a class file that imports a module of its folder that Python would not import
-    from there: one of that name is loaded already from elsewhere (another registry's folder, or an
-    installed package), so the class would run other code than its folder's, which its row's
-    identity covers."""
-    import ast
-
-    try:
-        tree = ast.parse(file.read_text())
-    except (OSError, SyntaxError, ValueError):
-        return  # running the file says what is wrong with it
-    imported = {
-        a.name.split(".")[0] for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names
-    }
-    imported |= {
-        n.module.split(".")[0]
-        for n in ast.walk(tree)
-        if isinstance(n, ast.ImportFrom) and n.module and not n.level
-    }
-    siblings = [p for p in file.parent.glob("*.py") if p != file and p.stem in imported]
-    siblings += [p.parent for p in file.parent.glob("*/__init__.py") if p.parent.name in imported]
-    for sibling in siblings:
-        loaded = sys.modules.get(sibling.stem if sibling.suffix == ".py" else sibling.name)
-        origin = getattr(loaded, "__file__", None)
-        expected = sibling if sibling.suffix == ".py" else sibling / "__init__.py"
-        if origin and Path(origin).resolve() != expected.resolve():
-            raise RegistryError(
-                f"{source}: model {model!r}: {expected} would not be what its class file "
-                f"imports: a module {loaded.__name__!r} is loaded already from {origin}; "
-                f"rename one of them"
-            )
 
 
 def _registry_file_data(path: Path) -> Any:

@@ -1,37 +1,41 @@
-"""Benchmarks: a protocol described as data in ``benchmarks/<name>.yaml``.
+"""Benchmarks: a protocol described as data in ``benchmarks/<name>.yaml``, or in a YAML file of
+one's own anywhere.
 
-A benchmark names its dataset and split, the observed and predicted frame counts, the default
-and offered window samplers, the actions and the horizons its tables show.
+A benchmark names its data's loader (``loader: package.module:function`` or
+``loader: path/to/file.py:function``, a path relative to the YAML file, as a registry entry names
+its class), the dataset's name in records, its split, the observed and predicted frame counts,
+the default and offered window samplers, the actions and the horizons its tables show. What a
+loader returns and must refuse: docs/adding-a-benchmark.md.
 
-Mesh benchmarks (``representation: mesh``, or a dataset of ``MESH_DATASETS``) also name the number
-``spectral_k`` of Laplacian eigenvectors of the dataset's spectral basis (what models with
-``context: [basis]`` receive) and the ground truth they score against: ``raw`` vertices or
-``spectral`` (the k-coefficient reconstruction, as SpecTrHuMS does).
+Mesh benchmarks (``representation: mesh``) also name the number ``spectral_k`` of Laplacian
+eigenvectors of the dataset's spectral basis (what models with ``context: [basis]`` receive) and
+the ground truth they score against: ``raw`` vertices or ``spectral`` (the k-coefficient
+reconstruction, as SpecTrHuMS does).
 """
 
 from __future__ import annotations
 
+import inspect
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import yaml
 
+from zoo.core.definitions import DefinitionError, load_definition
 from zoo.core.errors import ZooError
-from zoo.data.motion import MotionDataset, load_cmu, load_h36m
-from zoo.data.skeleton import CMU, H36M, THREEDPW, Skeleton
-from zoo.data.threedpw import load_3dpw
+from zoo.data.mesh import MeshDataset
+from zoo.data.motion import MotionDataset
+from zoo.data.skeleton import Skeleton
 from zoo.data.windows import check_sampler
 from zoo.paths import REPO_ROOT
 from zoo.protocol.views import View
 
 BENCHMARK_DIR = REPO_ROOT / "benchmarks"
-# Skeleton datasets: name -> loader (root, split, actions=...) -> MotionDataset, and its
-# skeleton.
-DATASETS = {"cmu_mocap": load_cmu, "h36m": load_h36m, "3dpw": load_3dpw}
-SKELETON_OF = {"cmu_mocap": CMU, "h36m": H36M, "3dpw": THREEDPW}
-_REQUIRED = ("name", "dataset", "split", "input_frames", "output_frames", "sampler")
+_REQUIRED = ("name", "dataset", "loader", "split", "input_frames", "output_frames", "sampler")
 _OPTIONAL = (
+    "loader_options",
+    "skeleton",
     "train_split",
     "data_root",
     "samplers",
@@ -47,19 +51,8 @@ _OPTIONAL = (
     "weights_from",
     "val_split",
 )
-# Mesh datasets: name -> a loader ``(root: Path | None, split) -> MeshDataset`` or the
-# "module:function" that names one (``root``: where the data, or the cache of generated data,
-# lives; None: the loader's default).
-# An entry may also be ("module:function", {keyword: value}) to fix a loader's options.
-_ANNY = "zoo.data.anny.dataset:cmu_anny_dataset"
-MESH_DATASETS: dict[str, Any] = {
-    "cloth": "zoo.data.cloth:cloth_dataset",
-    "cloth_full": "zoo.data.cloth:cloth_full_dataset",
-    "cmu_anny_oi": (_ANNY, {"identities": "one", "topology": "full"}),
-    "cmu_anny_mi": (_ANNY, {"identities": "many", "topology": "full"}),
-    "cmu_anny_oi_low": (_ANNY, {"identities": "one", "topology": "low"}),
-    "cmu_anny_mi_low": (_ANNY, {"identities": "many", "topology": "low"}),
-}
+# What a loader returns for each representation.
+DATASET_TYPES = {"joints": MotionDataset, "mesh": MeshDataset}
 GROUND_TRUTHS = ("raw", "spectral")
 
 
@@ -70,12 +63,15 @@ class BenchmarkError(ZooError, ValueError):
 @dataclass(frozen=True)
 class Benchmark:
     name: str
-    dataset: str
+    dataset: str  # the dataset's name in records; its data comes from ``loader``
+    loader: str
     split: str
     input_frames: int
     output_frames: int
     sampler: str
     source: Path
+    loader_options: dict[str, Any] = field(default_factory=dict)
+    skeleton_def: str | None = None  # field ``skeleton``: ``module:NAME`` or ``file.py:NAME``
     train_split: str = "train"
     data_root: str | None = None
     samplers: tuple[str, ...] = ()
@@ -103,24 +99,81 @@ class Benchmark:
 
     @property
     def skeleton(self) -> Skeleton:
+        """The skeleton field ``skeleton`` names, which the loader's recordings are on: what a
+        model's shape and a checkpoint's protocol need, known without the data."""
         if self.representation == "mesh":
             raise BenchmarkError(f"benchmark {self.name!r} is a mesh benchmark: it has no skeleton")
-        return SKELETON_OF[self.dataset]
+        try:
+            skeleton = load_definition(self.skeleton_def, self.source.parent, "skeleton")
+        except DefinitionError as e:
+            raise BenchmarkError(f"{self.source}: field 'skeleton': {e}") from e
+        if not isinstance(skeleton, Skeleton):
+            raise BenchmarkError(
+                f"{self.source}: field 'skeleton': {self.skeleton_def} is a "
+                f"{type(skeleton).__name__}, expected a zoo.data.skeleton.Skeleton"
+            )
+        return skeleton
 
     def resolve_data_root(self, data_root: str | Path | None = None) -> Path | None:
+        """``data_root`` if given, else the benchmark's (a relative one is relative to its
+        YAML file's folder)."""
         if data_root is not None:
             return Path(data_root)
         if self.data_root is None:
             return None
         path = Path(self.data_root)
-        return path if path.is_absolute() else (REPO_ROOT / path).resolve()
+        return path if path.is_absolute() else (self.source.parent / path).resolve()
 
-    def load(self, data_root: str | Path | None = None, split: str | None = None) -> MotionDataset:
-        if self.representation == "mesh":
-            return self.load_mesh(data_root, split)
-        loader = DATASETS[self.dataset]
-        kwargs = {"actions": self.actions} if self.actions else {}
-        return loader(self.resolve_data_root(data_root), split or self.split, **kwargs)
+    def loader_function(self):
+        """The function named by field ``loader``."""
+        try:
+            return load_definition(self.loader, self.source.parent, "function")
+        except DefinitionError as e:
+            raise BenchmarkError(f"{self.source}: field 'loader': {e}") from e
+
+    def load(self, data_root: str | Path | None = None, split: str | None = None):
+        """The split's dataset (default: the test split) from the benchmark's loader: a
+        :class:`MotionDataset` (joints) or a :class:`zoo.data.mesh.MeshDataset` (mesh),
+        generated and cached if need be."""
+        loader = self.loader_function()
+        kwargs = dict(self.loader_options)
+        if self.actions:
+            kwargs["actions"] = self.actions
+        root = self.resolve_data_root(data_root)
+        try:
+            inspect.signature(loader).bind(root, split or self.split, **kwargs)
+        except TypeError as e:
+            raise BenchmarkError(
+                f"{self.source}: field 'loader': {self.loader} cannot be called as "
+                f"loader(data_root, split{''.join(f', {k}=...' for k in kwargs)}) ({e}); "
+                f"see docs/adding-a-benchmark.md"
+            ) from None
+        except ValueError:  # no signature to read (a builtin): the call itself says
+            pass
+        try:
+            dataset = loader(root, split or self.split, **kwargs)
+        except ZooError:
+            raise
+        except ValueError as e:  # a loader's refusal (a split it has not): one line
+            raise BenchmarkError(
+                f"{self.source}: {self.loader} refused split {split or self.split!r} of {root}: {e}"
+            ) from e
+        expected = DATASET_TYPES[self.representation]
+        if not isinstance(dataset, expected):
+            raise BenchmarkError(
+                f"{self.source}: field 'loader': {self.loader} returned "
+                f"{type(dataset).__name__}, expected a {expected.__name__} for "
+                f"representation {self.representation} (docs/adding-a-benchmark.md)"
+            )
+        joints = isinstance(dataset, MotionDataset)
+        if joints and not _same_skeleton(dataset.skeleton, self.skeleton):
+            raise BenchmarkError(
+                f"{self.source}: field 'skeleton': {self.loader} gave recordings on skeleton "
+                f"{dataset.skeleton.name!r} ({dataset.skeleton.num_joints} joints), the file "
+                f"names {self.skeleton_def} ({self.skeleton.name!r}, "
+                f"{self.skeleton.num_joints} joints)"
+            )
+        return dataset
 
     def view_for(self, representations) -> View:
         """How a model whose registry ``representation`` lists ``representations`` sees this
@@ -162,22 +215,6 @@ class Benchmark:
 
     # ---- mesh benchmarks ------------------------------------------------------------------------
 
-    def load_mesh(self, data_root: str | Path | None = None, split: str | None = None):
-        """The benchmark's :class:`zoo.data.mesh.MeshDataset` (generated and cached if need be)."""
-        import importlib
-
-        loader = MESH_DATASETS.get(self.dataset)
-        if loader is None:
-            raise BenchmarkError(
-                f"benchmark {self.name!r}: no mesh dataset {self.dataset!r} is "
-                f"registered; known: {', '.join(MESH_DATASETS)}"
-            )
-        loader, options = loader if isinstance(loader, tuple) else (loader, {})
-        if isinstance(loader, str):
-            module, function = loader.split(":")
-            loader = getattr(importlib.import_module(module), function)
-        return loader(self.resolve_data_root(data_root), split or self.split, **options)
-
     def spectral_basis(self, dataset=None, data_root: str | Path | None = None):
         """The :class:`zoo.data.spectral.SpectralBasis` of the dataset's topology with
         ``spectral_k`` vectors, from the basis cache (computed once, then never recomputed)."""
@@ -188,7 +225,7 @@ class Benchmark:
                 f"benchmark {self.name!r} ({self.source}) sets no spectral_k: "
                 f"it has no spectral basis"
             )
-        dataset = dataset if dataset is not None else self.load_mesh(data_root)
+        dataset = dataset if dataset is not None else self.load(data_root)
         return SpectralBasis.load_or_compute(dataset.topology, self.spectral_k)
 
     def _joints_view_inputs(
@@ -196,7 +233,7 @@ class Benchmark:
     ) -> dict[str, Any]:
         from zoo.data.mesh import JointsView
 
-        dataset = dataset if dataset is not None else self.load_mesh(data_root)
+        dataset = dataset if dataset is not None else self.load(data_root)
         view = dataset if isinstance(dataset, JointsView) else dataset.joints_view()
         inputs = {
             "input_frames": self.input_frames,
@@ -216,7 +253,7 @@ class Benchmark:
     def _mesh_model_inputs(
         self, context: tuple[str, ...], data_root: str | Path | None, dataset=None
     ) -> dict[str, Any]:
-        dataset = dataset if dataset is not None else self.load_mesh(data_root)
+        dataset = dataset if dataset is not None else self.load(data_root)
         inputs = {
             "input_frames": self.input_frames,
             "output_frames": self.output_frames,
@@ -265,11 +302,28 @@ def get_benchmark(name_or_path: str | Path) -> Benchmark:
             f"{', '.join(_REQUIRED + _OPTIONAL)}"
         )
     mesh = _check_mesh_fields(path, raw)
-    known = MESH_DATASETS if mesh else SKELETON_OF
-    if raw["dataset"] not in known:
+    for key in ("dataset", "loader"):
+        if not isinstance(raw[key], str) or not raw[key]:
+            raise BenchmarkError(f"{path}: field {key!r} must be a name, got {raw[key]!r}")
+    if ":" not in raw["loader"]:
         raise BenchmarkError(
-            f"{path}: field 'dataset': unknown {'mesh' if mesh else 'skeleton'} "
-            f"dataset {raw['dataset']!r}; known: {', '.join(known)}"
+            f"{path}: field 'loader': expected package.module:function or file.py:function "
+            f"(a path relative to this file), got {raw['loader']!r}"
+        )
+    if mesh and "skeleton" in raw:
+        raise BenchmarkError(
+            f"{path}: field 'skeleton' belongs to joints benchmarks: a mesh benchmark's points "
+            f"are its loader's vertices"
+        )
+    if not mesh and not (isinstance(raw.get("skeleton"), str) and ":" in raw["skeleton"]):
+        raise BenchmarkError(
+            f"{path}: field 'skeleton': a joints benchmark names the skeleton its recordings "
+            f"are on, as package.module:NAME or file.py:NAME (e.g. zoo.data.skeleton:CMU), "
+            f"got {raw.get('skeleton')!r}"
+        )
+    if not isinstance(raw.get("loader_options", {}), dict):
+        raise BenchmarkError(
+            f"{path}: field 'loader_options' must map the loader's keywords to values"
         )
     for key in ("input_frames", "output_frames"):
         if not isinstance(raw[key], int) or raw[key] < 1:
@@ -285,8 +339,9 @@ def get_benchmark(name_or_path: str | Path) -> Benchmark:
     kwargs = {
         k: tuple(v) if isinstance(v, list) else v
         for k, v in raw.items()
-        if k in _OPTIONAL and k not in ("description", "samplers")
+        if k in _OPTIONAL and k not in ("description", "samplers", "skeleton")
     }
+    kwargs["skeleton_def"] = raw.get("skeleton")
     if mesh:
         kwargs["representation"] = "mesh"
     bench = Benchmark(
@@ -299,6 +354,12 @@ def get_benchmark(name_or_path: str | Path) -> Benchmark:
     if bench.weights_from is not None:
         _check_weights_from(path, bench)
     return bench
+
+
+def _same_skeleton(a: Skeleton, b: Skeleton) -> bool:
+    """The same joints, tree and scoring rule (offsets aside: positions come with the data)."""
+    rule = ("name", "parents", "ignored", "copy_to", "copy_from")
+    return all(getattr(a, f) == getattr(b, f) for f in rule)
 
 
 def _check_weights_from(path: Path, bench: Benchmark) -> None:
@@ -333,10 +394,8 @@ def _check_weights_from(path: Path, bench: Benchmark) -> None:
 
 def _check_mesh_fields(path: Path, raw: dict[str, Any]) -> bool:
     """Validate the mesh fields of a benchmark file; True if it is a mesh benchmark."""
-    representation = raw.get(
-        "representation", "mesh" if raw.get("dataset") in MESH_DATASETS else "joints"
-    )
-    if representation not in ("joints", "mesh"):
+    representation = raw.get("representation", "joints")
+    if representation not in DATASET_TYPES:
         raise BenchmarkError(
             f"{path}: field 'representation' must be joints or mesh, got {representation!r}"
         )

@@ -29,7 +29,7 @@ from typing import Any
 from zoo.paths import REPO_ROOT
 from zoo.store.layout import StoreError
 
-# A string naming a zoo definition by its module, as the benchmark's mesh datasets are named
+# A string naming a zoo definition by its module, as a benchmark names its loader
 # ("zoo.data.cloth:cloth_dataset"): a reference like an import, normalised like one.
 _NAMED_DEFINITION = re.compile(r"zoo(?:\.\w+)+:\w+")
 _UNWRITTEN_FIELDS = frozenset({"kind", "type_comment"})

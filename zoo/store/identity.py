@@ -27,25 +27,31 @@ EVALUATOR = "zoo.evaluation.evaluator"
 # ---- the code a result's identity covers ----------------------------------------------------
 
 
-def dataset_code(dataset: str | None) -> list[Path]:
-    """The code that generates a mesh dataset (cloth simulation, CMU motion on the Anny body),
-    which the evaluator loads by name, not by import; skeleton loaders are the evaluator's."""
-    from zoo.protocol.benchmark import MESH_DATASETS
-
-    loader = MESH_DATASETS.get(dataset or "")
-    loader = loader[0] if isinstance(loader, tuple) else loader
-    if not isinstance(loader, str):
+def dataset_code(bench) -> list[Path]:
+    """The code of a benchmark's data loader and skeleton (``bench.loader``, ``bench.skeleton_def``:
+    CMU's exp-map reader, the cloth simulation, CMU motion on the Anny body, a researcher's own
+    file) and the zoo modules they import, which the evaluator runs by name, not by import."""
+    if bench is None:
         return []
-    file = zoo_module_file(loader.split(":")[0])
-    return code_closure(file, computing_only=True) if file is not None else []
+    files: set[Path] = set()
+    for named in (bench.loader, bench.skeleton_def):
+        where = named.rsplit(":", 1)[0] if named else ""
+        if where.endswith(".py"):
+            file = (bench.source.parent / where).resolve()
+            file = file if file.is_file() else None
+        else:
+            file = zoo_module_file(where) if where else None
+        if file is not None:
+            files |= set(code_closure(file, computing_only=True))
+    return sorted(files)
 
 
-def evaluation_code(model_class: type | None, dataset: str | None = None) -> dict[str, str | None]:
+def evaluation_code(model_class: type | None, bench=None) -> dict[str, str | None]:
     """The ``code`` part of an identity: the evaluator's fingerprint (with the code that
-    generates ``dataset``, a mesh dataset) and the model's (None where its source cannot be
-    read, a class typed into an interpreter: such a result is never taken for another)."""
+    loads ``bench``'s data) and the model's (None where its source cannot be read, a class
+    typed into an interpreter: such a result is never taken for another)."""
     evaluator = code_closure(zoo_module_file(EVALUATOR), computing_only=True)
-    files = sorted(set(evaluator) | set(dataset_code(dataset)))
+    files = sorted(set(evaluator) | set(dataset_code(bench)))
     code: dict[str, str | None] = {"evaluator": code_fingerprint(*files)}
     if model_class is not None:
         code["model"] = model_fingerprint(model_class)

@@ -282,7 +282,7 @@ def load_rig_joints(folder: str | Path) -> list[np.ndarray]:
 def cmu_anny_dataset(
     root: str | Path | None, split: str, *, identities: str, topology: str
 ) -> MeshDataset:
-    """The benchmark loader (``zoo.protocol.benchmark.MESH_DATASETS``): ``root`` is the CMU BVH
+    """A benchmark loader (field ``loader`` of ``benchmarks/*.yaml``): ``root`` is the CMU BVH
     folder
     (the benchmark's ``data_root``); built on first use, then loaded from the cache."""
     if root is None:

@@ -1,0 +1,92 @@
+"""A benchmark of one's own from outside the repository: docs/adding-a-benchmark.md's
+walk-through (docs/examples/my_mocap) on five of the CMU BVH recordings."""
+
+import csv
+import shutil
+
+import pytest
+import yaml
+
+from zoo.cli import main
+from zoo.paths import REPO_ROOT
+from zoo.protocol.benchmark import BenchmarkError, get_benchmark
+
+EXAMPLE = REPO_ROOT / "docs" / "examples" / "my_mocap"
+CMU_BVH = REPO_ROOT.parent / "shared" / "data" / "cmu_bvh"
+# subject 5: a walk and three dances to train on, a dance (trial 5) to test on
+TRIALS = ("05_01", "05_02", "05_03", "05_04", "05_05")
+
+
+@pytest.fixture
+def own(tmp_path, monkeypatch):
+    """The example's two files in a folder of one's own (the working folder), and a data folder
+    of five recordings with their manifest."""
+    if not (CMU_BVH / "MANIFEST.tsv").is_file():
+        pytest.skip(f"{CMU_BVH} not present")
+    data = tmp_path / "data"
+    with open(CMU_BVH / "MANIFEST.tsv", newline="") as f:
+        reader = csv.DictReader(f, delimiter="\t")
+        rows = [r for r in reader if r["path"].rsplit("/", 1)[-1][:-4] in TRIALS]
+        fields = reader.fieldnames
+    for row in rows:
+        (data / row["path"]).parent.mkdir(parents=True, exist_ok=True)
+        shutil.copy(CMU_BVH / row["path"], data / row["path"])
+    with open(data / "MANIFEST.tsv", "w", newline="") as f:
+        writer = csv.DictWriter(f, fields, delimiter="\t")
+        writer.writeheader()
+        writer.writerows(rows)
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    for file in ("my_mocap.py", "my_mocap.yaml"):
+        shutil.copy(EXAMPLE / file, mine / file)
+    monkeypatch.chdir(mine)
+    return mine, data
+
+
+def test_the_walk_through_scores_trains_ranks_compares_and_builds_a_site(own, capsys):
+    mine, data = own
+    given = ["--benchmark", "my_mocap.yaml", "--data-root", str(data)]
+    assert main(["eval", "--model", "repeat_last", *given, "--results", "results"]) == 0
+    out = ["--out", "checkpoints/my_mocap/mlp", "--no-progress", "--max-batches", "2"]
+    assert main(["train", "--model", "mlp", *given, "--epochs", "1", *out]) == 0
+    assert (mine / "checkpoints" / "my_mocap" / "mlp" / "best.pt").is_file()
+    capsys.readouterr()
+    ranked = ["--results", "results", "--checkpoints", "checkpoints", "--weights-dir", "weights"]
+    assert main(["leaderboard", *given, *ranked]) == 0
+    board = (mine / "results" / "my_mocap" / "stride10" / "leaderboard.md").read_text()
+    assert "mlp" in board and "repeat_last" in board
+    compare = ["compare", "mlp", "repeat_last", "--benchmark", "my_mocap.yaml"]
+    assert main([*compare, "--results", "results"]) == 0
+    assert "window-sampling interval" in capsys.readouterr().out
+    assert main(["site", "--results", "results"]) == 0
+    assert "my_mocap" in (mine / "results" / "site" / "index.html").read_text()
+    # the protocol is the file's: its own windows and horizons, its loader's skeleton
+    protocol = yaml.safe_load((mine / "results" / "my_mocap" / "stride10" / "protocol.json").open())
+    assert protocol["input_frames"] == 15 and protocol["fps"] == 30.0
+    # nothing of it was written in the repository
+    for folder in ("results", "checkpoints", "weights"):
+        assert not (REPO_ROOT / folder / "my_mocap").exists()
+
+
+def test_a_loader_it_cannot_call_is_one_line_naming_the_field(own, tmp_path, capsys):
+    mine, data = own
+    spec = yaml.safe_load((mine / "my_mocap.yaml").read_text())
+    cases = {
+        "no_colon": ({"loader": "my_mocap.load"}, "field 'loader': expected"),
+        "no_file": ({"loader": "nosuch.py:load"}, "field 'loader': function file"),
+        "misspelt": ({"loader": "my_mocap.py:lod"}, "defines no function 'lod'; it defines"),
+        "option": ({"loader_options": {"rate": 2}}, "cannot be called as loader(data_root"),
+    }
+    for name, (change, message) in cases.items():
+        path = mine / f"{name}.yaml"
+        path.write_text(yaml.safe_dump({**spec, **change}))
+        argv = ["eval", "--model", "repeat_last", "--benchmark", str(path)]
+        assert main([*argv, "--data-root", str(data), "--results", "results"]) == 2, name
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and message in err, (name, err)
+        assert str(path) in err, (name, err)
+    with pytest.raises(BenchmarkError, match="returned list, expected a MotionDataset"):
+        (mine / "lists.py").write_text("def load(root, split, actions=()):\n    return []\n")
+        path = mine / "lists.yaml"
+        path.write_text(yaml.safe_dump({**spec, "loader": "lists.py:load"}))
+        get_benchmark(path).load(data)
