@@ -102,8 +102,7 @@ def evaluate(
 
     from zoo.core.errors import EvaluationError
     from zoo.core.options import EVAL_BATCH
-    from zoo.evaluation.pipeline import Subject, compute, plan_places
-    from zoo.evaluation.pipeline import store as store_result
+    from zoo.evaluation.pipeline import Subject, evaluate_and_store
     from zoo.hub.model_source import ModelSource
     from zoo.protocol.benchmark import get_benchmark
     from zoo.store.layout import check_label
@@ -137,11 +136,14 @@ def evaluate(
             f"zoo.evaluate: unknown option(s) {', '.join(sorted(options))}; valid: task, "
             f"horizon, ground_truth, melv_frames, batch_size, view"
         )
-    [(protocol, where)] = plan_places(
+    [(result, _, _)] = evaluate_and_store(
         subject,
         bench,
         dataset,
         [sampler],
+        made_by="zoo.evaluate",
+        device=device,
+        batch_size=batch_size,
         task=task,
         horizon=horizon,
         ground_truth=ground_truth,
@@ -150,16 +152,6 @@ def evaluate(
         write=store,
         replace=replace,
     )
-    result = compute(
-        subject,
-        protocol,
-        where.identity,
-        made_by="zoo.evaluate",
-        device=device,
-        batch_size=batch_size,
-    )
-    if where.folder is not None:
-        store_result(result, where)
     return result
 
 

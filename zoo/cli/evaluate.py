@@ -67,7 +67,7 @@ def add(sub) -> None:
 
 def run(args) -> int:
     from zoo.core.distributed import init_distributed
-    from zoo.evaluation.pipeline import Subject, compute, plan_places, store
+    from zoo.evaluation.pipeline import Subject, evaluate_and_store
     from zoo.evaluation.tolerance import tolerance_text
 
     registry = registry_of(args)
@@ -90,11 +90,18 @@ def run(args) -> int:
         )
     if args.melv_frames is not None and bench.representation != "mesh":
         raise UsageError(f"--melv-frames: benchmark {bench.name} is not a mesh benchmark")
-    plans = plan_places(  # every output place checked before any evaluation
+    # Under torchrun every process scores its share of the windows and all get the whole
+    # result; the first writes it.
+    writer = init_distributed(args.device).rank == 0
+    for result, where, stored in evaluate_and_store(
         subject,
         bench,
         dataset,
         samplers,
+        made_by="zoo eval",
+        device=args.device,
+        batch_size=args.batch_size,
+        writes=writer,
         task=args.task,
         horizon=args.horizon_frames,
         ground_truth=args.ground_truth,
@@ -102,22 +109,9 @@ def run(args) -> int:
         out=args.out or None,
         results=args.results,
         replace=args.replace,
-    )
-    # Under torchrun every process scores its share of the windows and all get the whole
-    # result; the first writes it.
-    writer = init_distributed(args.device).rank == 0
-    for protocol, where in plans:
-        result = compute(
-            subject,
-            protocol,
-            where.identity,
-            made_by="zoo eval",
-            device=args.device,
-            batch_size=args.batch_size,
-        )
-        if not writer:
+    ):
+        if stored is None:
             continue
-        stored = store(result, where)
         if stored.action == "kept":
             print_average(result.frame, bench.horizons_ms)
             print(

@@ -1,13 +1,14 @@
 """One path from a model to a stored result, shared by ``zoo eval``, ``zoo.evaluate`` and
 ``zoo leaderboard`` (nothing else orchestrates an evaluation): the subject (:class:`Subject`),
-its place checked (:func:`place`; for ``zoo eval`` and ``zoo.evaluate``, :func:`plan_places`),
-the evaluation (:func:`compute`, :func:`compute_all`) and the result stored (:func:`store`).
+its place checked (:func:`place`), the evaluation (:func:`compute`, :func:`compute_all`) and the
+result stored (:func:`store`); ``zoo eval`` and ``zoo.evaluate`` take all of it in one call
+(:func:`evaluate_and_store`).
 docs/architecture.md ("The path of one result") walks through it.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -199,6 +200,37 @@ def compute_all(
                 raise
             results[i] = e
     return results
+
+
+def evaluate_and_store(
+    subject: Subject,
+    bench,
+    dataset,
+    samplers: list[str | None],
+    *,
+    made_by: str,
+    device: str = "cpu",
+    batch_size: int = EVAL_BATCH,
+    writes: bool = True,
+    **where: Any,
+) -> Iterator[tuple[EvalResult, Place, Stored | None]]:
+    """The one path from plan to stored result, which ``zoo eval`` and ``zoo.evaluate`` both
+    take: every sampler's place checked before anything is evaluated (:func:`plan_places`,
+    ``where`` its keywords), then each evaluated (:func:`compute`) and, where it has a place
+    and ``writes`` (the first process under torchrun), stored (:func:`store`). Yields each
+    result, its place and what storing did (None: nothing stored)."""
+    plans = plan_places(subject, bench, dataset, samplers, **where)
+    for protocol, place_of in plans:
+        result = compute(
+            subject,
+            protocol,
+            place_of.identity,
+            made_by=made_by,
+            device=device,
+            batch_size=batch_size,
+        )
+        stored = store(result, place_of) if writes and place_of.folder is not None else None
+        yield result, place_of, stored
 
 
 @dataclass
