@@ -90,3 +90,31 @@ def test_a_loader_it_cannot_call_is_one_line_naming_the_field(own, tmp_path, cap
         path = mine / "lists.yaml"
         path.write_text(yaml.safe_dump({**spec, "loader": "lists.py:load"}))
         get_benchmark(path).load(data)
+
+
+def test_a_row_depends_on_its_own_loader_the_modules_beside_it_and_its_options(own):
+    import os
+
+    from zoo.store.identity import evaluation_code
+
+    mine, _ = own
+    (mine / "lab.py").write_text(
+        "from lab_units import scale\n\ndef load(root, split):\n    return scale\n"
+    )
+    units = mine / "lab_units.py"
+    units.write_text("scale = 1.0\n")
+    spec = yaml.safe_load((mine / "my_mocap.yaml").read_text())
+    path = mine / "lab.yaml"
+
+    def fingerprint(**change) -> str:
+        path.write_text(yaml.safe_dump({**spec, "loader": "lab.py:load", **change}))
+        return evaluation_code(None, get_benchmark(path))["evaluator"]
+
+    before = fingerprint()
+    assert fingerprint() == before
+    units.write_text("scale = 25.4\n")
+    os.utime(units, ns=(units.stat().st_mtime_ns + 10**9,) * 2)
+    after_helper = fingerprint()
+    assert after_helper != before  # a module beside the loader changed
+    assert fingerprint(loader_options={"rate": 2}) != after_helper
+    assert fingerprint(skeleton="zoo.data.skeleton:CMU") != after_helper

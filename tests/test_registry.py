@@ -471,3 +471,11 @@ def test_a_misspelt_recipe_field_is_refused_where_the_registry_is_read(tmp_path,
         in err
     )
     assert len(err.strip().splitlines()) == 1
+
+
+def test_a_class_file_that_raises_as_it_runs_is_one_line_with_its_line(tmp_path):
+    (tmp_path / "typo.py").write_text("import torch\n\nSCALE = {'mm': 1.0}['m']\n")
+    path = tmp_path / "typo.yaml"
+    path.write_text("models:\n  t:\n    class: typo.py:Model\n    representation: joints\n")
+    with pytest.raises(RegistryError, match=r"typo.py, line 3: running it raised KeyError: 'm'"):
+        Registry.from_files(path).get("t").load_class()

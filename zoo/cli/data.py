@@ -227,13 +227,13 @@ def _data_regressor(bench, args) -> int:
 
 def _skipped_data(data_root) -> list[str]:
     """Files and folders in the CMU data roots that the loader passes over (each once)."""
-    from zoo.data.motion import CMU_ACTIONS, cmu_skipped, load_cmu
+    from zoo.data.motion import CMU_ACTIONS, cmu_skipped
     from zoo.protocol.benchmark import get_benchmark, list_benchmarks
 
     lines = []
     for name in list_benchmarks():
         bench = get_benchmark(name)
-        cmu = bench.loader_function() is load_cmu
+        cmu = bench.loader == "zoo.data.motion:load_cmu"  # no other benchmark's code imported
         root = bench.resolve_data_root(data_root) if cmu else None
         if root is None or not root.is_dir():
             continue

@@ -15,6 +15,7 @@ import importlib
 import importlib.util
 import inspect
 import sys
+import traceback
 from pathlib import Path
 from typing import Any
 
@@ -83,9 +84,15 @@ def _run_file(file: Path, kind: str):
     sys.modules[module_name] = module
     try:
         spec.loader.exec_module(module)
-    except BaseException:
+    except BaseException as e:
         del sys.modules[module_name]  # a half-run file is not loaded
-        raise
+        said = (SyntaxError, ImportError, AttributeError, ValueError)
+        if not isinstance(e, Exception) or isinstance(e, said):
+            raise  # said in one line by load_definition (an interrupt: as it is)
+        # the file's own fault as it ran (a NameError, a KeyError): its line, not a traceback
+        frames = [f for f in traceback.extract_tb(e.__traceback__) if f.filename == str(file)]
+        line = f", line {frames[-1].lineno}" if frames else ""
+        raise DefinitionError(f"{file}{line}: running it raised {type(e).__name__}: {e}") from e
     return module
 
 

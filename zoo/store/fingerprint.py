@@ -825,6 +825,18 @@ def model_fingerprint(cls: type) -> str | None:
     return code_fingerprint(*sources) if sources else None
 
 
+@_one_layout
+def definition_fingerprint(file: Path, name: str) -> str | None:
+    """The fingerprint of the top-level definition ``name`` of ``file`` (a benchmark's own
+    loader or skeleton), taken as :func:`model_fingerprint` takes a class's: what it reaches by
+    name, modules beside it included. None where ``file`` does not define ``name``."""
+    file = Path(file).resolve()
+    if not file.is_file() or name not in _parts(file)[0]:
+        return None
+    pieces = _kept(("reachable", str(file), name), lambda: _reached(file, name))
+    return _digest(sorted({piece.split("::", 1)[1] for piece in pieces}))
+
+
 def model_source_files(cls: type) -> list[Path]:
     """The file defining a model class and the zoo modules it imports: the model's source.
     Empty where Python keeps no file for it (a class typed into an interpreter)."""

@@ -13,7 +13,13 @@ from pathlib import Path
 from typing import Any
 
 from zoo.core.io import canonical_json
-from zoo.store.fingerprint import code_closure, code_fingerprint, model_fingerprint, zoo_module_file
+from zoo.store.fingerprint import (
+    code_closure,
+    code_fingerprint,
+    definition_fingerprint,
+    model_fingerprint,
+    zoo_module_file,
+)
 from zoo.store.layout import StoreError
 
 IDENTITY_VERSION = 2  # 2: code fingerprints that do not depend on where the code lives
@@ -28,22 +34,49 @@ EVALUATOR = "zoo.evaluation.evaluator"
 
 
 def dataset_code(bench) -> list[Path]:
-    """The code of a benchmark's data loader and skeleton (``bench.loader``, ``bench.skeleton_def``:
-    CMU's exp-map reader, the cloth simulation, CMU motion on the Anny body, a researcher's own
-    file) and the zoo modules they import, which the evaluator runs by name, not by import."""
+    """The zoo modules that hold a benchmark's data loader and skeleton (``bench.loader``,
+    ``bench.skeleton_def``: CMU's exp-map reader, the cloth simulation, CMU motion on the Anny
+    body) and those they import, which the evaluator runs by name, not by import. Code outside
+    the zoo is :func:`own_data_code`'s."""
     if bench is None:
         return []
     files: set[Path] = set()
     for named in (bench.loader, bench.skeleton_def):
-        where = named.rsplit(":", 1)[0] if named else ""
-        if where.endswith(".py"):
-            file = (bench.source.parent / where).resolve()
-            file = file if file.is_file() else None
-        else:
-            file = zoo_module_file(where) if where else None
+        file = zoo_module_file(named.rsplit(":", 1)[0]) if named else None
         if file is not None:
             files |= set(code_closure(file, computing_only=True))
     return sorted(files)
+
+
+def own_data_code(bench) -> list[str]:
+    """What a row depends on in a benchmark's loader and skeleton outside the zoo (a
+    researcher's ``file.py:load`` or ``package.module:load``): each one's name and the
+    fingerprint of the code it reaches (modules beside it included), and the loader's options
+    (a zoo loader's options are recorded with its data: a mesh recipe, the actions)."""
+    if bench is None:
+        return []
+    own = []
+    for field, named in (("loader", bench.loader), ("skeleton", bench.skeleton_def)):
+        where, name = named.rsplit(":", 1) if named else ("", "")
+        if not where or zoo_module_file(where) is not None:
+            continue
+        file = (bench.source.parent / where) if where.endswith(".py") else _module_origin(where)
+        digest = definition_fingerprint(file, name) if file is not None else None
+        own.append(f"{field}:{name}#{digest}")
+        if field == "loader":
+            own.append(f"loader_options:{canonical_json(bench.loader_options)}")
+    return own
+
+
+def _module_origin(module: str) -> Path | None:
+    import importlib.util
+
+    try:
+        spec = importlib.util.find_spec(module)
+    except (ImportError, ValueError):
+        return None
+    origin = getattr(spec, "origin", None)
+    return Path(origin) if origin and origin.endswith(".py") else None
 
 
 def evaluation_code(model_class: type | None, bench=None) -> dict[str, str | None]:
@@ -52,7 +85,11 @@ def evaluation_code(model_class: type | None, bench=None) -> dict[str, str | Non
     typed into an interpreter: such a result is never taken for another)."""
     evaluator = code_closure(zoo_module_file(EVALUATOR), computing_only=True)
     files = sorted(set(evaluator) | set(dataset_code(bench)))
-    code: dict[str, str | None] = {"evaluator": code_fingerprint(*files)}
+    fingerprint = code_fingerprint(*files)
+    own = own_data_code(bench)
+    if own:  # a researcher's own loader: its code, name and options count as the evaluator's
+        fingerprint = hashlib.sha256("\n".join([fingerprint, *own]).encode()).hexdigest()[:16]
+    code: dict[str, str | None] = {"evaluator": fingerprint}
     if model_class is not None:
         code["model"] = model_fingerprint(model_class)
     return code
