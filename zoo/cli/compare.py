@@ -56,7 +56,7 @@ def run(args) -> int:
 
     if args.sampler is not None:
         checked_sampler(args.sampler, get_benchmark(args.benchmark) if args.benchmark else None)
-    folders = []
+    folders, bench = [], None
     for name in (args.a, args.b):
         if Path(name).is_dir():
             folders.append(Path(name))
@@ -91,6 +91,8 @@ def run(args) -> int:
         confidence=args.confidence,
         replicates=args.replicates,
         seed=args.seed,
+        # the benchmark's own horizons (a benchmark of one's own at 30 fps has not CMU's)
+        horizons_ms=bench.horizons_ms if bench is not None else None,
     )
     print(comparison.markdown())
     if args.out:
