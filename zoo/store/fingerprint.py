@@ -719,13 +719,21 @@ def reachable_code(cls: type) -> list[str] | None:
         return None
     if file is None or not Path(file).is_file():
         return None
-    start = Path(file).resolve()
-    if cls.__name__ not in _parts(start)[0]:
+    return _reachable(Path(file).resolve(), cls.__name__)
+
+
+def _reachable(start: Path, name: str) -> list[str] | None:
+    """:func:`reachable_code` of the top-level definition ``name`` of ``start``; None where it
+    defines no such name."""
+    if name not in _parts(start)[0]:
         return None
     # kept like a module's pieces: a rebuild asks for each row's model, many rows a model
-    return list(
-        _kept(("reachable", str(start), cls.__name__), lambda: _reached(start, cls.__name__))
-    )
+    return list(_kept(("reachable", str(start), name), lambda: _reached(start, name)))
+
+
+def _placeless_digest(pieces: list[str]) -> str:
+    """A fingerprint of code pieces without the places they were found in."""
+    return _digest(sorted({piece.split("::", 1)[1] for piece in pieces}))
 
 
 def _reached(start: Path, class_name: str) -> tuple[str, ...]:
@@ -820,7 +828,7 @@ def model_fingerprint(cls: type) -> str | None:
     typed into an interpreter)."""
     code = reachable_code(cls)
     if code is not None:
-        return _digest(sorted({piece.split("::", 1)[1] for piece in code}))
+        return _placeless_digest(code)
     sources = model_source_files(cls)
     return code_fingerprint(*sources) if sources else None
 
@@ -831,10 +839,8 @@ def definition_fingerprint(file: Path, name: str) -> str | None:
     loader or skeleton), taken as :func:`model_fingerprint` takes a class's: what it reaches by
     name, modules beside it included. None where ``file`` does not define ``name``."""
     file = Path(file).resolve()
-    if not file.is_file() or name not in _parts(file)[0]:
-        return None
-    pieces = _kept(("reachable", str(file), name), lambda: _reached(file, name))
-    return _digest(sorted({piece.split("::", 1)[1] for piece in pieces}))
+    pieces = _reachable(file, name) if file.is_file() else None
+    return _placeless_digest(pieces) if pieces is not None else None
 
 
 def model_source_files(cls: type) -> list[Path]:
