@@ -43,7 +43,7 @@ def run(capsys, *args):
         ),
         (
             ["train", "--model", "mlp", "--train-set", "schedule={type:step}"],
-            "schedule {'type:step': None} has no known type",
+            "field 'schedule': a schedule names its type",
         ),
         (
             ["train", "--model", "mlp", "--device", "banana"],

@@ -385,7 +385,7 @@ MISTAKES = {
         "No module named 'einops'",
     ),
     "a syntax error": ({"broken.py": "def f(:\n"}, "broken.py:X", [], "broken.py, line 1"),
-    "a field misspelt": ({}, "last.py:Last\n    hparam: {gain: 2}", [], "did you mean hparams?"),
+    "a field misspelt": ({}, "last.py:Last\n    hparam: {gain: 2}", [], "did you mean 'hparams'?"),
     "a hyper-parameter misspelt": (
         {},
         "last.py:Last\n    hparams: {gian: 2}",

@@ -213,7 +213,9 @@ def test_patience_stops_a_run_that_no_longer_improves_and_its_state_says_finishe
         recipe={"lr": 0.0, "patience": 2},
     )
     assert read_checkpoint(out / "last.pt")["epoch"] == 2  # resuming adds no epoch
-    with pytest.raises(TrainingError, match="patience must be a positive integer"):
+    with pytest.raises(
+        TrainingError, match="field 'patience': input should be greater than or equal to 1, got 0"
+    ):
         run(setup, tmp_path / "bad", recipe={"patience": 0})
 
 

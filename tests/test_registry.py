@@ -58,7 +58,7 @@ def test_a_misspelt_field_gets_a_did_you_mean(tmp_path):
     path.write_text("models:\n  x:\n    class: a.B\n    representation: joints\n    hparam: {}\n")
     with pytest.raises(
         RegistryError,
-        match=r"typo.yaml, line 5: model 'x': unknown field\(s\) hparam \(did you mean hparams\?\)",
+        match=r"typo.yaml, line 5: model 'x': unknown field 'hparam' \(did you mean 'hparams'\?\)",
     ):
         Registry.from_files(path)
     # a field that is missing is placed at its model's line
@@ -234,13 +234,20 @@ def test_entry_task_is_checked(tmp_path):
         "models:\n  m:\n    class: zoo.models.repeat_last.RepeatLast\n"
         "    representation: joints\n    task: forecasting\n"
     )
-    with pytest.raises(RegistryError, match="'task' must be one of prediction, completion"):
+    with pytest.raises(
+        RegistryError,
+        match="line 5: model 'm': field 'task': input should be 'prediction' or 'completion', "
+        "got 'forecasting'",
+    ):
         Registry.from_files(path)
     path.write_text(
         "models:\n  m:\n    class: zoo.models.repeat_last.RepeatLast\n"
         "    representation: joints\n    hparams: {task: completion}\n"
     )
-    with pytest.raises(RegistryError, match="hparams task 'completion' but the entry's task"):
+    with pytest.raises(
+        RegistryError,
+        match="field 'task': the entry's task is 'prediction' but hparams say task 'completion'",
+    ):
         Registry.from_files(path)
 
 
@@ -292,7 +299,7 @@ def test_a_known_name_needs_an_explicit_override_that_results_record(
     ]
     assert main(args) == 2
     err = capsys.readouterr().err
-    assert f"{registry}: model 'repeat_last' is already defined in " in err
+    assert f"{registry}, line 2: model 'repeat_last' is already defined in " in err
     assert "registry.yaml; choose another name, or add 'override: true'" in err
     registry.write_text(textwrap.dedent(entry) + "    override: true\n")
     assert main(args) == 0
@@ -467,8 +474,8 @@ def test_a_misspelt_recipe_field_is_refused_where_the_registry_is_read(tmp_path,
     assert main(["list", "--registry", str(registry)]) == 2
     err = capsys.readouterr().err
     assert (
-        f"{registry}, line 6: model 'mine': field 'train': unknown training-recipe key(s) epoch"
-        in err
+        f"{registry}, line 6: model 'mine': training recipe: unknown field 'epoch' (did you mean "
+        f"'epochs'?)" in err
     )
     assert len(err.strip().splitlines()) == 1
 

@@ -67,7 +67,7 @@ def test_the_registry_entry_runs_the_paper_entrys_weights(tmp_path):
     for field, message in (
         ("weights_of: other\n    trainable: true", "trained as that one"),
         ("weights_of: m", "names another model"),
-        ("weights_of: [a]", "names another model"),
+        ("weights_of: [a]", "field 'weights_of': input should be a valid string"),
     ):
         bad.write_text(
             "models:\n  m:\n    class: zoo.models.repeat_last.RepeatLast\n"

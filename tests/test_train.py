@@ -256,16 +256,19 @@ def test_trained_checkpoint_evaluates_and_refuses_mismatches(setup, tmp_path, ca
 
 
 def test_recipe_errors_are_named(setup, tmp_path):
-    with pytest.raises(TrainingError, match="unknown training-recipe key.*lrr"):
+    with pytest.raises(TrainingError, match="unknown field 'lrr' .did you mean 'lr'.."):
         run(setup, tmp_path / "r", recipe={"lrr": 1})
-    with pytest.raises(TrainingError, match="warmup_steps must be a non-negative integer"):
+    with pytest.raises(
+        TrainingError,
+        match="field 'schedule.warmup_steps': input should be greater than or equal to 0",
+    ):
         run(
             setup,
             tmp_path / "r",
             recipe={"schedule": {"type": "constant", "warmup_steps": -1}},
         )
     with pytest.raises(
-        TrainingError, match="precision 'float16' unknown; valid: float32, bfloat16"
+        TrainingError, match="field 'precision': input should be 'float32' or 'bfloat16'"
     ):
         run(setup, tmp_path / "r", recipe={"precision": "float16"})
     with pytest.raises(TrainingError, match="nothing to train"):
@@ -377,14 +380,17 @@ def test_resume_refuses_another_recipe_and_records_a_larger_budget(setup, tmp_pa
 @pytest.mark.parametrize(
     "overrides, message",
     [
-        ({"grad_clip": -1}, "grad_clip must be a number > 0 or null"),
-        ({"grad_clip": 0}, "grad_clip must be a number > 0 or null"),
-        ({"lr": -0.1}, "lr must be a number >= 0"),
-        ({"lr": "fast"}, "lr must be a number >= 0"),
-        ({"weight_decay": -1e-4}, "weight_decay must be a number >= 0"),
-        ({"batch_size": 0}, "batch_size must be a positive integer"),
-        ({"schedule": {"type": "step", "gamma": 0.9}}, "step schedule needs every_epochs"),
-        ({"schedule": {"type": "multistep", "lrs": [1e-3]}}, "multistep schedule needs"),
+        ({"grad_clip": -1}, "field 'grad_clip': input should be greater than 0, got -1"),
+        ({"grad_clip": 0}, "field 'grad_clip': input should be greater than 0, got 0"),
+        ({"lr": -0.1}, "field 'lr': input should be greater than or equal to 0"),
+        ({"lr": "fast"}, "field 'lr': input should be a valid number, got 'fast'"),
+        ({"weight_decay": -1e-4}, "field 'weight_decay': input should be greater than or equal"),
+        ({"batch_size": 0}, "field 'batch_size': input should be greater than or equal to 1"),
+        ({"schedule": {"type": "step", "gamma": 0.9}}, "field 'schedule.every_epochs' is required"),
+        (
+            {"schedule": {"type": "multistep", "lrs": [1e-3]}},
+            "'schedule.milestones_steps' is required",
+        ),
         (
             {
                 "schedule": {"type": "multistep", "milestones_steps": [5], "lrs": [1e-3, 1e-4]},
@@ -401,7 +407,9 @@ def test_recipe_values_are_checked_before_training(setup, tmp_path, overrides, m
 
 
 def test_zero_epochs_is_an_error_not_the_full_recipe(setup, tmp_path):
-    with pytest.raises(TrainingError, match="epochs must be a positive integer, got 0"):
+    with pytest.raises(
+        TrainingError, match="field 'epochs': input should be greater than or equal to 1, got 0"
+    ):
         run(setup, tmp_path / "zero", epochs=0)
 
 
@@ -529,7 +537,10 @@ def test_validation_by_recordings_holds_out_whole_recordings_and_records_them(tm
     auto = auto["validation"]
     assert auto["split"] == "auto" and "tails" not in auto
     assert [h.rsplit("/", 1)[-1] for h in auto["recordings"]] == ["walking_8.txt"]
-    with pytest.raises(TrainingError, match="val_split 'shuffled' unknown; valid: auto"):
+    with pytest.raises(
+        TrainingError,
+        match="field 'val_split': input should be 'auto', 'tails', 'actions' or 'recordings'",
+    ):
         train(
             "tiny",
             "cmu",

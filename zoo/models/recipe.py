@@ -1,31 +1,101 @@
-"""The training recipe: a registry entry's ``train`` mapping, checked, and its learning-rate
-schedule."""
+"""The training recipe: a registry entry's ``train`` mapping, its schema (the :class:`Recipe`
+dataclass, read through :mod:`zoo.core.schema`), and its learning-rate schedule."""
 
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, field
-from typing import Any
+from dataclasses import asdict, field
+from typing import Annotated, Any, Literal
 
+import pydantic
 import torch
+from pydantic import AfterValidator, ConfigDict, Field, StrictFloat, StrictInt
+from typing_extensions import NotRequired, TypedDict
 
 from zoo.core.errors import TrainingError
+from zoo.core.schema import validated
+
+Count = Annotated[StrictInt, Field(ge=0)]
+PositiveInt = Annotated[StrictInt, Field(ge=1)]
+Rate = Annotated[StrictFloat, Field(ge=0, allow_inf_nan=False)]
+# a factor or limit: a negative gradient limit would flip the gradients' sign in clip_grad_norm_
+Positive = Annotated[StrictFloat, Field(gt=0, allow_inf_nan=False)]
 
 
-@dataclass(frozen=True)
+def _increasing(values: list) -> list:
+    if values != sorted(values):
+        raise ValueError(f"expected increasing epochs, got {values}")
+    return values
+
+
+@pydantic.with_config(ConfigDict(extra="forbid"))
+class _Warmup(TypedDict):
+    # Any schedule may add warmup_steps: N: the rate grows linearly from lr / N over the first N
+    # optimizer steps (a post-norm transformer trained at a high rate needs it).
+    warmup_steps: NotRequired[Count]
+
+
+class ConstantSchedule(_Warmup):
+    type: Literal["constant"]
+
+
+class StepSchedule(_Warmup):
+    """SPGSN's: x ``gamma`` every ``every_epochs``; ``offset_epochs``: decays counted as if that
+    many epochs had run before the first (LTD's and PGBIG's code decay at the start of an epoch,
+    the first one included for PGBIG)."""
+
+    type: Literal["step"]
+    every_epochs: PositiveInt
+    gamma: Positive
+    offset_epochs: NotRequired[Count]
+
+
+class CosineSchedule(_Warmup):
+    """SpecTrHuMS's: cosine from lr to ``min_lr`` over the run, per epoch."""
+
+    type: Literal["cosine"]
+    min_lr: NotRequired[Rate]
+
+
+class EpochMilestonesSchedule(_Warmup):
+    """GGMotion's: x ``gamma`` after each milestone epoch (PyTorch's MultiStepLR)."""
+
+    type: Literal["epoch_milestones"]
+    milestones: Annotated[list[PositiveInt], Field(min_length=1), AfterValidator(_increasing)]
+    gamma: Positive
+
+
+class MultistepSchedule(_Warmup):
+    """siMLPe's: ``lrs[i]`` from optimizer step ``milestones_steps[i-1]`` on."""
+
+    type: Literal["multistep"]
+    milestones_steps: list[Count]
+    lrs: Annotated[list[Rate], Field(min_length=1)]
+
+
+Schedule = Annotated[
+    ConstantSchedule | StepSchedule | CosineSchedule | EpochMilestonesSchedule | MultistepSchedule,
+    Field(discriminator="type"),
+]
+
+
+@pydantic.dataclasses.dataclass(frozen=True, config=ConfigDict(extra="forbid"))
 class Recipe:
-    """How a model trains: a registry entry's ``train`` mapping over these defaults, checked by
-    :func:`training_recipe`. Checkpoints and weights records keep it as :meth:`as_dict`."""
+    """How a model trains: a registry entry's ``train`` mapping over these defaults, checked as
+    :func:`training_recipe` reads it. Checkpoints and weights records keep it as
+    :meth:`as_dict`."""
 
-    optimizer: str = "adam"
-    lr: float = 1e-3
-    weight_decay: float = 0.0
-    batch_size: int = 32
-    epochs: int = 10
-    grad_clip: float | None = None
-    schedule: dict[str, Any] = field(default_factory=lambda: {"type": "constant"})
-    augment: list[str] = field(default_factory=list)
-    val_fraction: float = 0.1
+    optimizer: Literal["adam"] = "adam"
+    # lr 0 is allowed: it runs the whole pipeline with frozen weights (tests use it).
+    lr: Rate = 1e-3
+    weight_decay: Rate = 0.0
+    batch_size: PositiveInt = 32
+    epochs: PositiveInt = 10
+    grad_clip: Positive | None = None  # None: no clipping
+    # no schedule (null) is a constant rate
+    schedule: Schedule = field(default_factory=lambda: {"type": "constant"})
+    augment: list[Literal["time_reversal"]] = field(default_factory=list)
+    val_fraction: Annotated[StrictFloat, Field(gt=0, lt=0.5)] = 0.1
     # Which frames validate (held_out_frames): "auto", the last val_fraction of every sequence
     # where all are long enough (H3.6M), else the last val_fraction of the sequences (cloth; on
     # CMU the last 3 recordings, all of them walking); "tails", the last val_fraction of every
@@ -33,17 +103,51 @@ class Recipe:
     # "tails" and, for an action none of whose recordings can spare a tail, the end of its
     # longest recording, so that every action validates and none is held out whole;
     # "recordings", whole recordings spread over the data (every k-th by name).
-    val_split: str = "auto"
+    val_split: Literal["auto", "tails", "actions", "recordings"] = "auto"
     train_sampler: str = "all"
     # Validation windows of the held-out frames: a sparser sampler (e.g. stride5_strict) cuts
     # the cost of validating large meshes every epoch.
     val_sampler: str = "all"
     # "bfloat16": the training loss (forward) under torch.autocast; weights, optimiser,
     # validation and evaluation stay float32.
-    precision: str = "float32"
+    precision: Literal["float32", "bfloat16"] = "float32"
     # Early stopping: the run ends once this many epochs have passed without a new best
     # validation error (MSR-GCN's code trains until its loss stops improving); None: never.
-    patience: int | None = None
+    patience: PositiveInt | None = None
+
+    @pydantic.field_validator("schedule", mode="before")
+    @classmethod
+    def _schedule_type(cls, schedule: Any) -> Any:
+        if schedule is None:
+            return {"type": "constant"}
+        if isinstance(schedule, dict) and "type" not in schedule:
+            raise ValueError(
+                f"a schedule names its type, one of {', '.join(SCHEDULES)} (YAML needs a space "
+                f"after each colon: '{{type: step, every_epochs: 2, gamma: 0.96}}'), got "
+                f"{schedule!r}"
+            )
+        return schedule
+
+    @pydantic.model_validator(mode="after")
+    def _multistep_rates(self) -> Recipe:
+        schedule = self.schedule
+        if schedule["type"] != "multistep":
+            return self
+        lrs, milestones = schedule["lrs"], schedule["milestones_steps"]
+        if len(lrs) != len(milestones) + 1:
+            raise ValueError(
+                f"a multistep schedule needs milestones_steps [s1, ...] and one more rate in "
+                f"lrs [lr0, lr1, ...], got {schedule!r}"
+            )
+        # The schedule's own rates are what runs; a different lr would be recorded, not used.
+        if self.lr != lrs[0]:
+            raise ValueError(
+                f"lr {self.lr!r} is not what runs: the multistep schedule sets its own rates "
+                f"lrs = {lrs}; change the schedule instead (--train-set 'schedule={{type: "
+                f"multistep, milestones_steps: [...], lrs: [...]}}') and give lr equal to its "
+                f"first rate"
+            )
+        return self
 
     def as_dict(self) -> dict[str, Any]:
         """The recipe as records keep it (plain data, every field)."""
@@ -52,7 +156,7 @@ class Recipe:
     @classmethod
     def of(cls, recorded: dict[str, Any]) -> Recipe:
         """A recorded recipe (a checkpoint's or weights record's), fields it predates at their
-        defaults; not checked (it ran)."""
+        defaults."""
         return cls(**{k: v for k, v in recorded.items() if k in _FIELDS})
 
 
@@ -61,141 +165,26 @@ _FIELDS = frozenset(DEFAULT_RECIPE)
 PRECISIONS = {"float32": None, "bfloat16": torch.bfloat16}
 VAL_SPLITS = ("auto", "tails", "actions", "recordings")
 SCHEDULES = ("constant", "step", "cosine", "multistep", "epoch_milestones")
-AUGMENTATIONS = ("time_reversal",)
 
 
-def training_recipe(entry_train: dict[str, Any], overrides: dict[str, Any] | None = None) -> Recipe:
-    """A registry entry's recipe (``train``) with ``overrides``, over the defaults, checked."""
+def training_recipe(
+    entry_train: dict[str, Any],
+    overrides: dict[str, Any] | None = None,
+    path=None,
+    at: tuple = (),
+    what: str = "",
+) -> Recipe:
+    """A registry entry's recipe (``train``) with ``overrides``, over the defaults, checked; a
+    refusal names the field, and the line of ``path`` (the registry file, the entry's recipe
+    under the keys ``at``) where the recipe came from one; ``what`` starts the message."""
     recipe = {**DEFAULT_RECIPE, **entry_train, **(overrides or {})}
-    unknown = sorted(set(recipe) - set(DEFAULT_RECIPE))
-    if unknown:
-        raise TrainingError(
-            f"unknown training-recipe key(s) {', '.join(unknown)}; valid: "
-            f"{', '.join(sorted(DEFAULT_RECIPE))}"
-        )
-    if recipe["optimizer"] != "adam":
-        raise TrainingError(
-            f"training recipe: optimizer {recipe['optimizer']!r} unknown; valid: adam"
-        )
-    schedule = recipe["schedule"] or {"type": "constant"}
-    if not isinstance(schedule, dict) or schedule.get("type") not in SCHEDULES:
-        raise TrainingError(
-            f"training recipe: schedule {schedule!r} has no known type; valid: "
-            f"{', '.join(SCHEDULES)} (YAML needs a space after each colon: "
-            f"'{{type: step, every_epochs: 2, gamma: 0.96}}')"
-        )
-    warmup = schedule.get("warmup_steps", 0)
-    if isinstance(warmup, bool) or not isinstance(warmup, int) or warmup < 0:
-        raise TrainingError(
-            f"training recipe: schedule warmup_steps must be a non-negative integer, got {warmup!r}"
-        )
-    bad = [a for a in recipe["augment"] or () if a not in AUGMENTATIONS]
-    if bad:
-        raise TrainingError(
-            f"training recipe: augmentation {bad[0]!r} unknown; valid: {', '.join(AUGMENTATIONS)}"
-        )
-    if recipe["precision"] not in PRECISIONS:
-        raise TrainingError(
-            f"training recipe: precision {recipe['precision']!r} unknown; "
-            f"valid: {', '.join(PRECISIONS)}"
-        )
-    for key in ("batch_size", "epochs"):
-        if isinstance(recipe[key], bool) or not isinstance(recipe[key], int) or recipe[key] < 1:
-            raise TrainingError(
-                f"training recipe: {key} must be a positive integer, got {recipe[key]!r}"
-            )
-    patience = recipe["patience"]
-    if patience is not None and (
-        isinstance(patience, bool) or not isinstance(patience, int) or patience < 1
-    ):
-        raise TrainingError(
-            f"training recipe: patience must be a positive integer (epochs without a new best "
-            f"validation error before the run stops) or null, got {patience!r}"
-        )
-    # lr 0 is allowed: it runs the whole pipeline with frozen weights (tests use it).
-    if not _positive_number(recipe["lr"], allow_zero=True):
-        raise TrainingError(f"training recipe: lr must be a number >= 0, got {recipe['lr']!r}")
-    if not _positive_number(recipe["weight_decay"], allow_zero=True):
-        raise TrainingError(
-            f"training recipe: weight_decay must be a number >= 0, got {recipe['weight_decay']!r}"
-        )
-    # A negative limit would flip the gradients' sign inside clip_grad_norm_.
-    if recipe["grad_clip"] is not None and not _positive_number(recipe["grad_clip"]):
-        raise TrainingError(
-            f"training recipe: grad_clip must be a number > 0 or null (no "
-            f"clipping), got {recipe['grad_clip']!r}"
-        )
-    if schedule["type"] == "step" and not (
-        isinstance(schedule.get("every_epochs"), int)
-        and schedule["every_epochs"] >= 1
-        and _positive_number(schedule.get("gamma"))
-        and isinstance(schedule.get("offset_epochs", 0), int)
-        and not isinstance(schedule.get("offset_epochs", 0), bool)
-        and schedule.get("offset_epochs", 0) >= 0
-    ):
-        raise TrainingError(
-            f"training recipe: a step schedule needs every_epochs (an integer "
-            f">= 1) and gamma (a number > 0), and offset_epochs, if given, an "
-            f"integer >= 0; got {schedule!r}"
-        )
-    if schedule["type"] == "epoch_milestones":
-        milestones = schedule.get("milestones")
-        if not (
-            isinstance(milestones, list)
-            and milestones
-            and all(isinstance(m, int) and not isinstance(m, bool) and m >= 1 for m in milestones)
-            and milestones == sorted(milestones)
-            and _positive_number(schedule.get("gamma"))
-        ):
-            raise TrainingError(
-                f"training recipe: an epoch_milestones schedule needs milestones (increasing "
-                f"epochs >= 1 after which the rate is multiplied by gamma) and gamma (a number "
-                f"> 0); got {schedule!r}"
-            )
-    if schedule["type"] == "multistep":
-        lrs, milestones = schedule.get("lrs"), schedule.get("milestones_steps")
-        if (
-            not isinstance(lrs, list)
-            or not isinstance(milestones, list)
-            or not lrs
-            or len(lrs) != len(milestones) + 1
-        ):
-            raise TrainingError(
-                f"training recipe: a multistep schedule needs milestones_steps "
-                f"[s1, ...] and one more rate in lrs [lr0, lr1, ...], got "
-                f"{schedule!r}"
-            )
-        # The schedule's own rates are what runs; a different lr would be recorded, not used.
-        if recipe["lr"] != lrs[0]:
-            raise TrainingError(
-                f"training recipe: lr {recipe['lr']!r} is not what runs: the "
-                f"multistep schedule sets its own rates lrs = {lrs}; change "
-                f"the schedule instead (--train-set 'schedule={{type: "
-                f"multistep, milestones_steps: [...], lrs: [...]}}') and give "
-                f"lr equal to its first rate"
-            )
-    if not 0 < recipe["val_fraction"] < 0.5:
-        raise TrainingError(
-            f"training recipe: val_fraction must lie in (0, 0.5), got {recipe['val_fraction']}"
-        )
-    if recipe["val_split"] not in VAL_SPLITS:
-        raise TrainingError(
-            f"training recipe: val_split {recipe['val_split']!r} unknown; valid: "
-            f"{', '.join(VAL_SPLITS)}"
-        )
-    return Recipe(**recipe)
+    return validated(Recipe, recipe, path, at, f"{what}training recipe: ", TrainingError)
 
 
 def patience_spent(recipe: Recipe, epochs_done: int, best_epoch: int) -> bool:
     """Whether a run that has finished ``epochs_done`` epochs, its best validation at
     ``best_epoch`` (1-based), stops early under the recipe's ``patience``."""
     return recipe.patience is not None and epochs_done - max(best_epoch, 0) >= recipe.patience
-
-
-def _positive_number(value, allow_zero: bool = False) -> bool:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        return False
-    return value >= 0 if allow_zero else value > 0
 
 
 def learning_rate(

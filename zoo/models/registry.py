@@ -19,37 +19,24 @@ import sys
 import weakref
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any, Literal
 
+import pydantic
 import yaml
+from pydantic import BeforeValidator, ConfigDict, Field, StrictBool
 
 from zoo.core.definitions import DefinitionError, load_definition
 from zoo.core.errors import TrainingError, ZooError
 from zoo.core.files_read import recording_files_read
 from zoo.core.io import load_yaml, yaml_problem
-from zoo.models.citation import CitationError, Paper, parse_paper, parse_url
+from zoo.core.schema import line_of, validated
+from zoo.models.citation import Paper, Url
 from zoo.paths import REPO_ROOT
 
 DEFAULT_REGISTRY = REPO_ROOT / "registry.yaml"
 # Keywords every model receives from the benchmark (see zoo.models).
 SHAPE_ARGS = ("input_frames", "output_frames", "num_points")
 REPRESENTATIONS = ("joints", "mesh")
-_ENTRY_KEYS = {
-    "class",
-    "representation",
-    "trainable",
-    "hparams",
-    "reference",
-    "context",
-    "description",
-    "train",
-    "task",
-    "override",
-    "leaderboard",
-    "weights_of",
-    "paper",
-    "code",
-}
 # What a model's forward does: prediction ``forward(history)``, or completion
 # ``forward(history, final_frame)`` (the window's last frame given). Tables keep them apart.
 ENTRY_TASKS = ("prediction", "completion")
@@ -68,13 +55,6 @@ def files_read_while_built(model) -> frozenset[Path]:
     return _READ_WHILE_BUILT.get(model, frozenset())
 
 
-def _flag(raw: dict, key: str, where: str) -> bool:
-    value = raw.get(key, True)
-    if not isinstance(value, bool):
-        raise RegistryError(f"{where}: field {key!r} must be true or false, got {value!r}")
-    return value
-
-
 class RegistryError(ZooError, KeyError):
     def __str__(self) -> str:  # KeyError would quote the message
         return str(self.args[0])
@@ -88,29 +68,84 @@ class UnknownModelError(RegistryError):
         self.model = model
 
 
-@dataclass(frozen=True)
-class ModelEntry:
-    name: str
-    class_path: str
-    representation: tuple[str, ...]
-    trainable: bool
-    hparams: dict[str, Any]
-    reference: str
-    source: Path
-    context: tuple[str, ...] = ()
-    description: str = ""
-    # the training recipe (zoo.train); None: it learns, but has no recipe here yet
+def _one_or_more(value: Any) -> Any:
+    return (value,) if isinstance(value, str) else value
+
+
+def _none_is_empty(value: Any) -> Any:
+    return {} if value is None else value
+
+
+def _stripped(value: Any) -> Any:
+    return value.strip() if isinstance(value, str) else value
+
+
+@pydantic.dataclasses.dataclass(frozen=True, config=ConfigDict(extra="forbid"))
+class EntryFields:
+    """A registry entry as its file writes it (``models: {name: entry}``): the schema the file
+    is read through (zoo.core.schema), each field once."""
+
+    class_path: str = Field(alias="class")  # module.Class or file.py:Class
+    representation: Annotated[
+        tuple[Literal["joints", "mesh"], ...], Field(min_length=1), BeforeValidator(_one_or_more)
+    ] = Field(min_length=1)
+    trainable: StrictBool = False
+    hparams: Annotated[dict[str, Any], BeforeValidator(_none_is_empty)] = field(
+        default_factory=dict
+    )
+    reference: Annotated[str, BeforeValidator(_stripped)] = ""
+    context: Annotated[tuple[str, ...], BeforeValidator(lambda v: v or ())] = ()
+    description: Annotated[str, BeforeValidator(_stripped)] = ""
+    # the training recipe (zoo.models.recipe, checked where the registry is read); None: it
+    # learns, but has no recipe here yet (its weights come from elsewhere, zoo weights import)
     train: dict[str, Any] | None = field(default_factory=dict)
-    task: str = "prediction"
+    task: Literal["prediction", "completion"] = Field("prediction", validate_default=True)
+    override: StrictBool = False  # replaces an entry of the same name from an earlier file
     # False: scored on demand (zoo eval, zoo.evaluate, the coverage benchmark), never a row of
     # the committed leaderboards, whose untrained rows are the protocol's own baselines.
-    leaderboard: bool = True
-    replaces: str = ""  # the registry file whose entry of this name it overrides, if any
+    leaderboard: StrictBool = True
     # An inference-only variant: runs the trained weights of that entry (shipped or in
     # checkpoints/) through its own class, with that entry's hyper-parameters.
     weights_of: str = ""
     paper: Paper | None = None  # the paper it reproduces (links and BibTeX: zoo.models.citation)
-    code: str = ""  # the address of its authors' public code
+    code: Url = ""  # the address of its authors' public code
+
+    @pydantic.field_validator("hparams")
+    @classmethod
+    def _not_the_benchmarks(cls, hparams: dict[str, Any]) -> dict[str, Any]:
+        clash = sorted(set(hparams) & set(SHAPE_ARGS))
+        if clash:
+            raise ValueError(f"{', '.join(clash)} come from the benchmark, not hparams")
+        return hparams
+
+    @pydantic.field_validator("task")
+    @classmethod
+    def _as_hparams_say(cls, task: str, info: pydantic.ValidationInfo) -> str:
+        said = info.data.get("hparams", {}).get("task", task)
+        if said != task:
+            raise ValueError(
+                f"the entry's task is {task!r} but hparams say task {said!r}; they must agree"
+            )
+        return task
+
+    @pydantic.field_validator("weights_of")
+    @classmethod
+    def _not_trained(cls, weights_of: str, info: pydantic.ValidationInfo) -> str:
+        if weights_of and info.data.get("trainable"):
+            raise ValueError(
+                f"an entry that runs another's weights is not trainable: it is trained as that "
+                f"one (zoo train --model {weights_of})"
+            )
+        return weights_of
+
+
+@dataclass(frozen=True, kw_only=True)
+class ModelEntry(EntryFields):
+    """A registry entry as the registry holds it: its fields, its name and its file."""
+
+    name: str
+    source: Path
+    replaces: str = ""  # the registry file whose entry of this name it overrides, if any
 
     def provenance(self) -> dict[str, str]:
         """What every result of this model records about where it came from."""
@@ -178,17 +213,15 @@ class Registry:
         if not isinstance(models, dict):
             raise RegistryError(f"{path}: expected a top-level mapping 'models: {{name: entry}}'")
         for name, raw in models.items():
-            try:
-                entry = _parse_entry(path, name, raw)
-            except RegistryError as e:
-                raise RegistryError(_located(str(e), path, name)) from e.__cause__
+            entry = _parse_entry(path, name, raw)
             previous = self.entries.get(name)
             if previous is not None:
                 # A second model under a known name would publish rows under the first one's
                 # name and protocol: only an explicit override may, and its results say so.
-                if not (isinstance(raw, dict) and raw.get("override") is True):
+                if not entry.override:
                     raise RegistryError(
-                        f"{path}: model {name!r} is already defined in "
+                        f"{path}, line {line_of(path, ('models', name))}: model {name!r} is "
+                        f"already defined in "
                         f"{previous.source}; choose another name, or add "
                         f"'override: true' to this entry to replace it"
                     )
@@ -201,24 +234,30 @@ class Registry:
     def _check_weights_of(self, entry: ModelEntry) -> None:
         """An entry that runs another's weights names a trainable model defined before it (in
         its file or an earlier one) that sees the same data: task, representation, context."""
-        where = f"{entry.source}: model {entry.name!r}: field 'weights_of'"
         target = self.entries.get(entry.weights_of)
         if target is None:
-            raise RegistryError(
-                f"{where}: {entry.weights_of!r} is not a registered model (it must be defined "
-                f"in this registry file or an earlier one)"
+            problem = (
+                f"{entry.weights_of!r} is not a registered model (it must be defined in this "
+                f"registry file or an earlier one)"
             )
-        if not target.trainable:
-            raise RegistryError(
-                f"{where}: {entry.weights_of!r} is not trainable, so it has no weights to run"
+        elif not target.trainable:
+            problem = f"{entry.weights_of!r} is not trainable, so it has no weights to run"
+        else:
+            problem = next(
+                (
+                    f"its {name} {getattr(entry, name)!r} differs from {entry.weights_of!r}'s "
+                    f"{getattr(target, name)!r}; an entry runs only weights trained for what it "
+                    f"sees"
+                    for name in ("task", "representation", "context")
+                    if getattr(entry, name) != getattr(target, name)
+                ),
+                None,
             )
-        for field_name in ("task", "representation", "context"):
-            if getattr(entry, field_name) != getattr(target, field_name):
-                raise RegistryError(
-                    f"{where}: its {field_name} {getattr(entry, field_name)!r} differs from "
-                    f"{entry.weights_of!r}'s {getattr(target, field_name)!r}; an entry runs only "
-                    f"weights trained for what it sees"
-                )
+        if problem is not None:  # the file is read again for the line only where it is wrong
+            line = line_of(entry.source, ("models", entry.name, "weights_of"))
+            raise RegistryError(
+                f"{entry.source}, line {line}: model {entry.name!r}: field 'weights_of': {problem}"
+            )
 
     def list_models(self, representation: str | None = None) -> list[str]:
         return sorted(
@@ -292,128 +331,30 @@ class Registry:
         return model
 
 
-def _located(message: str, path: Path, name: str) -> str:
-    """``message`` about model ``name`` of ``path`` with the line it is about: the line of the
-    field it names, else the model's. Found only when there is an error to place, so a
-    registry that reads well is parsed once."""
-    try:
-        root = yaml.compose(path.read_text(), Loader=yaml.SafeLoader)
-        models = next(v for k, v in root.value if k.value == "models")
-        key, entry = next((k, v) for k, v in models.value if k.value == str(name))
-    except (yaml.YAMLError, AttributeError, StopIteration, TypeError):
-        return message
-    line = key.start_mark.line + 1
-    body = message.split(f"model {name!r}", 1)[-1]
-    if isinstance(entry, yaml.MappingNode):  # the entry's field the message names first
-        found = [
-            (m.start(), k.start_mark.line + 1)
-            for k, _ in entry.value
-            if (m := re.search(rf"(?<![\w.]){re.escape(str(k.value))}(?!\w)", body))
-        ]
-        line = min(found)[1] if found else line
-    prefix = f"{path}: "
-    if not message.startswith(prefix):
-        return message
-    return f"{path}, line {line}: {message[len(prefix) :]}"
-
-
 def _parse_entry(path: Path, name: str, raw: Any) -> ModelEntry:
-    where = f"{path}: model {name!r}"
+    where = f"model {name!r}: "
     # Names become folder and file names (results/<benchmark>/<sampler>/<name>/).
     if not isinstance(name, str) or not re.fullmatch(r"[A-Za-z0-9_][A-Za-z0-9_.-]*", name):
         raise RegistryError(
-            f"{where}: a model name is letters, digits, '_', '.' and '-', not "
-            f"starting with '.' or '-' (it names result folders)"
+            f"{path}, line {line_of(path, ('models', name))}: {where}a model name is letters, "
+            f"digits, '_', '.' and '-', not starting with '.' or '-' (it names result folders)"
         )
-    if not isinstance(raw, dict):
-        raise RegistryError(f"{where}: entry must be a mapping")
-    unknown = sorted(set(raw) - _ENTRY_KEYS)
-    if unknown:
-        import difflib
-
-        named = [
-            f"{field} (did you mean {close[0]}?)"
-            if (close := difflib.get_close_matches(str(field), _ENTRY_KEYS, n=1, cutoff=0.6))
-            else str(field)
-            for field in unknown
-        ]
+    at = ("models", name)
+    fields = validated(EntryFields, raw, path, at, where, RegistryError)
+    if fields.weights_of == name:
         raise RegistryError(
-            f"{where}: unknown field(s) {', '.join(named)}; valid fields: "
-            f"{', '.join(sorted(_ENTRY_KEYS))}"
+            f"{path}, line {line_of(path, (*at, 'weights_of'))}: {where}field 'weights_of' "
+            f"names another model whose trained weights this one runs, not itself"
         )
-    if not isinstance(raw.get("class"), str):
-        raise RegistryError(f"{where}: field 'class' (module.Class or file.py:Class) is required")
-    rep = raw.get("representation")
-    rep = (rep,) if isinstance(rep, str) else tuple(rep or ())
-    if not rep or any(r not in REPRESENTATIONS for r in rep):
-        raise RegistryError(
-            f"{where}: field 'representation' must be one or more of "
-            f"{', '.join(REPRESENTATIONS)}, got {raw.get('representation')!r}"
-        )
-    hparams = raw.get("hparams") or {}
-    if not isinstance(hparams, dict):
-        raise RegistryError(f"{where}: field 'hparams' must be a mapping")
-    clash = sorted(set(hparams) & set(SHAPE_ARGS))
-    if clash:
-        raise RegistryError(f"{where}: {', '.join(clash)} come from the benchmark, not hparams")
-    if "override" in raw and not isinstance(raw["override"], bool):
-        raise RegistryError(
-            f"{where}: field 'override' must be true or false, got {raw['override']!r}"
-        )
-    task = raw.get("task", "prediction")
-    if task not in ENTRY_TASKS:
-        raise RegistryError(
-            f"{where}: field 'task' must be one of {', '.join(ENTRY_TASKS)}, got {task!r}"
-        )
-    if "task" in hparams and hparams["task"] != task:
-        raise RegistryError(
-            f"{where}: hparams task {hparams['task']!r} but the entry's task is "
-            f"{task!r} (field 'task', default prediction); they must agree"
-        )
-    weights_of = raw.get("weights_of", "")
-    if not isinstance(weights_of, str) or weights_of == name:
-        raise RegistryError(
-            f"{where}: field 'weights_of' names another model whose trained weights this one "
-            f"runs, got {weights_of!r}"
-        )
-    if weights_of and raw.get("trainable"):
-        raise RegistryError(
-            f"{where}: weights_of {weights_of!r} and trainable: true: an entry that runs "
-            f"another's weights is trained as that one (zoo train --model {weights_of})"
-        )
-    try:
-        paper = parse_paper(raw.get("paper"), where)
-        code = parse_url(raw["code"], f"{where}: field 'code'") if "code" in raw else ""
-    except CitationError as e:
-        raise RegistryError(str(e)) from None
-    # train: null says the model learns but has no recipe here yet (its weights come from
-    # elsewhere, zoo weights import); no field: the recipe's defaults
-    train = raw.get("train", {})
-    if train is not None and not isinstance(train, dict):
-        raise RegistryError(f"{where}: field 'train' must be a mapping (the training recipe)")
-    try:  # a bad recipe is refused where the registry is read (zoo list), not at zoo train
+    if fields.train is not None:  # a bad recipe is refused at zoo list, not at zoo train
         from zoo.models.recipe import training_recipe
 
-        training_recipe(train or {})
-    except TrainingError as e:
-        raise RegistryError(f"{where}: field 'train': {e}") from None
-    return ModelEntry(
-        name=name,
-        class_path=raw["class"],
-        representation=rep,
-        task=task,
-        trainable=bool(raw.get("trainable", False)),
-        hparams=dict(hparams),
-        reference=str(raw.get("reference", "")).strip(),
-        source=path,
-        context=tuple(raw.get("context") or ()),
-        description=str(raw.get("description", "")).strip(),
-        train=dict(train) if train is not None else None,
-        leaderboard=_flag(raw, "leaderboard", where),
-        weights_of=weights_of,
-        paper=paper,
-        code=code,
-    )
+        try:
+            training_recipe(fields.train, path=path, at=(*at, "train"), what=where)
+        except TrainingError as e:
+            raise RegistryError(str(e)) from None
+    values = {f.name: getattr(fields, f.name) for f in dataclasses.fields(EntryFields)}
+    return ModelEntry(**values, name=name, source=path)
 
 
 def load_registry(*extra: str | Path) -> Registry:
