@@ -7,11 +7,11 @@ from __future__ import annotations
 
 import json
 
+from zoo.evaluation.pipeline import row_code
 from zoo.models.registry import load_registry
 from zoo.paths import REPO_ROOT
 from zoo.protocol.benchmark import get_benchmark
 from zoo.store.fingerprint import model_fingerprint
-from zoo.store.identity import evaluation_code
 
 
 def test_committed_rows_carry_the_current_code_fingerprints():
@@ -25,7 +25,7 @@ def test_committed_rows_carry_the_current_code_fingerprints():
         bench = path.parts[-4]
         code, model = identity["code"], identity["model"]
         if bench not in evaluators:
-            evaluators[bench] = evaluation_code(None, get_benchmark(bench))["evaluator"]
+            evaluators[bench] = row_code(None, get_benchmark(bench))["evaluator"]
         if code["evaluator"] != evaluators[bench]:
             stale.append(f"{path}: evaluator {code['evaluator']}, now {evaluators[bench]}")
         name = model["name"]

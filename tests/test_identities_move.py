@@ -23,12 +23,12 @@ def probe(results: str | Path) -> dict:
     """What the imported tree says of the committed rows in ``results``: the rows whose
     recorded code fingerprints are not those of this code, and the CMU rows whose cost cells
     ``costs.json`` keeps for their model as it is now."""
+    from zoo.evaluation.pipeline import row_code
     from zoo.leaderboard.costs import committed_tables
     from zoo.leaderboard.plan import Leaderboard
     from zoo.models.registry import load_registry
     from zoo.protocol.benchmark import get_benchmark
     from zoo.store.fingerprint import model_fingerprint
-    from zoo.store.identity import evaluation_code
 
     registry = load_registry()
     evaluators: dict[str, str] = {}
@@ -38,7 +38,7 @@ def probe(results: str | Path) -> dict:
         identity = json.loads(path.read_text())["provenance"]["identity"]
         bench, model, code = path.parts[-4], identity["model"], identity["code"]
         if bench not in evaluators:
-            evaluators[bench] = evaluation_code(None, get_benchmark(bench))["evaluator"]
+            evaluators[bench] = row_code(None, get_benchmark(bench))["evaluator"]
         if code["evaluator"] != evaluators[bench]:
             stale.append(f"{path}: evaluator {code['evaluator']}, now {evaluators[bench]}")
         entry = registry.entries.get(model["name"])

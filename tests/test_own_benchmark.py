@@ -98,7 +98,7 @@ def test_a_loader_it_cannot_call_is_one_line_naming_the_field(own, tmp_path, cap
 def test_a_row_depends_on_its_own_loader_the_modules_beside_it_and_its_options(own):
     import os
 
-    from zoo.store.identity import evaluation_code
+    from zoo.evaluation.pipeline import row_code
 
     mine, _ = own
     (mine / "lab.py").write_text(
@@ -111,7 +111,7 @@ def test_a_row_depends_on_its_own_loader_the_modules_beside_it_and_its_options(o
 
     def fingerprint(**change) -> str:
         path.write_text(yaml.safe_dump({**spec, "loader": "lab.py:load", **change}))
-        return evaluation_code(None, get_benchmark(path))["evaluator"]
+        return row_code(None, get_benchmark(path))["evaluator"]
 
     before = fingerprint()
     assert fingerprint() == before

@@ -23,10 +23,10 @@ import argparse
 import statistics
 import time
 
+from zoo.evaluation.pipeline import row_code
 from zoo.models.registry import load_registry
 from zoo.protocol.benchmark import get_benchmark
 from zoo.store import fingerprint
-from zoo.store.identity import evaluation_code
 
 
 def _timed(call, repeats: int) -> tuple[float, str]:
@@ -64,7 +64,7 @@ def measure(benchmark: str, repeats: int) -> dict:
     bench = get_benchmark(benchmark)
 
     def fingerprint_of() -> str:
-        return evaluation_code(None, bench)["evaluator"]
+        return row_code(None, bench)["evaluator"]
 
     def cold() -> str:
         _forget_all()

@@ -17,12 +17,25 @@ from torch import nn
 
 from zoo.core.io import check_output_folder
 from zoo.core.options import EVAL_BATCH
+from zoo.evaluation import evaluator
 from zoo.evaluation.evaluator import Scored, evaluate_models
 from zoo.evaluation.results import EvalResult
 from zoo.evaluation.tolerance import Agreement, agreement
 from zoo.protocol.plan import Protocol
 from zoo.protocol.views import View
-from zoo.store.identity import check_replace, stamp
+from zoo.store.identity import check_replace, evaluation_code, stamp
+
+
+def row_code(model_class: type | None, bench) -> dict[str, str | None]:
+    """The code a row's identity covers: the evaluator this layer runs (zoo.evaluation.evaluator
+    and the zoo modules it imports that compute numbers), the code that loads ``bench``'s data,
+    and the model's class (:func:`zoo.store.identity.evaluation_code`)."""
+    return evaluation_code(Path(evaluator.__file__), model_class, bench)
+
+
+def row_identity(loaded, bench, protocol_id: str) -> dict[str, Any]:
+    """The identity of a loaded model's results under ``protocol_id`` of ``bench``."""
+    return loaded.identity(bench, protocol_id, row_code(type(loaded.model), bench))
 
 
 @dataclass
@@ -55,7 +68,7 @@ class Subject:
             loaded.label,
             loaded.view,
             _jsonable(loaded.provenance),
-            lambda protocol: loaded.identity(protocol.benchmark, protocol.id),
+            lambda protocol: row_identity(loaded, protocol.benchmark, protocol.id),
             loaded.frames_read,
             loaded.hparams.get("history_frames"),
         )
@@ -70,7 +83,13 @@ class Subject:
             label,
             view,
             {"class": f"{type(model).__module__}.{type(model).__qualname__}"},
-            lambda protocol: object_identity(model, label, protocol.benchmark, protocol.id),
+            lambda protocol: object_identity(
+                model,
+                label,
+                protocol.benchmark,
+                protocol.id,
+                row_code(type(model), protocol.benchmark),
+            ),
         )
 
 

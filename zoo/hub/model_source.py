@@ -235,8 +235,10 @@ class LoadedModel:
             **({"reads": reads} if reads else {}),
         }
 
-    def identity(self, bench, protocol_id: str) -> dict[str, Any]:
-        from zoo.store.identity import evaluation_code, result_identity
+    def identity(self, bench, protocol_id: str, code: dict[str, Any]) -> dict[str, Any]:
+        """Its results' identity under ``protocol_id`` of ``bench``; ``code``: the code part, as
+        the evaluation layer computes it (zoo.evaluation.pipeline.row_code)."""
+        from zoo.store.identity import result_identity
 
         return result_identity(
             benchmark=bench.name,
@@ -244,7 +246,7 @@ class LoadedModel:
             label=self.label,
             model=self.model_identity(),
             trained=self.trained,
-            code=evaluation_code(type(self.model), bench),
+            code=code,
         )
 
     def warn_if_untrained(self) -> None:
@@ -258,12 +260,14 @@ class LoadedModel:
             )
 
 
-def object_identity(model: nn.Module, label: str, bench, protocol_id: str) -> dict[str, Any]:
+def object_identity(
+    model: nn.Module, label: str, bench, protocol_id: str, code: dict[str, Any]
+) -> dict[str, Any]:
     """The identity of results of a model object handed over directly (no registry): its
     class, its printed structure and plain attributes (what a constructor's hyper-parameters
-    usually become) and a hash of its weights."""
+    usually become) and a hash of its weights; ``code`` as for :meth:`LoadedModel.identity`."""
     from zoo.hub.checkpoints import weights_digest
-    from zoo.store.identity import evaluation_code, result_identity
+    from zoo.store.identity import result_identity
 
     cls = type(model)
     settings = {
@@ -285,5 +289,5 @@ def object_identity(model: nn.Module, label: str, bench, protocol_id: str) -> di
             "hparams": {"repr": repr(model), "attributes": settings},
         },
         trained={"kind": "object", "sha256": weights_digest(model)},
-        code=evaluation_code(cls, bench),
+        code=code,
     )

@@ -213,7 +213,7 @@ def cost_key(loaded, bench, dataset, task: str) -> dict[str, Any]:
     """What a model's costs depend on besides the machine (``loaded``: a
     :class:`zoo.hub.model_source.LoadedModel` of ``bench``): its ``architecture`` is the digest of
     this (:func:`architecture`)."""
-    from zoo.store.identity import evaluation_code
+    from zoo.store.fingerprint import model_fingerprint
 
     recipe = loaded.recipe or {}
     key = {
@@ -226,7 +226,7 @@ def cost_key(loaded, bench, dataset, task: str) -> dict[str, Any]:
         "output_frames": bench.output_frames,
         "batch_size": recipe.get("batch_size"),
         "grad_clip": recipe.get("grad_clip"),
-        "code": evaluation_code(type(loaded.model))["model"],
+        "code": model_fingerprint(type(loaded.model)),
     }
     epoch = timed_epoch(loaded.model, recipe)
     if epoch is not None:  # a model whose step changes with the epoch: which one was timed

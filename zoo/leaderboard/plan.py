@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from zoo.core.io import repo_relative
-from zoo.evaluation.pipeline import Subject, compute_all
+from zoo.evaluation.pipeline import Subject, compute_all, row_identity
 from zoo.hub.foreign import AUTHORS_SUFFIX
 from zoo.hub.model_source import ModelSource
 from zoo.leaderboard.efficiency import COSTS_FILE, Costs, architecture, cost_key
@@ -352,7 +352,7 @@ class Leaderboard:
             try:
                 loaded = self.load(row)
                 return RowPlan(
-                    row, "compute", loaded, loaded.identity(self.bench, protocol.id), old
+                    row, "compute", loaded, row_identity(loaded, self.bench, protocol.id), old
                 )
             except Exception as e:  # noqa: BLE001 - every failure is reported, none stops
                 return RowPlan(row, "failed", stored=old, error=e)
@@ -361,7 +361,7 @@ class Leaderboard:
             # rebuild says which rows are stale); one not stored is skipped
             return RowPlan(row, "skip" if old is None else "keep", stored=old)
         loaded = self.load(row)
-        identity = loaded.identity(self.bench, protocol.id)
+        identity = row_identity(loaded, self.bench, protocol.id)
         step = partial(RowPlan, row, loaded=loaded, identity=identity, stored=old)
         if plan.recompute:
             return step("compute", why="asked (--recompute)")

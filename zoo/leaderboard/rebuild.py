@@ -15,7 +15,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from zoo.core.io import atomic_path, atomic_write_json, replace_folder
-from zoo.evaluation.pipeline import Subject, compute_all
+from zoo.evaluation.pipeline import Subject, compute_all, row_identity
 from zoo.evaluation.results import TABLE_FILE, table_files
 from zoo.evaluation.tolerance import agreement, sample_agreement
 from zoo.leaderboard.efficiency import COSTS_FILE
@@ -140,7 +140,7 @@ class Rebuild(Leaderboard):
                     continue
                 differences = identity_differences(
                     stored_identity(folder / row.label),
-                    loaded.identity(self.bench, self._protocol(sampler, task, truth).id),
+                    row_identity(loaded, self.bench, self._protocol(sampler, task, truth).id),
                 )
                 if differences:
                     raise StoreError(

@@ -23,11 +23,6 @@ from zoo.store.fingerprint import (
 from zoo.store.layout import StoreError
 
 IDENTITY_VERSION = 2  # 2: code fingerprints that do not depend on where the code lives
-# The evaluator's code is zoo.evaluation.evaluator and every zoo module it imports, directly or
-# through others (metrics, windows, benchmarks, data loaders and forward kinematics, spectral
-# bases), less the modules that say, by a line of their own, that they cannot change a number
-# (zoo.store.fingerprint.COMPUTES_NO_NUMBER: result files, tables, intervals, paths, errors).
-EVALUATOR = "zoo.evaluation.evaluator"
 
 
 # ---- the code a result's identity covers ----------------------------------------------------
@@ -79,11 +74,15 @@ def _module_origin(module: str) -> Path | None:
     return Path(origin) if origin and origin.endswith(".py") else None
 
 
-def evaluation_code(model_class: type | None, bench=None) -> dict[str, str | None]:
-    """The ``code`` part of an identity: the evaluator's fingerprint (with the code that
-    loads ``bench``'s data) and the model's (None where its source cannot be read, a class
-    typed into an interpreter: such a result is never taken for another)."""
-    evaluator = code_closure(zoo_module_file(EVALUATOR), computing_only=True)
+def evaluation_code(evaluator: Path, model_class: type | None, bench=None) -> dict[str, str | None]:
+    """The ``code`` part of an identity: the evaluator's fingerprint and the model's (None
+    where its source cannot be read, a class typed into an interpreter: such a result is never
+    taken for another). The evaluator's code is the module file ``evaluator`` and every zoo
+    module it imports, directly or through others, less the modules that say, by a line of
+    their own, that they cannot change a number (zoo.store.fingerprint.COMPUTES_NO_NUMBER),
+    with the code that loads ``bench``'s data; the layer that runs the evaluator names its file
+    (its ``row_code``), so the store names nothing above it."""
+    evaluator = code_closure(Path(evaluator), computing_only=True)
     files = sorted(set(evaluator) | set(dataset_code(bench)))
     fingerprint = code_fingerprint(*files)
     own = own_data_code(bench)
