@@ -95,6 +95,42 @@ def test_a_loader_it_cannot_call_is_one_line_naming_the_field(own, tmp_path, cap
         get_benchmark(path).load(data)
 
 
+def test_a_misspelt_field_is_one_line_naming_the_file_line_and_field(own, capsys):
+    mine, data = own
+    text = (mine / "my_mocap.yaml").read_text()
+    line = next(i for i, t in enumerate(text.splitlines(), 1) if t.startswith("horizons_ms:"))
+    path = mine / "typo.yaml"
+    path.write_text(text.replace("horizons_ms:", "horizon_ms:"))
+    assert main(["eval", "--model", "repeat_last", "--benchmark", str(path)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1
+    assert f"{path}, line {line}: unknown field 'horizon_ms' (did you mean 'horizons_ms'?)" in err
+
+
+def test_recordings_the_file_does_not_describe_are_refused_when_loaded(own):
+    """A loader's recordings must be some, of the shape the skeleton gives, at one rate."""
+    mine, data = own
+    spec = yaml.safe_load((mine / "my_mocap.yaml").read_text())
+    loader = spec["loader"].split(":")[1]
+    cases = {
+        "none": ("ds.sequences = []", "returned no recordings for split"),
+        "shape": (
+            "ds.sequences[0].positions = ds.sequences[0].positions[:, :5]",
+            "has positions of shape \\(",
+        ),
+        "rate": ("ds.sequences[0].fps = 2 * ds.fps", "a benchmark's recordings share one"),
+    }
+    for name, (change, message) in cases.items():
+        (mine / f"{name}.py").write_text(
+            f"from my_mocap import {loader} as base\n\n\ndef load(root, split, **options):\n"
+            f"    ds = base(root, split, **options)\n    {change}\n    return ds\n"
+        )
+        path = mine / f"{name}.yaml"
+        path.write_text(yaml.safe_dump({**spec, "loader": f"{name}.py:load"}))
+        with pytest.raises(BenchmarkError, match=message):
+            get_benchmark(path).load(data)
+
+
 def test_a_row_depends_on_its_own_loader_the_modules_beside_it_and_its_options(own):
     import os
 

@@ -1,6 +1,7 @@
-"""TFAN (zoo.models.tfan): its size, its fusion rule by hand, its padding of a short history, and
-its bone tree refused where it is not a tree. Its equality with the public code under the
-authors' weights is measured by benchmarks/speed/public_tfan.py (docs/models/tfan.md)."""
+"""TFAN (zoo.models.tfan): its size, its fusion rule by hand, its padding of a short history, its
+bone tree refused where it is not a tree, and its training in the code's stages. Its equality
+with the public code under the authors' weights is measured by benchmarks/speed/public_tfan.py
+(docs/models/tfan.md)."""
 
 from __future__ import annotations
 
@@ -73,16 +74,42 @@ def test_a_bone_list_that_is_not_a_tree_is_refused(roots, bones, message):
         TFAN(10, 5, 3, roots=roots, bones=bones, blocks=1, history_frames=10, chunk=5)
 
 
-def test_it_learns_but_has_no_recipe_here_so_training_refuses_it():
-    from zoo.core.errors import TrainingError
+def _trained_parameters(model: TFAN, loss: torch.Tensor) -> set[str]:
+    model.zero_grad(set_to_none=True)
+    loss.backward()
+    return {name.split(".")[0] for name, p in model.named_parameters() if p.grad is not None}
+
+
+def test_the_streams_learn_first_then_the_gate_alone_on_the_fused_frames():
+    model = zoo.create_model("tfan", benchmark="cmu50", blocks=2, streams_epochs=1)
+    torch.manual_seed(1)
+    history, future = 300 * torch.randn(2, 50, 25, 3), 300 * torch.randn(2, 25, 25, 3)
+    model.start_epoch(0, frames=None)
+    assert _trained_parameters(model, model.training_loss(history, future)) == {"position", "bone"}
+    model.start_epoch(1, frames=None)
+    loss = model.training_loss(history, future)
+    # the gate's loss is the code's on the first 10 fused frames, which forward predicts first
+    pred, target = model(history)[:, :10] / 1000, future[:, :10] / 1000
+    moved = (pred.diff(dim=1) - target.diff(dim=1)).norm(dim=-1).mean()
+    torch.testing.assert_close(loss, (pred - target).norm(dim=-1).mean() + moved)
+    assert _trained_parameters(model, loss) == {"gate"}
+
+
+def test_its_recipe_is_the_codes_stages_in_epochs_of_cmu50():
     from zoo.hub.weights import unshipped_models
+    from zoo.models.recipe import learning_rate, training_recipe
     from zoo.models.registry import load_registry
-    from zoo.train.loop import train
 
     registry = load_registry()
-    assert registry.get("tfan").trainable and registry.get("tfan").train is None
-    with pytest.raises(TrainingError, match="'tfan' has no training recipe yet"):
-        train("tfan", "cmu50", registry=registry)
-    assert (
-        unshipped_models(registry)["tfan"] == "training: no recipe here yet (registry: train: null)"
-    )
+    entry = registry.get("tfan")
+    recipe = training_recipe(entry.train)
+    assert recipe.epochs == 250 and recipe.batch_size == 64 and recipe.grad_clip is None
+    streams = entry.hparams["streams_epochs"]
+    assert streams == 240
+    steps = 208  # an epoch: cmu50's 13,331 training windows in batches of 64 (registry.yaml)
+    rate = [
+        learning_rate(recipe.schedule, recipe.lr, step // steps, recipe.epochs, step)
+        for step in (0, 39_999, 40_000, streams * steps - 1, streams * steps, 51_419, 51_420)
+    ]
+    assert rate == [3e-4, 3e-4, 1e-5, 1e-5, 3e-4, 3e-4, 1e-5]
+    assert "0 of 250 epochs" in unshipped_models(registry)["tfan"]

@@ -1,5 +1,6 @@
 """TFAN against its public code (Deante-dx/TFAN) with the authors' CMU weights: the same
-predictions, the same parameter count, and the forward of each timed side by side.
+predictions, the same parameter count, the same training losses and gradients, and the forward
+and the training steps of each timed side by side.
 
 The public model runs from a checkout outside this repository (nothing of it is copied here):
 ``DIR/TFAN``, with DIR ``../public`` beside this repository by default, or ``--public DIR``. Its
@@ -16,6 +17,16 @@ differences of the predictions in mm, the largest gap per action between the aut
 metric on the public predictions and the zoo's row (``used25``, frame averaging), and each
 side's median milliseconds of one forward of a batch, the two timed in turn so they share the
 machine's load.
+
+Training: the public side is the body of the code's ``train_step`` of each stage
+(``exp/cmu/position``, ``exp/cmu/bone``: a stream's next 10 frames, the mean point distance plus
+that of the frame-to-frame changes; ``exp/cmu/fusion``: the same on the fused frames, both
+streams detached), the zoo's is ``training_loss`` in its two phases (both streams in one loss,
+then the gate). On one batch of 64 ``cmu50`` windows the script prints the largest difference of
+the losses and of the gradients, and each side's median milliseconds of an optimizer step (Adam,
+the code's learning rate and weight decay): the zoo's streams step against the public position
+step plus the public bone step (the code trains them one after the other), the zoo's gate step
+against the public fusion step.
 
 Run: python benchmarks/speed/public_tfan.py [--public DIR] [--deps DEPS] [--repeats 9]
 """
@@ -115,13 +126,13 @@ def zoo_model(weights: Path) -> torch.nn.Module:
     return model.eval()
 
 
-def cmu50_windows() -> tuple[torch.Tensor, torch.Tensor, list[str]]:
-    """Every ``cmu50`` ``ltd8`` window on the 25 predicted joints, in mm: its 50 observed
+def cmu50_windows(sampler: str = "ltd8") -> tuple[torch.Tensor, torch.Tensor, list[str]]:
+    """Every ``cmu50`` window of ``sampler`` on the 25 predicted joints, in mm: its 50 observed
     frames, its 25 future ones, and its action."""
     bench = get_benchmark("cmu50")
     data = bench.load()
     positions = [s.positions for s in data.sequences]
-    index = window_sampler("ltd8", [len(p) for p in positions], T_IN, T_OUT)
+    index = window_sampler(sampler, [len(p) for p in positions], T_IN, T_OUT)
     windows = gather_windows(positions, index, T_IN + T_OUT)[:, :, list(bench.skeleton.used)]
     windows = torch.from_numpy(windows).float()
     actions = [data.sequences[i].action for i in index[:, 0]]
@@ -142,6 +153,124 @@ def per_action_gaps(ours, theirs_mm, future, actions) -> float:
             row = rows[(rows.action == action) & (rows.frame == t)]["value"].item()
             largest = max(largest, abs(row - error[t - 1].item()))
     return largest
+
+
+def _distance(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """The code's loss: ``rloss + dloss`` of its train steps, on ``(B, 10, 75)`` in metres."""
+    b = pred.shape[0]
+    pred, target = pred.reshape(b, STEP, 25, 3), target.reshape(b, STEP, 25, 3)
+    moved = (pred[:, 1:] - pred[:, :-1]) - (target[:, 1:] - target[:, :-1])
+    return torch.mean(torch.norm((pred - target).reshape(-1, 3), 2, 1)) + torch.mean(
+        torch.norm(moved.reshape(-1, 3), 2, 1)
+    )
+
+
+def _bones(frames: torch.Tensor) -> torch.Tensor:
+    """``(B, T, 25, 3)`` to the code's bone input: the roots, then the 22 bone vectors."""
+    bones = torch.cat([frames[:, :, [0, 4, 8]], frames[:, :, END] - frames[:, :, START]], dim=2)
+    return bones.reshape(frames.shape[0], frames.shape[1], -1)
+
+
+def public_stream_loss(predictor, inputs: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """A stream's ``train_step`` loss (``exp/cmu/position`` and ``exp/cmu/bone``): the inverse
+    DCT of its prediction, its first 10 frames plus the last observed one, against ``target``."""
+    dct_m, idct_m = public_dct(T_IN)
+    pred = torch.matmul(idct_m, predictor(torch.matmul(dct_m, inputs)))[:, :STEP]
+    return _distance(pred + inputs[:, -1:], target)
+
+
+def public_fusion_loss(parts, history_m, target_m) -> torch.Tensor:
+    """``exp/cmu/fusion``'s ``train_step`` loss: both streams' predictions detached, the gate,
+    ``fusion_C``."""
+    position, bone, fuse, fusion_c, _ = parts
+    dct_m, idct_m = public_dct(T_IN)
+    b = history_m.shape[0]
+    motion, bones = history_m.reshape(b, T_IN, -1), _bones(history_m)
+    p = torch.matmul(idct_m, position(torch.matmul(dct_m, motion)))[:, :STEP] + motion[:, -1:]
+    q = torch.matmul(idct_m, bone(torch.matmul(dct_m, bones)))[:, :STEP] + bones[:, -1:]
+    p, q = p.detach(), q.detach()
+    return _distance(fusion_c(q, p, fuse(q, p)), target_m.reshape(b, STEP, -1))
+
+
+def training_checks(parts, ours, history, future, repeats: int) -> None:
+    """Losses and gradients of both sides on one batch, then their optimizer steps timed."""
+    position, bone, fuse = parts[:3]
+    h, target = history / 1000, future[:, :STEP] / 1000
+    b = h.shape[0]
+    for m in (position, bone, fuse, ours):
+        m.train()
+    public_streams = {
+        "position": lambda: public_stream_loss(position, h.reshape(b, T_IN, -1), target),
+        "bone": lambda: public_stream_loss(bone, _bones(h), _bones(target)),
+    }
+    ours.start_epoch(0, frames=None)
+    zoo_streams = ours.training_loss(history, future)
+    theirs = [public_streams["position"](), public_streams["bone"]()]
+    ours.zero_grad(set_to_none=True)
+    zoo_streams.backward()
+    for loss in theirs:
+        loss.backward()
+    grad_gap = max(
+        (dict(ours.named_parameters())[f"{prefix}.{n}"].grad - p.grad).abs().max().item()
+        for prefix, model in (("position", position), ("bone", bone))
+        for n, p in model.named_parameters()
+    )
+    largest = max(p.grad.abs().max().item() for m in (position, bone) for p in m.parameters())
+    print(
+        f"streams' loss: zoo {zoo_streams.item():.7f}, public position + bone "
+        f"{sum(t.item() for t in theirs):.7f}; largest gradient difference {grad_gap:.2g} "
+        f"(largest gradient {largest:.2g})"
+    )
+    ours.start_epoch(ours.streams_epochs, frames=None)
+    zoo_gate = ours.training_loss(history, future)
+    public_gate = public_fusion_loss(parts, h, target)
+    ours.zero_grad(set_to_none=True)
+    zoo_gate.backward()
+    public_gate.backward()
+    gate_gap = max(
+        (ours.gate.weight.grad - fuse.fc.weight.grad).abs().max().item(),
+        (ours.gate.bias.grad - fuse.fc.bias.grad).abs().max().item(),
+    )
+    print(
+        f"gate's loss: zoo {zoo_gate.item():.7f}, public {public_gate.item():.7f}; largest "
+        f"gradient difference {gate_gap:.2g} (largest gradient "
+        f"{fuse.fc.weight.grad.abs().max().item():.2g})"
+    )
+
+    def stepper(model, loss_fn):
+        optimizer = torch.optim.Adam(model.parameters(), lr=3e-4, weight_decay=1e-4)
+
+        def step():
+            loss = loss_fn()
+            optimizer.zero_grad()
+            loss.backward()
+            optimizer.step()
+
+        return step
+
+    public_steps = {
+        "position": stepper(position, public_streams["position"]),
+        "bone": stepper(bone, public_streams["bone"]),
+        "fusion": stepper(fuse, lambda: public_fusion_loss(parts, h, target)),
+    }
+    zoo_step = stepper(ours, lambda: ours.training_loss(history, future))
+    for phase, epoch in (("streams", 0), ("gate", ours.streams_epochs)):
+        public_ms, zoo_ms = [], []
+        for _ in range(repeats):  # in turn, so both see the same load
+            if phase == "streams":
+                public_ms.append(
+                    _median_ms(public_steps["position"], 1) + _median_ms(public_steps["bone"], 1)
+                )
+            else:
+                public_ms.append(_median_ms(public_steps["fusion"], 1))
+            ours.start_epoch(epoch, frames=None)
+            zoo_ms.append(_median_ms(zoo_step, 1))
+        p, z = statistics.median(public_ms), statistics.median(zoo_ms)
+        what = "position + bone steps" if phase == "streams" else "fusion step"
+        print(
+            f"training step, {phase}, batch {b}, {torch.get_num_threads()} thread(s): zoo "
+            f"{z:.1f} ms, public {what} {p:.1f} ms, zoo / public {z / p:.2f}"
+        )
 
 
 def _median_ms(call, repeats: int) -> float:
@@ -196,6 +325,8 @@ def main(argv: list[str] | None = None) -> int:
         f"forward of 64 windows, {torch.get_num_threads()} thread(s): zoo {z:.1f} ms, "
         f"public {p:.1f} ms, zoo / public {z / p:.2f}"
     )
+    history, future, _ = cmu50_windows("all")
+    training_checks(parts, ours, history[:64], future[:64], args.repeats)
     return 0
 
 

@@ -29,7 +29,7 @@ class DefinitionError(ZooError, ValueError):
 
 def load_definition(spec: str, base: Path, kind: str = "class") -> Any:
     """The object ``spec`` names; ``base``: the folder a file path is relative to; ``kind``
-    ("class" or "function"): what the messages call it."""
+    ("class", "function" or "skeleton"): what the messages call it."""
     try:
         if ".py:" in spec or spec.endswith(".py"):
             file_part, name = spec.rsplit(":", 1) if ":" in spec else (spec, "")

@@ -73,6 +73,12 @@ class Predictor(nn.Module):
         return self.fc_out(y)
 
 
+def _distance_loss(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """Mean point distance plus mean distance of the frame-to-frame changes, ``(B, T, J, 3)``."""
+    velocity = (pred.diff(dim=1) - target.diff(dim=1)).norm(dim=-1).mean()
+    return (pred - target).norm(dim=-1).mean() + velocity
+
+
 def _integer(name: str, value, low: int) -> int:
     if isinstance(value, bool) or not isinstance(value, int) or value < low:
         raise ValueError(f"TFAN: {name} must be an integer >= {low}, got {value!r}")
@@ -88,7 +94,12 @@ class TFAN(nn.Module):
     a gated mix of its parent's predicted position and its parent's fused one, then gated
     against its own predicted position. ``history_frames``: the frames the predictors read (a
     shorter history is padded with its oldest frame, :func:`zoo.models.history.pad_history`);
-    ``chunk``: frames predicted a call."""
+    ``chunk``: frames predicted a call.
+
+    Training follows the code's stages (``training_loss``, ``start_epoch``): for the first
+    ``streams_epochs`` epochs each stream learns its own next ``chunk`` frames (positions; the
+    roots and bone vectors), as ``exp/cmu/position`` and ``exp/cmu/bone`` train them; then the
+    gate alone learns to fuse their predictions, the streams held fixed (``exp/cmu/fusion``)."""
 
     def __init__(
         self,
@@ -100,12 +111,15 @@ class TFAN(nn.Module):
         blocks: int = 48,
         history_frames: int = 50,
         chunk: int = 10,
+        streams_epochs: int = 0,
     ) -> None:
         super().__init__()
         self.input_frames = _integer("input_frames", input_frames, 1)
         self.output_frames = _integer("output_frames", output_frames, 1)
         self.history_frames = _integer("history_frames", history_frames, 1)
         self.chunk = _integer("chunk", chunk, 1)
+        self.streams_epochs = _integer("streams_epochs", streams_epochs, 0)
+        self.phase = "streams" if self.streams_epochs else "gate"
         if self.chunk > self.history_frames:
             raise ValueError(
                 f"TFAN: chunk ({chunk}) must not exceed history_frames ({history_frames})"
@@ -158,6 +172,28 @@ class TFAN(nn.Module):
             fused.append(chained * (1 - beta) + beta * placed[:, :, i])
         out = torch.stack(fused, dim=2)
         return out[:, :, torch.argsort(self.layout)]
+
+    def start_epoch(self, epoch: int, frames) -> None:
+        """Training-engine hook: the streams learn in the first ``streams_epochs`` epochs, the
+        gate after them."""
+        self.phase = "streams" if epoch < self.streams_epochs else "gate"
+
+    def training_loss(self, history: torch.Tensor, future: torch.Tensor) -> torch.Tensor:
+        """The code's loss on the next ``chunk`` frames, in metres: the mean distance of each
+        predicted point from its target plus that of their frame-to-frame changes. The streams'
+        phase sums it over both streams' own outputs (their parameters are apart, so each learns
+        as alone); the gate's phase takes it on the fused joints, the streams held fixed."""
+        b, _, j, _ = history.shape
+        positions = pad_history(history / MM_PER_UNIT, self.history_frames)
+        target = future[:, : self.chunk] / MM_PER_UNIT
+        with torch.set_grad_enabled(self.phase == "streams" and torch.is_grad_enabled()):
+            p = self._stream(self.position, positions.reshape(b, -1, 3 * j))
+            q = self._stream(self.bone, self.to_bones(positions).reshape(b, -1, 3 * j))
+        p, q = p.view(b, -1, j, 3), q.view(b, -1, j, 3)
+        if self.phase == "streams":
+            return _distance_loss(p, target) + _distance_loss(q, self.to_bones(target))
+        gates = torch.sigmoid(self.gate(torch.cat([q.flatten(2), p.flatten(2)], dim=-1)))
+        return _distance_loss(self.fuse(q, p, gates), target)
 
     def forward(self, history: torch.Tensor) -> torch.Tensor:
         b, t, j, _ = history.shape

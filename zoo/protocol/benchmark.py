@@ -15,15 +15,20 @@ reconstruction, as SpecTrHuMS does).
 
 from __future__ import annotations
 
+import dataclasses
 import inspect
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any, Literal
 
+import pydantic
 import yaml
+from pydantic import AfterValidator, ConfigDict, Field, StrictInt, StringConstraints
 
 from zoo.core.definitions import DefinitionError, load_definition
 from zoo.core.errors import ZooError
+from zoo.core.io import load_yaml, yaml_problem
+from zoo.core.schema import line_of, validated
 from zoo.data.mesh import MeshDataset
 from zoo.data.motion import MotionDataset
 from zoo.data.skeleton import Skeleton
@@ -32,25 +37,6 @@ from zoo.paths import REPO_ROOT
 from zoo.protocol.views import View
 
 BENCHMARK_DIR = REPO_ROOT / "benchmarks"
-_REQUIRED = ("name", "dataset", "loader", "split", "input_frames", "output_frames", "sampler")
-_OPTIONAL = (
-    "loader_options",
-    "skeleton",
-    "train_split",
-    "data_root",
-    "samplers",
-    "actions",
-    "horizons_ms",
-    "averaging",
-    "description",
-    "representation",
-    "spectral_k",
-    "ground_truth",
-    "ground_truths",
-    "melv_frames",
-    "weights_from",
-    "val_split",
-)
 # What a loader returns for each representation.
 DATASET_TYPES = {"joints": MotionDataset, "mesh": MeshDataset}
 GROUND_TRUTHS = ("raw", "spectral")
@@ -60,36 +46,112 @@ class BenchmarkError(ZooError, ValueError):
     pass
 
 
-@dataclass(frozen=True)
-class Benchmark:
-    name: str
-    dataset: str  # the dataset's name in records; its data comes from ``loader``
-    loader: str
-    split: str
-    input_frames: int
-    output_frames: int
-    sampler: str
-    source: Path
+def _named(spec: str) -> str:
+    if ":" not in spec:
+        raise ValueError(
+            f"expected package.module:NAME or file.py:NAME (a path relative to this file), "
+            f"got {spec!r}"
+        )
+    return spec
+
+
+Name = Annotated[str, StringConstraints(min_length=1)]
+Definition = Annotated[str, AfterValidator(_named)]
+Sampler = Annotated[str, AfterValidator(check_sampler)]  # its SamplerError is a ValueError
+Frames = Annotated[StrictInt, Field(ge=1)]
+GroundTruth = Literal["raw", "spectral"]
+HORIZONS_MS = (80, 160, 320, 400, 560, 720, 880, 1000)
+# Fields a joints benchmark does not write.
+_MESH_ONLY = ("spectral_k", "ground_truth", "ground_truths", "melv_frames")
+
+
+@pydantic.dataclasses.dataclass(frozen=True, config=ConfigDict(extra="forbid"))
+class BenchmarkFields:
+    """A benchmark as its YAML file writes it: the schema the file is read through
+    (zoo.core.schema), each field once."""
+
+    name: Name
+    dataset: Name  # the dataset's name in records; its data comes from ``loader``
+    loader: Definition
+    split: Name
+    input_frames: Frames
+    output_frames: Frames
+    sampler: Sampler
     loader_options: dict[str, Any] = field(default_factory=dict)
-    skeleton_def: str | None = None  # field ``skeleton``: ``module:NAME`` or ``file.py:NAME``
-    train_split: str = "train"
+    # the skeleton the loader's recordings are on (joints only): ``module:NAME``, ``file.py:NAME``
+    skeleton_def: Definition | None = Field(None, alias="skeleton")
+    train_split: Name = "train"
     data_root: str | None = None
-    samplers: tuple[str, ...] = ()
+    # the samplers offered; none written: the default one alone
+    samplers: tuple[Sampler, ...] = Field((), validate_default=True)
     actions: tuple[str, ...] = ()
-    horizons_ms: tuple[int, ...] = (80, 160, 320, 400, 560, 720, 880, 1000)
-    averaging: tuple[str, ...] = ("frame", "cumulative")
-    extra: dict[str, Any] = field(default_factory=dict)
-    representation: str = "joints"
-    spectral_k: int | None = None
-    ground_truth: str = "raw"
-    ground_truths: tuple[str, ...] = ()
-    melv_frames: str | None = None  # None: spectral where there is a basis, else raw
+    horizons_ms: tuple[Annotated[StrictInt, Field(ge=1)], ...] = HORIZONS_MS
+    averaging: tuple[Literal["frame", "cumulative"], ...] = ("frame", "cumulative")
+    description: str = ""
+    representation: Literal["joints", "mesh"] = "joints"
+    spectral_k: Frames | None = None
+    ground_truth: GroundTruth = "raw"
+    ground_truths: tuple[GroundTruth, ...] = ()
+    melv_frames: GroundTruth | None = None  # None: spectral where there is a basis, else raw
     # A benchmark whose trained models are also scored here (same data, basis and predicted
     # frames; a history at least as long, of which they read the last frames they take).
-    weights_from: str | None = None
+    weights_from: Name | None = None
     # The validation rule of every model trained here (zoo.train.held_out_frames) unless its
     # recipe or the run names another: one rule per benchmark, so its models compare.
-    val_split: str | None = None
+    val_split: Name | None = None
+
+    @pydantic.field_validator("samplers")
+    @classmethod
+    def _default_alone(cls, samplers: tuple, info: pydantic.ValidationInfo) -> tuple:
+        return samplers or ((info.data["sampler"],) if "sampler" in info.data else ())
+
+    @pydantic.model_validator(mode="before")
+    @classmethod
+    def _fields_of_its_representation(cls, raw: Any) -> Any:
+        if not isinstance(raw, dict):
+            return raw
+        representation = raw.get("representation", "joints")
+        if representation == "mesh":
+            if "skeleton" in raw:
+                raise ValueError(
+                    "field 'skeleton' belongs to joints benchmarks: a mesh benchmark's points "
+                    "are its loader's vertices"
+                )
+            return raw
+        if representation != "joints":
+            return raw  # the field's own check says what it may be
+        written = [k for k in _MESH_ONLY if k in raw]
+        if written:
+            raise ValueError(
+                f"field(s) {', '.join(written)} belong to mesh benchmarks (representation: mesh)"
+            )
+        if not raw.get("skeleton"):
+            raise ValueError(
+                "a joints benchmark names the skeleton its recordings are on in field "
+                "'skeleton', as package.module:NAME or file.py:NAME (e.g. zoo.data.skeleton:CMU)"
+            )
+        return raw
+
+    @pydantic.model_validator(mode="after")
+    def _ground_truths(self) -> BenchmarkFields:
+        offered = self.ground_truths or (self.ground_truth,)
+        if self.ground_truth not in offered:
+            raise ValueError(
+                f"field 'ground_truth' ({self.ground_truth!r}) must be one of field "
+                f"'ground_truths' {list(offered)}"
+            )
+        if self.spectral_k is None and "spectral" in offered:
+            raise ValueError("ground truth 'spectral' needs field 'spectral_k'")
+        if self.spectral_k is None and self.melv_frames == "spectral":
+            raise ValueError("field 'melv_frames: spectral' needs field 'spectral_k'")
+        return self
+
+
+@dataclass(frozen=True, kw_only=True)
+class Benchmark(BenchmarkFields):
+    """A benchmark: its file's fields and the file (``source``) they were read from."""
+
+    source: Path
 
     @property
     def melv_on(self) -> str:
@@ -154,9 +216,10 @@ class Benchmark:
             dataset = loader(root, split or self.split, **kwargs)
         except ZooError:
             raise
-        except ValueError as e:  # a loader's refusal (a split it has not): one line
+        except ValueError as e:  # a loader's refusal (a split it has not, a bad file): one line
             raise BenchmarkError(
-                f"{self.source}: {self.loader} refused split {split or self.split!r} of {root}: {e}"
+                f"{self.source}: field 'loader': {self.loader} could not load split "
+                f"{split or self.split!r} of {root}: {e}"
             ) from e
         expected = DATASET_TYPES[self.representation]
         if not isinstance(dataset, expected):
@@ -165,15 +228,39 @@ class Benchmark:
                 f"{type(dataset).__name__}, expected a {expected.__name__} for "
                 f"representation {self.representation} (docs/adding-a-benchmark.md)"
             )
-        joints = isinstance(dataset, MotionDataset)
-        if joints and not _same_skeleton(dataset.skeleton, self.skeleton):
+        if not dataset.sequences:
+            raise BenchmarkError(
+                f"{self.source}: field 'loader': {self.loader} returned no recordings for split "
+                f"{split or self.split!r} of {root}"
+            )
+        if isinstance(dataset, MotionDataset):
+            self._check_recordings(dataset)
+        return dataset
+
+    def _check_recordings(self, dataset: MotionDataset) -> None:
+        """A loader's recordings are on the skeleton the file names, as ``(T, J, 3)`` positions
+        at the dataset's one frame rate (windows count frames, horizons are milliseconds)."""
+        where = f"{self.source}: field 'loader': {self.loader}"
+        if not _same_skeleton(dataset.skeleton, self.skeleton):
             raise BenchmarkError(
                 f"{self.source}: field 'skeleton': {self.loader} gave recordings on skeleton "
                 f"{dataset.skeleton.name!r} ({dataset.skeleton.num_joints} joints), the file "
                 f"names {self.skeleton_def} ({self.skeleton.name!r}, "
                 f"{self.skeleton.num_joints} joints)"
             )
-        return dataset
+        shape = (self.skeleton.num_joints, 3)
+        for seq in dataset.sequences:
+            positions = getattr(seq.positions, "shape", ())
+            if len(positions) != 3 or tuple(positions[1:]) != shape:
+                raise BenchmarkError(
+                    f"{where}: recording {seq.name!r} has positions of shape {positions}, "
+                    f"expected (frames, {shape[0]}, 3)"
+                )
+            if seq.fps != dataset.fps:
+                raise BenchmarkError(
+                    f"{where}: recording {seq.name!r} is at {seq.fps} Hz, the dataset at "
+                    f"{dataset.fps} Hz; a benchmark's recordings share one frame rate"
+                )
 
     def view_for(self, representations) -> View:
         """How a model whose registry ``representation`` lists ``representations`` sees this
@@ -286,93 +373,43 @@ def get_benchmark(name_or_path: str | Path) -> Benchmark:
             )
     if not path.is_file():
         raise BenchmarkError(f"benchmark file {path} does not exist")
+    path = path.resolve()  # its loader, skeleton and data are found beside it, from any folder
     try:
-        raw = yaml.safe_load(path.read_text())
+        raw = load_yaml(path.read_text())
     except yaml.YAMLError as e:
-        raise BenchmarkError(f"{path}: not valid YAML ({e})") from e
+        raise BenchmarkError(f"{path}: not valid YAML: {yaml_problem(e)}") from e
     if not isinstance(raw, dict):
         raise BenchmarkError(f"{path}: expected a mapping of protocol fields")
-    missing = [k for k in _REQUIRED if k not in raw]
-    if missing:
-        raise BenchmarkError(f"{path}: missing field(s) {', '.join(missing)}")
-    unknown = sorted(set(raw) - set(_REQUIRED) - set(_OPTIONAL))
-    if unknown:
-        raise BenchmarkError(
-            f"{path}: unknown field(s) {', '.join(unknown)}; valid: "
-            f"{', '.join(_REQUIRED + _OPTIONAL)}"
-        )
-    mesh = _check_mesh_fields(path, raw)
-    for key in ("dataset", "loader"):
-        if not isinstance(raw[key], str) or not raw[key]:
-            raise BenchmarkError(f"{path}: field {key!r} must be a name, got {raw[key]!r}")
-    if ":" not in raw["loader"]:
-        raise BenchmarkError(
-            f"{path}: field 'loader': expected package.module:function or file.py:function "
-            f"(a path relative to this file), got {raw['loader']!r}"
-        )
-    if mesh and "skeleton" in raw:
-        raise BenchmarkError(
-            f"{path}: field 'skeleton' belongs to joints benchmarks: a mesh benchmark's points "
-            f"are its loader's vertices"
-        )
-    if not mesh and not (isinstance(raw.get("skeleton"), str) and ":" in raw["skeleton"]):
-        raise BenchmarkError(
-            f"{path}: field 'skeleton': a joints benchmark names the skeleton its recordings "
-            f"are on, as package.module:NAME or file.py:NAME (e.g. zoo.data.skeleton:CMU), "
-            f"got {raw.get('skeleton')!r}"
-        )
-    if not isinstance(raw.get("loader_options", {}), dict):
-        raise BenchmarkError(
-            f"{path}: field 'loader_options' must map the loader's keywords to values"
-        )
-    for key in ("input_frames", "output_frames"):
-        if not isinstance(raw[key], int) or raw[key] < 1:
-            raise BenchmarkError(f"{path}: field {key!r} must be a positive integer")
-    if not isinstance(raw.get("val_split", ""), str):
-        raise BenchmarkError(f"{path}: field 'val_split' must name a validation rule")
-    samplers = tuple(raw.get("samplers") or (raw["sampler"],))
-    for s in (raw["sampler"], *samplers):
-        try:
-            check_sampler(s)
-        except ValueError as e:
-            raise BenchmarkError(f"{path}: {e}") from None
-    kwargs = {
-        k: tuple(v) if isinstance(v, list) else v
-        for k, v in raw.items()
-        if k in _OPTIONAL and k not in ("description", "samplers", "skeleton")
-    }
-    kwargs["skeleton_def"] = raw.get("skeleton")
-    if mesh:
-        kwargs["representation"] = "mesh"
-    bench = Benchmark(
-        source=path,
-        samplers=samplers,
-        extra={"description": raw.get("description")},
-        **{k: raw[k] for k in _REQUIRED},
-        **kwargs,
-    )
+    fields = validated(BenchmarkFields, raw, path, error=BenchmarkError)
+    values = {f.name: getattr(fields, f.name) for f in dataclasses.fields(BenchmarkFields)}
+    bench = Benchmark(**values, source=path)
     if bench.weights_from is not None:
         _check_weights_from(path, bench)
     return bench
 
 
 def _same_skeleton(a: Skeleton, b: Skeleton) -> bool:
-    """The same joints, tree and scoring rule (offsets aside: positions come with the data)."""
-    rule = ("name", "parents", "ignored", "copy_to", "copy_from")
+    """The same joints, tree, parts and scoring rule (offsets aside: positions come with the
+    data)."""
+    rule = ("name", "parents", "ignored", "copy_to", "copy_from", "parts", "official")
     return all(getattr(a, f) == getattr(b, f) for f in rule)
 
 
 def _check_weights_from(path: Path, bench: Benchmark) -> None:
     """``weights_from: OTHER``: OTHER's trained models are scored here, so what they were built
     for must be this benchmark's too (the basis itself is compared by hash when they load)."""
-    if not isinstance(bench.weights_from, str) or bench.weights_from == bench.name:
-        raise BenchmarkError(
-            f"{path}: field 'weights_from' must name another benchmark, got {bench.weights_from!r}"
+    where = f"{path}, line {line_of(path, ('weights_from',))}: field 'weights_from'"
+    if bench.weights_from == bench.name:
+        raise BenchmarkError(f"{where}: must name another benchmark, not this one")
+    other_file = Path(bench.weights_from)
+    try:  # a name, or a YAML file's path relative to this one
+        other = get_benchmark(
+            path.parent / other_file
+            if other_file.suffix in (".yaml", ".yml") and not other_file.is_absolute()
+            else bench.weights_from
         )
-    try:
-        other = get_benchmark(bench.weights_from)
     except BenchmarkError as e:
-        raise BenchmarkError(f"{path}: field 'weights_from': {e}") from None
+        raise BenchmarkError(f"{where}: {e}") from None
     fields = ("representation", "output_frames", "spectral_k")
     differ = [
         f"{f} {getattr(bench, f)!r} here, {getattr(other, f)!r} there"
@@ -387,50 +424,5 @@ def _check_weights_from(path: Path, bench: Benchmark) -> None:
         )
     if differ:
         raise BenchmarkError(
-            f"{path}: field 'weights_from: {other.name}': its models cannot be "
-            f"scored here ({'; '.join(differ)})"
+            f"{where}: the models of {other.name} cannot be scored here ({'; '.join(differ)})"
         )
-
-
-def _check_mesh_fields(path: Path, raw: dict[str, Any]) -> bool:
-    """Validate the mesh fields of a benchmark file; True if it is a mesh benchmark."""
-    representation = raw.get("representation", "joints")
-    if representation not in DATASET_TYPES:
-        raise BenchmarkError(
-            f"{path}: field 'representation' must be joints or mesh, got {representation!r}"
-        )
-    if representation != "mesh":
-        extra = [
-            k for k in ("spectral_k", "ground_truth", "ground_truths", "melv_frames") if k in raw
-        ]
-        if extra:
-            raise BenchmarkError(
-                f"{path}: field(s) {', '.join(extra)} belong to mesh benchmarks "
-                f"(representation: mesh)"
-            )
-        return False
-    k = raw.get("spectral_k")
-    if k is not None and (isinstance(k, bool) or not isinstance(k, int) or k < 1):
-        raise BenchmarkError(f"{path}: field 'spectral_k' must be a positive integer, got {k!r}")
-    offered = raw.get("ground_truths") or [raw.get("ground_truth", "raw")]
-    if raw.get("ground_truth", "raw") not in offered:
-        raise BenchmarkError(
-            f"{path}: field 'ground_truth' ({raw.get('ground_truth', 'raw')!r}) "
-            f"must be one of field 'ground_truths' {offered}"
-        )
-    for gt in (raw.get("ground_truth", "raw"), *offered):
-        if gt not in GROUND_TRUTHS:
-            raise BenchmarkError(
-                f"{path}: ground truth {gt!r} is not one of {', '.join(GROUND_TRUTHS)}"
-            )
-        if gt == "spectral" and k is None:
-            raise BenchmarkError(f"{path}: ground truth 'spectral' needs field 'spectral_k'")
-    melv_frames = raw.get("melv_frames")
-    if melv_frames is not None and melv_frames not in GROUND_TRUTHS:
-        raise BenchmarkError(
-            f"{path}: field 'melv_frames' must be one of "
-            f"{', '.join(GROUND_TRUTHS)}, got {melv_frames!r}"
-        )
-    if melv_frames == "spectral" and k is None:
-        raise BenchmarkError(f"{path}: field 'melv_frames: spectral' needs field 'spectral_k'")
-    return True
