@@ -1,4 +1,4 @@
-"""The pending CMU trainings on a lent GPU, in one go that stops itself before its time limit.
+"""The pending CMU trainings (cmu, cmu50) on a lent GPU, in one go that stops before its limit.
 
 Here, once (the compact CMU copy, which travels with the tree as an ignored path)::
 
@@ -12,7 +12,8 @@ Back here, the states it trained (replacing each model's committed paused state)
 
     python benchmarks/gpu/train_pending.py unpack /work/.device/.../files
 
-``run`` resumes each pending model (``--models``, the training queue by default) from its
+``run`` resumes each pending model (``--models``, each ``MODEL`` on ``cmu`` or
+``BENCHMARK/MODEL``; the training queue by default) from its
 committed paused state in ``weights/in_progress`` (or starts it), trains it with a CUDA-graph
 step where capture works and eager otherwise, stops before ``--minutes`` are up (an epoch that
 cannot finish in time is not begun; the last finished epoch is what is kept), and writes each
@@ -38,7 +39,8 @@ REPO = Path(__file__).resolve().parents[2]
 if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 
-QUEUE = ("spgsn", "ggmotion", "msrgcn", "spgsn_1body", "auxformer")
+# BENCHMARK/MODEL (a bare MODEL trains on cmu); cmu50 reads the same training files
+QUEUE = ("spgsn", "ggmotion", "msrgcn", "spgsn_1body", "auxformer", "cmu50/tfan")
 PACKED_DATA = REPO / "cache" / "cmu_train.tar.xz"
 PART_BYTES = 15 * 2**20
 RETURN_FILES, RETURN_BYTES = 8, 64 * 2**20  # what the device tool brings back from $OUT
@@ -127,14 +129,17 @@ def _run_models(args, out: Path, device: str, stop_by: float, started: float, wo
         data = work / "cmu"
     paused = paused_runs()
     files, size = 1, (out / "log.txt").stat().st_size
-    for model in args.models:
-        summary = paused.get(("cmu", model))
+    for entry in args.models:
+        bench, model = entry.split("/", 1) if "/" in entry else ("cmu", entry)
+        summary = paused.get((bench, model))
         if summary and summary.get("finished"):
             _log(out, f"{model}: finished ({summary['epochs_run']} epochs); nothing to do")
             continue
         # what its state will weigh when it comes back: the committed one's, or its parameters'
         # (a paused state is about 5 bytes a parameter in last.pt and 2 in best.pt)
-        expected = sum(summary["files"].values()) if summary else 8 * _parameters(model, args)
+        expected = (
+            sum(summary["files"].values()) if summary else 8 * _parameters(model, bench, args)
+        )
         if files + int(expected // PART_BYTES) + 2 > RETURN_FILES or size + expected > RETURN_BYTES:
             _log(out, f"{model}: not begun, its state would not fit what comes back")
             continue
@@ -159,12 +164,12 @@ def _run_models(args, out: Path, device: str, stop_by: float, started: float, wo
         )
         t0 = time.time()
         try:
-            train(model, "cmu", options, **kw)
+            train(model, bench, options, **kw)
         except TrainingError as e:
             if "CUDA graph" not in str(e):
                 raise
             _log(out, f"{model}: {e}; eager instead")
-            train(model, "cmu", replace(options, cuda_graph=False), **kw)
+            train(model, bench, replace(options, cuda_graph=False), **kw)
         if not (run_dir / "last.pt").is_file():
             _log(out, f"{model}: no epoch finished in {time.time() - t0:.0f} s; nothing kept")
             continue
@@ -173,25 +178,25 @@ def _run_models(args, out: Path, device: str, stop_by: float, started: float, wo
         files += len(parts)
         size += sum(p.stat().st_size for p in parts)
         parts = [p for p in parts if p.suffix != ".sha256"]
-        done = paused_runs(work / "weights")[("cmu", model)]
+        done = paused_runs(work / "weights")[(bench, model)]
         _log(
             out,
             f"{model}: {done['epochs_run']} of {done['epochs_planned']} epochs, best "
             f"{done['best']['val_mpjpe']:.2f} mm at epoch {done['best']['epoch']}, "
             f"{time.time() - t0:.0f} s here; state in {len(parts)} part(s)",
         )
-        assert paused_dir("cmu", model, work / "weights") == state
+        assert paused_dir(bench, model, work / "weights") == state
     _log(out, f"done in {time.time() - started:.0f} s")
     return 0
 
 
-def _parameters(model: str, args) -> int:
+def _parameters(model: str, bench: str, args) -> int:
     from zoo.models.registry import load_registry
 
     registry = load_registry(*(args.registry or ()))
     import zoo
 
-    built = zoo.create_model(model, benchmark="cmu", registry=registry)
+    built = zoo.create_model(model, benchmark=bench, registry=registry)
     return sum(p.numel() for p in built.parameters())
 
 
