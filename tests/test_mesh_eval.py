@@ -395,6 +395,22 @@ def test_every_row_carries_its_standard_deviation_over_windows(toy_bench):
     )
 
 
+def test_a_table_of_results_that_each_carry_the_ground_truths_rows_shows_them_once(toy_bench):
+    """Every mesh result holds the ground truth's own MELV rows; a table of several (a
+    leaderboard) shows that row once, with its value."""
+    bench = toy_bench(melv_frames="raw")
+    results = [zoo.evaluate(RepeatLast(2, 3, 4), bench, label=name) for name in ("a1", "a2")]
+    frame = pd.concat([r.frame for r in results], ignore_index=True)
+    records = {r.protocol["protocol_id"]: r.protocol for r in results}
+    one = markdown_tables(results[0].frame, records)
+    both = markdown_tables(frame, records)
+    truth = [line for line in both.splitlines() if line.startswith("| ground_truth | a ")]
+    assert truth and truth == [
+        line for line in one.splitlines() if line.startswith("| ground_truth | a ")
+    ]
+    assert len(truth) == both.count("## MELV")
+
+
 def test_autoencoder_floor_rows_beside_the_model(toy_bench, tmp_path):
     """A model with ``autoencoder_floor`` gets ``<name>:autoencoder`` rows: the ground-truth
     future through it, scored like a prediction, shown in the headline but never the best."""

@@ -72,13 +72,12 @@ def markdown_tables(
         group = group[group["horizon_ms"].isin(horizons)]
 
         def pivot(values: str, group: pd.DataFrame = group) -> pd.DataFrame:
-            table = group.pivot_table(
-                index=["model", "action"],
-                columns="horizon_ms",
-                values=values,
-                sort=False,
-                dropna=False,
-            )
+            # mostly one row per (model, action, horizon): an unstack, not pivot_table's
+            # group-by; a table's ground-truth rows come with each of its results, averaged
+            keyed = group.set_index(["model", "action", "horizon_ms"])[values]
+            if not keyed.index.is_unique:
+                keyed = keyed.groupby(level=[0, 1, 2], sort=False).mean()
+            table = keyed.unstack()
             table = table.reindex(columns=[h for h in horizons if h in table.columns])
             return table.sort_index(
                 level=["model", "action"],
