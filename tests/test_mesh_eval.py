@@ -409,6 +409,10 @@ def test_a_table_of_results_that_each_carry_the_ground_truths_rows_shows_them_on
         line for line in one.splitlines() if line.startswith("| ground_truth | a ")
     ]
     assert len(truth) == both.count("## MELV")
+    # a model with no row for an action keeps its line in each table, blank
+    cut = markdown_tables(frame[(frame.model != "a2") | (frame.action != "a")], records)
+    rows = [line.split("|")[1:3] for line in both.splitlines() if line.startswith("| a2 ")]
+    assert rows == [line.split("|")[1:3] for line in cut.splitlines() if line.startswith("| a2 ")]
 
 
 def test_autoencoder_floor_rows_beside_the_model(toy_bench, tmp_path):

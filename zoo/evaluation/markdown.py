@@ -78,6 +78,8 @@ def markdown_tables(
             if not keyed.index.is_unique:
                 keyed = keyed.groupby(level=[0, 1, 2], sort=False).mean()
             table = keyed.unstack()
+            # every model beside every action, blank where a model has no row (as pivot_table)
+            table = table.reindex(pd.MultiIndex.from_product(table.index.levels))
             table = table.reindex(columns=[h for h in horizons if h in table.columns])
             return table.sort_index(
                 level=["model", "action"],

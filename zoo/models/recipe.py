@@ -9,7 +9,7 @@ from typing import Annotated, Any, Literal
 
 import pydantic
 import torch
-from pydantic import AfterValidator, ConfigDict, Field, StrictFloat, StrictInt
+from pydantic import AfterValidator, BeforeValidator, ConfigDict, Field, StrictFloat, StrictInt
 from typing_extensions import NotRequired, TypedDict
 
 from zoo.core.errors import TrainingError
@@ -94,7 +94,9 @@ class Recipe:
     grad_clip: Positive | None = None  # None: no clipping
     # no schedule (null) is a constant rate
     schedule: Schedule = field(default_factory=lambda: {"type": "constant"})
-    augment: list[Literal["time_reversal"]] = field(default_factory=list)
+    augment: Annotated[
+        list[Literal["time_reversal"]], BeforeValidator(lambda v: [] if v is None else v)
+    ] = field(default_factory=list)
     val_fraction: Annotated[StrictFloat, Field(gt=0, lt=0.5)] = 0.1
     # Which frames validate (held_out_frames): "auto", the last val_fraction of every sequence
     # where all are long enough (H3.6M), else the last val_fraction of the sequences (cloth; on
@@ -156,8 +158,12 @@ class Recipe:
     @classmethod
     def of(cls, recorded: dict[str, Any]) -> Recipe:
         """A recorded recipe (a checkpoint's or weights record's), fields it predates at their
-        defaults."""
-        return cls(**{k: v for k, v in recorded.items() if k in _FIELDS})
+        defaults; not checked again (it ran, perhaps under rules since tightened)."""
+        recipe = object.__new__(cls)
+        for name, value in {**DEFAULT_RECIPE, **recorded}.items():
+            if name in _FIELDS:
+                object.__setattr__(recipe, name, value)
+        return recipe
 
 
 DEFAULT_RECIPE: dict[str, Any] = Recipe().as_dict()
