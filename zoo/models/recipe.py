@@ -5,12 +5,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, field
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, Literal, get_args
 
 import pydantic
 import torch
 from pydantic import AfterValidator, BeforeValidator, ConfigDict, Field, StrictFloat, StrictInt
-from typing_extensions import NotRequired, TypedDict
+from typing_extensions import NotRequired, TypedDict, get_type_hints
 
 from zoo.core.errors import TrainingError
 from zoo.core.schema import validated
@@ -73,6 +73,7 @@ class MultistepSchedule(_Warmup):
     lrs: Annotated[list[Rate], Field(min_length=1)]
 
 
+ValSplit = Literal["auto", "tails", "actions", "recordings"]
 Schedule = Annotated[
     ConstantSchedule | StepSchedule | CosineSchedule | EpochMilestonesSchedule | MultistepSchedule,
     Field(discriminator="type"),
@@ -105,7 +106,7 @@ class Recipe:
     # "tails" and, for an action none of whose recordings can spare a tail, the end of its
     # longest recording, so that every action validates and none is held out whole;
     # "recordings", whole recordings spread over the data (every k-th by name).
-    val_split: Literal["auto", "tails", "actions", "recordings"] = "auto"
+    val_split: ValSplit = "auto"
     train_sampler: str = "all"
     # Validation windows of the held-out frames: a sparser sampler (e.g. stride5_strict) cuts
     # the cost of validating large meshes every epoch.
@@ -169,8 +170,11 @@ class Recipe:
 DEFAULT_RECIPE: dict[str, Any] = Recipe().as_dict()
 _FIELDS = frozenset(DEFAULT_RECIPE)
 PRECISIONS = {"float32": None, "bfloat16": torch.bfloat16}
-VAL_SPLITS = ("auto", "tails", "actions", "recordings")
-SCHEDULES = ("constant", "step", "cosine", "multistep", "epoch_milestones")
+VAL_SPLITS = get_args(ValSplit)
+# each schedule's `type`, from the union the recipe reads them through
+SCHEDULES = tuple(
+    get_args(get_type_hints(member)["type"])[0] for member in get_args(get_args(Schedule)[0])
+)
 
 
 def training_recipe(

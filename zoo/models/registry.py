@@ -36,10 +36,6 @@ from zoo.paths import REPO_ROOT
 DEFAULT_REGISTRY = REPO_ROOT / "registry.yaml"
 # Keywords every model receives from the benchmark (see zoo.models).
 SHAPE_ARGS = ("input_frames", "output_frames", "num_points")
-REPRESENTATIONS = ("joints", "mesh")
-# What a model's forward does: prediction ``forward(history)``, or completion
-# ``forward(history, final_frame)`` (the window's last frame given). Tables keep them apart.
-ENTRY_TASKS = ("prediction", "completion")
 # The data files a model's constructor read while it was built: an author's weights loaded in a
 # wrapper's __init__ are part of what its results are. Kept per class and keywords for the
 # process, so a second build that a cache spares the reading records the same files.
@@ -88,7 +84,7 @@ class EntryFields:
     class_path: str = Field(alias="class")  # module.Class or file.py:Class
     representation: Annotated[
         tuple[Literal["joints", "mesh"], ...], Field(min_length=1), BeforeValidator(_one_or_more)
-    ] = Field(min_length=1)
+    ] = Field()
     trainable: StrictBool = False
     hparams: Annotated[dict[str, Any], BeforeValidator(_none_is_empty)] = field(
         default_factory=dict
@@ -99,6 +95,8 @@ class EntryFields:
     # the training recipe (zoo.models.recipe, checked where the registry is read); None: it
     # learns, but has no recipe here yet (its weights come from elsewhere, zoo weights import)
     train: dict[str, Any] | None = field(default_factory=dict)
+    # What its forward does: prediction ``forward(history)``, or completion
+    # ``forward(history, final_frame)`` (the window's last frame given). Tables keep them apart.
     task: Literal["prediction", "completion"] = Field("prediction", validate_default=True)
     override: StrictBool = False  # replaces an entry of the same name from an earlier file
     # False: scored on demand (zoo eval, zoo.evaluate, the coverage benchmark), never a row of
