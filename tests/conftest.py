@@ -158,6 +158,7 @@ def _kept_plot(path: Path) -> bytes | None:
 def _each_plot_drawn_once(monkeypatch):
     from zoo.core.io import atomic_path
     from zoo.report import outputs
+    from zoo.stats import sensitivity
 
     draw = outputs.save_figure
 
@@ -181,6 +182,7 @@ def _each_plot_drawn_once(monkeypatch):
             tmp.write_bytes(data)
 
     monkeypatch.setattr(outputs, "save_figure", save_figure)
+    monkeypatch.setattr(sensitivity, "save_figure", save_figure)
 
 
 def use_toy_loader(monkeypatch, loader: Callable) -> None:

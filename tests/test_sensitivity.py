@@ -75,6 +75,27 @@ def test_ranks_under_every_protocol_and_the_changes_are_marked(tmp_path):
     assert not s.write(tmp_path)  # unchanged: not rewritten
 
 
+def test_the_plot_is_drawn_again_only_when_a_rank_moves(tmp_path, monkeypatch):
+    from zoo.stats.sensitivity import Sensitivity
+
+    drawn = []
+    plot = Sensitivity.plot
+    monkeypatch.setattr(
+        Sensitivity, "plot", lambda self, path: drawn.append(path) or plot(self, path)
+    )
+    table(tmp_path, "all", {"a": 10.0, "b": 12.0})
+    table(tmp_path, "ltd8", {"a": 13.0, "b": 11.0})
+    assert protocol_sensitivity(tmp_path).write(tmp_path) and len(drawn) == 1
+    png = (tmp_path / "sensitivity.png").read_bytes()
+    table(tmp_path, "ltd8", {"a": 14.0, "b": 11.0})  # new values, the same ranks
+    assert protocol_sensitivity(tmp_path).write(tmp_path) and len(drawn) == 1
+    assert "14.00 (2)" in (tmp_path / "sensitivity.md").read_text()
+    assert (tmp_path / "sensitivity.png").read_bytes() == png
+    table(tmp_path, "ltd8", {"a": 9.0, "b": 11.0})  # a rank moves
+    assert protocol_sensitivity(tmp_path).write(tmp_path) and len(drawn) == 2
+    assert (tmp_path / "sensitivity.png").read_bytes() != png
+
+
 def test_one_protocol_has_no_sensitivity_table(tmp_path):
     assert protocol_sensitivity(tmp_path) is None
 

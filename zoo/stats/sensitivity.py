@@ -18,6 +18,7 @@ import numpy as np
 import pandas as pd
 from tabulate import tabulate
 
+from zoo.core.io import atomic_write_text, figure_drawn_from, save_figure
 from zoo.evaluation.markdown import headline_key, metric_unit
 from zoo.stats.ranking import is_floor
 
@@ -113,8 +114,6 @@ class Sensitivity:
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
 
-        from zoo.core.io import save_figure
-
         fig, axes = plt.subplots(
             1, len(self.horizons), figsize=(4.2 * len(self.horizons), 4.2), squeeze=False
         )
@@ -138,19 +137,38 @@ class Sensitivity:
             ax.set_ylabel("rank (1 = lowest error)")
             ax.grid(alpha=0.3)
         fig.suptitle(f"{self.benchmark}: rank of each model under each protocol", fontsize=10)
-        save_figure(fig, path)
+        save_figure(fig, path, drawn_from=self.plot_digest())
+
+    def plot_digest(self) -> str:
+        """A digest of what :meth:`plot` draws (ranks, protocols, horizons, benchmark), with
+        matplotlib's version and the drawing code: a plot that keeps it is not drawn again."""
+        import hashlib
+        import inspect
+        import json
+
+        import matplotlib
+
+        inputs = [
+            self.benchmark,
+            self.protocols,
+            [int(h) for h in self.horizons],
+            self.ranks.to_csv(float_format="%.17g"),
+            matplotlib.__version__,
+            inspect.getsource(Sensitivity.plot),
+        ]
+        return hashlib.sha256(json.dumps(inputs).encode()).hexdigest()
 
     def write(self, folder: str | Path) -> bool:
         """``sensitivity.md`` and ``sensitivity.png`` in ``folder``, rewritten only when the
-        table changed (or the plot is missing); True if anything was written."""
-        from zoo.core.io import atomic_write_text
-
+        table changed (or the plot is missing); the plot, which shows ranks only, is drawn
+        again only when they moved. True if anything was written."""
         folder = Path(folder)
         text, md, png = self.markdown(), folder / "sensitivity.md", folder / "sensitivity.png"
         if md.is_file() and md.read_text() == text and png.is_file():
             return False
         atomic_write_text(md, text)
-        self.plot(png)
+        if figure_drawn_from(png) != self.plot_digest():
+            self.plot(png)
         return True
 
 
