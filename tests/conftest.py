@@ -15,10 +15,12 @@ if os.environ.get("PYTEST_XDIST_WORKER"):
     for threads in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ.setdefault(threads, "1")
 
+import fcntl  # noqa: E402
 import functools  # noqa: E402
 import gc  # noqa: E402
 import io  # noqa: E402
 import shutil  # noqa: E402
+import tempfile  # noqa: E402
 from collections.abc import Callable  # noqa: E402
 from pathlib import Path  # noqa: E402
 
@@ -196,3 +198,35 @@ def use_toy_loader(monkeypatch, loader: Callable) -> None:
         "loader_function",
         lambda self: loader if self.loader.startswith("toy.py:") else own(self),
     )
+
+
+# On a machine where the anny package has never built the Anny body (its cache, ~/.cache/anny:
+# minutes of one core), both workers reached it at once and each built it. Its tests run first,
+# so that one worker builds it while the other runs the rest, and a second build waits on the
+# first (a lock for the machine, the cache being the machine's) and then reads its cache.
+ANNY_FIRST = ("test_anny.py", "test_spectrhums_anchored.py")
+_ANNY_LOCK = Path(tempfile.gettempdir()) / "zoo-tests-anny-body.lock"
+
+
+def _one_anny_build_at_a_time() -> None:
+    from zoo.data import anny as zoo_anny
+    from zoo.data.anny import body
+
+    build = body.load_anny_model
+
+    @functools.wraps(build)
+    def load_anny_model(*args, **kwargs):
+        with open(_ANNY_LOCK, "a") as lock:
+            fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes
+            return build(*args, **kwargs)
+
+    body.load_anny_model = zoo_anny.load_anny_model = load_anny_model
+
+
+if os.environ.get("PYTEST_XDIST_WORKER"):
+    _one_anny_build_at_a_time()
+
+
+def pytest_collection_modifyitems(items) -> None:
+    first = [item for item in items if item.path.name in ANNY_FIRST]
+    items[:] = first + [item for item in items if item.path.name not in ANNY_FIRST]
