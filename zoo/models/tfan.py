@@ -178,34 +178,42 @@ class TFAN(nn.Module):
         gate after them."""
         self.phase = "streams" if epoch < self.streams_epochs else "gate"
 
+    def _inputs(self, history: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Both streams' inputs ``(B, history_frames, 3J)`` in metres: the positions (padded
+        to the frames the model reads) and their bone layout."""
+        positions = pad_history(history / MM_PER_UNIT, self.history_frames)
+        b, _, j, _ = positions.shape
+        return positions.reshape(b, -1, 3 * j), self.to_bones(positions).reshape(b, -1, 3 * j)
+
+    def _streams(self, positions: torch.Tensor, bones: torch.Tensor):
+        """Each stream's next ``chunk`` frames ``(B, chunk, J, 3)``: positions, bone layout."""
+        b, _, d = positions.shape
+        p = self._stream(self.position, positions).view(b, -1, d // 3, 3)
+        return p, self._stream(self.bone, bones).view(b, -1, d // 3, 3)
+
+    def _fused(self, positions: torch.Tensor, bones: torch.Tensor) -> torch.Tensor:
+        """Joint positions ``(B, chunk, J, 3)`` from both streams' next frames, gated."""
+        gates = torch.sigmoid(self.gate(torch.cat([bones.flatten(2), positions.flatten(2)], -1)))
+        return self.fuse(bones, positions, gates)
+
     def training_loss(self, history: torch.Tensor, future: torch.Tensor) -> torch.Tensor:
         """The code's loss on the next ``chunk`` frames, in metres: the mean distance of each
         predicted point from its target plus that of their frame-to-frame changes. The streams'
         phase sums it over both streams' own outputs (their parameters are apart, so each learns
         as alone); the gate's phase takes it on the fused joints, the streams held fixed."""
-        b, _, j, _ = history.shape
-        positions = pad_history(history / MM_PER_UNIT, self.history_frames)
         target = future[:, : self.chunk] / MM_PER_UNIT
         with torch.set_grad_enabled(self.phase == "streams" and torch.is_grad_enabled()):
-            p = self._stream(self.position, positions.reshape(b, -1, 3 * j))
-            q = self._stream(self.bone, self.to_bones(positions).reshape(b, -1, 3 * j))
-        p, q = p.view(b, -1, j, 3), q.view(b, -1, j, 3)
+            p, q = self._streams(*self._inputs(history))
         if self.phase == "streams":
             return _distance_loss(p, target) + _distance_loss(q, self.to_bones(target))
-        gates = torch.sigmoid(self.gate(torch.cat([q.flatten(2), p.flatten(2)], dim=-1)))
-        return _distance_loss(self.fuse(q, p, gates), target)
+        return _distance_loss(self._fused(p, q), target)
 
     def forward(self, history: torch.Tensor) -> torch.Tensor:
-        b, t, j, _ = history.shape
-        positions = pad_history(history / MM_PER_UNIT, self.history_frames)
-        bones = self.to_bones(positions)
-        positions, bones = positions.reshape(b, -1, 3 * j), bones.reshape(b, -1, 3 * j)
+        b, _, j, _ = history.shape
+        positions, bones = self._inputs(history)
         out = []
         for _ in range(math.ceil(self.output_frames / self.chunk)):
-            p = self._stream(self.position, positions)
-            q = self._stream(self.bone, bones)
-            gates = torch.sigmoid(self.gate(torch.cat([q, p], dim=-1)))
-            step = self.fuse(q.view(b, -1, j, 3), p.view(b, -1, j, 3), gates)
+            step = self._fused(*self._streams(positions, bones))
             out.append(step)
             positions = torch.cat([positions[:, self.chunk :], step.reshape(b, -1, 3 * j)], 1)
             stepped = self.to_bones(step).reshape(b, -1, 3 * j)
