@@ -529,6 +529,7 @@ def test_every_committed_plot_carries_the_digest_of_what_it_shows_now():
         training_curves_digest,
         training_plot_title,
     )
+    from zoo.stats.sensitivity import protocol_sensitivity
 
     tables = sorted((REPO_ROOT / "results").glob("*/*/leaderboard.md"))
     assert len(tables) >= 10
@@ -551,6 +552,9 @@ def test_every_committed_plot_carries_the_digest_of_what_it_shows_now():
         if figure_drawn_from(png) != training_curves_digest(
             curves, training_plot_title(png.parent.name)
         ):
+            stale.append(str(png))
+    for png in sorted((REPO_ROOT / "results").glob("*/sensitivity.png")):
+        if figure_drawn_from(png) != protocol_sensitivity(png.parent).plot_digest():
             stale.append(str(png))
     assert not stale, f"plots to draw again (zoo leaderboard): {stale[:5]}"
 

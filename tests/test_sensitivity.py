@@ -76,23 +76,30 @@ def test_ranks_under_every_protocol_and_the_changes_are_marked(tmp_path):
 
 
 def test_the_plot_is_drawn_again_only_when_a_rank_moves(tmp_path, monkeypatch):
-    from zoo.stats.sensitivity import Sensitivity
+    from zoo.stats import sensitivity
 
     drawn = []
-    plot = Sensitivity.plot
+    save = sensitivity.save_figure
     monkeypatch.setattr(
-        Sensitivity, "plot", lambda self, path: drawn.append(path) or plot(self, path)
+        sensitivity,
+        "save_figure",
+        lambda fig, path, **kw: drawn.append(path) or save(fig, path, **kw),
     )
     table(tmp_path, "all", {"a": 10.0, "b": 12.0})
     table(tmp_path, "ltd8", {"a": 13.0, "b": 11.0})
     assert protocol_sensitivity(tmp_path).write(tmp_path) and len(drawn) == 1
     png = (tmp_path / "sensitivity.png").read_bytes()
     table(tmp_path, "ltd8", {"a": 14.0, "b": 11.0})  # new values, the same ranks
-    assert protocol_sensitivity(tmp_path).write(tmp_path) and len(drawn) == 1
+    assert protocol_sensitivity(tmp_path).write(tmp_path) == [tmp_path / "sensitivity.md"]
+    assert len(drawn) == 1
     assert "14.00 (2)" in (tmp_path / "sensitivity.md").read_text()
     assert (tmp_path / "sensitivity.png").read_bytes() == png
+    assert not protocol_sensitivity(tmp_path).write(tmp_path) and len(drawn) == 1
+    (tmp_path / "sensitivity.png").write_bytes(b"no digest")  # a plot drawn before: drawn again
+    assert protocol_sensitivity(tmp_path).write(tmp_path) == [tmp_path / "sensitivity.png"]
+    assert len(drawn) == 2
     table(tmp_path, "ltd8", {"a": 9.0, "b": 11.0})  # a rank moves
-    assert protocol_sensitivity(tmp_path).write(tmp_path) and len(drawn) == 2
+    assert protocol_sensitivity(tmp_path).write(tmp_path) and len(drawn) == 3
     assert (tmp_path / "sensitivity.png").read_bytes() != png
 
 
@@ -110,7 +117,8 @@ def test_one_model_has_no_sensitivity_table_and_a_stale_one_is_removed(tmp_path)
     assert protocol_sensitivity(tmp_path) is None and update_sensitivity(tmp_path) is None
     table(tmp_path, "all", {"a": 10.0, "b": 12.0})
     table(tmp_path, "ltd8", {"a": 13.0, "b": 11.0})
-    assert update_sensitivity(tmp_path) == f"wrote {tmp_path / 'sensitivity.md'}"
+    md, png = tmp_path / "sensitivity.md", tmp_path / "sensitivity.png"
+    assert update_sensitivity(tmp_path) == f"wrote {md}, {png}"
     assert update_sensitivity(tmp_path) is None  # unchanged
     for sampler, value in (("all", 10.0), ("ltd8", 13.0)):
         shutil.rmtree(tmp_path / sampler / "b")

@@ -108,7 +108,9 @@ class Sensitivity:
             ]
         return "\n".join(out)
 
-    def plot(self, path: str | Path) -> None:
+    def plot(self, path: str | Path, digest: str | None = None) -> None:
+        """``sensitivity.png``: each model's rank under each protocol, keeping ``digest``
+        (:meth:`plot_digest`, computed here where not given)."""
         import matplotlib
 
         matplotlib.use("Agg")
@@ -137,39 +139,46 @@ class Sensitivity:
             ax.set_ylabel("rank (1 = lowest error)")
             ax.grid(alpha=0.3)
         fig.suptitle(f"{self.benchmark}: rank of each model under each protocol", fontsize=10)
-        save_figure(fig, path, drawn_from=self.plot_digest())
+        save_figure(fig, path, drawn_from=digest or self.plot_digest())
 
     def plot_digest(self) -> str:
         """A digest of what :meth:`plot` draws (ranks, protocols, horizons, benchmark), with
-        matplotlib's version and the drawing code: a plot that keeps it is not drawn again."""
+        matplotlib's version and the code that draws: a plot that keeps it is not drawn again."""
         import hashlib
         import inspect
         import json
 
         import matplotlib
 
+        from zoo.core import io
+
+        drawing = (Sensitivity.plot, Sensitivity.plot_digest, io.save_figure)
         inputs = [
             self.benchmark,
             self.protocols,
             [int(h) for h in self.horizons],
             self.ranks.to_csv(float_format="%.17g"),
             matplotlib.__version__,
-            inspect.getsource(Sensitivity.plot),
+            [inspect.getsource(f) for f in drawing],
         ]
-        return hashlib.sha256(json.dumps(inputs).encode()).hexdigest()
+        return hashlib.sha256(json.dumps(inputs, sort_keys=True).encode()).hexdigest()
 
-    def write(self, folder: str | Path) -> bool:
-        """``sensitivity.md`` and ``sensitivity.png`` in ``folder``, rewritten only when the
-        table changed (or the plot is missing); the plot, which shows ranks only, is drawn
-        again only when they moved. True if anything was written."""
+    def write(self, folder: str | Path) -> list[Path]:
+        """``sensitivity.md`` and ``sensitivity.png`` in ``folder``, each rewritten only when
+        what it shows changed: the plot shows ranks only, so new values with the same ranks
+        leave it. The plot first: a failed drawing leaves the table as it was, to be tried
+        again. The files written."""
         folder = Path(folder)
         text, md, png = self.markdown(), folder / "sensitivity.md", folder / "sensitivity.png"
-        if md.is_file() and md.read_text() == text and png.is_file():
-            return False
-        atomic_write_text(md, text)
-        if figure_drawn_from(png) != self.plot_digest():
-            self.plot(png)
-        return True
+        digest = self.plot_digest()
+        written = []
+        if figure_drawn_from(png) != digest:
+            self.plot(png, digest)
+            written.append(png)
+        if not (md.is_file() and md.read_text() == text):
+            atomic_write_text(md, text)
+            written.insert(0, md)
+        return written
 
 
 def update_sensitivity(benchmark_dir: str | Path) -> str | None:
@@ -179,7 +188,8 @@ def update_sensitivity(benchmark_dir: str | Path) -> str | None:
     folder = Path(benchmark_dir)
     sensitivity = protocol_sensitivity(folder)
     if sensitivity is not None:
-        return f"wrote {folder / 'sensitivity.md'}" if sensitivity.write(folder) else None
+        written = sensitivity.write(folder)
+        return f"wrote {', '.join(str(p) for p in written)}" if written else None
     stale = [p for p in (folder / "sensitivity.md", folder / "sensitivity.png") if p.is_file()]
     for path in stale:
         path.unlink()
