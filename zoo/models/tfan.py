@@ -185,14 +185,16 @@ class TFAN(nn.Module):
         b, _, j, _ = positions.shape
         return positions.reshape(b, -1, 3 * j), self.to_bones(positions).reshape(b, -1, 3 * j)
 
-    def _streams(self, positions: torch.Tensor, bones: torch.Tensor):
-        """Each stream's next ``chunk`` frames ``(B, chunk, J, 3)``: positions, bone layout."""
+    def _next_chunk(self, positions: torch.Tensor, bones: torch.Tensor):
+        """Each stream's next ``chunk`` frames ``(B, chunk, J, 3)`` from its inputs
+        ``(B, T, 3J)``, in :meth:`fuse`'s order: the bone stream's, then the position stream's."""
         b, _, d = positions.shape
-        p = self._stream(self.position, positions).view(b, -1, d // 3, 3)
-        return p, self._stream(self.bone, bones).view(b, -1, d // 3, 3)
+        shape = (b, -1, d // 3, 3)
+        bone = self._stream(self.bone, bones).view(shape)
+        return bone, self._stream(self.position, positions).view(shape)
 
-    def _fused(self, positions: torch.Tensor, bones: torch.Tensor) -> torch.Tensor:
-        """Joint positions ``(B, chunk, J, 3)`` from both streams' next frames, gated."""
+    def _gated(self, bones: torch.Tensor, positions: torch.Tensor) -> torch.Tensor:
+        """:meth:`fuse` of both streams' next frames under the gates the gate layer gives them."""
         gates = torch.sigmoid(self.gate(torch.cat([bones.flatten(2), positions.flatten(2)], -1)))
         return self.fuse(bones, positions, gates)
 
@@ -203,17 +205,17 @@ class TFAN(nn.Module):
         as alone); the gate's phase takes it on the fused joints, the streams held fixed."""
         target = future[:, : self.chunk] / MM_PER_UNIT
         with torch.set_grad_enabled(self.phase == "streams" and torch.is_grad_enabled()):
-            p, q = self._streams(*self._inputs(history))
+            bones, positions = self._next_chunk(*self._inputs(history))
         if self.phase == "streams":
-            return _distance_loss(p, target) + _distance_loss(q, self.to_bones(target))
-        return _distance_loss(self._fused(p, q), target)
+            return _distance_loss(positions, target) + _distance_loss(bones, self.to_bones(target))
+        return _distance_loss(self._gated(bones, positions), target)
 
     def forward(self, history: torch.Tensor) -> torch.Tensor:
         b, _, j, _ = history.shape
         positions, bones = self._inputs(history)
         out = []
         for _ in range(math.ceil(self.output_frames / self.chunk)):
-            step = self._fused(*self._streams(positions, bones))
+            step = self._gated(*self._next_chunk(positions, bones))
             out.append(step)
             positions = torch.cat([positions[:, self.chunk :], step.reshape(b, -1, 3 * j)], 1)
             stepped = self.to_bones(step).reshape(b, -1, 3 * j)
