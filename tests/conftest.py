@@ -200,10 +200,10 @@ def use_toy_loader(monkeypatch, loader: Callable) -> None:
     )
 
 
-# On a machine where the anny package has never built the Anny body (its cache, ~/.cache/anny:
-# minutes of one core), both workers reached it at once and each built it. Its tests run first,
-# so that one worker builds it while the other runs the rest, and a second build waits on the
-# first (a lock for the machine, the cache being the machine's) and then reads its cache.
+# The anny package's first build of the Anny body is minutes of one core, cached for the machine
+# (~/.cache/anny): its tests run first, so that under worksteal (pyproject's addopts) the first
+# worker's half starts with them and the other worker runs the rest meanwhile, and a load waits
+# for one in progress (a lock for the machine, as the cache is) instead of building it again.
 ANNY_FIRST = ("test_anny.py", "test_spectrhums_anchored.py")
 _ANNY_LOCK = Path(tempfile.gettempdir()) / "zoo-tests-anny-body.lock"
 
