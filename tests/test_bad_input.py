@@ -62,6 +62,30 @@ def test_malformed_file_names_file_and_line(swinging_cmu, tmp_path, capsys, tran
     assert not out.exists()  # nothing half-written
 
 
+def test_exp_map_numbers_read_as_pythons_float_with_blank_and_spaced_lines(tmp_path):
+    """The C reader gives the bits Python's float gives, and a file with blank lines (empty or
+    spaces only) and a malformed line later reads as the line-by-line reader does."""
+    from zoo.data.expmap import read_expmap_file
+    from zoo.data.skeleton import CMU
+
+    rng = np.random.default_rng(0)
+    values = rng.standard_normal((5, CMU.num_channels)) * 10.0 ** rng.integers(-8, 8, (5, 1))
+    texts = [[repr(float(v)) for v in row] for row in values]
+    texts[0][:4] = ["-0", "1e-310", " 0.1 ", "123456789.123456789123"]  # subnormal, spaces
+    path = tmp_path / "frames.txt"
+    body = [",".join(row) for row in texts]
+    expected = np.array([[float(v) for v in row] for row in texts])
+    for blank in ("", "   "):  # numpy's reader skips the first; the second is read by line
+        path.write_text("\n".join([body[0], "", body[1], blank, *body[2:]]) + "\n")
+        assert read_expmap_file(path, CMU).tobytes() == expected.tobytes()
+    path.write_text("\n".join([body[0], "   ", body[1], body[2][: body[2].rindex(",")]]))
+    with pytest.raises(DataFormatError, match=r"frames.txt, line 4: expected 117 .*found 116"):
+        read_expmap_file(path, CMU)
+    path.write_text(" \n\n")
+    with pytest.raises(DataFormatError, match=r"frames.txt: file holds no frames"):
+        read_expmap_file(path, CMU)
+
+
 def test_empty_action_folder_is_an_error(swinging_cmu, tmp_path, capsys):
     root, _ = swinging_cmu
     (root / "test" / "running").mkdir()

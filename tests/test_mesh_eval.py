@@ -253,9 +253,9 @@ def test_mesh_benchmark_files_are_checked(toy_bench, tmp_path):
         BenchmarkError, match="field 'loader': expected package.module:NAME or file.py:NAME"
     ):
         toy_bench(loader="nope")
-    with pytest.raises(BenchmarkError, match="field 'skeleton' belongs to joints benchmarks"):
+    with pytest.raises(BenchmarkError, match="field 'skeleton': belongs to joints benchmarks"):
         toy_bench(skeleton="zoo.data.skeleton:CMU")
-    with pytest.raises(BenchmarkError, match="spectral_k belong to mesh benchmarks"):
+    with pytest.raises(BenchmarkError, match="field .spectral_k.: belongs to mesh benchmarks"):
         toy_bench(representation="joints", dataset="cmu_mocap", spectral_k=8)
     cloth = get_benchmark("cloth")
     assert cloth.representation == "mesh" and cloth.spectral_k == 256

@@ -107,6 +107,40 @@ def test_a_misspelt_field_is_one_line_naming_the_file_line_and_field(own, capsys
     assert f"{path}, line {line}: unknown field 'horizon_ms' (did you mean 'horizons_ms'?)" in err
 
 
+def test_a_field_written_twice_is_refused_at_its_second_line(own, capsys):
+    mine, _ = own
+    text = (mine / "my_mocap.yaml").read_text().rstrip("\n") + "\n"
+    path = mine / "twice.yaml"
+    path.write_text(text + "horizons_ms: [100]\n")  # YAML alone would read the last one
+    assert main(["eval", "--model", "repeat_last", "--benchmark", str(path)]) == 2
+    err = capsys.readouterr().err.strip()
+    line = len(text.splitlines()) + 1
+    assert err.endswith(
+        f"{path}: not valid YAML: line {line}, column 1: key 'horizons_ms' is written twice"
+    )
+
+
+@pytest.mark.parametrize(
+    "added, message",
+    [
+        ("spectral_k: 8", "field 'spectral_k': belongs to mesh benchmarks"),
+        ("val_split: tail", "field 'val_split': input should be 'auto', 'tails'"),
+    ],
+)
+def test_a_field_the_benchmark_cannot_have_names_its_line(own, added, message):
+    """A mesh field in a joints benchmark, or a validation rule no recipe knows, is refused
+    when the file is read (not when a model trains), at the line that writes it."""
+    mine, _ = own
+    key = added.split(":")[0]
+    lines = (mine / "my_mocap.yaml").read_text().splitlines()
+    text = "".join(f"{t}\n" for t in lines if not t.startswith(f"{key}:"))
+    path = mine / "added.yaml"
+    path.write_text(text + added + "\n")
+    with pytest.raises(BenchmarkError) as refused:
+        get_benchmark(path)
+    assert f"{path}, line {len(text.splitlines()) + 1}: {message}" in str(refused.value)
+
+
 def test_recordings_the_file_does_not_describe_are_refused_when_loaded(own):
     """A loader's recordings must be some, of the shape the skeleton gives, at one rate."""
     mine, data = own

@@ -386,6 +386,12 @@ MISTAKES = {
     ),
     "a syntax error": ({"broken.py": "def f(:\n"}, "broken.py:X", [], "broken.py, line 1"),
     "a field misspelt": ({}, "last.py:Last\n    hparam: {gain: 2}", [], "did you mean 'hparams'?"),
+    "a field written twice": (
+        {},
+        "last.py:Last\n    hparams: {gain: 2}\n    hparams: {gain: 3}",
+        [],
+        "key 'hparams' is written twice",
+    ),
     "a hyper-parameter misspelt": (
         {},
         "last.py:Last\n    hparams: {gian: 2}",

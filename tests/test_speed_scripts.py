@@ -24,6 +24,7 @@ SCRIPTS = [
     "speed_check",
     "speed_compile",
     "speed_eval",
+    "speed_expmap",
     "speed_identity",
     "speed_intervals",
     "speed_leaderboard_model",
@@ -145,6 +146,15 @@ def test_speed_eval(swinging_cmu, capsys):
     out = capsys.readouterr().out
     assert "per-window loop" in out and "ratio" in out
     assert_finite(out, at_least=3)
+
+
+def test_speed_expmap_reads_the_same_bits_both_ways_and_prints_a_finite_ratio(swinging_cmu, capsys):
+    root, _ = swinging_cmu
+    timed = load("speed_expmap").main(["--data-root", str(root), "--repeats", "1"])
+    out = capsys.readouterr().out
+    assert timed["same"] and "the same float64 bits for every file: yes" in out
+    assert "1 files, 200 frames" in out
+    assert_finite(out, at_least=6)
 
 
 def test_speed_check(swinging_cmu, tmp_path, capsys):

@@ -259,9 +259,32 @@ def json_number(x) -> float | None:
     return float(f"{x:.7g}") if x is not None and math.isfinite(x) else None
 
 
+def _refusing_repeated_keys(loader: type) -> type:
+    """``loader`` refusing a mapping that writes a key twice, which YAML allows and reads as the
+    last value: a field written twice in a registry or benchmark file is a mistake, not an
+    override."""
+
+    class Loader(loader):
+        def construct_mapping(self, node, deep=False):
+            seen = set()
+            for key_node, _ in node.value:
+                if not isinstance(key_node, yaml.ScalarNode) or key_node.tag.endswith(":merge"):
+                    continue
+                key = self.construct_object(key_node)
+                if key in seen:
+                    raise yaml.constructor.ConstructorError(
+                        None, None, f"key {key!r} is written twice", key_node.start_mark
+                    )
+                seen.add(key)
+            return super().construct_mapping(node, deep=deep)
+
+    return Loader
+
+
+_SAFE_LOADER = _refusing_repeated_keys(yaml.SafeLoader)
 # libyaml's parser where PyYAML was built with it (its wheels are): the same safe constructor,
 # about ten times faster on the registry and published.yaml, which every rebuild reads.
-_YAML_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+_YAML_LOADER = _refusing_repeated_keys(getattr(yaml, "CSafeLoader", yaml.SafeLoader))
 
 
 def load_yaml(text: str) -> Any:
@@ -269,10 +292,10 @@ def load_yaml(text: str) -> Any:
     try:
         return yaml.load(text, Loader=_YAML_LOADER)  # noqa: S506 - a safe loader
     except yaml.YAMLError:
-        if _YAML_LOADER is yaml.SafeLoader:
+        if not hasattr(yaml, "CSafeLoader"):
             raise
         # the pure-Python parser's message quotes the line and points at the character
-        return yaml.load(text, Loader=yaml.SafeLoader)  # noqa: S506
+        return yaml.load(text, Loader=_SAFE_LOADER)  # noqa: S506
 
 
 def yaml_problem(error: yaml.YAMLError) -> str:

@@ -5,7 +5,9 @@ One frame per line, comma separated: root position (3) then 3 numbers per joint.
 
 from __future__ import annotations
 
+import io
 from pathlib import Path
+from typing import NoReturn
 
 import numpy as np
 import torch
@@ -21,7 +23,6 @@ class DataFormatError(ZooError, ValueError):
 def read_expmap_file(path: str | Path, skeleton: Skeleton) -> np.ndarray:
     """Frames ``(F, 3 + 3J)`` as float64; any malformed line is an error naming file and line."""
     path = Path(path)
-    expected = skeleton.num_channels
     try:
         text = path.read_text()
     except OSError as e:
@@ -31,23 +32,45 @@ def read_expmap_file(path: str | Path, skeleton: Skeleton) -> np.ndarray:
             f"{path}: not a text file (byte {e.start} is not UTF-8); an "
             f"exp-map file holds comma-separated numbers"
         ) from None
-    lines = [(n, line) for n, line in enumerate(text.splitlines(), start=1) if line.strip()]
-    if not lines:
-        raise DataFormatError(f"{path}: file holds no frames")
-    try:  # fast path: numpy parses the whole file at once
-        frames = np.array([line.split(",") for _, line in lines], dtype=np.float64)
-        ok = frames.ndim == 2 and frames.shape[1] == expected
-    except ValueError:
-        ok = False
-    if not ok:
-        _raise_first_bad_line(path, lines, skeleton)
+    frames = _parsed(text, skeleton.num_channels)
+    if frames is None:  # reading line by line names the line numpy's reader stopped at
+        frames = _frames_by_line(path, text, skeleton)
     bad_rows, bad_cols = np.nonzero(~np.isfinite(frames))
     if bad_rows.size:
+        numbered = [n for n, line in enumerate(text.splitlines(), start=1) if line.strip()]
         raise DataFormatError(
-            f"{path}, line {lines[bad_rows[0]][0]}, column {bad_cols[0] + 1}: "
+            f"{path}, line {numbered[bad_rows[0]]}, column {bad_cols[0] + 1}: "
             f"value {frames[bad_rows[0], bad_cols[0]]} is not finite"
         )
     return frames
+
+
+def _parsed(text: str, channels: int) -> np.ndarray | None:
+    """The frames as numpy's C reader parses them (Python's ``float`` bits, docs/architecture.md
+    measures the speed), or None where a line is not ``channels`` numbers (or is blank but for
+    spaces, which the reader refuses and the file format allows)."""
+    if not text.strip():
+        return None
+    try:
+        frames = np.loadtxt(
+            io.StringIO(text), delimiter=",", dtype=np.float64, ndmin=2, comments=None
+        )
+    except ValueError:
+        return None
+    return frames if frames.shape[1] == channels else None
+
+
+def _frames_by_line(path: Path, text: str, skeleton: Skeleton) -> np.ndarray:
+    lines = [(n, line) for n, line in enumerate(text.splitlines(), start=1) if line.strip()]
+    if not lines:
+        raise DataFormatError(f"{path}: file holds no frames")
+    try:
+        frames = np.array([line.split(",") for _, line in lines], dtype=np.float64)
+        if frames.ndim == 2 and frames.shape[1] == skeleton.num_channels:
+            return frames
+    except ValueError:
+        pass
+    _raise_first_bad_line(path, lines, skeleton)
 
 
 def expmap_to_positions(frames: np.ndarray, skeleton: Skeleton) -> np.ndarray:
@@ -56,7 +79,7 @@ def expmap_to_positions(frames: np.ndarray, skeleton: Skeleton) -> np.ndarray:
     return forward_kinematics(expmaps, skeleton).numpy().astype(np.float32)
 
 
-def _raise_first_bad_line(path: Path, lines: list[tuple[int, str]], skeleton: Skeleton) -> None:
+def _raise_first_bad_line(path: Path, lines: list[tuple[int, str]], skeleton: Skeleton) -> NoReturn:
     expected = skeleton.num_channels
     for lineno, line in lines:
         fields = line.split(",")

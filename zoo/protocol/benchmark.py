@@ -19,7 +19,7 @@ import dataclasses
 import inspect
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, Literal, get_args
 
 import pydantic
 import yaml
@@ -33,13 +33,13 @@ from zoo.data.mesh import MeshDataset
 from zoo.data.motion import MotionDataset
 from zoo.data.skeleton import Skeleton
 from zoo.data.windows import check_sampler
+from zoo.models.recipe import ValSplit
 from zoo.paths import REPO_ROOT
 from zoo.protocol.views import View
 
 BENCHMARK_DIR = REPO_ROOT / "benchmarks"
 # What a loader returns for each representation.
 DATASET_TYPES = {"joints": MotionDataset, "mesh": MeshDataset}
-GROUND_TRUTHS = ("raw", "spectral")
 
 
 class BenchmarkError(ZooError, ValueError):
@@ -60,6 +60,7 @@ Definition = Annotated[str, AfterValidator(_named)]
 Sampler = Annotated[str, AfterValidator(check_sampler)]  # its SamplerError is a ValueError
 Frames = Annotated[StrictInt, Field(ge=1)]
 GroundTruth = Literal["raw", "spectral"]
+GROUND_TRUTHS = get_args(GroundTruth)
 HORIZONS_MS = (80, 160, 320, 400, 560, 720, 880, 1000)
 # Fields a joints benchmark does not write.
 _MESH_ONLY = ("spectral_k", "ground_truth", "ground_truths", "melv_frames")
@@ -78,8 +79,6 @@ class BenchmarkFields:
     output_frames: Frames
     sampler: Sampler
     loader_options: dict[str, Any] = field(default_factory=dict)
-    # the skeleton the loader's recordings are on (joints only): ``module:NAME``, ``file.py:NAME``
-    skeleton_def: Definition | None = Field(None, alias="skeleton")
     train_split: Name = "train"
     data_root: str | None = None
     # the samplers offered; none written: the default one alone
@@ -89,6 +88,9 @@ class BenchmarkFields:
     averaging: tuple[Literal["frame", "cumulative"], ...] = ("frame", "cumulative")
     description: str = ""
     representation: Literal["joints", "mesh"] = "joints"
+    # the skeleton the loader's recordings are on (joints only): ``module:NAME``, ``file.py:NAME``;
+    # after ``representation``, which its check reads
+    skeleton_def: Definition | None = Field(None, alias="skeleton")
     spectral_k: Frames | None = None
     ground_truth: GroundTruth = "raw"
     ground_truths: tuple[GroundTruth, ...] = ()
@@ -98,39 +100,37 @@ class BenchmarkFields:
     weights_from: Name | None = None
     # The validation rule of every model trained here (zoo.train.held_out_frames) unless its
     # recipe or the run names another: one rule per benchmark, so its models compare.
-    val_split: Name | None = None
+    val_split: ValSplit | None = None
 
     @pydantic.field_validator("samplers")
     @classmethod
     def _default_alone(cls, samplers: tuple, info: pydantic.ValidationInfo) -> tuple:
         return samplers or ((info.data["sampler"],) if "sampler" in info.data else ())
 
-    @pydantic.model_validator(mode="before")
+    @pydantic.field_validator("skeleton_def")
     @classmethod
-    def _fields_of_its_representation(cls, raw: Any) -> Any:
-        if not isinstance(raw, dict):
-            return raw
-        representation = raw.get("representation", "joints")
-        if representation == "mesh":
-            if "skeleton" in raw:
-                raise ValueError(
-                    "field 'skeleton' belongs to joints benchmarks: a mesh benchmark's points "
-                    "are its loader's vertices"
-                )
-            return raw
-        if representation != "joints":
-            return raw  # the field's own check says what it may be
-        written = [k for k in _MESH_ONLY if k in raw]
-        if written:
+    def _joints_only(cls, skeleton: str | None, info: pydantic.ValidationInfo) -> str | None:
+        if skeleton is not None and info.data.get("representation") == "mesh":
             raise ValueError(
-                f"field(s) {', '.join(written)} belong to mesh benchmarks (representation: mesh)"
+                "belongs to joints benchmarks: a mesh benchmark's points are its loader's vertices"
             )
-        if not raw.get("skeleton"):
+        return skeleton
+
+    @pydantic.field_validator(*_MESH_ONLY)
+    @classmethod
+    def _mesh_only(cls, value: Any, info: pydantic.ValidationInfo) -> Any:
+        if info.data.get("representation") == "joints":
+            raise ValueError("belongs to mesh benchmarks (representation: mesh)")
+        return value
+
+    @pydantic.model_validator(mode="after")
+    def _skeleton_of_joints(self) -> BenchmarkFields:
+        if self.representation == "joints" and not self.skeleton_def:
             raise ValueError(
                 "a joints benchmark names the skeleton its recordings are on in field "
                 "'skeleton', as package.module:NAME or file.py:NAME (e.g. zoo.data.skeleton:CMU)"
             )
-        return raw
+        return self
 
     @pydantic.model_validator(mode="after")
     def _ground_truths(self) -> BenchmarkFields:
