@@ -183,8 +183,10 @@ def test_parallel_generation_and_int16_storage(tmp_path):
     compact = ClothConfig(**{**TINY.__dict__, "test_sequences": 5, "position_step_mm": 1 / 32})
     alone = cloth.generate_cloth("test", compact, batch=5, workers=1)
     spread = cloth.generate_cloth("test", compact, batch=2, workers=2)
+    shared = cloth.generate_cloth("test", compact, workers=2)  # the default: 3 and 2 sequences
     assert all(
-        np.array_equal(a.vertices, b.vertices) for a, b in zip(alone.sequences, spread.sequences)
+        np.array_equal(a.vertices, b.vertices) and np.array_equal(a.vertices, c.vertices)
+        for a, b, c in zip(alone.sequences, spread.sequences, shared.sequences)
     )
     exact = cloth.generate_cloth("test", ClothConfig(**{**TINY.__dict__, "test_sequences": 5}))
     gap = max(
@@ -241,8 +243,9 @@ def test_cloth_full_and_weights_from(monkeypatch):
         if k not in ("sequences", "position_step_mm")
     }
     monkeypatch.setenv("ZOO_WORKERS", "two")
-    with pytest.raises(MeshError, match="ZOO_WORKERS must be a positive integer, got 'two'"):
-        cloth.cloth_full_dataset(None, "test")
+    for loader in (cloth.cloth_full_dataset, cloth.cloth_dataset):
+        with pytest.raises(MeshError, match="ZOO_WORKERS must be a positive integer, got 'two'"):
+            loader(None, "test")
 
 
 def test_weights_from_must_fit(tmp_path):

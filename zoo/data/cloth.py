@@ -8,6 +8,7 @@ cloth, the solver, the seeding and the cache: docs/datasets.md ("The cloth simul
 from __future__ import annotations
 
 import dataclasses
+import math
 import os
 import sys
 import time
@@ -38,6 +39,8 @@ ACTION = "fall"
 # well above float32 resolution, and it halves the memory traffic of the vectorised sweeps.
 DTYPE = np.float32
 GENERATOR_VERSION = 2  # 2: heading and tilt optional, off by default
+# Sequences one process simulates at once (a batch is vectorised; more only costs memory).
+MAX_BATCH = 100
 
 
 @dataclass(frozen=True)
@@ -358,19 +361,21 @@ def _simulate_chunk(args: tuple[ClothConfig, str, list[int]]):
 def generate_cloth(
     split: str = "test",
     config: ClothConfig = ClothConfig(),
-    batch: int = 100,
+    batch: int | None = None,
     progress: bool = False,
     workers: int | None = 1,
 ) -> MeshDataset:
     """Simulate every sequence of ``split`` (``batch`` sequences at a time, spread over
     ``workers`` processes; None: one per CPU) into a MeshDataset. A sequence depends only on
-    (seed, split, index), so the result is the same for any ``batch`` and ``workers``."""
+    (seed, split, index), so the result is the same for any ``batch`` and ``workers``; the
+    default batch gives each process a share, at most ``MAX_BATCH`` sequences."""
     count = config.sequences(split)
     if count < 1:
         raise MeshError(f"cloth: split {split!r} has {count} sequences in this config")
     workers = (os.cpu_count() or 1) if workers is None else workers
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
         raise MeshError(f"cloth: workers must be a positive integer, got {workers!r}")
+    batch = min(MAX_BATCH, math.ceil(count / workers)) if batch is None else batch
     topology, _ = cloth_mesh(config)
     chunks = [
         (config, split, list(range(start, min(count, start + batch))))
@@ -455,18 +460,20 @@ def load_cloth(
 
 def cloth_dataset(root: str | Path | None, split: str) -> MeshDataset:
     """A benchmark loader (field ``loader`` of ``benchmarks/*.yaml``): the default recipe's
-    ``split``,
-    cached under ``root`` (default ``<cache root>/datasets``), generated with a progress bar the
-    first time."""
-    return load_cloth(split, cache_dir=root, progress=True)
+    ``split``, cached under ``root`` (default ``<cache root>/datasets``), generated on first use
+    over ``$ZOO_WORKERS`` processes (default: one per CPU) with a progress bar."""
+    return load_cloth(split, cache_dir=root, progress=True, workers=_workers())
 
 
 def cloth_full_dataset(root: str | Path | None, split: str) -> MeshDataset:
-    """The loader of ``cloth_full`` (the paper's 16,000 / 4,000 simulations): generated on first
-    use over ``$ZOO_WORKERS`` processes (default: one per CPU), then cached like ``cloth``."""
+    """The loader of ``cloth_full`` (the paper's 16,000 / 4,000 simulations), generated and
+    cached as ``cloth``'s."""
+    return load_cloth(split, CLOTH_FULL, cache_dir=root, progress=True, workers=_workers())
+
+
+def _workers() -> int | None:
+    """``$ZOO_WORKERS``, or None (one process per CPU) where it is not set."""
     workers = os.environ.get("ZOO_WORKERS")
     if workers is not None and (not workers.isdigit() or int(workers) < 1):
         raise MeshError(f"ZOO_WORKERS must be a positive integer, got {workers!r}")
-    return load_cloth(
-        split, CLOTH_FULL, cache_dir=root, progress=True, workers=int(workers) if workers else None
-    )
+    return int(workers) if workers else None
