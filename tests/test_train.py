@@ -4,6 +4,7 @@ import os
 import shutil
 import subprocess
 import sys
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -106,6 +107,36 @@ def test_bfloat16_precision_trains_under_autocast_with_float32_weights(
     assert all(v.dtype == torch.float32 for v in ckpt["state_dict"].values())
     # The same seed and data: only the forward's bfloat16 products differ.
     assert digest(mixed) != digest(plain)
+
+
+@pytest.mark.parametrize("native, taken", [(True, "bfloat16"), (False, "float32")])
+def test_precision_auto_trains_in_bfloat16_only_where_the_cpu_has_it(
+    setup, tmp_path, monkeypatch, native, taken
+):
+    monkeypatch.setattr(train_loop, "cpu_has_native_bfloat16", lambda: native)
+    with warnings.catch_warnings():
+        # no slow-path warning: auto never takes bfloat16's fallback
+        warnings.filterwarnings(
+            "error", message=".*without native bfloat16", category=RuntimeWarning
+        )
+        run_dir = run(setup, tmp_path / "auto", epochs=1, recipe={"precision": "auto"})
+    ckpt = read_checkpoint(run_dir)
+    assert ckpt["recipe"]["precision"] == taken
+    assert [epoch["precision"] for epoch in ckpt["history"]] == [taken]
+
+
+def test_precision_auto_is_taken_per_device_wherever_a_step_runs():
+    """A step run outside zoo train (the speed scripts, the cost columns) takes ``auto`` as a
+    run would: float32 on a GPU, bfloat16 only on a CPU that has it."""
+    from zoo.train.host import cpu_has_native_bfloat16, precision_on
+    from zoo.train.step import forward_precision
+
+    assert precision_on("auto", "cuda") == "float32"
+    assert precision_on("auto", "cpu", native=True) == "bfloat16"
+    assert precision_on("auto", "cpu", native=False) == "float32"
+    assert precision_on("bfloat16", "cpu", native=False) == "bfloat16"
+    with forward_precision("auto", "cpu"):
+        assert torch.is_autocast_enabled("cpu") is (cpu_has_native_bfloat16() is True)
 
 
 def test_bfloat16_on_a_cpu_without_native_bfloat16_warns_that_float32_is_faster(
@@ -268,7 +299,7 @@ def test_recipe_errors_are_named(setup, tmp_path):
             recipe={"schedule": {"type": "constant", "warmup_steps": -1}},
         )
     with pytest.raises(
-        TrainingError, match="field 'precision': input should be 'float32' or 'bfloat16'"
+        TrainingError, match="field 'precision': input should be 'float32', 'bfloat16' or 'auto'"
     ):
         run(setup, tmp_path / "r", recipe={"precision": "float16"})
     with pytest.raises(TrainingError, match="nothing to train"):

@@ -14,6 +14,7 @@ from typing_extensions import NotRequired, TypedDict, get_type_hints
 
 from zoo.core.errors import TrainingError
 from zoo.core.schema import validated
+from zoo.protocol.benchmark import ValSplit
 
 Count = Annotated[StrictInt, Field(ge=0)]
 PositiveInt = Annotated[StrictInt, Field(ge=1)]
@@ -73,7 +74,6 @@ class MultistepSchedule(_Warmup):
     lrs: Annotated[list[Rate], Field(min_length=1)]
 
 
-ValSplit = Literal["auto", "tails", "actions", "recordings"]
 Schedule = Annotated[
     ConstantSchedule | StepSchedule | CosineSchedule | EpochMilestonesSchedule | MultistepSchedule,
     Field(discriminator="type"),
@@ -112,8 +112,9 @@ class Recipe:
     # the cost of validating large meshes every epoch.
     val_sampler: str = "all"
     # "bfloat16": the training loss (forward) under torch.autocast; weights, optimiser,
-    # validation and evaluation stay float32.
-    precision: Literal["float32", "bfloat16"] = "float32"
+    # validation and evaluation stay float32. "auto": bfloat16 on a CPU that multiplies it
+    # natively, float32 elsewhere (docs/training.md's study); a run records which it took.
+    precision: Literal["float32", "bfloat16", "auto"] = "float32"
     # Early stopping: the run ends once this many epochs have passed without a new best
     # validation error (MSR-GCN's code trains until its loss stops improving); None: never.
     patience: PositiveInt | None = None

@@ -33,7 +33,6 @@ from zoo.data.mesh import MeshDataset
 from zoo.data.motion import MotionDataset
 from zoo.data.skeleton import Skeleton
 from zoo.data.windows import check_sampler
-from zoo.models.recipe import ValSplit
 from zoo.paths import REPO_ROOT
 from zoo.protocol.views import View
 
@@ -60,6 +59,9 @@ Definition = Annotated[str, AfterValidator(_named)]
 Sampler = Annotated[str, AfterValidator(check_sampler)]  # its SamplerError is a ValueError
 Frames = Annotated[StrictInt, Field(ge=1)]
 GroundTruth = Literal["raw", "spectral"]
+# The validation rules (zoo.train.split says what each holds out): a benchmark's default and a
+# recipe's own name one of them.
+ValSplit = Literal["auto", "tails", "actions", "recordings"]
 GROUND_TRUTHS = get_args(GroundTruth)
 HORIZONS_MS = (80, 160, 320, 400, 560, 720, 880, 1000)
 # Fields a joints benchmark does not write.

@@ -35,6 +35,18 @@ def cpu_has_native_bfloat16(cpuinfo: str | Path = "/proc/cpuinfo") -> bool | Non
     return None if flags is None else bool({"avx512_bf16", "amx_bf16"} & set(flags.split()))
 
 
+def precision_on(precision: str, device, native: bool | None = None) -> str:
+    """A recipe's ``precision`` as a run on ``device`` takes it: ``auto`` is bfloat16 on a CPU
+    that multiplies it natively (``native``; read from this CPU's flags where None) and float32
+    elsewhere (a GPU, another CPU); any other precision is itself."""
+    if precision != "auto":
+        return precision
+    if torch.device(device).type != "cpu":
+        return "float32"
+    native = cpu_has_native_bfloat16() if native is None else native
+    return "bfloat16" if native else "float32"
+
+
 def device_name(device) -> str:
     if str(device).startswith("cuda") and torch.cuda.is_available():
         return torch.cuda.get_device_name(torch.device(device))

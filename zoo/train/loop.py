@@ -6,7 +6,7 @@ from __future__ import annotations
 import math
 import time
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -26,7 +26,7 @@ from zoo.models.registry import ModelEntry, Registry, load_registry
 from zoo.paths import REPO_ROOT
 from zoo.protocol.benchmark import Benchmark, get_benchmark
 from zoo.protocol.views import View
-from zoo.train.host import cpu_has_native_bfloat16, device_name
+from zoo.train.host import cpu_has_native_bfloat16, device_name, precision_on
 from zoo.train.options import RunOptions
 from zoo.train.split import (
     split_train_val,
@@ -87,6 +87,9 @@ def train(
     options = options or RunOptions()
     device, init_from, data_root = options.device, options.init_from, options.data_root
     dist_info = init_distributed(device)
+    # the run's record names the precision it took, not "auto"
+    native = cpu_has_native_bfloat16() is True
+    recipe = replace(recipe, precision=precision_on(recipe.precision, device, native))
     _warn_slow_bfloat16(model_name, recipe, device)
     view = bench.view_for(entry.representation)
     dataset = bench.load(data_root, split=bench.train_split)

@@ -12,12 +12,14 @@ from zoo.evaluation.evaluator import predict
 from zoo.models.hooks import model_hooks
 from zoo.models.recipe import PRECISIONS, Recipe
 from zoo.protocol.metrics import mpjpe
+from zoo.train.host import precision_on
 
 
 def forward_precision(precision: str, device) -> torch.autocast:
-    """The context a training loss runs in for recipe ``precision`` (``PRECISIONS``): an
-    autocast to its dtype, or a disabled one for float32."""
-    dtype = PRECISIONS[precision]
+    """The context a training loss runs in for recipe ``precision`` (``PRECISIONS``, or
+    ``auto`` as this machine takes it): an autocast to its dtype, or a disabled one for
+    float32."""
+    dtype = PRECISIONS[precision_on(precision, device)]
     return torch.autocast(torch.device(device).type, dtype=dtype, enabled=dtype is not None)
 
 
