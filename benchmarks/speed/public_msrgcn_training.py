@@ -154,7 +154,10 @@ def main(argv=None) -> int:
     torch.set_num_threads(1)
     bench, registry = get_benchmark("cmu"), load_registry()
     entry = registry.get("msrgcn")
-    recipe = training_recipe({"val_split": bench.val_split, **entry.train})
+    # float32 as the public code trains (precision: auto would be bfloat16 on some CPUs)
+    recipe = training_recipe(
+        {"val_split": bench.val_split, **entry.train}, {"precision": "float32"}
+    )
     train_pos, train_index, used, probe = windows(bench, recipe, args.data_root, args.probe)
     history, future = probe[:, : bench.input_frames], probe[:, bench.input_frames :]
     repeat = torch.linalg.vector_norm(future - history[:, -1:], dim=-1).mean(dim=(0, 2))

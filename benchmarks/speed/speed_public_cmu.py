@@ -273,7 +273,8 @@ def msrgcn_difference(public_model, history) -> float:
 def zoo_step(name: str, history, future):
     registry = load_registry()
     entry = registry.get(name)
-    recipe = training_recipe(entry.train)
+    # float32 as the public code runs (a recipe's precision: auto would be bfloat16 on some CPUs)
+    recipe = training_recipe(entry.train, {"precision": "float32"})
     model = registry.create_model(name, input_frames=T_IN, output_frames=T_OUT, num_points=POINTS)
     optimizer = make_optimizer(model, recipe, "cpu")
     if name == "msrgcn":

@@ -3,6 +3,7 @@ whether it multiplies bfloat16 natively, the device's name, the machines of a re
 
 from __future__ import annotations
 
+import functools
 import os
 from pathlib import Path
 from typing import Any
@@ -43,8 +44,13 @@ def precision_on(precision: str, device, native: bool | None = None) -> str:
         return precision
     if torch.device(device).type != "cpu":
         return "float32"
-    native = cpu_has_native_bfloat16() if native is None else native
+    native = _this_cpu_has_native_bfloat16() if native is None else native
     return "bfloat16" if native else "float32"
+
+
+@functools.cache
+def _this_cpu_has_native_bfloat16() -> bool:
+    return cpu_has_native_bfloat16() is True  # read once: a step asks on every call
 
 
 def device_name(device) -> str:

@@ -87,9 +87,6 @@ def train(
     options = options or RunOptions()
     device, init_from, data_root = options.device, options.init_from, options.data_root
     dist_info = init_distributed(device)
-    # the run's record names the precision it took, not "auto"
-    native = cpu_has_native_bfloat16() is True
-    recipe = replace(recipe, precision=precision_on(recipe.precision, device, native))
     _warn_slow_bfloat16(model_name, recipe, device)
     view = bench.view_for(entry.representation)
     dataset = bench.load(data_root, split=bench.train_split)
@@ -145,7 +142,7 @@ def train(
         )  # fmt: skip
     if dist_info.rank == 0:
         _print_plan(
-            model_name, bench, data, recipe, epochs.steps, run.first_epoch, options.seed, out_dir
+            model_name, bench, data, recipe, epochs.steps, run.first_epoch, options, out_dir
         )
     for epoch in range(run.first_epoch, recipe.epochs):
         if patience_spent(recipe, epoch, run.best["epoch"]):
@@ -239,6 +236,11 @@ def _new_model(registry, model_name, hparams, seed, device, initial, init_from) 
                 parameter="init_from",
             ) from None
     return model
+
+
+def _precision_said(precision: str, device) -> str:
+    taken = precision_on(precision, device, cpu_has_native_bfloat16() is True)
+    return precision if taken == precision else f"{precision} ({taken} here)"
 
 
 def _warn_slow_bfloat16(model_name: str, recipe: Recipe, device) -> None:
@@ -381,7 +383,9 @@ def _resumed(
     return run
 
 
-def _print_plan(model_name, bench, data: _Data, recipe, steps, first_epoch, seed, out_dir) -> None:
+def _print_plan(
+    model_name, bench, data: _Data, recipe, steps, first_epoch, options, out_dir
+) -> None:
     schedule = recipe.schedule or {"type": "constant"}
     print(
         f"training {model_name} on {bench.name}: {len(data.train_index)} training windows "
@@ -389,7 +393,8 @@ def _print_plan(model_name, bench, data: _Data, recipe, steps, first_epoch, seed
         f"{steps} steps of batch {recipe.batch_size} an epoch, epochs "
         f"{first_epoch + 1}..{recipe.epochs}; adam lr {recipe.lr:g}, schedule "
         f"{schedule}, weight decay {recipe.weight_decay:g}, gradient clip "
-        f"{recipe.grad_clip}, {recipe.precision}; seed {seed}; checkpoints in {out_dir}",
+        f"{recipe.grad_clip}, {_precision_said(recipe.precision, options.device)}; "
+        f"seed {options.seed}; checkpoints in {out_dir}",
         flush=True,
     )
 
@@ -404,6 +409,10 @@ class _Epochs:
     ) -> None:  # fmt: skip
         self.model_name, self.model, self.optimizer = model_name, model, optimizer
         self.recipe, self.data, self.seed, self.device = recipe, data, options.seed, options.device
+        # the precision steps run in here (the recipe, and so the run's record, may say auto)
+        native = cpu_has_native_bfloat16() is True
+        taken = precision_on(recipe.precision, options.device, native)
+        self.step_recipe = replace(recipe, precision=taken)
         self.dist_info, self.graphed = dist_info, graphed
         self.progress = options.progress and dist_info.rank == 0
         self.task, self.fps, self.mesh = task, fps, mesh
@@ -466,7 +475,7 @@ class _Epochs:
             "seconds": time.perf_counter() - started,
             "samples": seen,
             "device": device_name(self.device),  # a resumed run may move between machines
-            "precision": self.recipe.precision,
+            "precision": self.step_recipe.precision,
             **({"compiled": True} if self.net is not self.eager_net else {}),
         }
 
@@ -506,7 +515,7 @@ class _Epochs:
         # captured anew every epoch: start_epoch may change what a step does (SpecTrHuMS's
         # autoencoder-only phase, then the joint one)
         step_graph = (
-            CudaGraphStep(self.net, model, self.optimizer, recipe, self.device)
+            CudaGraphStep(self.net, model, self.optimizer, self.step_recipe, self.device)
             if self.graphed
             else None
         )
@@ -569,7 +578,7 @@ class _Epochs:
         at its first call) is said once, and the step is taken again eagerly from the random
         state it began with: no parameter has moved, so the run is the eager one (a BatchNorm's
         running statistics may have taken that batch twice)."""
-        args = (self.model, self.optimizer, history, future, self.recipe, self.device, where)
+        args = (self.model, self.optimizer, history, future, self.step_recipe, self.device, where)
         if self.net is self.eager_net or self.compile_proven:
             return training_step(self.net, *args)
         cuda = torch.device(self.device).type == "cuda"
