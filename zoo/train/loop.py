@@ -141,9 +141,7 @@ def train(
             bench.input_frames, bench.output_frames, entry.task, device,
         )  # fmt: skip
     if dist_info.rank == 0:
-        _print_plan(
-            model_name, bench, data, recipe, epochs.steps, run.first_epoch, options, out_dir
-        )
+        _print_plan(model_name, bench, data, epochs, run.first_epoch, options.seed, out_dir)
     for epoch in range(run.first_epoch, recipe.epochs):
         if patience_spent(recipe, epoch, run.best["epoch"]):
             if dist_info.rank == 0:
@@ -236,11 +234,6 @@ def _new_model(registry, model_name, hparams, seed, device, initial, init_from) 
                 parameter="init_from",
             ) from None
     return model
-
-
-def _precision_said(precision: str, device) -> str:
-    taken = precision_on(precision, device, cpu_has_native_bfloat16() is True)
-    return precision if taken == precision else f"{precision} ({taken} here)"
 
 
 def _warn_slow_bfloat16(model_name: str, recipe: Recipe, device) -> None:
@@ -383,9 +376,10 @@ def _resumed(
     return run
 
 
-def _print_plan(
-    model_name, bench, data: _Data, recipe, steps, first_epoch, options, out_dir
-) -> None:
+def _print_plan(model_name, bench, data: _Data, epochs: _Epochs, first_epoch, seed, out_dir):
+    recipe, taken = epochs.recipe, epochs.step_recipe.precision
+    precision = recipe.precision if taken == recipe.precision else f"auto ({taken} here)"
+    steps = epochs.steps
     schedule = recipe.schedule or {"type": "constant"}
     print(
         f"training {model_name} on {bench.name}: {len(data.train_index)} training windows "
@@ -393,8 +387,7 @@ def _print_plan(
         f"{steps} steps of batch {recipe.batch_size} an epoch, epochs "
         f"{first_epoch + 1}..{recipe.epochs}; adam lr {recipe.lr:g}, schedule "
         f"{schedule}, weight decay {recipe.weight_decay:g}, gradient clip "
-        f"{recipe.grad_clip}, {_precision_said(recipe.precision, options.device)}; "
-        f"seed {options.seed}; checkpoints in {out_dir}",
+        f"{recipe.grad_clip}, {precision}; seed {seed}; checkpoints in {out_dir}",
         flush=True,
     )
 
