@@ -180,3 +180,25 @@ def test_a_bvh_root_that_is_missing_or_holds_no_trial_is_one_line(tmp_path, caps
         err = capsys.readouterr().err.strip()
         assert len(err.splitlines()) == 1 and f"{root}: {said}" in err
     assert "found in" in err and "trials" in err
+
+
+@pytest.mark.parametrize(
+    "text, refused",
+    [
+        ("a: 1\nb: {x: 1, x: 2}\n", "line 2, column 11: key 'x' is written twice"),
+        ("base: &b {a: 1}\nmid: &m\n  <<: *b\n  a: 2\ntop:\n  <<: *m\n  c: 3\n", None),
+        # an anchor written inside a merge: merging rewrites its keys before it is built
+        ("base: &b {a: 1}\ntop:\n  <<: &m\n    <<: *b\n    a: 2\nlater: *m\n", None),
+    ],
+)
+def test_a_key_written_twice_is_refused_and_a_merge_override_is_not(text, refused):
+    import yaml
+
+    from zoo.core.io import load_yaml, yaml_problem
+
+    if refused is None:
+        assert load_yaml(text) == yaml.safe_load(text)
+        return
+    with pytest.raises(yaml.YAMLError) as caught:
+        load_yaml(text)
+    assert yaml_problem(caught.value) == refused

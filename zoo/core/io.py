@@ -262,21 +262,25 @@ def json_number(x) -> float | None:
 def _refusing_repeated_keys(loader: type) -> type:
     """``loader`` refusing a mapping that writes a key twice, which YAML allows and reads as the
     last value: a field written twice in a registry or benchmark file is a mistake, not an
-    override."""
+    override. Each mapping is checked once, as written: merging (``<<: *anchor``) rewrites a
+    merged mapping's keys in place, and a key it overrides is then listed twice."""
 
     class Loader(loader):
-        def construct_mapping(self, node, deep=False):
-            seen = set()
-            for key_node, _ in node.value:
-                if not isinstance(key_node, yaml.ScalarNode) or key_node.tag.endswith(":merge"):
-                    continue
-                key = self.construct_object(key_node)
-                if key in seen:
-                    raise yaml.constructor.ConstructorError(
-                        None, None, f"key {key!r} is written twice", key_node.start_mark
-                    )
-                seen.add(key)
-            return super().construct_mapping(node, deep=deep)
+        def flatten_mapping(self, node):
+            checked = self.__dict__.setdefault("_checked_mappings", set())
+            if id(node) not in checked:  # before its merges are expanded into it
+                checked.add(id(node))
+                seen = set()
+                for key_node, _ in node.value:
+                    if not isinstance(key_node, yaml.ScalarNode) or key_node.tag.endswith(":merge"):
+                        continue
+                    key = self.construct_object(key_node)
+                    if key in seen:
+                        raise yaml.constructor.ConstructorError(
+                            None, None, f"key {key!r} is written twice", key_node.start_mark
+                        )
+                    seen.add(key)
+            super().flatten_mapping(node)
 
     return Loader
 
