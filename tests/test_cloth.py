@@ -251,7 +251,8 @@ def test_cloth_full_and_weights_from(monkeypatch):
 def test_weights_from_must_fit(tmp_path):
     import yaml
 
-    from zoo.protocol.benchmark import BenchmarkError, get_benchmark
+    from zoo.core.errors import BenchmarkError
+    from zoo.protocol.benchmark import get_benchmark
 
     spec = yaml.safe_load(open(get_benchmark("cloth").source))
     for change, message in (

@@ -9,10 +9,10 @@ import torch
 import yaml
 
 import zoo
-from zoo.core.errors import EvaluationError
+from zoo.core.errors import BenchmarkError, EvaluationError
 from zoo.evaluation.evaluator import Scored
 from zoo.paths import REPO_ROOT
-from zoo.protocol.benchmark import BenchmarkError, get_benchmark
+from zoo.protocol.benchmark import get_benchmark
 from zoo.report.tables import HISTORY_HEADER, headline_table, history_cells, table_summary
 
 MLP = REPO_ROOT / "weights" / "cmu" / "mlp.safetensors"

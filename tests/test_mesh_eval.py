@@ -13,12 +13,13 @@ from conftest import use_toy_loader
 
 import zoo
 from zoo import create_model
+from zoo.core.errors import BenchmarkError
 from zoo.data.mesh import MeshDataset, MeshError, MeshSequence, MeshTopology, regress_joints
 from zoo.data.spectral import SpectralBasis, SpectralError
 from zoo.evaluation.evaluator import EvaluationError
 from zoo.evaluation.markdown import markdown_tables
 from zoo.models.repeat_last import RepeatLast
-from zoo.protocol.benchmark import BenchmarkError, get_benchmark
+from zoo.protocol.benchmark import get_benchmark
 from zoo.protocol.metrics import melv, mpjpe, vertex_rmse
 
 # One 3-4-5 right triangle: its edges (0,1), (0,2), (1,2) have lengths 3, 4 and 5.

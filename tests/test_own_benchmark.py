@@ -8,8 +8,9 @@ import pytest
 import yaml
 
 from zoo.cli import main
+from zoo.core.errors import BenchmarkError
 from zoo.paths import REPO_ROOT
-from zoo.protocol.benchmark import BenchmarkError, get_benchmark
+from zoo.protocol.benchmark import get_benchmark
 
 EXAMPLE = REPO_ROOT / "docs" / "examples" / "my_mocap"
 CMU_BVH = REPO_ROOT.parent / "shared" / "data" / "cmu_bvh"

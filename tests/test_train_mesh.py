@@ -266,7 +266,7 @@ def test_validation_logs_each_horizon_beside_repeat_last_on_the_same_windows(toy
     index = window_sampler("all", [len(p) for p in positions], 4, 4)
     # repeat-last judged against itself: both lines are one
     model = RepeatLast(4, 4, 16)
-    same = validate(model, positions, index, 4, 4, slice(None), "cpu", fps=25.0, mesh=True)
+    same = validate(model, positions, index, 4, 4, slice(None), "cpu", fps=25.0, curve="rmse")
     h = same["val_horizons"]
     assert h["metric"] == "rmse" and h["horizons"] == ["40 ms (first frame)", "80 ms"]
     assert h["model"] == h["repeat_last"]

@@ -219,7 +219,7 @@ def score(cfg: dict) -> str:
                 model = source.load(registry, bench, test).model
                 val = validate(
                     model, positions, index, t_in, t_out, slice(None), "cpu",
-                    fps=training.fps, mesh=True,
+                    fps=training.fps, curve="rmse",
                 )  # fmt: skip
                 rows.append(
                     (arm, seed, spec["what"], inference, ckpt["training"]["best"]["epoch"],

@@ -91,10 +91,8 @@ def show(args) -> int:
                 b.representation,
                 b.split,
                 b.train_split,
-                str(
-                    b.resolve_data_root()
-                    or ("(generated)" if b.representation == "mesh" else "(give --data-root)")
-                ),
+                # none written: the loader's own (cloth generates its data) or --data-root
+                str(b.resolve_data_root() or "(the loader's, or --data-root)"),
             ]
         )
     headers = ["benchmark", "dataset", "representation", "test split", "train split",

@@ -88,8 +88,6 @@ def run(args) -> int:
             "--out takes one --sampler; omit --out to write "
             "results/<benchmark>/<sampler>/<label>/ for each"
         )
-    if args.melv_frames is not None and bench.representation != "mesh":
-        raise UsageError(f"--melv-frames: benchmark {bench.name} is not a mesh benchmark")
     # Under torchrun every process scores its share of the windows and all get the whole
     # result; the first writes it.
     writer = init_distributed(args.device).rank == 0

@@ -4,14 +4,16 @@ from __future__ import annotations
 
 import sys
 
-from zoo.cli.common import add_command, registry_of, registry_option
+from zoo.cli.common import UsageError, add_command, registry_of, registry_option
 
 
 def add(sub) -> None:
     p = add_command(sub, "list", "list registered models", run)
     registry_option(p)
     p.add_argument(
-        "--representation", choices=["joints", "mesh"], help="only models of this representation"
+        "--representation",
+        metavar="KIND",
+        help="only models of this representation (joints, mesh: a benchmark's kinds of points)",
     )
 
 
@@ -23,7 +25,13 @@ def run(args) -> int:
 
     from zoo.core.errors import ZooError
     from zoo.hub.weights import unshipped_models
+    from zoo.protocol.benchmark import REPRESENTATIONS
 
+    if args.representation is not None and args.representation not in REPRESENTATIONS:
+        raise UsageError(
+            f"--representation: expected one of {', '.join(REPRESENTATIONS)}, got "
+            f"{args.representation!r}"
+        )
     registry = registry_of(args)
     try:
         unshipped = unshipped_models(registry)

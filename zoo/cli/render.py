@@ -35,8 +35,10 @@ def run(args) -> int:
     registry = registry_of(args)
     source = model_source(args)
     bench = benchmark_of(args, source, "cloth")
-    if bench.representation != "mesh":
-        raise UsageError(f"zoo render draws meshes; benchmark {bench.name!r} is a skeleton one")
+    if not bench.strategy.drawn:
+        raise UsageError(
+            f"zoo render draws meshes; benchmark {bench.name!r} is a {bench.representation} one"
+        )
     dataset = bench.load(args.data_root)
     loaded = source.load(registry, bench, dataset, args.data_root)
     out = Path(args.out) if args.out else RESULTS_DIR / bench.name / "renders"

@@ -103,8 +103,4 @@ def _cards(results: Path) -> Path:
 def _mesh_benchmarks(results: Path) -> list[str]:
     from zoo.protocol.benchmark import get_benchmark
 
-    return [
-        name
-        for name in committed_benchmarks(results)
-        if get_benchmark(name).representation == "mesh"
-    ]
+    return [name for name in committed_benchmarks(results) if get_benchmark(name).strategy.drawn]

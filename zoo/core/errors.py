@@ -23,6 +23,10 @@ class DataNotFoundError(ZooError, FileNotFoundError):
     """A data root, file or folder that a benchmark needs does not exist."""
 
 
+class BenchmarkError(ZooError, ValueError):
+    """A benchmark file, or what its loader returned, is not what the zoo can plan with."""
+
+
 class EvaluationError(ZooError, RuntimeError):
     """A protocol that cannot be planned, a model that breaks the contract, a result folder that
     cannot be read."""

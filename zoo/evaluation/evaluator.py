@@ -1,8 +1,10 @@
 """The one evaluator: models scored in one pass over a planned protocol's windows
 (:func:`evaluate_models`), every row carrying its protocol.
 
-Skeleton and mesh benchmarks share the long format of :class:`zoo.evaluation.results.EvalResult`
-(one row per model, action, metric, averaging, joint protocol and horizon). Users call
+Skeleton and mesh benchmarks take the same path: what a model is fed and what it is scored
+against come from the benchmark's representation (:mod:`zoo.protocol.representation`), and the
+rows share the long format of :class:`zoo.evaluation.results.EvalResult` (one row per model,
+action, metric, averaging, joint protocol and horizon). Users call
 :func:`zoo.evaluate` (:mod:`zoo.api`), which plans the protocol and stamps the identity.
 """
 
@@ -26,21 +28,11 @@ from zoo.core.distributed import DistInfo, gather_shares, init_distributed
 from zoo.core.errors import EvaluationError
 from zoo.core.io import code_version, progress_bar
 from zoo.core.options import EVAL_BATCH
-from zoo.data.windows import gather_windows
 from zoo.evaluation.results import RESULT_COLUMNS, EvalResult, WindowErrors
 from zoo.models.hooks import Hooks, model_hooks
-from zoo.protocol.metrics import (
-    FLOOR_SUFFIX,
-    FrameErrorMean,
-    cumulative_mean,
-    edge_lengths,
-    mpjpe,
-    skeleton_errors,
-)
+from zoo.protocol.metrics import FLOOR_SUFFIX, FrameErrorMean, cumulative_mean, scored_errors
 from zoo.protocol.plan import Protocol
 from zoo.protocol.views import View
-
-MESH_BATCH_VALUES = 2**24  # float32 values of ground-truth windows held at once (64 MiB)
 
 
 @dataclass
@@ -61,7 +53,7 @@ class Scored:
 
     def __post_init__(self) -> None:
         # a view given by its word ("joints") becomes the View; another stays, for the pass to
-        # refuse this model alone (_MeshScoring.check_view)
+        # refuse this model alone (its scoring's check_view)
         if self.view in tuple(View):
             self.view = View(self.view)
 
@@ -107,9 +99,51 @@ def evaluate_models(
     ``keep_going=False`` the first failure is raised at once instead."""
     if not models:
         return []
-    if protocol.benchmark.representation == "mesh":
-        return _evaluate_mesh(models, protocol, batch_size, device, keep_going)
-    return _evaluate_skeleton(models, protocol, batch_size, device, keep_going)
+    scoring = protocol.benchmark.strategy.scoring(protocol, device)
+    run = _Pass(models, device, keep_going)
+    for i, scored in run.live():
+        run.attempt(i, partial(scoring.check_view, scored.view, scored.name))
+    index, dist_info = protocol.index, init_distributed(device)
+    batch = scoring.batch_size(batch_size)
+    with torch.no_grad(), _progress(protocol, models, dist_info) as bar:
+        for start in _my_batches(len(index), batch, dist_info):
+            bar.update(min(batch, len(index) - start) * dist_info.world)
+            live = run.live()
+            if not live:
+                continue  # every model has left the pass: no window is worth reading
+            truth = scoring.truth(index[start : start + batch], {s.view for _, s in live})
+            for i, scored in live:
+                run.score(i, start, partial(_errors, protocol, scored, truth, start, device))
+    return run.results(
+        dist_info,
+        lambda scored, batches: _finished(
+            protocol, scored, batches, device, scoring.recorded(scored.view, scored.model)
+        ),
+    )
+
+
+def _errors(protocol: Protocol, scored: Scored, truth, start: int, device) -> dict:
+    """A model's errors on a batch of ground truth (a
+    :class:`zoo.protocol.representation.TruthBatch`): its prediction's (and its autoencoder
+    floor's, where it has one) under its view's metrics, and the data's own rows beside them."""
+    observed, final_frame = truth.observed(scored.view, protocol.input_frames)
+    history = scored.history(observed)
+    pred = predict(
+        scored.model,
+        history.to(device),
+        protocol.task,
+        protocol.predicted_frames,
+        final_frame.to(device),
+        hooks=scored.hooks,
+    )
+    expected = (len(history), protocol.predicted_frames, *history.shape[2:])
+    against = truth.scored_as(scored.view)
+    frames = {scored.name: checked_prediction(pred, expected, scored.name, start, history)}
+    if scored.hooks.autoencoder_floor:
+        name = scored.name + FLOOR_SUFFIX
+        rebuilt = scored.model.autoencoder_floor(against.target.to(device))
+        frames[name] = checked_prediction(rebuilt, tuple(against.target.shape), name, start)
+    return {**scored_errors(frames, scored.view.metrics, against), **truth.own_errors(scored.view)}
 
 
 class _Pass:
@@ -234,44 +268,6 @@ def _progress(protocol: Protocol, models: list[Scored], dist_info: DistInfo):
         dynamic_ncols=True,
         file=sys.stderr,
         disable=dist_info.rank != 0,
-    )
-
-
-def _evaluate_skeleton(
-    models: list[Scored], protocol: Protocol, batch_size: int, device, keep_going: bool
-) -> list[EvalResult | Exception]:
-    dataset, task = protocol.dataset, protocol.task
-    skeleton = dataset.skeleton
-    t_in, t_out = protocol.input_frames, protocol.predicted_frames
-    index = protocol.index
-    positions = [s.positions for s in dataset.sequences]
-    used = list(skeleton.used)
-    dist_info = init_distributed(device)
-    run = _Pass(models, device, keep_going)
-
-    def errors(scored: Scored, windows: torch.Tensor, start: int) -> dict:
-        history = scored.history(windows[:, :t_in, used]).to(device)
-        pred = predict(
-            scored.model, history, task, t_out, windows[:, -1, used].to(device), hooks=scored.hooks
-        )
-        pred = checked_prediction(
-            pred, (len(history), t_out, len(used), 3), scored.name, start, history
-        )
-        truth = _JointsTruth(windows[:, t_in:], partial(skeleton_errors, skeleton=skeleton))
-        return _scored_errors({scored.name: pred}, View.JOINTS.metrics, truth)
-
-    with torch.no_grad(), _progress(protocol, models, dist_info) as bar:
-        for start in _my_batches(len(index), batch_size, dist_info):
-            bar.update(min(batch_size, len(index) - start) * dist_info.world)
-            if not run.live():
-                continue  # every model has left the pass: no window is worth reading
-            rows = slice(start, start + batch_size)
-            windows = torch.from_numpy(gather_windows(positions, index[rows], t_in + t_out))
-            for i, scored in run.live():
-                run.score(i, start, partial(errors, scored, windows, start))
-
-    return run.results(
-        dist_info, lambda scored, batches: _finished(protocol, scored, batches, device, {})
     )
 
 
@@ -406,39 +402,6 @@ def _my_batches(windows: int, batch_size: int, dist_info: DistInfo) -> range:
     return range(dist_info.rank * batch_size, windows, dist_info.world * batch_size)
 
 
-def _float64(errors: torch.Tensor) -> np.ndarray:
-    return errors.detach().to("cpu", torch.float64).numpy()
-
-
-def _scored_errors(predictions: dict[str, torch.Tensor], metrics, truth) -> dict:
-    """``{(row, metric, joint protocol): errors (B, T)}`` of each prediction (``{row name:
-    frames}``) under each of ``metrics`` (a view's declared ones), each scored by its
-    declaration on ``truth`` (a :class:`zoo.protocol.metrics.BatchTruth`)."""
-    return {
-        (name, metric.name, joints): _float64(errors)
-        for name, frames in predictions.items()
-        for metric in metrics
-        for joints, errors in metric.score(frames, truth).items()
-    }
-
-
-class _JointsTruth:
-    """A batch of ground-truth joints (``target``: the future) that predicted joints are
-    scored against, under the benchmark's joint protocols (``errors(pred, target)``: a
-    skeleton's, or the one column of a mesh benchmark's regressed joints)."""
-
-    reference_lengths = None
-
-    def __init__(self, target: torch.Tensor, errors) -> None:
-        self.target, self._errors = target, errors
-
-    def joint_errors(self, pred: torch.Tensor) -> dict[str, torch.Tensor]:
-        return self._errors(pred, self.target)
-
-    def melv_lengths(self, frames: torch.Tensor) -> torch.Tensor:
-        raise EvaluationError("joints have no edges to measure MELV on")
-
-
 def _accumulate(
     scored: dict[int, dict[tuple[str, str, str], np.ndarray]], actions: np.ndarray
 ) -> tuple[dict[tuple[str, str, str], FrameErrorMean], _WindowLog]:
@@ -496,193 +459,3 @@ def _frame(
                         )
                     )
     return pd.DataFrame(rows, columns=RESULT_COLUMNS)
-
-
-# ---- mesh benchmarks ---------------------------------------------------------------------------
-
-
-def _evaluate_mesh(
-    models: list[Scored], protocol: Protocol, batch_size: int, device, keep_going: bool
-) -> list[EvalResult | Exception]:
-    """Models on a mesh benchmark: windows ``(B, T_in, V, 3)`` in, ``(B, T_out, V, 3)`` out,
-    rows for ``melv``, ``rmse`` and (with a joint regressor) ``mpjpe`` (:class:`_MeshScoring`).
-    What the ground truth alone gives (its spectral reconstruction, the reference frame's edge
-    lengths, its own MELV, its regressed joints) is computed once a batch for all the models."""
-    scoring = _MeshScoring(protocol, device)
-    run = _Pass(models, device, keep_going)
-    for i, scored in run.live():
-        run.attempt(i, partial(scoring.check_view, scored))
-    index, dist_info = protocol.index, init_distributed(device)
-    batch = scoring.batch_size(batch_size)
-    with torch.no_grad(), _progress(protocol, models, dist_info) as bar:
-        for start in _my_batches(len(index), batch, dist_info):
-            bar.update(min(batch, len(index) - start) * dist_info.world)
-            live = run.live()
-            if not live:
-                continue
-            truth = scoring.truth(
-                index[start : start + batch], any(s.view is View.MESH for _, s in live)
-            )
-            for i, scored in live:
-                run.score(i, start, partial(scoring.errors, scored, truth, start))
-    return run.results(dist_info, scoring.finish)
-
-
-class _MeshScoring:
-    """How one mesh protocol scores a model on a batch of windows.
-
-    ``melv_frames``: ``spectral`` (the default of benchmarks with a basis) measures MELV on the
-    k-coefficient reconstruction of the reference frame and of the scored frames, as SpecTrHuMS
-    does; ``raw`` on the frames as they are.
-
-    A model with the ``autoencoder_floor`` hook (SpecTrHuMS) also gets the rows of
-    ``<name>:autoencoder``: the ground-truth future passed through its autoencoder alone, scored
-    like a prediction; what the model could reach if its transformer were perfect.
-
-    ``view='joints'``: a skeleton model sees the regressed joints ``(B, T_in, J, 3)`` of the same
-    windows and predicts ``(B, T_out, J, 3)``; it gets the ``mpjpe`` rows only, under the very
-    protocol record of the mesh models, so both share one MPJPE table."""
-
-    def __init__(self, protocol: Protocol, device) -> None:
-        from zoo.data.mesh import regress_joints
-
-        self.protocol, self.device = protocol, device
-        self.regressor = protocol.dataset.joint_regressor
-        self.regress = partial(regress_joints, regressor=self.regressor)
-        self.t_in, self.t_out = protocol.input_frames, protocol.predicted_frames
-        self.num_vertices = protocol.dataset.topology.num_vertices
-        self.joint_column = (
-            f"regressor{self.regressor.shape[0]}" if self.regressor is not None else None
-        )
-        # once, not per call
-        self.edges = torch.as_tensor(np.asarray(protocol.dataset.topology.edges), dtype=torch.long)
-        self.vertices = [s.vertices for s in protocol.dataset.sequences]
-
-    def batch_size(self, asked: int) -> int:
-        """``asked``, or fewer windows where a batch would exceed ``MESH_BATCH_VALUES``."""
-        window_values = (self.t_in + self.t_out) * self.num_vertices * 3
-        return max(1, min(asked, MESH_BATCH_VALUES // window_values))
-
-    def truth(self, index: np.ndarray, mesh_rows: bool) -> _MeshTruth:
-        """The ground-truth windows of ``index`` (spectral truth: their reconstruction) and, for
-        ``mesh_rows``, the reference frame's edge lengths and the future's own MELV."""
-        windows = torch.from_numpy(gather_windows(self.vertices, index, self.t_in + self.t_out))
-        if self.protocol.ground_truth == "spectral":
-            basis = self.protocol.basis
-            windows = basis.reconstruct(basis.project(windows.double())).float()
-        truth = _MeshTruth(windows, self.t_in, self.regress, self.joint_column, self.melv_lengths)
-        if mesh_rows:
-            reference = windows[:, self.t_in - 1 : self.t_in]
-            truth.reference_lengths = self.melv_lengths(reference)[:, 0]
-            # the data's own figures (MELV's): the ground-truth rows of every mesh model
-            own = [m for m in View.MESH.metrics if m.ground_truth_rows]
-            truth.own_errors = _scored_errors({"ground_truth": truth.target}, own, truth)
-        return truth
-
-    def check_view(self, scored: Scored) -> None:
-        if not isinstance(scored.view, View):
-            raise EvaluationError(f"view must be mesh or joints, got {scored.view!r}")
-        if scored.view is View.JOINTS and self.regressor is None:
-            raise EvaluationError(
-                f"benchmark {self.protocol.benchmark.name}: {self.protocol.dataset.name} has no "
-                f"joint regressor, so skeleton model {scored.name!r} cannot be evaluated on it"
-            )
-
-    def melv_lengths(self, frames: torch.Tensor) -> torch.Tensor:
-        """Edge lengths of the frames MELV is measured on."""
-        if self.protocol.melv_frames == "spectral":  # reconstructed from k coefficients
-            basis = self.protocol.basis
-            frames = basis.reconstruct(basis.project(frames.double())).float()
-        return edge_lengths(frames, self.edges)
-
-    def _predicted(self, scored: Scored, windows: torch.Tensor, start: int) -> torch.Tensor:
-        """The model's checked prediction from the first ``t_in`` frames of ``windows`` (those of
-        them it reads)."""
-        history = scored.history(windows[:, : self.t_in])
-        pred = predict(
-            scored.model,
-            history.to(self.device),
-            self.protocol.task,
-            self.t_out,
-            windows[:, -1].to(self.device),
-            hooks=scored.hooks,
-        )
-        expected = (len(windows), self.t_out, *windows.shape[2:])
-        return checked_prediction(pred, expected, scored.name, start, history)
-
-    def errors(self, scored: Scored, truth: _MeshTruth, start: int) -> dict:
-        """A model's errors on a batch: a mesh model's on the vertices it predicts (its
-        autoencoder floor's too, where it has one) and the data's own figures; a skeleton
-        model's on the regressed joints it predicts from theirs."""
-        if scored.view is View.JOINTS:
-            joints = truth.joints()
-            pred = self._predicted(scored, joints, start)
-            return _scored_errors({scored.name: pred}, View.JOINTS.metrics, truth.as_joints())
-        scored_frames = {scored.name: self._predicted(scored, truth.windows, start)}
-        if scored.hooks.autoencoder_floor:
-            name = scored.name + FLOOR_SUFFIX
-            rebuilt = scored.model.autoencoder_floor(truth.target.to(self.device))
-            scored_frames[name] = checked_prediction(
-                rebuilt, tuple(truth.target.shape), name, start
-            )
-        return {**_scored_errors(scored_frames, View.MESH.metrics, truth), **truth.own_errors}
-
-    def finish(self, scored: Scored, batches: dict) -> EvalResult:
-        from zoo.data.spectral import SpectralBasis
-
-        basis, dataset = self.protocol.basis, self.protocol.dataset
-        model_basis = getattr(scored.model, "basis", None)
-        recorded = {
-            # The data are named by their recipe in the protocol; the bytes of a generated mesh
-            # follow the machine's float kernels (CMU-on-Anny's skinning: other bytes on another
-            # CPU), so their hash is this build's provenance, not the protocol's.
-            "data_hash": dataset.content_hash(),
-            "data_exactness": "generated from its recipe on this machine: another CPU's build "
-            "may differ in the last bits of its vertices (data_hash), and so may errors "
-            "computed from them (MELV most: a difference of edge lengths)",
-            **({"basis_checksum": basis.checksum} if isinstance(basis, SpectralBasis) else {}),
-            **(
-                {"model_basis": {"k": model_basis.k, "hash": model_basis.hash}}
-                if isinstance(model_basis, SpectralBasis)
-                else {}
-            ),
-            **(
-                {"model_input": f"regressed joints ({self.joint_column})"}
-                if scored.view is View.JOINTS
-                else {}
-            ),
-        }
-        return _finished(self.protocol, scored, batches, self.device, recorded)
-
-
-class _MeshTruth:
-    """One batch of ground-truth windows and what is computed from them once for every model:
-    the reference frame's edge lengths and the future's own errors (set by the pass), the
-    regressed joints (``regress(windows)``, on first use, scored as ``joint_column``; none
-    without a regressor)."""
-
-    def __init__(self, windows: torch.Tensor, t_in: int, regress, joint_column, melv_lengths):
-        self.windows, self.t_in, self.regress = windows, t_in, regress
-        self.joint_column, self.melv_lengths = joint_column, melv_lengths
-        self.target = windows[:, t_in:]
-        self.reference_lengths: torch.Tensor | None = None
-        self.own_errors: dict = {}
-        self._joints: torch.Tensor | None = None
-
-    def joints(self) -> torch.Tensor:
-        if self._joints is None:
-            self._joints = self.regress(self.windows)
-        return self._joints
-
-    def joint_errors(self, pred: torch.Tensor) -> dict[str, torch.Tensor]:
-        """MPJPE of the joints that predicted vertices ``pred`` regress to."""
-        if self.joint_column is None:
-            return {}
-        return {self.joint_column: mpjpe(self.regress(pred), self.joints()[:, self.t_in :])}
-
-    def as_joints(self) -> _JointsTruth:
-        """The batch as a skeleton model on this benchmark sees it: its regressed joints."""
-        column = self.joint_column
-        return _JointsTruth(
-            self.joints()[:, self.t_in :], lambda pred, target: {column: mpjpe(pred, target)}
-        )

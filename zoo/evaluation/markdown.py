@@ -13,6 +13,7 @@ from typing import Any
 import pandas as pd
 from tabulate import tabulate
 
+from zoo.protocol.benchmark import representation_of
 from zoo.protocol.comparable import ProtocolMismatchError, check_comparable
 from zoo.protocol.metrics import METRICS
 
@@ -28,11 +29,10 @@ def metric_unit(metric: str) -> tuple[str, str]:
 
 
 def headline_key(protocol: dict[str, Any]) -> tuple[str, str]:
-    """The ``(metric, joints)`` a benchmark's headline reports: skeletons, MPJPE under the first
-    (official) joint protocol; meshes, the normalised vertex RMSE."""
-    if protocol.get("representation") == "mesh":
-        return "rmse", "vertices"
-    return "mpjpe", next(iter(protocol.get("joint_protocols") or {"all": ""}))
+    """The ``(metric, joints)`` a benchmark's headline reports, as its representation says:
+    skeletons, MPJPE under the first (official) joint protocol; meshes, the normalised vertex
+    RMSE."""
+    return representation_of(protocol).headline(protocol)
 
 
 def markdown_tables(

@@ -97,19 +97,7 @@ def recorded_entry(meta: RunRecord, registry: Registry, source: str) -> ModelEnt
 def model_protocol(bench: Benchmark, view: View = View.MESH) -> dict[str, Any]:
     """What a trained model's weights depend on: it must match wherever they are evaluated.
     ``view``: ``joints`` for a skeleton model trained on a mesh benchmark's regressed joints."""
-    protocol = {
-        "benchmark": bench.name,
-        "dataset": bench.dataset,
-        "input_frames": bench.input_frames,
-        "output_frames": bench.output_frames,
-    }
-    if bench.representation == "mesh":
-        protocol.update(representation="mesh", spectral_k=bench.spectral_k)
-        if view == View.JOINTS:
-            protocol["points"] = "regressed joints"
-    else:
-        protocol.update(skeleton=bench.skeleton.name, used_joints=list(bench.skeleton.used))
-    return protocol
+    return bench.strategy.weights_protocol(bench, view)
 
 
 def stored_hparams(hparams: dict[str, Any]) -> tuple[dict[str, Any], dict[str, str]]:

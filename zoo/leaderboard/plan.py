@@ -162,11 +162,7 @@ class Leaderboard:
         """``(sampler, task, ground truth, folder)`` of every table the benchmark can have:
         each sampler, each task a registered model has, each ground truth of a mesh."""
         bench = self.bench
-        truths = (
-            (bench.ground_truths or (bench.ground_truth,))
-            if bench.representation == "mesh"
-            else (None,)
-        )
+        truths = bench.strategy.ground_truths(bench)
         tasks = dict.fromkeys(
             ["prediction", *(self.registry.get(n).task for n in self.registry.list_models())]
         )
@@ -219,10 +215,8 @@ class Leaderboard:
 
     def rows(self, task: str) -> list[Row]:
         bench, registry = self.bench, self.registry
-        # Skeleton models join a mesh benchmark with a joint regressor, fed its regressed joints.
-        names = registry.list_models(bench.representation)
-        if bench.representation == "mesh" and self.dataset.joint_regressor is not None:
-            names += [n for n in registry.list_models("joints") if n not in names]
+        kinds = bench.strategy.scored_kinds(self.dataset)
+        names = list(dict.fromkeys(n for kind in kinds for n in registry.list_models(kind)))
         rows = []
         planned = (n for n in names if registry.get(n).task == task)
         for name in planned:

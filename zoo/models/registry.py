@@ -34,6 +34,9 @@ from zoo.models.citation import Paper, Url
 from zoo.paths import REPO_ROOT
 
 DEFAULT_REGISTRY = REPO_ROOT / "registry.yaml"
+# The words of zoo.protocol.benchmark.REPRESENTATIONS, written here because reading a registry
+# (``zoo --help`` does) loads no torch; tests/test_representations.py holds them equal.
+ModelRepresentation = Literal["joints", "mesh"]
 # Keywords every model receives from the benchmark (see zoo.models).
 SHAPE_ARGS = ("input_frames", "output_frames", "num_points")
 # The data files a model's constructor read while it was built: an author's weights loaded in a
@@ -83,7 +86,7 @@ class EntryFields:
 
     class_path: str = Field(alias="class")  # module.Class or file.py:Class
     representation: Annotated[
-        tuple[Literal["joints", "mesh"], ...], Field(min_length=1), BeforeValidator(_one_or_more)
+        tuple[ModelRepresentation, ...], Field(min_length=1), BeforeValidator(_one_or_more)
     ] = Field()
     trainable: StrictBool = False
     hparams: Annotated[dict[str, Any], BeforeValidator(_none_is_empty)] = field(

@@ -7,10 +7,9 @@ its class), the dataset's name in records, its split, the observed and predicted
 the default and offered window samplers, the actions and the horizons its tables show. What a
 loader returns and must refuse: docs/adding-a-benchmark.md.
 
-Mesh benchmarks (``representation: mesh``) also name the number ``spectral_k`` of Laplacian
-eigenvectors of the dataset's spectral basis (what models with ``context: [basis]`` receive) and
-the ground truth they score against: ``raw`` vertices or ``spectral`` (the k-coefficient
-reconstruction, as SpecTrHuMS does).
+Its ``representation`` (:data:`REPRESENTATIONS`: ``joints``, :mod:`zoo.protocol.joints`;
+``mesh``, :mod:`zoo.protocol.mesh`) is the one object that knows what its points are: a joints
+benchmark names its ``skeleton``, a mesh benchmark its ``spectral_k`` and ground truth.
 """
 
 from __future__ import annotations
@@ -19,30 +18,29 @@ import dataclasses
 import inspect
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Annotated, Any, Literal, get_args
+from typing import Annotated, Any, Literal
 
 import pydantic
 import yaml
 from pydantic import AfterValidator, ConfigDict, Field, StrictInt, StringConstraints
 
 from zoo.core.definitions import DefinitionError, load_definition
-from zoo.core.errors import ZooError
+from zoo.core.errors import BenchmarkError, ZooError
 from zoo.core.io import load_yaml, yaml_problem
 from zoo.core.schema import line_of, validated
-from zoo.data.mesh import MeshDataset
-from zoo.data.motion import MotionDataset
 from zoo.data.skeleton import Skeleton
 from zoo.data.windows import check_sampler
 from zoo.paths import REPO_ROOT
+from zoo.protocol.joints import JointsRepresentation
+from zoo.protocol.mesh import GroundTruth, MeshRepresentation
+from zoo.protocol.representation import Representation
 from zoo.protocol.views import View
 
 BENCHMARK_DIR = REPO_ROOT / "benchmarks"
-# What a loader returns for each representation.
-DATASET_TYPES = {"joints": MotionDataset, "mesh": MeshDataset}
-
-
-class BenchmarkError(ZooError, ValueError):
-    pass
+# Each kind of points a benchmark can have, by the word its file writes.
+REPRESENTATIONS: dict[str, Representation] = {
+    r.name: r for r in (JointsRepresentation(), MeshRepresentation())
+}
 
 
 def _named(spec: str) -> str:
@@ -58,14 +56,16 @@ Name = Annotated[str, StringConstraints(min_length=1)]
 Definition = Annotated[str, AfterValidator(_named)]
 Sampler = Annotated[str, AfterValidator(check_sampler)]  # its SamplerError is a ValueError
 Frames = Annotated[StrictInt, Field(ge=1)]
-GroundTruth = Literal["raw", "spectral"]
 # The validation rules (zoo.train.split says what each holds out): a benchmark's default and a
 # recipe's own name one of them.
 ValSplit = Literal["auto", "tails", "actions", "recordings"]
-GROUND_TRUTHS = get_args(GroundTruth)
 HORIZONS_MS = (80, 160, 320, 400, 560, 720, 880, 1000)
-# Fields a joints benchmark does not write.
-_MESH_ONLY = ("spectral_k", "ground_truth", "ground_truths", "melv_frames")
+# Fields one representation alone writes, by their names in the schema.
+_OWN_FIELDS = {
+    ("skeleton_def" if name == "skeleton" else name): r
+    for r in REPRESENTATIONS.values()
+    for name in r.fields
+}
 
 
 @pydantic.dataclasses.dataclass(frozen=True, config=ConfigDict(extra="forbid"))
@@ -89,7 +89,7 @@ class BenchmarkFields:
     horizons_ms: tuple[Annotated[StrictInt, Field(ge=1)], ...] = HORIZONS_MS
     averaging: tuple[Literal["frame", "cumulative"], ...] = ("frame", "cumulative")
     description: str = ""
-    representation: Literal["joints", "mesh"] = "joints"
+    representation: Literal[tuple(REPRESENTATIONS)] = "joints"
     # the skeleton the loader's recordings are on (joints only): ``module:NAME``, ``file.py:NAME``;
     # after ``representation``, which its check reads
     skeleton_def: Definition | None = Field(None, alias="skeleton")
@@ -109,29 +109,17 @@ class BenchmarkFields:
     def _default_alone(cls, samplers: tuple, info: pydantic.ValidationInfo) -> tuple:
         return samplers or ((info.data["sampler"],) if "sampler" in info.data else ())
 
-    @pydantic.field_validator("skeleton_def")
+    @pydantic.field_validator(*_OWN_FIELDS)
     @classmethod
-    def _joints_only(cls, skeleton: str | None, info: pydantic.ValidationInfo) -> str | None:
-        if skeleton is not None and info.data.get("representation") == "mesh":
-            raise ValueError(
-                "belongs to joints benchmarks: a mesh benchmark's points are its loader's vertices"
-            )
-        return skeleton
-
-    @pydantic.field_validator(*_MESH_ONLY)
-    @classmethod
-    def _mesh_only(cls, value: Any, info: pydantic.ValidationInfo) -> Any:
-        if info.data.get("representation") == "joints":
-            raise ValueError("belongs to mesh benchmarks (representation: mesh)")
+    def _own_field(cls, value: Any, info: pydantic.ValidationInfo) -> Any:
+        owner = _OWN_FIELDS[info.field_name]
+        if value is not None and info.data.get("representation", owner.name) != owner.name:
+            raise ValueError(f"belongs to {owner} benchmarks (representation: {owner})")
         return value
 
     @pydantic.model_validator(mode="after")
-    def _skeleton_of_joints(self) -> BenchmarkFields:
-        if self.representation == "joints" and not self.skeleton_def:
-            raise ValueError(
-                "a joints benchmark names the skeleton its recordings are on in field "
-                "'skeleton', as package.module:NAME or file.py:NAME (e.g. zoo.data.skeleton:CMU)"
-            )
+    def _fields_of_representation(self) -> BenchmarkFields:
+        REPRESENTATIONS[self.representation].check_fields(self)
         return self
 
     @pydantic.model_validator(mode="after")
@@ -156,6 +144,11 @@ class Benchmark(BenchmarkFields):
     source: Path
 
     @property
+    def strategy(self) -> Representation:
+        """The object of its ``representation``: all that depends on what its points are."""
+        return REPRESENTATIONS[self.representation]
+
+    @property
     def melv_on(self) -> str:
         """Frames MELV measures edges on: ``spectral`` (reference and scored frames
         reconstructed from the k coefficients, as SpecTrHuMS measures) or ``raw``."""
@@ -165,8 +158,10 @@ class Benchmark(BenchmarkFields):
     def skeleton(self) -> Skeleton:
         """The skeleton field ``skeleton`` names, which the loader's recordings are on: what a
         model's shape and a checkpoint's protocol need, known without the data."""
-        if self.representation == "mesh":
-            raise BenchmarkError(f"benchmark {self.name!r} is a mesh benchmark: it has no skeleton")
+        if self.skeleton_def is None:
+            raise BenchmarkError(
+                f"benchmark {self.name!r} is a {self.representation} benchmark: it has no skeleton"
+            )
         try:
             skeleton = load_definition(self.skeleton_def, self.source.parent, "skeleton")
         except DefinitionError as e:
@@ -223,7 +218,7 @@ class Benchmark(BenchmarkFields):
                 f"{self.source}: field 'loader': {self.loader} could not load split "
                 f"{split or self.split!r} of {root}: {e}"
             ) from e
-        expected = DATASET_TYPES[self.representation]
+        expected = self.strategy.dataset_type
         if not isinstance(dataset, expected):
             raise BenchmarkError(
                 f"{self.source}: field 'loader': {self.loader} returned "
@@ -235,43 +230,15 @@ class Benchmark(BenchmarkFields):
                 f"{self.source}: field 'loader': {self.loader} returned no recordings for split "
                 f"{split or self.split!r} of {root}"
             )
-        if isinstance(dataset, MotionDataset):
-            self._check_recordings(dataset)
+        self.strategy.check_dataset(self, dataset)
         return dataset
-
-    def _check_recordings(self, dataset: MotionDataset) -> None:
-        """A loader's recordings are on the skeleton the file names, as ``(T, J, 3)`` positions
-        at the dataset's one frame rate (windows count frames, horizons are milliseconds)."""
-        where = f"{self.source}: field 'loader': {self.loader}"
-        if not _same_skeleton(dataset.skeleton, self.skeleton):
-            raise BenchmarkError(
-                f"{self.source}: field 'skeleton': {self.loader} gave recordings on skeleton "
-                f"{dataset.skeleton.name!r} ({dataset.skeleton.num_joints} joints), the file "
-                f"names {self.skeleton_def} ({self.skeleton.name!r}, "
-                f"{self.skeleton.num_joints} joints)"
-            )
-        shape = (self.skeleton.num_joints, 3)
-        for seq in dataset.sequences:
-            positions = getattr(seq.positions, "shape", ())
-            if len(positions) != 3 or tuple(positions[1:]) != shape:
-                raise BenchmarkError(
-                    f"{where}: recording {seq.name!r} has positions of shape {positions}, "
-                    f"expected (frames, {shape[0]}, 3)"
-                )
-            if seq.fps != dataset.fps:
-                raise BenchmarkError(
-                    f"{where}: recording {seq.name!r} is at {seq.fps} Hz, the dataset at "
-                    f"{dataset.fps} Hz; a benchmark's recordings share one frame rate"
-                )
 
     def view_for(self, representations) -> View:
         """How a model whose registry ``representation`` lists ``representations`` sees this
         benchmark (:class:`zoo.protocol.views.View`): its vertices, or its joints (for a
         skeleton-only model on a mesh benchmark, those its regressor takes from the vertices,
         which the mesh models' MPJPE is scored on)."""
-        if self.representation != "mesh":
-            return View.JOINTS
-        return View.MESH if "mesh" in representations else View.JOINTS
+        return self.strategy.view_for(representations)
 
     def model_inputs(
         self,
@@ -280,82 +247,18 @@ class Benchmark(BenchmarkFields):
         dataset=None,
         view: View = View.MESH,
     ) -> dict[str, Any]:
-        """Constructor keywords a model gets from this benchmark (see zoo.models). Mesh
-        benchmarks read them from ``dataset`` if given (any split: they share the topology),
-        else load the test split; ``view='joints'`` gives a skeleton model's keywords for the
+        """Constructor keywords a model gets from this benchmark (see zoo.models), read from
+        ``dataset`` where they need the data (else from the test split, loaded);
+        ``view='joints'`` on a mesh benchmark gives a skeleton model's keywords for the
         dataset's regressed joints."""
-        if self.representation == "mesh":
-            if view == View.JOINTS:
-                return self._joints_view_inputs(context, data_root, dataset)
-            return self._mesh_model_inputs(context, data_root, dataset)
-        inputs = {
-            "input_frames": self.input_frames,
-            "output_frames": self.output_frames,
-            "num_points": len(self.skeleton.used),
-        }
-        for name in context:
-            if name == "parts":
-                inputs["parts"] = {k: list(v) for k, v in self.skeleton.parts.items()}
-            else:
-                raise BenchmarkError(
-                    f"benchmark {self.name!r} cannot supply context {name!r}; it supplies: parts"
-                )
-        return inputs
+        data = (lambda: dataset) if dataset is not None else (lambda: self.load(data_root))
+        return self.strategy.model_inputs(self, tuple(context), view, data)
 
-    # ---- mesh benchmarks ------------------------------------------------------------------------
 
-    def spectral_basis(self, dataset=None, data_root: str | Path | None = None):
-        """The :class:`zoo.data.spectral.SpectralBasis` of the dataset's topology with
-        ``spectral_k`` vectors, from the basis cache (computed once, then never recomputed)."""
-        from zoo.data.spectral import SpectralBasis
-
-        if self.spectral_k is None:
-            raise BenchmarkError(
-                f"benchmark {self.name!r} ({self.source}) sets no spectral_k: "
-                f"it has no spectral basis"
-            )
-        dataset = dataset if dataset is not None else self.load(data_root)
-        return SpectralBasis.load_or_compute(dataset.topology, self.spectral_k)
-
-    def _joints_view_inputs(
-        self, context: tuple[str, ...], data_root: str | Path | None, dataset=None
-    ) -> dict[str, Any]:
-        from zoo.data.mesh import JointsView
-
-        dataset = dataset if dataset is not None else self.load(data_root)
-        view = dataset if isinstance(dataset, JointsView) else dataset.joints_view()
-        inputs = {
-            "input_frames": self.input_frames,
-            "output_frames": self.output_frames,
-            "num_points": view.num_joints,
-        }
-        for name in context:
-            if name == "parts":
-                inputs["parts"] = view.parts
-            else:
-                raise BenchmarkError(
-                    f"benchmark {self.name!r} cannot supply context {name!r} to "
-                    f"a model of its regressed joints; it supplies: parts"
-                )
-        return inputs
-
-    def _mesh_model_inputs(
-        self, context: tuple[str, ...], data_root: str | Path | None, dataset=None
-    ) -> dict[str, Any]:
-        dataset = dataset if dataset is not None else self.load(data_root)
-        inputs = {
-            "input_frames": self.input_frames,
-            "output_frames": self.output_frames,
-            "num_points": dataset.topology.num_vertices,
-        }
-        for name in context:
-            if name == "basis":
-                inputs["basis"] = self.spectral_basis(dataset)
-            else:
-                raise BenchmarkError(
-                    f"benchmark {self.name!r} cannot supply context {name!r}; it supplies: basis"
-                )
-        return inputs
+def representation_of(record: dict[str, Any]) -> Representation:
+    """The representation a protocol record was planned under (a joints record does not name
+    it: the word came with meshes, and a record is hashed as it was written)."""
+    return REPRESENTATIONS[record.get("representation", JointsRepresentation.name)]
 
 
 def list_benchmarks() -> list[str]:
@@ -388,13 +291,6 @@ def get_benchmark(name_or_path: str | Path) -> Benchmark:
     if bench.weights_from is not None:
         _check_weights_from(path, bench)
     return bench
-
-
-def _same_skeleton(a: Skeleton, b: Skeleton) -> bool:
-    """The same joints, tree, parts and scoring rule (offsets aside: positions come with the
-    data)."""
-    rule = ("name", "parents", "ignored", "copy_to", "copy_from", "parts", "official")
-    return all(getattr(a, f) == getattr(b, f) for f in rule)
 
 
 def _check_weights_from(path: Path, bench: Benchmark) -> None:

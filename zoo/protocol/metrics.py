@@ -318,3 +318,15 @@ METRICS = {
         ),
     )
 }
+
+
+def scored_errors(predictions: dict[str, torch.Tensor], metrics, truth: BatchTruth) -> dict:
+    """``{(row, metric, joint protocol): errors (B, T)}`` in float64 of each prediction (``{row
+    name: frames}``) under each of ``metrics`` (a view's declared ones), each scored by its
+    declaration on ``truth``."""
+    return {
+        (name, metric.name, joints): errors.detach().to("cpu", torch.float64).numpy()
+        for name, frames in predictions.items()
+        for metric in metrics
+        for joints, errors in metric.score(frames, truth).items()
+    }

@@ -232,8 +232,10 @@ def write_benchmark_clips(
     from zoo.protocol.benchmark import get_benchmark
 
     bench = get_benchmark(benchmark)
-    if bench.representation != "mesh":
-        raise ClipsError(f"benchmark {benchmark!r} is a skeleton one; clips are meshes")
+    if not bench.strategy.drawn:
+        raise ClipsError(
+            f"benchmark {benchmark!r} is a {bench.representation} one; clips are meshes"
+        )
     labels = sorted(
         label for b, label in available_weights(weights_root) if b == benchmark and "@" not in label
     )

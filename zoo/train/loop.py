@@ -25,7 +25,6 @@ from zoo.models.recipe import Recipe, learning_rate, patience_spent, training_re
 from zoo.models.registry import ModelEntry, Registry, load_registry
 from zoo.paths import REPO_ROOT
 from zoo.protocol.benchmark import Benchmark, get_benchmark
-from zoo.protocol.views import View
 from zoo.train.host import cpu_has_native_bfloat16, device_name, precision_on
 from zoo.train.options import RunOptions
 from zoo.train.split import (
@@ -89,9 +88,10 @@ def train(
     dist_info = init_distributed(device)
     _warn_slow_bfloat16(model_name, recipe, device)
     view = bench.view_for(entry.representation)
-    dataset = bench.load(data_root, split=bench.train_split)
-    if bench.representation == "mesh" and view is View.JOINTS:
-        dataset = dataset.joints_view()  # a skeleton model on a mesh benchmark's joints
+    # a skeleton model on a mesh benchmark trains on its regressed joints
+    dataset, points = bench.strategy.training_data(
+        bench.load(data_root, split=bench.train_split), view
+    )
     _, hparams = model_args_for(
         registry, model_name, bench, data_root=data_root, dataset=dataset, overrides=overrides
     )
@@ -106,7 +106,9 @@ def train(
     hooks = model_hooks(model, model_name)  # refuses a model defining half a group of hooks
     graphed = options.cuda_graph and torch.device(device).type == "cuda" and not dist_info.active
     optimizer = make_optimizer(model, recipe, device, graphed)
-    data = _training_windows(model, model_name, bench, dataset, recipe, hooks, options.progress)
+    data = _training_windows(
+        model, model_name, bench, dataset, points, recipe, hooks, options.progress
+    )
 
     run = _Run(first_epoch=0, best={"val_mpjpe": math.inf, "epoch": -1}, history=[])
     run.init_record = initial[1] if initial is not None else None
@@ -119,7 +121,7 @@ def train(
     epochs = _Epochs(
         model_name, model, optimizer, recipe, data, options, dist_info, graphed, task=entry.task,
         fps=getattr(dataset, "mesh", dataset).fps,  # a JointsView: its mesh's rate
-        mesh=view is View.MESH,
+        curve=bench.strategy.validation_curve(view),
     )  # fmt: skip
     # a resumed run knows how long its epochs take on this machine (not on another one)
     here = device_name(device)
@@ -271,12 +273,11 @@ class _Data:
         return self.train_src is not self.train_pos
 
 
-def _point_index(bench: Benchmark):
-    """Which points of a frame models see: the predicted joints, or every vertex."""
-    return slice(None) if bench.representation == "mesh" else list(bench.skeleton.used)
-
-
-def _training_windows(model, model_name, bench, dataset, recipe, hooks: Hooks, progress) -> _Data:
+def _training_windows(
+    model, model_name, bench, dataset, used, recipe, hooks: Hooks, progress
+) -> _Data:
+    """The training and validation windows of ``dataset``, of its points ``used`` (a
+    representation's :meth:`~zoo.protocol.representation.Representation.training_data`)."""
     t_in, t_out = bench.input_frames, bench.output_frames
     length = t_in + t_out
     train_seqs, val_seqs = split_train_val(
@@ -298,7 +299,6 @@ def _training_windows(model, model_name, bench, dataset, recipe, hooks: Hooks, p
             f"{recipe.val_sampler!r} finds no window of {length} frames in the held-out "
             f"sequences; choose another val_sampler for the recipe (e.g. all)"
         )
-    used = _point_index(bench)
     # A model with a training view trains on windows of that view of every frame, computed once
     # (cached): train_src and src_points say where training windows come from.
     train_src, src_points = train_pos, used
@@ -398,7 +398,7 @@ class _Epochs:
 
     def __init__(
         self, model_name, model, optimizer, recipe, data: _Data, options: RunOptions,
-        dist_info: DistInfo, graphed: bool, *, task: str, fps: float, mesh: bool,
+        dist_info: DistInfo, graphed: bool, *, task: str, fps: float, curve: str,
     ) -> None:  # fmt: skip
         self.model_name, self.model, self.optimizer = model_name, model, optimizer
         self.recipe, self.data, self.seed, self.device = recipe, data, options.seed, options.device
@@ -408,7 +408,7 @@ class _Epochs:
         self.step_recipe = replace(recipe, precision=taken)
         self.dist_info, self.graphed = dist_info, graphed
         self.progress = options.progress and dist_info.rank == 0
-        self.task, self.fps, self.mesh = task, fps, mesh
+        self.task, self.fps, self.curve = task, fps, curve
         self.stop_by, self.longest_epoch = options.stop_by, 0.0
         objective = TrainingObjective(model, task, view=data.view)
         # Some phases leave parameters without gradients (SpecTrHuMS's transformer while the
@@ -457,7 +457,7 @@ class _Epochs:
             self.device,
             task=self.task,
             fps=self.fps,
-            mesh=self.mesh,
+            curve=self.curve,
         )
         self.longest_epoch = max(self.longest_epoch, time.perf_counter() - started)
         return {

@@ -64,17 +64,18 @@ def validate(
     batch_size: int = EVAL_BATCH,
     task: str = "prediction",
     fps: float | None = None,
-    mesh: bool = False,
+    curve: str = "mpjpe",
 ) -> dict[str, Any]:
     """Validation errors: ``val_mpjpe``, the mean MPJPE (mm; mean vertex error on a mesh) over
     windows and predicted frames, which picks the best epoch; and, given ``fps``,
-    ``val_horizons``: the error at each of :func:`validation_frames`, the model's and
-    repeat-last's on the same windows (normalised vertex RMSE on a mesh, MPJPE on joints). A
-    completion model (``task``) is given each window's last frame as its final frame."""
+    ``val_horizons``: the error ``curve`` (``mpjpe`` or ``rmse``, the normalised vertex RMSE:
+    its representation's choice) at each of :func:`validation_frames`, the model's and
+    repeat-last's on the same windows. A completion model (``task``) is given each window's last
+    frame as its final frame."""
     model.eval()
     total, count = 0.0, 0
     per_frame = {who: torch.zeros(t_out, dtype=torch.float64) for who in ("model", "repeat_last")}
-    error = vertex_rmse if mesh else mpjpe
+    error = {"mpjpe": mpjpe, "rmse": vertex_rmse}[curve]
     for start in range(0, len(index), batch_size):
         w = torch.from_numpy(
             gather_windows(positions, index[start : start + batch_size], t_in + t_out)[:, :, used]
@@ -86,13 +87,15 @@ def validate(
         count += err.numel()
         if fps is not None:
             same = w[:, t_in - 1 : t_in].expand_as(future)
-            per_frame["model"] += (error(pred, future) if mesh else err).double().sum(0).cpu()
+            per_frame["model"] += (
+                (err if error is mpjpe else error(pred, future)).double().sum(0).cpu()
+            )
             per_frame["repeat_last"] += error(same, future).double().sum(0).cpu()
     result: dict[str, Any] = {"val_mpjpe": total / count}
     if fps is not None:
         frames = validation_frames(t_out, fps)
         result["val_horizons"] = {
-            "metric": "rmse" if mesh else "mpjpe",
+            "metric": curve,
             "horizons": list(frames),
             **{
                 who: [float(curve[t]) / len(index) for t in frames.values()]
