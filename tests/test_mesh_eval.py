@@ -21,6 +21,7 @@ from zoo.evaluation.markdown import markdown_tables
 from zoo.models.repeat_last import RepeatLast
 from zoo.protocol.benchmark import get_benchmark
 from zoo.protocol.metrics import melv, mpjpe, vertex_rmse
+from zoo.protocol.views import View
 
 # One 3-4-5 right triangle: its edges (0,1), (0,2), (1,2) have lengths 3, 4 and 5.
 TRIANGLE = torch.tensor([[0.0, 0, 0], [3, 0, 0], [0, 4, 0]])
@@ -594,3 +595,12 @@ def test_a_metric_declared_once_is_scored_by_the_evaluator_in_every_view_that_li
         )
         assert len(one) == len(two) > 0
         np.testing.assert_allclose(two["value"].to_numpy(), 2 * one["value"].to_numpy(), rtol=1e-6)
+
+
+def test_a_skeleton_model_trains_on_the_regressed_joints_and_its_record_says_so(toy_bench):
+    bench, mesh = toy_bench(), toy_dataset()
+    joints, points = bench.strategy.training_data(mesh, View.JOINTS)
+    assert points == slice(None) and joints.fps == mesh.fps and joints.num_joints == 1
+    assert bench.strategy.training_record(joints, View.JOINTS)["points"] == "regressor1"
+    assert bench.strategy.training_data(mesh, View.MESH)[0] is mesh
+    assert "points" not in bench.strategy.training_record(mesh, View.MESH)

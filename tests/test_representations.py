@@ -71,3 +71,23 @@ def test_a_joints_benchmark_refuses_a_model_fed_vertices(swinging_cmu):
         zoo.evaluate(model, bench, label="still", data_root=root, view="mesh")
     joints = zoo.evaluate(model, bench, label="still", data_root=root, view=View.JOINTS)
     assert set(joints.frame["metric"]) == {"mpjpe"}
+
+
+def test_a_model_given_no_view_is_fed_the_benchmarks_own(swinging_cmu):
+    from zoo.evaluation.evaluator import Scored, evaluate_models
+    from zoo.protocol.plan import plan_protocol
+
+    root, _ = swinging_cmu
+    bench = get_benchmark("cmu")
+    protocol = plan_protocol(bench, bench.load(root), sampler="ltd8")
+    scored = Scored(create_model("repeat_last", benchmark=bench), "still")
+    (result,) = evaluate_models([scored], protocol)
+    assert set(result.frame["joints"]) == {"all38", "used25"}
+    assert scored.view is None  # the caller's model is left as it was given
+
+
+def test_a_joints_run_records_the_files_it_trained_on(swinging_cmu):
+    root, _ = swinging_cmu
+    joints = get_benchmark("cmu")
+    record = joints.strategy.training_record(joints.load(root, split="test"), View.JOINTS)
+    assert record["files"] and set(record["files"][0]) == {"file", "sha256"}

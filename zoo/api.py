@@ -113,7 +113,7 @@ def evaluate(
     registry = as_registry(registry, "zoo.evaluate")
     dataset = dataset if dataset is not None else bench.load(data_root)
     if isinstance(model, torch.nn.Module):
-        default_view = bench.view_for([bench.representation])  # a module of the benchmark's kind
+        default_view = bench.own_view  # a module of the benchmark's kind
         subject = Subject.of_module(
             model, check_label(label or type(model).__name__), options.pop("view", default_view)
         )

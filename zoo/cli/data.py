@@ -92,7 +92,7 @@ def show(args) -> int:
                 b.split,
                 b.train_split,
                 # none written: the loader's own (cloth generates its data) or --data-root
-                str(b.resolve_data_root() or "(the loader's, or --data-root)"),
+                str(b.resolve_data_root() or "(give --data-root, or the loader makes it)"),
             ]
         )
     headers = ["benchmark", "dataset", "representation", "test split", "train split",

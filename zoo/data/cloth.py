@@ -372,7 +372,7 @@ def generate_cloth(
     count = config.sequences(split)
     if count < 1:
         raise MeshError(f"cloth: split {split!r} has {count} sequences in this config")
-    workers = (os.cpu_count() or 1) if workers is None else workers
+    workers = _usable_cpus() if workers is None else workers
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
         raise MeshError(f"cloth: workers must be a positive integer, got {workers!r}")
     batch = min(MAX_BATCH, math.ceil(count / workers)) if batch is None else batch
@@ -451,7 +451,7 @@ def load_cloth(
     if progress:
         print(
             f"cloth {split}: {len(dataset.sequences)} sequences generated in "
-            f"{time.perf_counter() - started:.1f} s by {workers or os.cpu_count()} "
+            f"{time.perf_counter() - started:.1f} s by {workers or _usable_cpus()} "
             f"process(es) -> {folder}",
             file=sys.stderr,
         )
@@ -469,6 +469,11 @@ def cloth_full_dataset(root: str | Path | None, split: str) -> MeshDataset:
     """The loader of ``cloth_full`` (the paper's 16,000 / 4,000 simulations), generated and
     cached as ``cloth``'s."""
     return load_cloth(split, CLOTH_FULL, cache_dir=root, progress=True, workers=_workers())
+
+
+def _usable_cpus() -> int:
+    """The CPUs this process may run on (a container's or taskset's share, not the host's)."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
 
 
 def _workers() -> int | None:

@@ -449,6 +449,10 @@ class JointsView:
         ]
 
     @property
+    def fps(self) -> float:
+        return self.mesh.fps
+
+    @property
     def parts(self) -> dict[str, list[int]]:
         """Body parts as joint indices (SPGSN's upper and lower body), from the joint names of
         the CMU BVH rig (zoo.data.bvh; Anny's cmu_mb uses the same names)."""

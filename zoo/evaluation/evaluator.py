@@ -11,6 +11,7 @@ action, metric, averaging, joint protocol and horizon). Users call
 from __future__ import annotations
 
 import copy
+import dataclasses
 import datetime as _dt
 import inspect
 import math
@@ -39,11 +40,11 @@ from zoo.protocol.views import View
 class Scored:
     """A model in an evaluation pass: the module, its row name, what it is fed (``view``: the
     mesh, or joints: a skeleton benchmark's, or a mesh benchmark's regressed joints for a
-    skeleton model) and what its results record about it."""
+    skeleton model; None: the benchmark's own points) and what its results record about it."""
 
     model: torch.nn.Module
     name: str
-    view: View = View.MESH
+    view: View | None = None  # None: the benchmark's own
     provenance: dict[str, Any] | None = None
     # the observed frames it reads, the last of those the protocol gives (None: all), and the
     # length it pads them to itself (its ``history_frames``): both shown beside its row
@@ -100,6 +101,8 @@ def evaluate_models(
     if not models:
         return []
     scoring = protocol.benchmark.strategy.scoring(protocol, device)
+    own = protocol.benchmark.own_view
+    models = [dataclasses.replace(m, view=own) if m.view is None else m for m in models]
     run = _Pass(models, device, keep_going)
     for i, scored in run.live():
         run.attempt(i, partial(scoring.check_view, scored.view, scored.name))
@@ -126,7 +129,7 @@ def _errors(protocol: Protocol, scored: Scored, truth, start: int, device) -> di
     """A model's errors on a batch of ground truth (a
     :class:`zoo.protocol.representation.TruthBatch`): its prediction's (and its autoencoder
     floor's, where it has one) under its view's metrics, and the data's own rows beside them."""
-    observed, final_frame = truth.observed(scored.view, protocol.input_frames)
+    observed, final_frame = truth.observed(scored.view)
     history = scored.history(observed)
     pred = predict(
         scored.model,
@@ -139,10 +142,11 @@ def _errors(protocol: Protocol, scored: Scored, truth, start: int, device) -> di
     expected = (len(history), protocol.predicted_frames, *history.shape[2:])
     against = truth.scored_as(scored.view)
     frames = {scored.name: checked_prediction(pred, expected, scored.name, start, history)}
-    if scored.hooks.autoencoder_floor:
+    future = truth.floor_target(scored.view) if scored.hooks.autoencoder_floor else None
+    if future is not None:
         name = scored.name + FLOOR_SUFFIX
-        rebuilt = scored.model.autoencoder_floor(against.target.to(device))
-        frames[name] = checked_prediction(rebuilt, tuple(against.target.shape), name, start)
+        rebuilt = scored.model.autoencoder_floor(future.to(device))
+        frames[name] = checked_prediction(rebuilt, tuple(future.shape), name, start)
     return {**scored_errors(frames, scored.view.metrics, against), **truth.own_errors(scored.view)}
 
 

@@ -94,10 +94,10 @@ def recorded_entry(meta: RunRecord, registry: Registry, source: str) -> ModelEnt
     return entry
 
 
-def model_protocol(bench: Benchmark, view: View = View.MESH) -> dict[str, Any]:
+def model_protocol(bench: Benchmark, view: View | None = None) -> dict[str, Any]:
     """What a trained model's weights depend on: it must match wherever they are evaluated.
     ``view``: ``joints`` for a skeleton model trained on a mesh benchmark's regressed joints."""
-    return bench.strategy.weights_protocol(bench, view)
+    return bench.strategy.weights_protocol(bench, view or bench.own_view)
 
 
 def stored_hparams(hparams: dict[str, Any]) -> tuple[dict[str, Any], dict[str, str]]:

@@ -60,7 +60,8 @@ Frames = Annotated[StrictInt, Field(ge=1)]
 # recipe's own name one of them.
 ValSplit = Literal["auto", "tails", "actions", "recordings"]
 HORIZONS_MS = (80, 160, 320, 400, 560, 720, 880, 1000)
-# Fields one representation alone writes, by their names in the schema.
+# Fields one representation alone writes, by their names in the schema (the file's ``skeleton``
+# is the schema's ``skeleton_def``: ``Benchmark.skeleton`` is the skeleton it names).
 _OWN_FIELDS = {
     ("skeleton_def" if name == "skeleton" else name): r
     for r in REPRESENTATIONS.values()
@@ -113,27 +114,13 @@ class BenchmarkFields:
     @classmethod
     def _own_field(cls, value: Any, info: pydantic.ValidationInfo) -> Any:
         owner = _OWN_FIELDS[info.field_name]
-        if value is not None and info.data.get("representation", owner.name) != owner.name:
+        if info.data.get("representation", owner.name) != owner.name:
             raise ValueError(f"belongs to {owner} benchmarks (representation: {owner})")
         return value
 
     @pydantic.model_validator(mode="after")
     def _fields_of_representation(self) -> BenchmarkFields:
         REPRESENTATIONS[self.representation].check_fields(self)
-        return self
-
-    @pydantic.model_validator(mode="after")
-    def _ground_truths(self) -> BenchmarkFields:
-        offered = self.ground_truths or (self.ground_truth,)
-        if self.ground_truth not in offered:
-            raise ValueError(
-                f"field 'ground_truth' ({self.ground_truth!r}) must be one of field "
-                f"'ground_truths' {list(offered)}"
-            )
-        if self.spectral_k is None and "spectral" in offered:
-            raise ValueError("ground truth 'spectral' needs field 'spectral_k'")
-        if self.spectral_k is None and self.melv_frames == "spectral":
-            raise ValueError("field 'melv_frames: spectral' needs field 'spectral_k'")
         return self
 
 
@@ -233,6 +220,11 @@ class Benchmark(BenchmarkFields):
         self.strategy.check_dataset(self, dataset)
         return dataset
 
+    @property
+    def own_view(self) -> View:
+        """How a model of this benchmark's own representation sees it."""
+        return self.view_for((self.representation,))
+
     def view_for(self, representations) -> View:
         """How a model whose registry ``representation`` lists ``representations`` sees this
         benchmark (:class:`zoo.protocol.views.View`): its vertices, or its joints (for a
@@ -245,14 +237,14 @@ class Benchmark(BenchmarkFields):
         context: tuple[str, ...] = (),
         data_root: str | Path | None = None,
         dataset=None,
-        view: View = View.MESH,
+        view: View | None = None,
     ) -> dict[str, Any]:
         """Constructor keywords a model gets from this benchmark (see zoo.models), read from
         ``dataset`` where they need the data (else from the test split, loaded);
-        ``view='joints'`` on a mesh benchmark gives a skeleton model's keywords for the
-        dataset's regressed joints."""
+        ``view``: the benchmark's own (None), or ``joints`` on a mesh benchmark for a skeleton
+        model's keywords for the dataset's regressed joints."""
         data = (lambda: dataset) if dataset is not None else (lambda: self.load(data_root))
-        return self.strategy.model_inputs(self, tuple(context), view, data)
+        return self.strategy.model_inputs(self, tuple(context), view or self.own_view, data)
 
 
 def representation_of(record: dict[str, Any]) -> Representation:

@@ -115,6 +115,13 @@ class JointsRepresentation(Representation):
             "used_joints": list(bench.skeleton.used),
         }
 
+    def training_record(self, dataset: MotionDataset, view: View) -> dict[str, Any]:
+        return {
+            "dataset": dataset.name,
+            "split": dataset.split,
+            "files": [{"file": f["file"], "sha256": f["sha256"]} for f in dataset.files()],
+        }
+
     def training_data(self, dataset: MotionDataset, view: View):
         return dataset, list(dataset.skeleton.used)
 
@@ -182,11 +189,11 @@ class _JointsScoring(Scoring):
 
 class _JointsBatch(TruthBatch):
     def __init__(self, windows: torch.Tensor, used: list[int], t_in: int, skeleton) -> None:
-        self.windows, self.used = windows, used
+        self.windows, self.used, self.t_in = windows, used, t_in
         self.truth = JointsTruth(windows[:, t_in:], partial(skeleton_errors, skeleton=skeleton))
 
-    def observed(self, view: View, t_in: int):
-        return self.windows[:, :t_in, self.used], self.windows[:, -1, self.used]
+    def observed(self, view: View):
+        return self.windows[:, : self.t_in, self.used], self.windows[:, -1, self.used]
 
     def scored_as(self, view: View) -> JointsTruth:
         return self.truth

@@ -47,6 +47,18 @@ class MeshRepresentation(Representation):
     fields = ("spectral_k", "ground_truth", "ground_truths", "melv_frames")
     drawn = True
 
+    def check_fields(self, fields) -> None:
+        offered = fields.ground_truths or (fields.ground_truth,)
+        if fields.ground_truth not in offered:
+            raise ValueError(
+                f"field 'ground_truth' ({fields.ground_truth!r}) must be one of field "
+                f"'ground_truths' {list(offered)}"
+            )
+        if fields.spectral_k is None and "spectral" in offered:
+            raise ValueError("ground truth 'spectral' needs field 'spectral_k'")
+        if fields.spectral_k is None and fields.melv_frames == "spectral":
+            raise ValueError("field 'melv_frames: spectral' needs field 'spectral_k'")
+
     def view_for(self, representations) -> View:
         """Its vertices, or for a skeleton-only model the joints its regressor takes from them
         (which the mesh models' MPJPE is scored on)."""
@@ -137,6 +149,19 @@ class MeshRepresentation(Representation):
             "representation": self.name,
             "spectral_k": bench.spectral_k,
             **({"points": "regressed joints"} if view == View.JOINTS else {}),
+        }
+
+    def training_record(self, dataset, view: View) -> dict[str, Any]:
+        """The mesh's recipe and content; a skeleton model's (``dataset``: the mesh's
+        :class:`JointsView`) names its regressed joints."""
+        mesh = dataset.mesh if view is View.JOINTS else dataset
+        return {
+            "dataset": mesh.name,
+            "split": mesh.split,
+            "recipe_hash": mesh.recipe_hash,
+            "content_hash": mesh.content_hash(),
+            "topology_hash": mesh.topology.hash,
+            **({"points": f"regressor{dataset.num_joints}"} if view is View.JOINTS else {}),
         }
 
     def validation_curve(self, view: View) -> str:
@@ -340,9 +365,13 @@ class _MeshBatch(TruthBatch):
             self._joints = self.regress(self.windows)
         return self._joints
 
-    def observed(self, view: View, t_in: int):
+    def observed(self, view: View):
         windows = self.joints() if view is View.JOINTS else self.windows
-        return windows[:, :t_in], windows[:, -1]
+        return windows[:, : self.t_in], windows[:, -1]
+
+    def floor_target(self, view: View) -> torch.Tensor | None:
+        """Mesh models' floor rows (the record's ``floor``), on the vertices' future."""
+        return self.target if view is View.MESH else None
 
     def scored_as(self, view: View):
         """Itself for a mesh model; for a skeleton model, its regressed joints."""

@@ -100,6 +100,11 @@ class Representation:
         """The dataset a model of ``view`` trains on, and which of its points it predicts."""
         raise NotImplementedError
 
+    def training_record(self, dataset, view: View) -> dict[str, Any]:
+        """What a run's record says of the data a model of ``view`` trained on (``dataset``,
+        from :meth:`training_data`)."""
+        raise NotImplementedError
+
     def validation_curve(self, view: View) -> str:
         """The metric of a training run's validation curve (its horizons, in the log and the
         epoch record): the headline's."""
@@ -148,12 +153,17 @@ class TruthBatch:
     what its predictions are scored against (``scored_as``, a
     :class:`zoo.protocol.metrics.BatchTruth`), with the data's own errors (``own_errors``)."""
 
-    def observed(self, view: View, t_in: int) -> tuple[torch.Tensor, torch.Tensor]:
-        """The first ``t_in`` frames a model of ``view`` reads, and the windows' last frame."""
+    def observed(self, view: View) -> tuple[torch.Tensor, torch.Tensor]:
+        """The observed frames a model of ``view`` reads, and the windows' last frame."""
         raise NotImplementedError
 
     def scored_as(self, view: View):
         raise NotImplementedError
+
+    def floor_target(self, view: View) -> torch.Tensor | None:
+        """The future a model's autoencoder floor passes through (None: the protocol records
+        no floor rows for models of ``view``)."""
+        return None
 
     def own_errors(self, view: View) -> dict:
         """Rows of the data itself, beside each model of ``view`` (none by default)."""

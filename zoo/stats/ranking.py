@@ -17,7 +17,7 @@ def is_floor(model: str) -> bool:
     return model.endswith(FLOOR_SUFFIX)
 
 
-TRUTH_ROW = "ground_truth"  # the ground truth's own MELV (zoo.evaluation.evaluator): a reference
+TRUTH_ROW = "ground_truth"  # the ground truth's own MELV (zoo.protocol.mesh): a reference
 
 
 def unranked_reason(model: str, values: pd.Series) -> str | None:

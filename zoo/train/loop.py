@@ -120,7 +120,7 @@ def train(
 
     epochs = _Epochs(
         model_name, model, optimizer, recipe, data, options, dist_info, graphed, task=entry.task,
-        fps=getattr(dataset, "mesh", dataset).fps,  # a JointsView: its mesh's rate
+        fps=dataset.fps,
         curve=bench.strategy.validation_curve(view),
     )  # fmt: skip
     # a resumed run knows how long its epochs take on this machine (not on another one)

@@ -227,7 +227,7 @@ def run_record(entry, hparams, bench, dataset, recipe, seed, dist_info, view, **
         hparams=stored,
         context_hashes=context_hashes,
         protocol=model_protocol(bench, view),
-        training_data=_training_data(dataset),
+        training_data=bench.strategy.training_record(dataset, view),
         recipe=plain(recipe.as_dict()),
         seed=seed,
         code_version=code_version(),
@@ -235,24 +235,6 @@ def run_record(entry, hparams, bench, dataset, recipe, seed, dist_info, view, **
         world_size=dist_info.world,
         **run,
     )
-
-
-def _training_data(dataset) -> dict[str, Any]:
-    if hasattr(dataset, "files"):
-        return {
-            "dataset": dataset.name,
-            "split": dataset.split,
-            "files": [{"file": f["file"], "sha256": f["sha256"]} for f in dataset.files()],
-        }
-    mesh = getattr(dataset, "mesh", dataset)  # a JointsView trains on its mesh's regressed joints
-    return {
-        "dataset": mesh.name,
-        "split": mesh.split,
-        "recipe_hash": mesh.recipe_hash,
-        "content_hash": mesh.content_hash(),
-        "topology_hash": mesh.topology.hash,
-        **({"points": f"regressor{dataset.num_joints}"} if mesh is not dataset else {}),
-    }
 
 
 def _training_summary(recipe, history, best, device) -> dict[str, Any]:

@@ -98,8 +98,8 @@ def validate(
             "metric": curve,
             "horizons": list(frames),
             **{
-                who: [float(curve[t]) / len(index) for t in frames.values()]
-                for who, curve in per_frame.items()
+                who: [float(errors[t]) / len(index) for t in frames.values()]
+                for who, errors in per_frame.items()
             },
         }
     return result
