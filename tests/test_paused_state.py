@@ -299,3 +299,12 @@ def test_a_study_run_pauses_under_its_own_name_beside_the_models_queue(
     study = read_checkpoint(tmp_path / "tiny_study" / "last.pt")["history"]
     assert [h["epoch"] for h in history] == [1, 2, 3]
     assert [h["val_mpjpe"] for h in history[:2]] == [h["val_mpjpe"] for h in study]
+
+
+def test_a_resume_command_repeats_a_forced_precision_and_not_auto():
+    from zoo.hub.checkpoints import paused_summary
+
+    last = {"model": "m", "protocol": {"benchmark": "cmu"}, "epoch": 0, "seed": 0}
+    for precision, said in (("bfloat16", True), ("auto", False), ("float32", False)):
+        summary = paused_summary({**last, "recipe": {"epochs": 2, "precision": precision}})
+        assert ("--train-set precision=" in summary["resume"]) is said, precision

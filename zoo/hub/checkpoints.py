@@ -356,10 +356,11 @@ def paused_summary(last: dict[str, Any], run: str | None = None) -> dict[str, An
         "seed": last.get("seed"),
         "resume": f"zoo train --model {last['model']} --benchmark "
         f"{last['protocol']['benchmark']} --seed {last.get('seed')} --resume"
-        # the precision it ran in (on a CPU without native bfloat16, or a GPU, drop it)
+        # a precision it was forced into (on a CPU without native bfloat16, or a GPU, drop it);
+        # auto decides again on the machine that resumes it
         + (
             f" --train-set precision={recipe['precision']}"
-            if recipe.get("precision", "float32") != "float32"
+            if recipe.get("precision", "float32") not in ("float32", "auto")
             else ""
         )
         + (f" --max-batches {last['max_batches']}" if last.get("max_batches") else "")
