@@ -12,7 +12,12 @@ import zoo
 from zoo import create_model
 from zoo.core.errors import EvaluationError
 from zoo.models.registry import ModelRepresentation
-from zoo.protocol.benchmark import REPRESENTATIONS, get_benchmark, representation_of
+from zoo.protocol.benchmark import (
+    MODEL_REPRESENTATIONS,
+    REPRESENTATIONS,
+    get_benchmark,
+    representation_of,
+)
 from zoo.protocol.joints import JointsRepresentation
 from zoo.protocol.mesh import MeshRepresentation
 from zoo.protocol.views import View
@@ -27,7 +32,8 @@ BRANCH = re.compile(
 
 
 def test_the_registry_writes_the_words_of_the_representations():
-    assert get_args(ModelRepresentation) == tuple(REPRESENTATIONS) == ("joints", "mesh")
+    assert tuple(REPRESENTATIONS) == ("joints", "mesh")
+    assert get_args(ModelRepresentation) == MODEL_REPRESENTATIONS == ("joints", "expmap", "mesh")
 
 
 def test_benchmarks_ask_their_representation():

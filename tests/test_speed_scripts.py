@@ -15,6 +15,7 @@ SPEED = REPO / "benchmarks" / "speed"
 CMU_BVH = REPO.parent / "shared" / "data" / "cmu_bvh"
 SCRIPTS = [
     "public_auxformer",
+    "public_dmgnn",
     "public_ggmotion",
     "public_msrgcn_training",
     "public_spgsn",
@@ -111,6 +112,11 @@ def test_speed_compile_times_both_steps(capsys):
 def test_public_auxformer_names_a_missing_checkout(tmp_path, capsys):
     assert load("public_auxformer").main(["--public", str(tmp_path), "--repeats", "1"]) == 0
     assert f"no public checkout at {tmp_path / 'AuxFormer'}" in capsys.readouterr().out
+
+
+def test_public_dmgnn_names_a_missing_checkout_and_fails(tmp_path, capsys):
+    assert load("public_dmgnn").main(["--public", str(tmp_path), "--repeats", "1"]) == 1
+    assert f"no public checkout at {tmp_path / 'DMGNN'}" in capsys.readouterr().out
 
 
 def test_public_ggmotion_names_a_missing_checkout(tmp_path, capsys):

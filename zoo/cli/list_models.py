@@ -13,7 +13,7 @@ def add(sub) -> None:
     p.add_argument(
         "--representation",
         metavar="KIND",
-        help="only models of this representation (joints, mesh: a benchmark's kinds of points)",
+        help="only models of this representation (joints, expmap, mesh: what a model is fed)",
     )
 
 
@@ -25,11 +25,11 @@ def run(args) -> int:
 
     from zoo.core.errors import ZooError
     from zoo.hub.weights import unshipped_models
-    from zoo.protocol.benchmark import REPRESENTATIONS
+    from zoo.protocol.benchmark import MODEL_REPRESENTATIONS
 
-    if args.representation is not None and args.representation not in REPRESENTATIONS:
+    if args.representation is not None and args.representation not in MODEL_REPRESENTATIONS:
         raise UsageError(
-            f"--representation: expected one of {', '.join(REPRESENTATIONS)}, got "
+            f"--representation: expected one of {', '.join(MODEL_REPRESENTATIONS)}, got "
             f"{args.representation!r}"
         )
     registry = registry_of(args)

@@ -73,10 +73,16 @@ def _frames_by_line(path: Path, text: str, skeleton: Skeleton) -> np.ndarray:
     _raise_first_bad_line(path, lines, skeleton)
 
 
-def expmap_to_positions(frames: np.ndarray, skeleton: Skeleton) -> np.ndarray:
-    """Joint positions ``(F, J, 3)`` in mm (float32) of exp-map frames ``(F, 3 + 3J)``."""
-    expmaps = torch.from_numpy(frames[:, 3:]).reshape(len(frames), skeleton.num_joints, 3)
-    return forward_kinematics(expmaps, skeleton).numpy().astype(np.float32)
+def expmap_angles(frames: np.ndarray, skeleton: Skeleton) -> np.ndarray:
+    """Each joint's exp-map ``(F, J, 3)`` of exp-map frames ``(F, 3 + 3J)`` (the root position
+    dropped)."""
+    return frames[:, 3:].reshape(len(frames), skeleton.num_joints, 3)
+
+
+def expmap_to_positions(angles: np.ndarray, skeleton: Skeleton) -> np.ndarray:
+    """Joint positions ``(F, J, 3)`` in mm (float32) of exp-map angles ``(F, J, 3)``
+    (:func:`expmap_angles`)."""
+    return forward_kinematics(torch.from_numpy(angles), skeleton).numpy().astype(np.float32)
 
 
 def _raise_first_bad_line(path: Path, lines: list[tuple[int, str]], skeleton: Skeleton) -> NoReturn:

@@ -15,7 +15,12 @@ import numpy as np
 
 from zoo.core.errors import DataNotFoundError
 from zoo.core.io import sha256_file
-from zoo.data.expmap import DataFormatError, expmap_to_positions, read_expmap_file
+from zoo.data.expmap import (
+    DataFormatError,
+    expmap_angles,
+    expmap_to_positions,
+    read_expmap_file,
+)
 from zoo.data.skeleton import CMU, H36M, Skeleton
 
 CMU_ACTIONS = (
@@ -53,7 +58,9 @@ H36M_SPLITS = {"train": (1, 6, 7, 8, 9), "val": (11,), "test": (5,)}
 
 @dataclass
 class MotionSequence:
-    """One recording: joint positions ``(T, J, 3)`` in mm at ``fps``, root-relative."""
+    """One recording: joint positions ``(T, J, 3)`` in mm at ``fps``, root-relative, and where
+    the data has them the exp-map angles ``(T, J, 3)`` they were made from (joint 0's: the root
+    rotation, which the positions never apply)."""
 
     name: str  # path relative to the data root, the sequence's identity in protocol records
     action: str
@@ -61,6 +68,7 @@ class MotionSequence:
     fps: float
     sha256: str
     subaction: int = 1  # H3.6M's two recordings per action; CMU files are independent
+    angles: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.positions)
@@ -104,15 +112,15 @@ def _load_sequence(
     subsample: int,
     subaction: int = 1,
 ) -> MotionSequence:
-    frames = read_expmap_file(path, skeleton)
-    positions = expmap_to_positions(frames[::subsample], skeleton)
+    angles = expmap_angles(read_expmap_file(path, skeleton)[::subsample], skeleton)
     return MotionSequence(
         name=path.relative_to(root).as_posix(),
         action=action,
-        positions=positions,
+        positions=expmap_to_positions(angles, skeleton),
         fps=source_fps / subsample,
         sha256=sha256_file(path),
         subaction=subaction,
+        angles=angles.astype(np.float32),
     )
 
 

@@ -34,9 +34,9 @@ from zoo.models.citation import Paper, Url
 from zoo.paths import REPO_ROOT
 
 DEFAULT_REGISTRY = REPO_ROOT / "registry.yaml"
-# The words of zoo.protocol.benchmark.REPRESENTATIONS, written here because reading a registry
-# (``zoo --help`` does) loads no torch; tests/test_representations.py holds them equal.
-ModelRepresentation = Literal["joints", "mesh"]
+# The words of zoo.protocol.benchmark.MODEL_REPRESENTATIONS, written here because reading a
+# registry (``zoo --help`` does) loads no torch; tests/test_representations.py holds them equal.
+ModelRepresentation = Literal["joints", "expmap", "mesh"]
 # Keywords every model receives from the benchmark (see zoo.models).
 SHAPE_ARGS = ("input_frames", "output_frames", "num_points")
 # The data files a model's constructor read while it was built: an author's weights loaded in a

@@ -41,6 +41,11 @@ BENCHMARK_DIR = REPO_ROOT / "benchmarks"
 REPRESENTATIONS: dict[str, Representation] = {
     r.name: r for r in (JointsRepresentation(), MeshRepresentation())
 }
+# the words a model's registry entry may write: each representation's, and the other kinds of
+# models each feeds (a joints benchmark's exp-map angles)
+MODEL_REPRESENTATIONS: tuple[str, ...] = tuple(
+    dict.fromkeys(w for r in REPRESENTATIONS.values() for w in (r.name, *r.model_kinds))
+)
 
 
 def _named(spec: str) -> str:

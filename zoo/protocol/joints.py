@@ -1,17 +1,19 @@
 """Benchmarks of a skeleton's joints (``representation: joints``): recordings of ``(T, J, 3)``
 positions on the skeleton the benchmark file names, models fed the joints the skeleton
-predicts, rows of MPJPE under each joint protocol of the skeleton."""
+predicts (or, where the data keeps them, every joint's exp-map angles: registry representation
+``expmap``), rows of MPJPE under each joint protocol of the skeleton."""
 
 from __future__ import annotations
 
+from dataclasses import replace
 from functools import partial
 from typing import Any
 
 import torch
 
-from zoo.core.errors import BenchmarkError, EvaluationError
+from zoo.core.errors import BenchmarkError, EvaluationError, TrainingError
 from zoo.data.motion import MotionDataset
-from zoo.data.skeleton import Skeleton
+from zoo.data.skeleton import Skeleton, forward_kinematics
 from zoo.data.windows import gather_windows
 from zoo.protocol.metrics import ACTION_AVERAGING, AVERAGING, joint_protocols, skeleton_errors
 from zoo.protocol.representation import (
@@ -28,6 +30,7 @@ class JointsRepresentation(Representation):
     name = "joints"
     dataset_type = MotionDataset
     fields = ("skeleton",)
+    model_kinds = ("expmap",)
 
     def check_fields(self, fields) -> None:
         if not fields.skeleton_def:
@@ -55,6 +58,12 @@ class JointsRepresentation(Representation):
                     f"{where}: recording {seq.name!r} has positions of shape {positions}, "
                     f"expected (frames, {shape[0]}, 3)"
                 )
+            angles = getattr(seq.angles, "shape", None)
+            if angles is not None and tuple(angles) != tuple(positions):
+                raise BenchmarkError(
+                    f"{where}: recording {seq.name!r} has angles of shape {angles}, expected "
+                    f"its positions' {positions}"
+                )
             if seq.fps != dataset.fps:
                 raise BenchmarkError(
                     f"{where}: recording {seq.name!r} is at {seq.fps} Hz, the dataset at "
@@ -62,15 +71,29 @@ class JointsRepresentation(Representation):
                 )
 
     def view_for(self, representations) -> View:
+        """Joints, or a model of angles alone its exp-map angles."""
+        if View.EXPMAP.value in representations and self.name not in representations:
+            return View.EXPMAP
         return View.JOINTS
+
+    def scored_kinds(self, dataset) -> tuple[str, ...]:
+        """Models of exp-map angles join where every recording keeps its angles."""
+        if all(s.angles is not None for s in dataset.sequences):
+            return (self.name, View.EXPMAP.value)
+        return (self.name,)
 
     def model_inputs(self, bench, context: tuple[str, ...], view: View, dataset) -> dict:
         skeleton = bench.skeleton
         inputs: dict[str, Any] = {
             "input_frames": bench.input_frames,
             "output_frames": bench.output_frames,
-            "num_points": len(skeleton.used),
+            "num_points": skeleton.num_joints if view is View.EXPMAP else len(skeleton.used),
         }
+        if context and view is View.EXPMAP:
+            raise BenchmarkError(
+                f"benchmark {bench.name!r} supplies no context to a model of exp-map angles "
+                f"(asked for {', '.join(context)})"
+            )
         for name in context:
             if name == "parts":
                 inputs["parts"] = {k: list(v) for k, v in skeleton.parts.items()}
@@ -105,14 +128,11 @@ class JointsRepresentation(Representation):
         """MPJPE under the first (official) joint protocol."""
         return "mpjpe", next(iter(record.get("joint_protocols") or {"all": ""}))
 
-    def weights_protocol(self, bench, view: View) -> dict[str, Any]:
+    def weights_fields(self, bench, view: View) -> dict[str, Any]:
         return {
-            "benchmark": bench.name,
-            "dataset": bench.dataset,
-            "input_frames": bench.input_frames,
-            "output_frames": bench.output_frames,
             "skeleton": bench.skeleton.name,
             "used_joints": list(bench.skeleton.used),
+            **({"view": view.value} if view is View.EXPMAP else {}),
         }
 
     def training_record(self, dataset: MotionDataset, view: View) -> dict[str, Any]:
@@ -120,10 +140,29 @@ class JointsRepresentation(Representation):
             "dataset": dataset.name,
             "split": dataset.split,
             "files": [{"file": f["file"], "sha256": f["sha256"]} for f in dataset.files()],
+            **({"view": view.value} if view is View.EXPMAP else {}),
         }
 
     def training_data(self, dataset: MotionDataset, view: View):
-        return dataset, list(dataset.skeleton.used)
+        """Joint positions, or for an angle model every joint's exp-map angles as the frames
+        it trains on (:meth:`training_points` scores them as positions)."""
+        if view is not View.EXPMAP:
+            return dataset, list(dataset.skeleton.used)
+        missing = [s.name for s in dataset.sequences if s.angles is None]
+        if missing:
+            raise TrainingError(
+                f"dataset {dataset.name}: recording {missing[0]!r} keeps no exp-map angles to "
+                f"train a model of view expmap on"
+            )
+        angles = [replace(s, positions=s.angles) for s in dataset.sequences]
+        return replace(dataset, sequences=angles), list(range(dataset.skeleton.num_joints))
+
+    def training_points(self, dataset: MotionDataset, view: View):
+        """What validation scores a window of :meth:`training_data`'s frames as: the
+        benchmark's predicted joints (of an angle model's frames, their positions)."""
+        if view is not View.EXPMAP:
+            return None
+        return partial(_angles_to_joints, skeleton=dataset.skeleton)
 
 
 def _record(
@@ -157,6 +196,15 @@ def _record(
     }
 
 
+def _angles_to_joints(angles: torch.Tensor, skeleton: Skeleton, used=None) -> torch.Tensor:
+    """Exp-map frames ``(B, T, J, 3)`` as the positions ``(B, T, J', 3)`` of the joints
+    ``used`` (default: the skeleton's predicted ones), by the one FK routine."""
+    b, t = angles.shape[:2]
+    positions = forward_kinematics(angles.reshape(b * t, *angles.shape[2:]), skeleton)
+    used = list(skeleton.used) if used is None else used
+    return positions.view(b, t, *positions.shape[1:])[:, :, used]
+
+
 def _same_skeleton(a: Skeleton, b: Skeleton) -> bool:
     """The same joints, tree, parts and scoring rule (offsets aside: positions come with the
     data)."""
@@ -172,28 +220,43 @@ class _JointsScoring(Scoring):
         self.skeleton = protocol.dataset.skeleton
         self.used = list(self.skeleton.used)
         self.t_in, self.frames = protocol.input_frames, protocol.window_frames
-        self.positions = [s.positions for s in protocol.dataset.sequences]
+        sequences = protocol.dataset.sequences
+        self.positions = [s.positions for s in sequences]
+        self.angles = [s.angles for s in sequences]
         self.benchmark = protocol.benchmark.name
 
     def check_view(self, view, name: str) -> None:
-        if view is not View.JOINTS:
+        kept = all(a is not None for a in self.angles)
+        if view is not View.JOINTS and not (view is View.EXPMAP and kept):
+            offered = "joints or expmap" if kept else "joints"
             raise EvaluationError(
                 f"benchmark {self.benchmark} is a joints benchmark: model {name!r} must be fed "
-                f"view joints, got {view!r}"
+                f"view {offered}, got {str(view)!r}"
             )
 
     def truth(self, index, views) -> TruthBatch:
         windows = torch.from_numpy(gather_windows(self.positions, index, self.frames))
-        return _JointsBatch(windows, self.used, self.t_in, self.skeleton)
+        angles = None
+        if View.EXPMAP in views:
+            angles = torch.from_numpy(gather_windows(self.angles, index, self.frames))
+        return _JointsBatch(windows, angles, self.used, self.t_in, self.skeleton)
 
 
 class _JointsBatch(TruthBatch):
-    def __init__(self, windows: torch.Tensor, used: list[int], t_in: int, skeleton) -> None:
-        self.windows, self.used, self.t_in = windows, used, t_in
-        self.truth = JointsTruth(windows[:, t_in:], partial(skeleton_errors, skeleton=skeleton))
+    def __init__(self, windows, angles, used: list[int], t_in: int, skeleton) -> None:
+        self.windows, self.angles, self.used, self.t_in = windows, angles, used, t_in
+        errors = partial(skeleton_errors, skeleton=skeleton)
+        self.truth = JointsTruth(windows[:, t_in:], errors)
+        # an angle model's prediction is scored as the joints FK makes of it
+        self.angle_truth = JointsTruth(
+            windows[:, t_in:],
+            lambda pred, target: errors(_angles_to_joints(pred, skeleton, used), target),
+        )
 
     def observed(self, view: View):
+        if view is View.EXPMAP:
+            return self.angles[:, : self.t_in], self.angles[:, -1]
         return self.windows[:, : self.t_in, self.used], self.windows[:, -1, self.used]
 
     def scored_as(self, view: View) -> JointsTruth:
-        return self.truth
+        return self.angle_truth if view is View.EXPMAP else self.truth

@@ -62,7 +62,14 @@ class MeshRepresentation(Representation):
     def view_for(self, representations) -> View:
         """Its vertices, or for a skeleton-only model the joints its regressor takes from them
         (which the mesh models' MPJPE is scored on)."""
-        return View.MESH if self.name in representations else View.JOINTS
+        if self.name in representations:
+            return View.MESH
+        if View.JOINTS.value in representations:
+            return View.JOINTS
+        raise BenchmarkError(
+            f"a mesh benchmark feeds models of representation mesh or joints, not "
+            f"{', '.join(representations)}"
+        )
 
     def scored_kinds(self, dataset) -> tuple[str, ...]:
         """Skeleton models join a mesh benchmark with a joint regressor, fed its joints."""
@@ -139,13 +146,9 @@ class MeshRepresentation(Representation):
         """The normalised vertex RMSE."""
         return "rmse", "vertices"
 
-    def weights_protocol(self, bench, view: View) -> dict[str, Any]:
+    def weights_fields(self, bench, view: View) -> dict[str, Any]:
         """``view``: ``joints`` for a skeleton model trained on the regressed joints."""
         return {
-            "benchmark": bench.name,
-            "dataset": bench.dataset,
-            "input_frames": bench.input_frames,
-            "output_frames": bench.output_frames,
             "representation": self.name,
             "spectral_k": bench.spectral_k,
             **({"points": "regressed joints"} if view == View.JOINTS else {}),

@@ -40,12 +40,14 @@ class Representation:
     """One kind of benchmark points. ``name``: the word a benchmark file and a model's registry
     entry write; ``dataset_type``: what a loader returns; ``fields``: the benchmark fields only
     this kind writes (their names in the file); ``drawn``: its frames are surfaces that ``zoo
-    render`` and the site's clips draw."""
+    render`` and the site's clips draw; ``model_kinds``: the registry representations of models
+    it feeds beside its own (a joints benchmark's exp-map angles)."""
 
     name: ClassVar[str]
     dataset_type: ClassVar[type]
     fields: ClassVar[tuple[str, ...]] = ()
     drawn: ClassVar[bool] = False
+    model_kinds: ClassVar[tuple[str, ...]] = ()  # registry words of models it also feeds
 
     def __str__(self) -> str:
         return self.name
@@ -93,7 +95,18 @@ class Representation:
     # ---- training -----------------------------------------------------------------------------
 
     def weights_protocol(self, bench, view: View) -> dict[str, Any]:
-        """What weights trained on ``bench`` for ``view`` depend on, wherever they are scored."""
+        """What weights trained on ``bench`` for ``view`` depend on, wherever they are scored:
+        the benchmark, its data and window, and this kind's own (:meth:`weights_fields`)."""
+        return {
+            "benchmark": bench.name,
+            "dataset": bench.dataset,
+            "input_frames": bench.input_frames,
+            "output_frames": bench.output_frames,
+            **self.weights_fields(bench, view),
+        }
+
+    def weights_fields(self, bench, view: View) -> dict[str, Any]:
+        """This kind's part of :meth:`weights_protocol`."""
         raise NotImplementedError
 
     def training_data(self, dataset, view: View):
@@ -104,6 +117,11 @@ class Representation:
         """What a run's record says of the data a model of ``view`` trained on (``dataset``,
         from :meth:`training_data`)."""
         raise NotImplementedError
+
+    def training_points(self, dataset, view: View):
+        """How validation turns windows of :meth:`training_data`'s frames into the points it
+        scores (``None``: as they are)."""
+        return None
 
     def validation_curve(self, view: View) -> str:
         """The metric of a training run's validation curve (its horizons, in the log and the

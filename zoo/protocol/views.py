@@ -1,6 +1,6 @@
-"""What a model is fed and scored on: a benchmark's joints or its mesh's vertices, and the
-metrics the rows of each carry. A view is a ``str`` (``joints``, ``mesh``), so the records and
-tables that name it keep the word."""
+"""What a model is fed and scored on: a benchmark's joints, the exp-map angles they were made
+from, or its mesh's vertices, and the metrics the rows of each carry. A view is a ``str``
+(``joints``, ``expmap``, ``mesh``), so the records and tables that name it keep the word."""
 
 from __future__ import annotations
 
@@ -11,9 +11,12 @@ from zoo.protocol.metrics import METRICS, Metric
 
 class View(str, Enum):
     """``joints``: a skeleton benchmark's joints, or, for a skeleton model on a mesh benchmark,
-    the joints its regressor takes from the vertices; ``mesh``: the vertices themselves."""
+    the joints its regressor takes from the vertices; ``expmap``: the exp-map angles of every
+    joint of a skeleton benchmark whose data has them, predicted angles scored on the joints
+    forward kinematics makes of them; ``mesh``: the vertices themselves."""
 
     JOINTS = "joints"
+    EXPMAP = "expmap"
     MESH = "mesh"
 
     def __str__(self) -> str:  # the word, as records and messages write it (Python 3.10 too)
@@ -27,4 +30,8 @@ class View(str, Enum):
         return tuple(METRICS[name] for name in _VIEW_METRICS[self])
 
 
-_VIEW_METRICS = {View.JOINTS: ("mpjpe",), View.MESH: ("melv", "rmse", "mpjpe")}
+_VIEW_METRICS = {
+    View.JOINTS: ("mpjpe",),
+    View.EXPMAP: ("mpjpe",),
+    View.MESH: ("melv", "rmse", "mpjpe"),
+}

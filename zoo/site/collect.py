@@ -111,7 +111,7 @@ class Model:
     shipped: list[Shipped] = field(default_factory=list)  # its weights files and records
     problems: list[str] = field(default_factory=list)
     training: str | None = None  # a trainable model without shipped weights: where it stands
-    representation: tuple[str, ...] = ()  # joints, mesh
+    representation: tuple[str, ...] = ()  # the benchmarks it is scored on: joints, mesh
     kind: str = ""  # trained (it learns), baseline (it learns nothing)
     paper_url: str = ""  # its paper (arXiv, DOI or open archive) and its authors' code
     code_url: str = ""
@@ -399,7 +399,7 @@ def read_models(
             " ".join(str(getattr(entry, "description", "") or "").split()),
             files,
             training=unshipped.get(name),
-            representation=tuple(entry.representation),
+            representation=_benchmark_kinds(entry.representation),
             kind="trained" if entry.trainable or entry.weights_of else "baseline",
             paper_url=entry.paper.url if entry.paper else "",
             code_url=entry.code,
@@ -409,3 +409,11 @@ def read_models(
             model.problems.append(f"{card_path}: missing (the model's card); zoo cards writes it")
         out.append(model)
     return out
+
+
+def _benchmark_kinds(words) -> tuple[str, ...]:
+    """The kinds of benchmark a model of registry ``representation`` ``words`` is scored on
+    (an ``expmap`` model: joints benchmarks), which the site's model filter shows it under."""
+    from zoo.protocol.benchmark import REPRESENTATIONS
+
+    return tuple(r.name for r in REPRESENTATIONS.values() if {r.name, *r.model_kinds} & set(words))

@@ -122,6 +122,7 @@ def train(
         model_name, model, optimizer, recipe, data, options, dist_info, graphed, task=entry.task,
         fps=dataset.fps,
         curve=bench.strategy.validation_curve(view),
+        points=bench.strategy.training_points(dataset, view),
     )  # fmt: skip
     # a resumed run knows how long its epochs take on this machine (not on another one)
     here = device_name(device)
@@ -399,6 +400,7 @@ class _Epochs:
     def __init__(
         self, model_name, model, optimizer, recipe, data: _Data, options: RunOptions,
         dist_info: DistInfo, graphed: bool, *, task: str, fps: float, curve: str,
+        points=None,
     ) -> None:  # fmt: skip
         self.model_name, self.model, self.optimizer = model_name, model, optimizer
         self.recipe, self.data, self.seed, self.device = recipe, data, options.seed, options.device
@@ -408,7 +410,7 @@ class _Epochs:
         self.step_recipe = replace(recipe, precision=taken)
         self.dist_info, self.graphed = dist_info, graphed
         self.progress = options.progress and dist_info.rank == 0
-        self.task, self.fps, self.curve = task, fps, curve
+        self.task, self.fps, self.curve, self.points = task, fps, curve, points
         self.stop_by, self.longest_epoch = options.stop_by, 0.0
         objective = TrainingObjective(model, task, view=data.view)
         # Some phases leave parameters without gradients (SpecTrHuMS's transformer while the
@@ -458,6 +460,7 @@ class _Epochs:
             task=self.task,
             fps=self.fps,
             curve=self.curve,
+            points=self.points,
         )
         self.longest_epoch = max(self.longest_epoch, time.perf_counter() - started)
         return {

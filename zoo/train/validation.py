@@ -65,13 +65,15 @@ def validate(
     task: str = "prediction",
     fps: float | None = None,
     curve: str = "mpjpe",
+    points=None,
 ) -> dict[str, Any]:
     """Validation errors: ``val_mpjpe``, the mean MPJPE (mm; mean vertex error on a mesh) over
     windows and predicted frames, which picks the best epoch; and, given ``fps``,
     ``val_horizons``: the error ``curve`` (``mpjpe`` or ``rmse``, the normalised vertex RMSE:
     its representation's choice) at each of :func:`validation_frames`, the model's and
     repeat-last's on the same windows. A completion model (``task``) is given each window's last
-    frame as its final frame."""
+    frame as its final frame. ``points``: what the windows' frames are scored as, where not
+    as they are (a representation's ``training_points``: an angle model's, FK joints)."""
     model.eval()
     total, count = 0.0, 0
     per_frame = {who: torch.zeros(t_out, dtype=torch.float64) for who in ("model", "repeat_last")}
@@ -82,11 +84,13 @@ def validate(
         ).to(device)
         pred = predict(model, w[:, :t_in], task, t_out, w[:, -1])
         future = w[:, t_in:]
+        same = w[:, t_in - 1 : t_in].expand_as(future)
+        if points is not None:
+            pred, future, same = points(pred), points(future), points(same)
         err = mpjpe(pred, future)
         total += err.sum().item()
         count += err.numel()
         if fps is not None:
-            same = w[:, t_in - 1 : t_in].expand_as(future)
             per_frame["model"] += (
                 (err if error is mpjpe else error(pred, future)).double().sum(0).cpu()
             )
