@@ -49,8 +49,9 @@ def test_a_paused_state_is_compact_and_resumes_on_a_new_machine(setup, tmp_path,
         assert read_back.dtype == torch.float32 and read_back.shape == state["exp_avg"].shape
         bound = state["exp_avg"].abs().max() / 254 + 1e-12
         assert (read_back - state["exp_avg"]).abs().max() <= bound
-    assert read_checkpoint(dest / "best.pt")["stored_as"]["weights"] == "float16"
     summary = json.loads((dest / "state.json").read_text())
+    # its best epoch is its last (the tiny model improves every epoch): stored once
+    assert summary["best_is_last"] and not (dest / "best.pt").exists()
     assert (summary["epochs_run"], summary["epochs_planned"]) == (2, 3)
     assert [e["precision"] for e in summary["epochs"]] == ["float32", "float32"]
     assert "--resume" in summary["resume"]
@@ -72,7 +73,8 @@ def test_a_paused_state_is_compact_and_resumes_on_a_new_machine(setup, tmp_path,
 def test_pausing_again_replaces_the_state_and_a_tensor_past_float16_stays_float32(
     setup, tmp_path, weights_root
 ):
-    run(setup, tmp_path / "r", epochs=2, stop_after_epoch=1)
+    # lr 0: epoch 1 stays the best while epoch 2 is the last, so best.pt is stored
+    run(setup, tmp_path / "r", epochs=3, stop_after_epoch=2, max_batches=1, recipe={"lr": 0.0})
     dest = pause_run(tmp_path / "r", root=weights_root)
     first = (dest / "best.pt").read_bytes()
     (dest / "stray.pt").write_bytes(b"from an older pause")
@@ -87,7 +89,7 @@ def test_pausing_again_replaces_the_state_and_a_tensor_past_float16_stays_float3
     paused = read_checkpoint(dest / "last.pt")
     assert paused["state_dict"][name].dtype == torch.float32
     assert paused["stored_as"]["weights_kept_float32"] == [name]
-    assert zoo.hub.weights.paused_runs(weights_root)[("cmu", "tiny")]["epochs_run"] == 1
+    assert zoo.hub.weights.paused_runs(weights_root)[("cmu", "tiny")]["epochs_run"] == 2
 
 
 def test_precision_may_change_on_resume_and_each_epoch_records_its_own(setup, tmp_path):
@@ -308,3 +310,28 @@ def test_a_resume_command_repeats_a_forced_precision_and_not_auto():
     for precision, said in (("bfloat16", True), ("auto", False), ("float32", False)):
         summary = paused_summary({**last, "recipe": {"epochs": 2, "precision": precision}})
         assert ("--train-set precision=" in summary["resume"]) is said, precision
+
+
+def test_a_best_epoch_that_is_the_last_is_stored_once(setup, tmp_path, weights_root):
+    # lr 0 keeps epoch 1 the best: its best.pt differs from the last epoch's
+    run(setup, tmp_path / "flat", epochs=3, max_batches=1, stop_after_epoch=2, recipe={"lr": 0.0})
+    dest = pause_run(tmp_path / "flat", root=weights_root)
+    assert sorted(p.name for p in dest.iterdir()) == ["best.pt", "last.pt", "state.json"]
+    assert json.loads((dest / "state.json").read_text())["best_is_last"] is False
+
+    out = tmp_path / "improving"
+    run(setup, out, epochs=3, stop_after_epoch=2)
+    last = read_checkpoint(out / "last.pt")
+    assert last["best"]["epoch"] == 2  # the tiny model improves every epoch here
+    dest = pause_run(out, root=weights_root)
+    summary = json.loads((dest / "state.json").read_text())
+    assert summary["best_is_last"] is True and set(summary["files"]) == {"last.pt"}
+    assert sorted(p.name for p in dest.iterdir()) == ["last.pt", "state.json"]
+    # a new machine: the resumed run gets both, the best the paused last epoch's weights
+    fresh = tmp_path / "fresh"
+    run(setup, fresh, epochs=2, resume=True)
+    best = read_checkpoint(fresh / "best.pt")
+    paused = read_checkpoint(dest / "last.pt")
+    assert best["epoch"] == paused["epoch"] and all(
+        torch.equal(best["state_dict"][k], paused["state_dict"][k]) for k in paused["state_dict"]
+    )

@@ -137,9 +137,13 @@ def _run_models(args, out: Path, device: str, stop_by: float, started: float, wo
             _log(out, f"{model}: finished ({summary['epochs_run']} epochs); nothing to do")
             continue
         # what its state will weigh when it comes back: the committed one's, or its parameters'
-        # (a paused state is about 5 bytes a parameter in last.pt and 2 in best.pt)
+        # (a paused state is about 5 bytes a parameter in last.pt and 2 in best.pt, which a
+        # state whose best epoch was its last did not store but may bring back)
         expected = (
-            sum(summary["files"].values()) if summary else 8 * _parameters(model, bench, args)
+            sum(summary["files"].values())
+            + (summary["files"]["last.pt"] // 2.5 if summary.get("best_is_last") else 0)
+            if summary
+            else 8 * _parameters(model, bench, args)
         )
         if files + int(expected // PART_BYTES) + 2 > RETURN_FILES or size + expected > RETURN_BYTES:
             _log(out, f"{model}: not begun, its state would not fit what comes back")

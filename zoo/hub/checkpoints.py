@@ -291,13 +291,26 @@ def pause_run(
         )
     dest = paused_dir(benchmark, name or model, root)
     summary = paused_summary(last, run=name)
+    # a best epoch that is the last one is stored once: resuming copies last.pt as best.pt
+    summary["best_is_last"] = best is not None and _same_weights(best, last)
     with replace_folder(dest, markers=(PAUSED_SUMMARY,)) as tmp:
         save_checkpoint(tmp / "last.pt", compact_payload(last))
-        if best is not None:
+        if best is not None and not summary["best_is_last"]:
             save_checkpoint(tmp / "best.pt", compact_payload(best))
         summary["files"] = {p.name: p.stat().st_size for p in sorted(tmp.glob("*.pt"))}
         atomic_write_json(tmp / PAUSED_SUMMARY, summary)
     return dest
+
+
+def _same_weights(best: dict[str, Any], last: dict[str, Any]) -> bool:
+    """Whether a run's best epoch is its last (1-based in ``best``, 0-based in ``epoch``), both
+    checkpoints holding the same weights."""
+    a, b = best["state_dict"], last["state_dict"]
+    return (
+        (last.get("best") or {}).get("epoch") == last["epoch"] + 1
+        and a.keys() == b.keys()
+        and all(torch.equal(a[k], b[k]) for k in a)
+    )
 
 
 def _grow_budget(state: dict[str, Any], epochs: int, done: int, path: Path) -> None:

@@ -173,12 +173,19 @@ def paused_runs(root: str | Path | None = None) -> dict[tuple[str, str], dict[st
     planned, best validation epoch, minutes, precision and device of each epoch."""
     runs = {}
     for path in sorted((Path(root or WEIGHTS_DIR) / PAUSED_FOLDER).glob(f"*/*/{PAUSED_SUMMARY}")):
-        try:
-            summary = json.loads(path.read_text())
-        except (OSError, ValueError) as e:
-            raise WeightsError(f"{path}: not a readable paused-training summary ({e})") from e
-        runs[path.parent.parent.name, path.parent.name] = summary
+        runs[path.parent.parent.name, path.parent.name] = paused_summary_of(path.parent)
     return runs
+
+
+def paused_summary_of(folder: Path) -> dict[str, Any]:
+    """The ``state.json`` of the paused state in ``folder`` (``{}`` where it has none)."""
+    path = Path(folder) / PAUSED_SUMMARY
+    if not path.is_file():
+        return {}
+    try:
+        return json.loads(path.read_text())
+    except (OSError, ValueError) as e:
+        raise WeightsError(f"{path}: not a readable paused-training summary ({e})") from e
 
 
 def training_status(paused: dict[str, Any] | None, epochs_planned: int | None) -> str:

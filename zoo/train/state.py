@@ -136,30 +136,23 @@ def restore_paused(out_dir: Path, benchmark: str, model: str, root=None) -> Path
     a new machine; returns the folder copied from, or None where there is none."""
     import shutil
 
-    from zoo.hub.weights import paused_dir
+    from zoo.hub.weights import paused_dir, paused_summary_of
 
     # a run of its own, paused under its folder's name (zoo weights pause --as), else the model's
     own = paused_dir(benchmark, out_dir.name, root)
-    source = own if own.name != model and _paused_model(own) == model else None
+    source = own if own.name != model and paused_summary_of(own).get("model") == model else None
     source = source or paused_dir(benchmark, model, root)
     if (out_dir / "last.pt").is_file() or not (source / "last.pt").is_file():
         return None
     out_dir.mkdir(parents=True, exist_ok=True)
-    for name in ("best.pt", "last.pt"):  # last.pt last: a half-copied run has none
-        if (source / name).is_file():
+    # a state whose best epoch is its last stores it once (zoo weights pause)
+    best = source / ("last.pt" if paused_summary_of(source).get("best_is_last") else "best.pt")
+    # last.pt copied last: a half-copied run has none
+    for name, path in (("best.pt", best), ("last.pt", source / "last.pt")):
+        if path.is_file():
             with atomic_path(out_dir / name) as tmp:
-                shutil.copyfile(source / name, tmp)
+                shutil.copyfile(path, tmp)
     return source
-
-
-def _paused_model(folder: Path) -> str | None:
-    """The model a paused state holds (its ``state.json``), or None where there is none."""
-    import json
-
-    try:
-        return json.loads((folder / "state.json").read_text()).get("model")
-    except (OSError, ValueError):
-        return None
 
 
 def initial_weights(
