@@ -35,9 +35,9 @@ def _graph_kernels(nodes: int, edges: Sequence[Sequence[int]]) -> Tensor:
     return torch.tensor(np.stack([self_part, normalised - self_part]), dtype=torch.float32)
 
 
-def _frames_out(frames: int) -> int:
-    """Frames after a temporal convolution of kernel 5, padding 2 and stride 2."""
-    return (frames - 1) // 2 + 1
+def _frames_out(frames: int, stride: int) -> int:
+    """Frames after a temporal convolution of kernel 5, padding 2 and ``stride``."""
+    return (frames - 1) // stride + 1
 
 
 class SpatialConv(nn.Module):
@@ -130,7 +130,7 @@ class ScaleEmbedding(nn.Module):
             nn.BatchNorm2d(channels),
             Dropout(dropout),
         )
-        self.mlp1 = NodeMLP(channels * _frames_out(frames), width, width, dropout)
+        self.mlp1 = NodeMLP(channels * _frames_out(frames, 2), width, width, dropout)
         self.mlp2 = NodeMLP(width * 2, width, width, dropout)
         self.mlp3 = NodeMLP(width * 2, width, width, dropout, act=False)
         send, receive = np.nonzero(1 - np.eye(nodes))  # the code's edge order
@@ -197,7 +197,7 @@ class Encoder(nn.Module):
         nodes = {1: hp.joint_graph.shape[-1], 2: hp.part_graph.shape[-1], 3: len(hp.bodies)}
         frames = hp.frames_in - 1  # the encoders read all but the last observed frame
         for layer in range(1, hp.fusion_layers + 1):
-            frames = (frames - 1) // hp.strides[layer - 1] + 1
+            frames = _frames_out(frames, hp.strides[layer - 1])
             for name, (a, b) in (("j2p", (1, 2)), ("p2j", (2, 1)), ("p2b", (2, 3)),
                                  ("b2p", (3, 2))):  # fmt: skip
                 cross = CrossScale(
@@ -410,7 +410,6 @@ class DMGNN(nn.Module):
         self.register_buffer("mask", mask.view(v, 3), persistent=False)
         self.register_buffer("mean", torch.zeros(num_points * 3))
         self.register_buffer("std", torch.ones(num_points * 3))
-        self.register_buffer("statistics_frames", torch.tensor(0, dtype=torch.long))
         self.late_from, self.late_weight = late_from, late_weight
         self._init_weights()
 
@@ -502,7 +501,6 @@ class DMGNN(nn.Module):
         std[std < _NORM_FLOOR] = 1.0
         self.mean.copy_(mean.to(self.mean.dtype))
         self.std.copy_(std.to(self.std.dtype))
-        self.statistics_frames.fill_(count)
 
 
 __all__ = ["DMGNN"]

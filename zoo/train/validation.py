@@ -84,9 +84,10 @@ def validate(
         ).to(device)
         pred = predict(model, w[:, :t_in], task, t_out, w[:, -1])
         future = w[:, t_in:]
-        same = w[:, t_in - 1 : t_in].expand_as(future)
-        if points is not None:
+        same = w[:, t_in - 1 : t_in]
+        if points is not None:  # the last observed frame's points once, not once a future frame
             pred, future, same = points(pred), points(future), points(same)
+        same = same.expand_as(future)
         err = mpjpe(pred, future)
         total += err.sum().item()
         count += err.numel()
