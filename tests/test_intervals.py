@@ -538,6 +538,12 @@ def test_cli_compare_reads_result_folders(cmu_root, tmp_path, capsys):
     assert "no result of 'nobody' there" in capsys.readouterr().err
     assert main(["compare", "mlp", "repeat_last", "--results", str(tmp_path / "res")]) == 2
     assert "give --benchmark" in capsys.readouterr().err
+    # against a published figure: its own sampler's table, divided per action
+    against = ["compare", "mlp", "ltd (reported, all windows)", "--benchmark", "cmu"]
+    assert main([*against, "--results", str(tmp_path / "res")]) == 0
+    assert "# mlp against ltd (reported, all windows)" in capsys.readouterr().out
+    assert main(["compare", "mlp", "repeat_last", "--actions", "walking"]) == 2
+    assert "--actions: only against a published figure" in capsys.readouterr().err
 
 
 def test_the_coverage_script_runs_at_its_smallest(capsys, tmp_path):

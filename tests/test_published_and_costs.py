@@ -89,3 +89,46 @@ def test_costs_count_parameters_flops_and_time():
     assert (
         measure(model, input_frames=10, output_frames=25, points=5)["train_samples_per_s"] is None
     )
+
+
+def test_ratio_to_a_published_figure_per_action_and_of_the_means():
+    import pandas as pd
+
+    from zoo.evaluation.results import EvalResult
+    from zoo.protocol.published import Published
+    from zoo.stats.published_ratio import PublishedRatioError, against_published
+
+    measured = {"jumping": {80: 12.0, 1000: 110.0}, "walking": {80: 6.5, 1000: 44.0}}
+    rows = [
+        {"model": "mine", "action": a, "metric": m, "averaging": "frame", "joints": "all38",
+         "horizon_ms": h, "value": v * (1 if m == "mpjpe" else 100)}
+        for m in ("mpjpe", "other")
+        for a, by_h in measured.items()
+        for h, v in by_h.items()
+    ]  # fmt: skip
+    result = EvalResult(pd.DataFrame(rows), cmu_record(actions=("jumping", "walking")))
+    entry = Published(
+        label="paper", model="m", source="a table", benchmark="cmu", metric="mpjpe",
+        averaging="frame", joints="all38",
+        protocol={"dataset": "cmu_mocap", "sampler": "all", "input_frames": 10},
+        per_action={"jumping": {80: 10.0, 1000: 100.0}, "walking": {80: 5.0, 1000: 40.0},
+                    "soccer": {80: 1.0, 1000: 1.0}},
+    )  # fmt: skip
+    r = against_published(result, entry)
+    assert r.actions == ["jumping", "walking"] and r.horizons_ms == [80, 1000]
+    assert r.ratio("walking") == pytest.approx({80: 1.3, 1000: 1.1})
+    # the mean divides the means, not the ratios' mean
+    assert r.ratio() == pytest.approx({80: 18.5 / 15.0, 1000: 154.0 / 140.0})
+    worst = r.worst()
+    assert worst[80] == ("walking", pytest.approx(1.3)) and worst[1000][1] == pytest.approx(1.1)
+    only = against_published(result, entry, actions=["jumping"])
+    assert only.ratio() == pytest.approx({80: 1.2, 1000: 1.1})
+    assert "| mean " in r.markdown() and "12.00 / 10.00" in r.markdown()
+    with pytest.raises(PublishedRatioError, match=r"actions \['soccer'\]: expected actions"):
+        against_published(result, entry, actions=["soccer"])
+    ltd8 = EvalResult(result.frame, cmu_record("ltd8", actions=("jumping", "walking")))
+    with pytest.raises(PublishedRatioError, match="sampler: 'all' published, 'ltd8' here"):
+        against_published(ltd8, entry)
+    h36m = EvalResult(result.frame, {**result.protocol, "benchmark": "h36m"})
+    with pytest.raises(PublishedRatioError, match="benchmark cmu published, h36m here"):
+        against_published(h36m, entry)

@@ -17,11 +17,16 @@ def add(sub) -> None:
     p = add_command(
         sub,
         "compare",
-        "is A better than B? paired differences per horizon, intervals, sign test",
+        "is A better than B? paired differences per horizon, intervals, sign test; or A's "
+        "ratio to a published figure",
         run,
     )
     p.add_argument("a", help="model label (with --benchmark) or result folder")
-    p.add_argument("b", help="model label (with --benchmark) or result folder")
+    p.add_argument(
+        "b",
+        help="model label (with --benchmark) or result folder; or a published figure's label "
+        "(zoo/protocol/published.yaml, e.g. 'ltd (reported)'): A's error over it per action",
+    )
     p.add_argument("--benchmark", help="benchmark whose results/<benchmark>/<sampler>/ to read")
     p.add_argument("--sampler", help="window sampler (default: the benchmark's)")
     p.add_argument(
@@ -48,16 +53,29 @@ def add(sub) -> None:
     p.add_argument("--replicates", type=positive_int, default=2000, help="bootstrap replicates")
     p.add_argument("--seed", type=int, default=0, help="seed of the bootstrap")
     p.add_argument("--out", help="also write comparison.md and comparison.png in this folder")
+    p.add_argument(
+        "--actions",
+        nargs="+",
+        metavar="ACTION",
+        help="against a published figure: the actions its mean and worst action cover "
+        "(default: every action both have)",
+    )
 
 
 def run(args) -> int:
     from zoo.protocol.benchmark import get_benchmark
     from zoo.stats.comparison import compare
+    from zoo.stats.published_ratio import against_published, published_entry
 
     if args.sampler is not None:
         checked_sampler(args.sampler, get_benchmark(args.benchmark) if args.benchmark else None)
+    entry = None if Path(args.b).is_dir() else published_entry(args.b)
+    if args.actions and entry is None:
+        raise UsageError(f"--actions: only against a published figure, and {args.b!r} is none")
+    # against a published figure, the table of its own sampler unless told otherwise
+    sampler = args.sampler or (entry.protocol.get("sampler") if entry is not None else None)
     folders, bench = [], None
-    for name in (args.a, args.b):
+    for name in (args.a,) if entry is not None else (args.a, args.b):
         if Path(name).is_dir():
             folders.append(Path(name))
             continue
@@ -73,7 +91,7 @@ def run(args) -> int:
         folder = result_path(
             args.results,
             bench.name,
-            table_folder(args.sampler or bench.sampler, truth=args.ground_truth),
+            table_folder(sampler or bench.sampler, truth=args.ground_truth),
             name,
         )
         if not (folder / "results.csv").is_file():
@@ -81,6 +99,11 @@ def run(args) -> int:
                 f"{folder}: no result of {name!r} there (zoo eval or zoo leaderboard writes it)"
             )
         folders.append(folder)
+    if entry is not None:
+        if args.out:
+            raise UsageError("--out: a ratio to a published figure is printed only")
+        print(against_published(folders[0], entry, actions=args.actions).markdown())
+        return 0
     comparison = compare(
         folders[0],
         folders[1],

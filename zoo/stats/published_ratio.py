@@ -1,0 +1,169 @@
+"""A measured row against a published figure of the same protocol: per action and horizon, the
+row's error over the published one. Published figures carry no per-window errors, so no interval
+can be drawn; the ratios say how far a re-trained model lies from the figure it reproduces.
+
+    from zoo.stats.published_ratio import against_published
+    r = against_published("results/cmu/all/ltd", "ltd (reported)",
+                          actions=["basketball", "jumping", "running", "soccer", "walking"])
+    print(r.markdown())
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import pandas as pd
+from tabulate import tabulate
+
+from zoo.core.errors import ZooError
+from zoo.evaluation.results import EvalResult
+from zoo.protocol.published import Published, load_published, place
+
+
+class PublishedRatioError(ZooError, ValueError):
+    pass
+
+
+def published_entry(label: str, entries: list[Published] | None = None) -> Published | None:
+    """The published entry labelled ``label`` (None where there is none)."""
+    for entry in load_published() if entries is None else entries:
+        if entry.label == label:
+            return entry
+    return None
+
+
+@dataclass
+class PublishedRatios:
+    """``table``: one row per action (and ``mean``, the mean error over ``actions`` of each,
+    divided) with ``measured``, ``published`` and ``ratio`` per horizon as columns
+    ``(quantity, horizon_ms)``; ``worst``: per horizon, the action of ``actions`` with the
+    largest ratio."""
+
+    row: str
+    entry: Published
+    actions: list[str]
+    horizons_ms: list[int]
+    table: pd.DataFrame = field(repr=False)
+
+    def ratio(self, action: str = "mean") -> dict[int, float]:
+        return {h: float(self.table.loc[action, ("ratio", h)]) for h in self.horizons_ms}
+
+    def worst(self) -> dict[int, tuple[str, float]]:
+        ratios = self.table.loc[self.actions, "ratio"]
+        return {h: (str(ratios[h].idxmax()), float(ratios[h].max())) for h in self.horizons_ms}
+
+    def markdown(self) -> str:
+        e = self.entry
+        hs = self.horizons_ms
+        rows = [
+            [action, *(f"{self.table.loc[action, ('ratio', h)]:.2f}" for h in hs)]
+            for action in self.table.index
+        ]
+        worst = self.worst()
+        rows.append(["worst of those", *(f"{worst[h][0]} {worst[h][1]:.2f}" for h in hs)])
+        figures = [
+            [
+                action,
+                *(
+                    f"{self.table.loc[action, ('measured', h)]:.2f} / "
+                    f"{self.table.loc[action, ('published', h)]:.2f}"
+                    for h in hs
+                ),
+            ]
+            for action in self.table.index
+        ]
+        headers = ["action", *(f"{h} ms" for h in hs)]
+        return "\n".join(
+            [
+                f"# {self.row} against {e.label}",
+                "",
+                f"{e.metric}, {e.averaging} averaging, {e.joints}; published: {e.source}. "
+                f"Ratio = {self.row}'s error / the published one; `mean` divides the two "
+                f"means over {', '.join(self.actions)}. Published figures hold no per-window "
+                f"errors, so there is no interval.",
+                "",
+                tabulate(rows, headers=headers, tablefmt="github", disable_numparse=True),
+                "",
+                f"Errors ({self.row} / published):",
+                "",
+                tabulate(figures, headers=headers, tablefmt="github", disable_numparse=True),
+                "",
+            ]
+        )
+
+
+def against_published(
+    result: EvalResult | str | Path,
+    entry: Published | str,
+    *,
+    actions: Iterable[str] | None = None,
+    horizons_ms: Iterable[int] | None = None,
+) -> PublishedRatios:
+    """``result``'s figures (a result or its folder) over ``entry``'s (a published entry or its
+    label), per action; ``actions`` (default: every action both have) are the ones the mean and
+    the worst action cover. Refused where the protocols differ, as a table would refuse to show
+    the figure beside the row."""
+    if not isinstance(result, EvalResult):
+        if not (Path(result) / "results.csv").is_file():
+            raise PublishedRatioError(f"{result}: no evaluation here (results.csv missing)")
+        result = EvalResult.read(result)
+    if isinstance(entry, str):
+        found = published_entry(entry)
+        if found is None:
+            raise PublishedRatioError(f"no published figure labelled {entry!r}")
+        entry = found
+    row = str(result.frame["model"].iloc[0])
+    record = result.protocol
+    if entry.per_action is None:
+        raise PublishedRatioError(
+            f"{entry.label!r} publishes an average only; a ratio per action needs per-action "
+            f"figures"
+        )
+    if entry.benchmark != record.get("benchmark"):
+        raise PublishedRatioError(
+            f"refusing to divide {row} by {entry.label!r}: benchmark {entry.benchmark} "
+            f"published, {record.get('benchmark')} here"
+        )
+    (placed,) = place(record, entry.metric, entry.averaging, entry.joints, entries=[entry])
+    # the actions are chosen below; every other difference refuses, as a table would
+    differences = [d for d in placed.differences if not d.startswith("no published figure")]
+    if differences:
+        raise PublishedRatioError(
+            f"refusing to divide {row} by {entry.label!r}: " + "; ".join(differences)
+        )
+    frame = result.frame
+    frame = frame[
+        (frame["metric"] == entry.metric)
+        & (frame["averaging"] == entry.averaging)
+        & (frame["joints"] == entry.joints)
+    ]
+    measured = frame.pivot_table(index="action", columns="horizon_ms", values="value")
+    common = [a for a in record.get("actions_present", []) if a in entry.per_action]
+    wanted = list(actions) if actions is not None else common
+    unknown = [a for a in wanted if a not in common]
+    if unknown or not wanted:
+        raise PublishedRatioError(
+            f"actions {unknown or wanted}: expected actions that both {row} and "
+            f"{entry.label!r} have ({', '.join(common) or 'none'})"
+        )
+    shared = set.intersection(*(set(entry.per_action[a]) for a in common))
+    hs = sorted(h for h in shared if h in measured.columns)
+    if horizons_ms is not None:
+        missing = [h for h in horizons_ms if h not in hs]
+        if missing:
+            raise PublishedRatioError(
+                f"horizons {missing} ms: expected horizons both have ({', '.join(map(str, hs))})"
+            )
+        hs = list(horizons_ms)
+    if not hs:
+        raise PublishedRatioError(f"{row} and {entry.label!r} share no horizon")
+    published = pd.DataFrame({h: {a: entry.per_action[a][h] for a in common} for h in hs})
+    measured = measured.loc[common, hs]
+    measured.loc["mean"] = measured.loc[wanted].mean()
+    published.loc["mean"] = published.loc[wanted].mean()
+    table = pd.concat(
+        {"measured": measured, "published": published, "ratio": measured / published}, axis=1
+    )
+    return PublishedRatios(row, entry, wanted, hs, table)
