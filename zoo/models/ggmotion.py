@@ -86,6 +86,12 @@ def hop_edges(bones: Sequence[tuple[int, int]], num_points: int) -> torch.Tensor
     return torch.tensor(rows, dtype=torch.long)
 
 
+def _axis_norm(points: torch.Tensor) -> torch.Tensor:
+    """``(..., 3, E)`` -> ``(..., E)``: each channel's length over x, y, z. Reduced along a
+    contiguous last axis: torch's norm over the strided axis of 3 took 65% of a forward."""
+    return torch.linalg.vector_norm(points.transpose(-1, -2).contiguous(), dim=-1)
+
+
 def _mlp(width_in: int, hidden: int, width_out: int) -> nn.Sequential:
     return nn.Sequential(nn.Linear(width_in, hidden), nn.SiLU(), nn.Linear(hidden, width_out))
 
@@ -148,12 +154,12 @@ class GroupBlock(nn.Module):
         ``members`` ``(G, P)`` (1 where a joint is a child of the group)."""
         source, target = edges[:, 0], edges[:, 1]
         difference = x[:, source] - x[:, target]  # (B, M, 3, E)
-        spatial = gates * self.spatio_h_mlp(difference.norm(dim=-2)).unsqueeze(-2)
+        spatial = gates * self.spatio_h_mlp(_axis_norm(difference)).unsqueeze(-2)
         spatial = spatial * self.spatio_mlp(difference)
         field = torch.zeros_like(x).index_add_(1, source, spatial)
         spatial_force = v + self.spatio_scale[..., None] * field
         about = x - centre
-        temporal = self.temporal_h_mlp(about.norm(dim=-2)).unsqueeze(-2) * self.temporal_mlp(about)
+        temporal = self.temporal_h_mlp(_axis_norm(about)).unsqueeze(-2) * self.temporal_mlp(about)
         force = spatial_force + (v + self.temporal_scale[..., None] * temporal)
 
         # between groups: each group's summed force, mixed, given back to its joints
