@@ -132,3 +132,15 @@ def test_ratio_to_a_published_figure_per_action_and_of_the_means():
     h36m = EvalResult(result.frame, {**result.protocol, "benchmark": "h36m"})
     with pytest.raises(PublishedRatioError, match="benchmark cmu published, h36m here"):
         against_published(h36m, entry)
+    # an action named twice counts once
+    assert against_published(result, entry, actions=["walking", "walking"]).actions == ["walking"]
+    # a row short of one figure is refused, not averaged over fewer actions
+    short = EvalResult(result.frame.drop(index=[0]), result.protocol)
+    with pytest.raises(PublishedRatioError, match="mine has no figure for jumping at 80 ms"):
+        against_published(short, entry)
+    other = EvalResult(result.frame[result.frame["metric"] == "other"], result.protocol)
+    with pytest.raises(PublishedRatioError, match="no mpjpe rows with frame averaging"):
+        against_published(other, entry)
+    average = Published(**{**entry.__dict__, "per_action": None, "average": {80: 1.0}})
+    with pytest.raises(PublishedRatioError, match="publishes an average only"):
+        against_published(result, average)

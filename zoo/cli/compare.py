@@ -39,9 +39,8 @@ def add(sub) -> None:
     p.add_argument("--joints", help="joint protocol (default: the official one, e.g. all38)")
     p.add_argument(
         "--averaging",
-        default="frame",
         choices=["frame", "cumulative"],
-        help="error at each frame, or the mean up to it",
+        help="error at each frame, or the mean up to it (default: frame)",
     )
     p.add_argument(
         "--block-frames",
@@ -70,8 +69,21 @@ def run(args) -> int:
     if args.sampler is not None:
         checked_sampler(args.sampler, get_benchmark(args.benchmark) if args.benchmark else None)
     entry = None if Path(args.b).is_dir() else published_entry(args.b)
+    if entry is None and not Path(args.a).is_dir() and published_entry(args.a) is not None:
+        raise UsageError(f"{args.a!r} is a published figure: give it second (zoo compare A B)")
     if args.actions and entry is None:
         raise UsageError(f"--actions: only against a published figure, and {args.b!r} is none")
+    if entry is not None:
+        for option, mine in (("metric", args.metric), ("joints", args.joints)):
+            if mine is not None and mine != getattr(entry, option):
+                raise UsageError(
+                    f"--{option} {mine}: {entry.label!r} publishes {getattr(entry, option)}"
+                )
+        if args.averaging is not None and args.averaging != entry.averaging:
+            raise UsageError(
+                f"--averaging {args.averaging}: {entry.label!r} publishes {entry.averaging}"
+            )
+        args.benchmark = args.benchmark or entry.benchmark
     # against a published figure, the table of its own sampler unless told otherwise
     sampler = args.sampler or (entry.protocol.get("sampler") if entry is not None else None)
     folders, bench = [], None
@@ -97,6 +109,7 @@ def run(args) -> int:
         if not (folder / "results.csv").is_file():
             raise UsageError(
                 f"{folder}: no result of {name!r} there (zoo eval or zoo leaderboard writes it)"
+                + ("; nor is it a published figure's label" if name == args.b else "")
             )
         folders.append(folder)
     if entry is not None:
@@ -109,7 +122,7 @@ def run(args) -> int:
         folders[1],
         metric=args.metric,
         joints=args.joints,
-        averaging=args.averaging,
+        averaging=args.averaging or "frame",
         block_frames=args.block_frames,
         confidence=args.confidence,
         replicates=args.replicates,

@@ -474,42 +474,30 @@ def _row_tables(
 
 
 def _against_paper(name: str, frame: pd.DataFrame, record: dict, labels: list[str]) -> list[str]:
-    """Each row over the paper's per-action figures measured under this table's protocol: per
-    action, and the rows' mean over the paper's mean on the actions both have."""
+    """Each row over the paper's per-action figures measured under this table's protocol
+    (:func:`zoo.stats.published_ratio.against_published`): per action, and the rows' mean over
+    the paper's mean on the actions both have."""
+    from zoo.evaluation.results import EvalResult
+    from zoo.stats.published_ratio import PublishedRatioError, against_published
+
     out = []
     for paper in load_published():
         if paper.model != name or paper.per_action is None:
             continue
-        if paper.benchmark != record.get("benchmark") or any(
-            record.get(k) != v for k, v in paper.protocol.items()
-        ):
-            continue
-        actions = [a for a in record.get("actions_present", []) if a in paper.per_action]
-        if not actions:
-            continue
-        horizons = sorted(set.intersection(*(set(paper.per_action[a]) for a in actions)))
-        rows = frame[
-            (frame["metric"] == paper.metric)
-            & (frame["joints"] == paper.joints)
-            & (frame["averaging"] == paper.averaging)
-        ]
         for label in labels:
-            mine = rows[rows["model"] == label].set_index(["action", "horizon_ms"])["value"]
-            if not all((a, h) in mine.index for a in actions for h in horizons):
+            mine = EvalResult(frame[frame["model"] == label], record)
+            try:
+                ratios = against_published(mine, paper)
+            except PublishedRatioError:  # another protocol, or a row short of a figure
                 continue
-            body = [
-                [a, *(f"{mine[(a, h)] / paper.per_action[a][h]:.2f}" for h in horizons)]
-                for a in actions
-            ]
-            means = [
-                sum(mine[(a, h)] for a in actions) / sum(paper.per_action[a][h] for a in actions)
-                for h in horizons
-            ]
-            body.append([f"mean of {len(actions)}", *(f"{m:.2f}" for m in means)])
+            body = [[a, *(f"{r:.2f}" for r in ratios.ratio(a).values())] for a in ratios.actions]
+            body.append(
+                [f"mean of {len(ratios.actions)}", *(f"{m:.2f}" for m in ratios.ratio().values())]
+            )
             out += [
                 f"`{label}` over **{paper.label}** ({paper.source}), same protocol:",
                 "",
-                *_table(["action", *(f"{h} ms" for h in horizons)], body),
+                *_table(["action", *(f"{h} ms" for h in ratios.horizons_ms)], body),
             ]
     return out
 

@@ -3,7 +3,7 @@ row's error over the published one. Published figures carry no per-window errors
 can be drawn; the ratios say how far a re-trained model lies from the figure it reproduces.
 
     from zoo.stats.published_ratio import against_published
-    r = against_published("results/cmu/all/ltd", "ltd (reported)",
+    r = against_published("results/cmu/all/ltd", "ltd (reported, all windows)",
                           actions=["basketball", "jumping", "running", "soccer", "walking"])
     print(r.markdown())
 """
@@ -11,7 +11,7 @@ can be drawn; the ratios say how far a re-trained model lies from the figure it 
 from __future__ import annotations
 
 from collections.abc import Iterable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import pandas as pd
@@ -46,6 +46,7 @@ class PublishedRatios:
     actions: list[str]
     horizons_ms: list[int]
     table: pd.DataFrame = field(repr=False)
+    where: str = ""  # the table the row was read from, in words
 
     def ratio(self, action: str = "mean") -> dict[int, float]:
         return {h: float(self.table.loc[action, ("ratio", h)]) for h in self.horizons_ms}
@@ -79,7 +80,8 @@ class PublishedRatios:
             [
                 f"# {self.row} against {e.label}",
                 "",
-                f"{e.metric}, {e.averaging} averaging, {e.joints}; published: {e.source}. "
+                f"{self.where}{e.metric}, {e.averaging} averaging, {e.joints}; published: "
+                f"{e.source}. "
                 f"Ratio = {self.row}'s error / the published one; `mean` divides the two "
                 f"means over {', '.join(self.actions)}. Published figures hold no per-window "
                 f"errors, so there is no interval.",
@@ -114,6 +116,8 @@ def against_published(
         if found is None:
             raise PublishedRatioError(f"no published figure labelled {entry!r}")
         entry = found
+    if result.frame.empty:
+        raise PublishedRatioError("the result holds no rows")
     row = str(result.frame["model"].iloc[0])
     record = result.protocol
     if entry.per_action is None:
@@ -126,12 +130,17 @@ def against_published(
             f"refusing to divide {row} by {entry.label!r}: benchmark {entry.benchmark} "
             f"published, {record.get('benchmark')} here"
         )
-    (placed,) = place(record, entry.metric, entry.averaging, entry.joints, entries=[entry])
-    # the actions are chosen below; every other difference refuses, as a table would
-    differences = [d for d in placed.differences if not d.startswith("no published figure")]
-    if differences:
+    # the protocol as a table would compare it; the actions are chosen below
+    (placed,) = place(
+        record,
+        entry.metric,
+        entry.averaging,
+        entry.joints,
+        entries=[replace(entry, per_action=None, average={})],
+    )
+    if placed.differences:
         raise PublishedRatioError(
-            f"refusing to divide {row} by {entry.label!r}: " + "; ".join(differences)
+            f"refusing to divide {row} by {entry.label!r}: " + "; ".join(placed.differences)
         )
     frame = result.frame
     frame = frame[
@@ -139,9 +148,13 @@ def against_published(
         & (frame["averaging"] == entry.averaging)
         & (frame["joints"] == entry.joints)
     ]
-    measured = frame.pivot_table(index="action", columns="horizon_ms", values="value")
+    if frame.empty:
+        raise PublishedRatioError(
+            f"{row} has no {entry.metric} rows with {entry.averaging} averaging on joints "
+            f"{entry.joints}, which {entry.label!r} publishes"
+        )
     common = [a for a in record.get("actions_present", []) if a in entry.per_action]
-    wanted = list(actions) if actions is not None else common
+    wanted = list(dict.fromkeys(actions)) if actions is not None else common
     unknown = [a for a in wanted if a not in common]
     if unknown or not wanted:
         raise PublishedRatioError(
@@ -149,7 +162,7 @@ def against_published(
             f"{entry.label!r} have ({', '.join(common) or 'none'})"
         )
     shared = set.intersection(*(set(entry.per_action[a]) for a in common))
-    hs = sorted(h for h in shared if h in measured.columns)
+    hs = sorted(h for h in shared if h in set(frame["horizon_ms"]))
     if horizons_ms is not None:
         missing = [h for h in horizons_ms if h not in hs]
         if missing:
@@ -159,11 +172,16 @@ def against_published(
         hs = list(horizons_ms)
     if not hs:
         raise PublishedRatioError(f"{row} and {entry.label!r} share no horizon")
+    measured = frame.pivot_table(index="action", columns="horizon_ms", values="value")
+    measured = measured.reindex(index=common, columns=hs)
+    if measured.isna().any().any():
+        gaps = [f"{a} at {h} ms" for a in common for h in hs if pd.isna(measured.loc[a, h])]
+        raise PublishedRatioError(f"{row} has no figure for {', '.join(gaps[:5])}")
     published = pd.DataFrame({h: {a: entry.per_action[a][h] for a in common} for h in hs})
-    measured = measured.loc[common, hs]
     measured.loc["mean"] = measured.loc[wanted].mean()
     published.loc["mean"] = published.loc[wanted].mean()
     table = pd.concat(
         {"measured": measured, "published": published, "ratio": measured / published}, axis=1
     )
-    return PublishedRatios(row, entry, wanted, hs, table)
+    where = f"{record['benchmark']}, sampler {record.get('sampler')}: "
+    return PublishedRatios(row, entry, wanted, hs, table, where)
