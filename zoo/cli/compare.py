@@ -74,6 +74,8 @@ def run(args) -> int:
     if args.actions and entry is None:
         raise UsageError(f"--actions: only against a published figure, and {args.b!r} is none")
     if entry is not None:
+        if args.out:
+            raise UsageError("--out: a ratio to a published figure is printed only")
         for option, mine in (("metric", args.metric), ("joints", args.joints)):
             if mine is not None and mine != getattr(entry, option):
                 raise UsageError(
@@ -113,8 +115,6 @@ def run(args) -> int:
             )
         folders.append(folder)
     if entry is not None:
-        if args.out:
-            raise UsageError("--out: a ratio to a published figure is printed only")
         print(against_published(folders[0], entry, actions=args.actions).markdown())
         return 0
     comparison = compare(
