@@ -144,3 +144,13 @@ def test_ratio_to_a_published_figure_per_action_and_of_the_means():
     average = Published(**{**entry.__dict__, "per_action": None, "average": {80: 1.0}})
     with pytest.raises(PublishedRatioError, match="publishes an average only"):
         against_published(result, average)
+
+
+def test_a_label_published_on_several_benchmarks_needs_the_benchmark():
+    from zoo.stats.published_ratio import PublishedRatioError, published_entry
+
+    with pytest.raises(PublishedRatioError, match=r"published for .*cloth.*: give --benchmark"):
+        published_entry("spectrhums (reported)")
+    assert published_entry("spectrhums (reported)", "cloth").benchmark == "cloth"
+    assert published_entry("spectrhums (reported)", "cmu") is None
+    assert published_entry("ltd (reported, all windows)").benchmark == "cmu"

@@ -68,8 +68,12 @@ def run(args) -> int:
 
     if args.sampler is not None:
         checked_sampler(args.sampler, get_benchmark(args.benchmark) if args.benchmark else None)
-    entry = None if Path(args.b).is_dir() else published_entry(args.b)
-    if entry is None and not Path(args.a).is_dir() and published_entry(args.a) is not None:
+    entry = None if Path(args.b).is_dir() else published_entry(args.b, args.benchmark)
+    if (
+        entry is None
+        and not Path(args.a).is_dir()
+        and published_entry(args.a, args.benchmark) is not None
+    ):
         raise UsageError(f"{args.a!r} is a published figure: give it second (zoo compare A B)")
     if args.actions and entry is None:
         raise UsageError(f"--actions: only against a published figure, and {args.b!r} is none")

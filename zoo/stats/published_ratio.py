@@ -26,12 +26,21 @@ class PublishedRatioError(ZooError, ValueError):
     pass
 
 
-def published_entry(label: str, entries: list[Published] | None = None) -> Published | None:
-    """The published entry labelled ``label`` (None where there is none)."""
-    for entry in load_published() if entries is None else entries:
-        if entry.label == label:
-            return entry
-    return None
+def published_entry(
+    label: str, benchmark: str | None = None, entries: list[Published] | None = None
+) -> Published | None:
+    """The published entry labelled ``label`` (of ``benchmark`` where given: one label may name
+    a paper's figure on several benchmarks), or None where there is none."""
+    found = [
+        e
+        for e in (load_published() if entries is None else entries)
+        if e.label == label and benchmark in (None, e.benchmark)
+    ]
+    if len(found) > 1:
+        raise PublishedRatioError(
+            f"{label!r} is published for {', '.join(e.benchmark for e in found)}: give --benchmark"
+        )
+    return found[0] if found else None
 
 
 @dataclass
@@ -111,15 +120,17 @@ def against_published(
         if not (Path(result) / "results.csv").is_file():
             raise PublishedRatioError(f"{result}: no evaluation here (results.csv missing)")
         result = EvalResult.read(result)
-    if isinstance(entry, str):
-        found = published_entry(entry)
-        if found is None:
-            raise PublishedRatioError(f"no published figure labelled {entry!r}")
-        entry = found
     if result.frame.empty:
         raise PublishedRatioError("the result holds no rows")
     row = str(result.frame["model"].iloc[0])
     record = result.protocol
+    if isinstance(entry, str):
+        found = published_entry(entry, record.get("benchmark"))
+        if found is None:
+            raise PublishedRatioError(
+                f"no published figure labelled {entry!r} for {record.get('benchmark')}"
+            )
+        entry = found
     if entry.per_action is None:
         raise PublishedRatioError(
             f"{entry.label!r} publishes an average only; a ratio per action needs per-action "
