@@ -110,7 +110,6 @@ def against_published(
     entry: Published | str,
     *,
     actions: Iterable[str] | None = None,
-    horizons_ms: Iterable[int] | None = None,
 ) -> PublishedRatios:
     """``result``'s figures (a result or its folder) over ``entry``'s (a published entry or its
     label), per action; ``actions`` (default: every action both have) are the ones the mean and
@@ -174,13 +173,6 @@ def against_published(
         )
     shared = set.intersection(*(set(entry.per_action[a]) for a in common))
     hs = sorted(h for h in shared if h in set(frame["horizon_ms"]))
-    if horizons_ms is not None:
-        missing = [h for h in horizons_ms if h not in hs]
-        if missing:
-            raise PublishedRatioError(
-                f"horizons {missing} ms: expected horizons both have ({', '.join(map(str, hs))})"
-            )
-        hs = list(horizons_ms)
     if not hs:
         raise PublishedRatioError(f"{row} and {entry.label!r} share no horizon")
     measured = frame.pivot_table(index="action", columns="horizon_ms", values="value")
