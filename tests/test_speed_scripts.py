@@ -302,7 +302,7 @@ def test_speed_identity_prints_agreeing_fingerprints_and_a_finite_ratio(capsys):
     assert out[2].startswith("model") and out[3].startswith("ltd")
     evaluator, model = rows
     assert evaluator["same"] and "agree" in out[1] and model["same"] and "agree" in out[3]
-    for key in ("cold", "anew", "kept", "ratio"):
+    for key in ("cold", "stored", "anew", "kept", "ratio"):
         assert math.isfinite(evaluator[key]) and evaluator[key] > 0, key
     for key in ("anew", "kept", "ratio"):
         assert math.isfinite(model[key]) and model[key] > 0, key

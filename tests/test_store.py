@@ -6,11 +6,13 @@ import contextlib
 import copy
 import io
 import json
+import os
 import pickle
 import re
 import shutil
 import sys
 import textwrap
+import time
 from pathlib import Path
 
 import numpy as np
@@ -853,6 +855,60 @@ def test_fingerprints_kept_in_a_process_follow_edits_and_new_modules(tmp_path):
     fresh = tmp_path / "fresh.py"
     fresh.write_text(KEPT_FINGERPRINTS.split("seen = [now()]")[0] + "print(json.dumps(now()))\n")
     assert run(fresh) == [closure_2, *edited]
+
+
+STORED_FINGERPRINTS = """
+import json, sys
+sys.path.insert(0, sys.argv[1])
+from zoo.store import fingerprint as fp
+
+evaluator = fp.code_closure("zoo/evaluation/evaluator.py", computing_only=True)
+values = [fp.code_fingerprint(*evaluator), fp.definition_fingerprint(
+    fp.zoo_module_file("zoo.models.ltd"), "LTD")]
+print(json.dumps([values, fp._module_parts.cache_info().misses]))
+"""
+
+
+def test_fingerprints_of_the_zoos_code_are_stored_for_the_next_process(tmp_path):
+    """A process finds the fingerprint pieces another stored under the cache folder and parses
+    only what it must; an edit, a store of garbage or none at all gives what a fresh process
+    computes."""
+    import subprocess
+
+    shutil.copytree(
+        HERE.parent / "zoo", tmp_path / "zoo", ignore=shutil.ignore_patterns("__pycache__")
+    )
+    script = tmp_path / "stored.py"
+    script.write_text(STORED_FINGERPRINTS)
+    store = tmp_path / "cache" / "fingerprints"
+
+    def run() -> tuple[list, int]:
+        env = {k: v for k, v in os.environ.items() if k != "ZOO_CACHE_DIR"}
+        done = subprocess.run(
+            [sys.executable, "-B", str(script), str(tmp_path)],
+            capture_output=True,
+            text=True,
+            check=True,
+            env=env,
+        )
+        values, parsed = json.loads(done.stdout)
+        return values, parsed
+
+    first, parsed_first = run()
+    assert all(first) and len(list(store.glob("*/*.json"))) > 20
+    again, parsed_again = run()
+    assert again == first and parsed_again * 5 < parsed_first
+
+    metrics = tmp_path / "zoo" / "protocol" / "metrics.py"
+    time.sleep(0.02)  # a new mtime even on a coarse clock
+    metrics.write_text(metrics.read_text() + "\n\ndef added(x):\n    return x\n")
+    edited, _ = run()
+    assert edited[0] != first[0] and edited[1] == first[1]
+    for stored in store.glob("*/*.json"):
+        stored.write_text("{not json")
+    assert run()[0] == edited
+    shutil.rmtree(store)
+    assert run()[0] == edited
 
 
 def test_a_module_that_says_it_computes_no_number_is_outside_the_evaluators_code(tmp_path):

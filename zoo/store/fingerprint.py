@@ -17,8 +17,10 @@ import ast
 import functools
 import hashlib
 import inspect
+import json
 import os
 import re
+import shutil
 import sys
 import time
 from collections import Counter
@@ -26,6 +28,7 @@ from functools import cache
 from pathlib import Path
 from typing import Any
 
+from zoo.core.io import atomic_path
 from zoo.paths import REPO_ROOT
 from zoo.store.layout import StoreError
 
@@ -567,12 +570,14 @@ def _unchanged(read: dict[str, int]) -> bool:
 
 
 def _kept(key: tuple, compute):
-    """``compute()``, or its value kept from an earlier call while nothing it read changed."""
+    """``compute()``, or its value kept from an earlier call, in this process or, for the zoo's
+    own code, another (:func:`_stored`), while nothing it read changed."""
     layout = _current_layout()
-    kept = _KEPT.get(key)
-    if kept is not None and kept[2] == layout and _unchanged(kept[1]):
-        _record(kept[1])
-        return kept[0]
+    for kept in (_KEPT.get(key), _stored(key)):
+        if kept is not None and kept[2] == layout and _unchanged(kept[1]):
+            _KEPT[key] = kept
+            _record(kept[1])
+            return kept[0]
     _frames.append(({}, layout))
     try:
         value = compute()
@@ -580,7 +585,81 @@ def _kept(key: tuple, compute):
         read, _ = _frames.pop()
     _record(read)
     _KEPT[key] = (value, read, layout)
+    _store(key, (value, read, layout))
     return value
+
+
+# Kept results are also stored on disk (under the zoo's cache folder, git ignores it) where
+# everything they read is the zoo's own code, so each command and test process does not parse
+# and walk the evaluator's modules again: its rule is the one above (the same files, mtimes and
+# layout), in a folder of its own for each version of this module and of Python, whose syntax
+# trees the texts are made of. Code outside the zoo is resolved through sys.path, which another
+# process may not share: its results are kept in memory only.
+_STORED_UNUSED_DAYS = 14  # a folder of another version no process wrote to for this long goes
+_VALUE_KINDS = {"str": str, "tuple": tuple, "frozenset": frozenset}
+
+
+@cache
+def _store_folder() -> Path:
+    from zoo.data.mesh import cache_root
+
+    version = f"{Path(__file__).read_bytes()!r}{sys.version_info[:2]}"
+    return cache_root() / "fingerprints" / hashlib.sha256(version.encode()).hexdigest()[:16]
+
+
+def _store_file(key: tuple) -> Path:
+    name = hashlib.sha256(json.dumps(list(key)).encode()).hexdigest()[:32]
+    return _store_folder() / f"{name}.json"
+
+
+def _zoo_code_only(key: tuple, read: dict[str, int]) -> bool:
+    zoo = REPO_ROOT / "zoo"
+    return all(Path(p).is_relative_to(zoo) for p in [*read, key[1]])
+
+
+def _stored(key: tuple) -> tuple | None:
+    """A result another process stored (:func:`_store`) as ``(value, read, layout)``; None
+    where there is none to use (never stored, unreadable, another key)."""
+    try:
+        stored = json.loads(_store_file(key).read_text())
+        if stored["key"] != list(key):
+            return None
+        value = _VALUE_KINDS[stored["kind"]](stored["value"])
+        layout = tuple((folder, mtime) for folder, mtime in stored["layout"])
+        return value, dict(stored["read"]), layout
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+
+
+def _store(key: tuple, kept: tuple) -> None:
+    value, read, layout = kept
+    kind = type(value).__name__
+    if kind not in _VALUE_KINDS or not _zoo_code_only(key, read):
+        return
+    stored = {
+        "key": list(key),
+        "kind": kind,
+        "value": sorted(value) if kind == "frozenset" else value,
+        "read": read,
+        "layout": layout,
+    }
+    try:
+        with atomic_path(_store_file(key)) as tmp:
+            tmp.write_text(json.dumps(stored))
+    except OSError:  # a cache folder not writable here: kept in memory only
+        return
+    _remove_unused_stores()
+
+
+@cache
+def _remove_unused_stores() -> None:
+    oldest = time.time() - _STORED_UNUSED_DAYS * 86400
+    for folder in _store_folder().parent.iterdir():
+        try:
+            if folder != _store_folder() and folder.stat().st_mtime < oldest:
+                shutil.rmtree(folder)
+        except OSError:  # another process removed it first
+            pass
 
 
 def module_pieces(path: Path) -> set[str]:
