@@ -216,6 +216,11 @@ def test_patience_stops_a_run_that_no_longer_improves_and_its_state_says_finishe
         recipe={"lr": 0.0, "patience": 2},
     )
     assert read_checkpoint(out / "last.pt")["epoch"] == 2  # resuming adds no epoch
+    # patience only says when to stop: a resume may lift it, and the run says from when
+    run(setup, out, epochs=5, max_batches=1, resume=True, recipe={"lr": 0.0, "patience": None})
+    ckpt = read_checkpoint(out / "last.pt")
+    assert [h["epoch"] for h in ckpt["history"]] == [1, 2, 3, 4, 5]
+    assert {"field": "patience", "from": 2, "to": None, "from_epoch": 4} in ckpt["recipe_changes"]
     with pytest.raises(
         TrainingError, match="field 'patience': input should be greater than or equal to 1, got 0"
     ):

@@ -72,11 +72,11 @@ def save_epoch(
     )
 
 
-# The run's budget may grow when it is resumed, and its precision change with the machine (a
-# GPU's float32 epochs, a bfloat16 CPU's): each change is recorded with the epoch it took
-# effect, and each epoch records its precision; every other field of the recipe must stay what
-# the checkpoint says was run.
-BUDGET_FIELDS = ("epochs", "max_batches", "precision")
+# The run's budget may grow when it is resumed (its epochs, batches an epoch, and patience, which
+# only says when to stop), and its precision change with the machine (a GPU's float32 epochs, a
+# bfloat16 CPU's): each change is recorded with the epoch it took effect, and each epoch records
+# its precision; every other field of the recipe must stay what the checkpoint says was run.
+BUDGET_FIELDS = ("epochs", "max_batches", "patience", "precision")
 
 
 def resume_changes(
@@ -98,8 +98,8 @@ def resume_changes(
     if differ:
         raise CheckpointError(
             f"{path}: cannot resume with another recipe ({'; '.join(differ)}); only the "
-            f"budget (epochs, max_batches) and precision may change on resume. Resume with the "
-            f"checkpoint's values, or start a new run in another out_dir"
+            f"budget (epochs, max_batches, patience) and precision may change on resume. Resume "
+            f"with the checkpoint's values, or start a new run in another out_dir"
         )
     done = state["epoch"] + 1
     if recipe.epochs < done:
@@ -109,15 +109,21 @@ def resume_changes(
             parameter="epochs",
         )
     changes = list(state.get("recipe_changes") or [])
-    now = {"epochs": recipe.epochs, "max_batches": max_batches, "precision": recipe.precision}
+    now = {
+        "epochs": recipe.epochs,
+        "max_batches": max_batches,
+        "patience": recipe.patience,
+        "precision": recipe.precision,
+    }
     before = {
         "epochs": stored.get("epochs"),
         "max_batches": state.get("max_batches"),
+        "patience": stored.get("patience", DEFAULT_RECIPE["patience"]),
         "precision": stored.get("precision", DEFAULT_RECIPE["precision"]),
     }
     for field in BUDGET_FIELDS:
         # Checkpoints written before max_batches was recorded cannot say what it was.
-        if field in stored or field in state or field == "precision":
+        if field in stored or field in state or field in ("patience", "precision"):
             if before[field] != now[field]:
                 changes.append(
                     {
