@@ -199,6 +199,6 @@ def test_a_real_change_to_the_code_a_row_reaches_makes_it_stale(tmp_path, commit
     changed = _probe_copy(tree)
     # every row's evaluator, and each DCT model's own code
     assert sum("evaluator" in s for s in changed["stale"]) == committed["rows"]
-    dct_models = {"ltd", "pgbig", "mlp", "spgsn", "spgsn_1body", "tfan"}
+    dct_models = {"ltd", "pgbig", "mlp", "msrgcn", "spgsn", "spgsn_1body", "tfan"}
     for name, fingerprint in changed["models"].items():
         assert (fingerprint != committed["models"][name]) == (name in dct_models), name

@@ -265,32 +265,32 @@ def test_a_model_without_weights_says_where_its_training_stands(tmp_path, capsys
     with the epochs its paused state has done of those planned (0 of the recipe's without)."""
     weights = tmp_path / "weights"
     shutil.copytree(REPO_ROOT / "weights" / "cmu", weights / "cmu")
-    paused = weights / "in_progress" / "cmu" / "msrgcn"
+    paused = weights / "in_progress" / "cmu" / "auxformer"
     paused.mkdir(parents=True)
-    resume = "zoo train --model msrgcn --benchmark cmu --seed 0 --resume"
+    resume = "zoo train --model auxformer --benchmark cmu --seed 0 --resume"
     (paused / "state.json").write_text(
         json.dumps(
             {
                 "epochs_run": 3,
-                "epochs_planned": 58,
+                "epochs_planned": 80,
                 "best": {"val_mpjpe": 44.125, "epoch": 2},
                 "resume": resume,
             }
         )
     )
     status = (
-        "training: no weights shipped yet (3 of 58 epochs done; best validation 44.12 mm at "
+        "training: no weights shipped yet (3 of 80 epochs done; best validation 44.12 mm at "
         f"epoch 2; resume: {resume})"
     )
     unshipped = unshipped_models(load_registry(), weights)
-    assert unshipped["msrgcn"] == status and "spgsn" not in unshipped and "ltd" not in unshipped
+    assert unshipped["auxformer"] == status and "spgsn" not in unshipped and "ltd" not in unshipped
     (tmp_path / "results").mkdir()
     build_site(tmp_path / "site", tmp_path / "results", weights_root=weights)
     assert status in (tmp_path / "site" / "index.html").read_text()
-    assert status in (tmp_path / "site" / "model-msrgcn.html").read_text()
+    assert status in (tmp_path / "site" / "model-auxformer.html").read_text()
     assert "spgsn</a>: SPGSN" in (tmp_path / "site" / "index.html").read_text()
-    assert main(["list"]) == 0  # the repository's weights: msrgcn has none
-    line = next(x for x in capsys.readouterr().out.splitlines() if x.startswith("msrgcn "))
+    assert main(["list"]) == 0  # the repository's weights: auxformer has none
+    line = next(x for x in capsys.readouterr().out.splitlines() if x.startswith("auxformer "))
     assert "training: no weights shipped yet (" in line
 
 
