@@ -54,6 +54,27 @@ def test_prediction_reads_no_future_value():
     torch.testing.assert_close(blank, told)
 
 
+def test_the_observed_frames_encoded_alone_are_the_masked_encoding():
+    """With the observed frames visible, the encoder reads them alone (no mask, a third of the
+    tokens): every block's tokens are the general masked pass's, and so are the gradients."""
+    model = _model()
+    trajectory = model._trajectory(_history(), 300 * torch.randn(2, 25, 25, 3))
+    mask = model.observed_mask(trajectory)
+    grads = []
+    for given in (mask, None):
+        model.zero_grad()
+        blocks = model.encode(trajectory, given)
+        sum(b.square().mean() for b in blocks).backward()
+        grads.append([p.grad.clone() for p in model.parameters() if p.grad is not None])
+        if given is not None:
+            masked = [b.detach() for b in blocks]
+    for general, alone in zip(masked, blocks):
+        torch.testing.assert_close(alone.detach(), general, rtol=1e-5, atol=1e-5)
+    assert len(grads[0]) == len(grads[1])
+    for general, alone in zip(*grads):
+        torch.testing.assert_close(alone, general, rtol=1e-4, atol=1e-6)
+
+
 def test_auxiliary_draws_hide_the_code_share_of_observed_tokens():
     model = _model()
     trajectory = model._trajectory(_history(4), 300 * torch.randn(4, 25, 25, 3))

@@ -221,25 +221,30 @@ class AuxFormer(nn.Module):
         self.register_buffer("right", torch.tensor(right), persistent=False)
         self.register_buffer("weight", torch.tensor(weight)[:, None, None], persistent=False)
 
-    def encode(self, trajectory: torch.Tensor, mask: torch.Tensor) -> list[torch.Tensor]:
+    def encode(self, trajectory: torch.Tensor, mask: torch.Tensor | None) -> list[torch.Tensor]:
         """Every block's decoded tokens ``(B, N, T, D)`` for ``trajectory`` ``(B, N, T, 3)``
         with only the tokens where ``mask`` ``(B, N, T)`` is 1 visible (the code's
-        ``mask_forward``)."""
+        ``mask_forward``); ``None``: the observed frames visible, every joint's first
+        ``input_frames``."""
         b, n, t, _ = trajectory.shape
         velocity = torch.zeros_like(trajectory)
         velocity[:, :, 1:] = trajectory[:, :, 1:] - trajectory[:, :, :-1]
         acceleration = torch.zeros_like(velocity)
         acceleration[:, :, 1:] = velocity[:, :, 1:] - velocity[:, :, :-1]
+        queries = self.mask_embed + self.decoder_pos_embed.weight[None, None]
+        queries = queries + self.decoder_agent_embed.weight[None, :, None]
+        features = torch.cat([trajectory, velocity, acceleration], dim=-1)
+        if mask is None:
+            return self._encode_observed(features, queries.expand(b, -1, -1, -1))
         visible = mask[..., None]
         hidden = 1 - visible
-        tokens = self.patch_embed(torch.cat([trajectory, velocity, acceleration], dim=-1))
+        tokens = self.patch_embed(features)
         tokens = (tokens * visible + self.pos_embed + self.agent_embed) * visible
         per_frame = mask.permute(0, 2, 1).reshape(b * t, n)
         mask_s = per_frame[:, :, None] * per_frame[:, None, :]
         per_joint = mask.reshape(b * n, t)
         mask_t = per_joint[:, :, None] * per_joint[:, None, :]
-        queries = self.mask_embed + self.decoder_pos_embed.weight[None, None]
-        queries = (queries + self.decoder_agent_embed.weight[None, :, None]) * hidden
+        queries = queries * hidden
         out = []
         for layer, (encoder, decoder) in enumerate(zip(self.encoder, self.decoder)):
             if layer == 0:
@@ -248,6 +253,22 @@ class AuxFormer(nn.Module):
                 encoded = encoder(decoded * visible, mask_s, mask_t)
                 decoded = encoded * visible + decoded * hidden
             decoded = decoder(decoded)
+            out.append(decoded)
+        return out
+
+    def _encode_observed(self, features: torch.Tensor, queries: torch.Tensor) -> list[torch.Tensor]:
+        """:meth:`encode` with the observed frames visible. The encoder's attention masks out
+        every hidden token and its outputs there are dropped, so it reads the observed frames
+        alone, with no mask (the same softmax over the visible keys; the code renormalises by
+        their sum plus 1e-10) and a third of the tokens; the decoder reads all."""
+        seen = self.input_frames
+        tokens = self.patch_embed(features[:, :, :seen])
+        tokens = tokens + self.pos_embed[:, :, :seen] + self.agent_embed
+        hidden = queries[:, :, seen:]
+        out = []
+        for encoder, decoder in zip(self.encoder, self.decoder):
+            decoded = decoder(torch.cat([encoder(tokens), hidden], dim=2))
+            tokens, hidden = decoded[:, :, :seen], decoded[:, :, seen:]
             out.append(decoded)
         return out
 
@@ -276,7 +297,7 @@ class AuxFormer(nn.Module):
     def predict_units(self, trajectory: torch.Tensor) -> torch.Tensor:
         """The code's ``predict``: tokens ``(B, N, T, 3)`` in its units (the predicted frames'
         values unused) to the predicted frames ``(B, N, len(predicted), 3)``."""
-        decoded = self.encode(trajectory, self.observed_mask(trajectory))[-1]
+        decoded = self.encode(trajectory, None)[-1]
         start = trajectory[:, :, self.input_frames - 1 : self.input_frames]
         return self.head[-1](decoded[:, :, self.input_frames :]) + start
 
@@ -310,7 +331,7 @@ class AuxFormer(nn.Module):
         masked = torch.cat([corruption.visible, observed[:, :, self.input_frames :]], dim=2)
         start = trajectory[:, :, self.input_frames - 1 : self.input_frames]
         target = trajectory[:, :, self.input_frames :]
-        blocks = self.encode(trajectory, observed)
+        blocks = self.encode(trajectory, None)
         loss = 0
         for head, decoded in zip(self.head, blocks):
             prediction = head(decoded[:, :, self.input_frames :]) + start
@@ -319,7 +340,7 @@ class AuxFormer(nn.Module):
         recovered = (self.aux_head(self.encode(trajectory, masked)[-1]) + start) * hidden
         error = torch.linalg.vector_norm(recovered - trajectory * hidden, dim=-1)
         loss = loss + error.sum() / hidden.sum()
-        noisy = self.encode(trajectory + corruption.noise, observed)[-1]
+        noisy = self.encode(trajectory + corruption.noise, None)[-1]
         denoised = self.aux_head_2(noisy[:, :, : self.input_frames]) + start
         past = trajectory[:, :, : self.input_frames]
         return loss + torch.linalg.vector_norm(denoised - past, dim=-1).mean()
