@@ -54,25 +54,61 @@ def test_prediction_reads_no_future_value():
     torch.testing.assert_close(blank, told)
 
 
-def test_the_observed_frames_encoded_alone_are_the_masked_encoding():
-    """With the observed frames visible, the encoder reads them alone (no mask, a third of the
-    tokens): every block's tokens are the general masked pass's, and so are the gradients."""
+def _encoded_as_the_code(model: AuxFormer, trajectory, mask) -> list[torch.Tensor]:
+    """The code's mask_forward written again: the encoder on all T frames under masks ``(B, N,
+    T)``, its outputs kept where visible."""
+    b, n, t, _ = trajectory.shape
+    velocity = torch.zeros_like(trajectory)
+    velocity[:, :, 1:] = trajectory[:, :, 1:] - trajectory[:, :, :-1]
+    acceleration = torch.zeros_like(velocity)
+    acceleration[:, :, 1:] = velocity[:, :, 1:] - velocity[:, :, :-1]
+    visible = mask[..., None]
+    tokens = model.patch_embed(torch.cat([trajectory, velocity, acceleration], dim=-1))
+    tokens = (tokens * visible + model.pos_embed + model.agent_embed) * visible
+    per_frame = mask.permute(0, 2, 1).reshape(b * t, n)
+    per_joint = mask.reshape(b * n, t)
+    mask_s = per_frame[:, :, None] * per_frame[:, None, :]
+    mask_t = per_joint[:, :, None] * per_joint[:, None, :]
+    queries = model.mask_embed + model.decoder_pos_embed.weight[None, None]
+    queries = (queries + model.decoder_agent_embed.weight[None, :, None]) * (1 - visible)
+    out = []
+    for layer, (encoder, decoder) in enumerate(zip(model.encoder, model.decoder)):
+        if layer == 0:
+            decoded = encoder(tokens, mask_s, mask_t) * visible + queries
+        else:
+            encoded = encoder(decoded * visible, mask_s, mask_t)
+            decoded = encoded * visible + decoded * (1 - visible)
+        decoded = decoder(decoded)
+        out.append(decoded)
+    return out
+
+
+@pytest.mark.parametrize("hiding", [False, True], ids=["observed", "masking draw"])
+def test_the_encoder_reading_the_observed_frames_alone_is_the_codes_masked_encoder(hiding):
+    """The predicted frames are hidden from every attention of the code's encoder and its
+    outputs there dropped: reading the observed frames alone gives every block's tokens, and
+    every gradient, of the code's way, for the prediction's mask and for a masking draw."""
     model = _model()
     trajectory = model._trajectory(_history(), 300 * torch.randn(2, 25, 25, 3))
     mask = model.observed_mask(trajectory)
-    grads = []
-    for given in (mask, None):
+    visible = None
+    if hiding:
+        torch.manual_seed(3)
+        visible = model.draw_corruption(trajectory).visible
+        mask = torch.cat([visible, mask[:, :, model.input_frames :]], dim=2)
+    results = []
+    for encode in (lambda: _encoded_as_the_code(model, trajectory, mask),
+                   lambda: model.encode(trajectory, visible)):  # fmt: skip
         model.zero_grad()
-        blocks = model.encode(trajectory, given)
+        blocks = encode()
         sum(b.square().mean() for b in blocks).backward()
-        grads.append([p.grad.clone() for p in model.parameters() if p.grad is not None])
-        if given is not None:
-            masked = [b.detach() for b in blocks]
-    for general, alone in zip(masked, blocks):
-        torch.testing.assert_close(alone.detach(), general, rtol=1e-5, atol=1e-5)
-    assert len(grads[0]) == len(grads[1])
-    for general, alone in zip(*grads):
-        torch.testing.assert_close(alone, general, rtol=1e-4, atol=1e-6)
+        grads = [p.grad.clone() for p in model.parameters() if p.grad is not None]
+        results.append(([b.detach() for b in blocks], grads))
+    (code_blocks, code_grads), (blocks, grads) = results
+    for theirs, ours in zip(code_blocks, blocks, strict=True):
+        torch.testing.assert_close(ours, theirs, rtol=1e-5, atol=1e-5)
+    for theirs, ours in zip(code_grads, grads, strict=True):
+        torch.testing.assert_close(ours, theirs, rtol=1e-4, atol=1e-6)
 
 
 def test_auxiliary_draws_hide_the_code_share_of_observed_tokens():

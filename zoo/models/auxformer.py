@@ -221,56 +221,58 @@ class AuxFormer(nn.Module):
         self.register_buffer("right", torch.tensor(right), persistent=False)
         self.register_buffer("weight", torch.tensor(weight)[:, None, None], persistent=False)
 
-    def encode(self, trajectory: torch.Tensor, mask: torch.Tensor | None) -> list[torch.Tensor]:
-        """Every block's decoded tokens ``(B, N, T, D)`` for ``trajectory`` ``(B, N, T, 3)``
-        with only the tokens where ``mask`` ``(B, N, T)`` is 1 visible (the code's
-        ``mask_forward``); ``None``: the observed frames visible, every joint's first
-        ``input_frames``."""
+    def encode(
+        self, trajectory: torch.Tensor, visible: torch.Tensor | None = None
+    ) -> list[torch.Tensor]:
+        """Every block's decoded tokens ``(B, N, T, D)`` for ``trajectory`` ``(B, N, T, 3)``, the
+        code's ``mask_forward`` with the observed tokens where ``visible`` ``(B, N, T_in)`` is 1
+        visible (None: all of them) and the predicted frames' tokens hidden.
+
+        The code's encoder reads all T frames, but its masks hide every hidden token from every
+        attention and its outputs there are dropped, so the predicted frames, hidden always,
+        change nothing it gives: the encoder here reads the observed frames alone (a third of
+        the tokens), with no mask where all of them are visible (the same softmax over the same
+        keys; the code divides by their sum plus 1e-10). The decoder reads all T."""
         b, n, t, _ = trajectory.shape
+        seen = self.input_frames
         velocity = torch.zeros_like(trajectory)
         velocity[:, :, 1:] = trajectory[:, :, 1:] - trajectory[:, :, :-1]
         acceleration = torch.zeros_like(velocity)
         acceleration[:, :, 1:] = velocity[:, :, 1:] - velocity[:, :, :-1]
+        observed = torch.cat([trajectory, velocity, acceleration], dim=-1)[:, :, :seen]
+        tokens = self.patch_embed(observed) + self.pos_embed[:, :, :seen] + self.agent_embed
         queries = self.mask_embed + self.decoder_pos_embed.weight[None, None]
-        queries = queries + self.decoder_agent_embed.weight[None, :, None]
-        features = torch.cat([trajectory, velocity, acceleration], dim=-1)
-        if mask is None:
-            return self._encode_observed(features, queries.expand(b, -1, -1, -1))
-        visible = mask[..., None]
-        hidden = 1 - visible
-        tokens = self.patch_embed(features)
-        tokens = (tokens * visible + self.pos_embed + self.agent_embed) * visible
-        per_frame = mask.permute(0, 2, 1).reshape(b * t, n)
-        mask_s = per_frame[:, :, None] * per_frame[:, None, :]
-        per_joint = mask.reshape(b * n, t)
-        mask_t = per_joint[:, :, None] * per_joint[:, None, :]
-        queries = queries * hidden
+        queries = (queries + self.decoder_agent_embed.weight[None, :, None]).expand(b, n, t, -1)
+        hidden = queries[:, :, seen:]
+        masks: dict[str, torch.Tensor] = {}
+        if visible is not None:
+            keep = visible[..., None]
+            tokens = tokens * keep
+            carried = queries[:, :, :seen] * (1 - keep)  # what a hidden observed token holds
+            per_frame = visible.permute(0, 2, 1).reshape(b * seen, n)
+            per_joint = visible.reshape(b * n, seen)
+            masks = {
+                "mask_s": per_frame[:, :, None] * per_frame[:, None, :],
+                "mask_t": per_joint[:, :, None] * per_joint[:, None, :],
+            }
         out = []
-        for layer, (encoder, decoder) in enumerate(zip(self.encoder, self.decoder)):
-            if layer == 0:
-                decoded = encoder(tokens, mask_s, mask_t) * visible + queries
-            else:
-                encoded = encoder(decoded * visible, mask_s, mask_t)
-                decoded = encoded * visible + decoded * hidden
-            decoded = decoder(decoded)
+        for encoder, decoder in zip(self.encoder, self.decoder):
+            encoded = encoder(tokens, **masks)
+            if visible is not None:
+                encoded = encoded * keep + carried
+            decoded = decoder(torch.cat([encoded, hidden], dim=2))
+            tokens, hidden = decoded[:, :, :seen], decoded[:, :, seen:]
+            if visible is not None:
+                tokens, carried = tokens * keep, tokens * (1 - keep)
             out.append(decoded)
         return out
 
-    def _encode_observed(self, features: torch.Tensor, queries: torch.Tensor) -> list[torch.Tensor]:
-        """:meth:`encode` with the observed frames visible. The encoder's attention masks out
-        every hidden token and its outputs there are dropped, so it reads the observed frames
-        alone, with no mask (the same softmax over the visible keys; the code renormalises by
-        their sum plus 1e-10) and a third of the tokens; the decoder reads all."""
-        seen = self.input_frames
-        tokens = self.patch_embed(features[:, :, :seen])
-        tokens = tokens + self.pos_embed[:, :, :seen] + self.agent_embed
-        hidden = queries[:, :, seen:]
-        out = []
-        for encoder, decoder in zip(self.encoder, self.decoder):
-            decoded = decoder(torch.cat([encoder(tokens), hidden], dim=2))
-            tokens, hidden = decoded[:, :, :seen], decoded[:, :, seen:]
-            out.append(decoded)
-        return out
+    def observed_mask(self, trajectory: torch.Tensor) -> torch.Tensor:
+        """The code's mask of the tokens the prediction sees ``(B, N, T)``: 1 for the observed
+        frames, 0 for the predicted ones."""
+        mask = trajectory.new_zeros(trajectory.shape[:3])
+        mask[:, :, : self.input_frames] = 1.0
+        return mask
 
     def _trajectory(self, history: torch.Tensor, future: torch.Tensor | None) -> torch.Tensor:
         """The tokens' coordinates ``(B, N, T_in + predicted, 3)`` in the code's units; the
@@ -289,15 +291,10 @@ class AuxFormer(nn.Module):
             later = later / self.mm_per_unit
         return torch.cat([past, later], dim=2)
 
-    def observed_mask(self, trajectory: torch.Tensor) -> torch.Tensor:
-        mask = trajectory.new_zeros(trajectory.shape[:3])
-        mask[:, :, : self.input_frames] = 1.0
-        return mask
-
     def predict_units(self, trajectory: torch.Tensor) -> torch.Tensor:
         """The code's ``predict``: tokens ``(B, N, T, 3)`` in its units (the predicted frames'
         values unused) to the predicted frames ``(B, N, len(predicted), 3)``."""
-        decoded = self.encode(trajectory, None)[-1]
+        decoded = self.encode(trajectory)[-1]
         start = trajectory[:, :, self.input_frames - 1 : self.input_frames]
         return self.head[-1](decoded[:, :, self.input_frames :]) + start
 
@@ -331,16 +328,17 @@ class AuxFormer(nn.Module):
         masked = torch.cat([corruption.visible, observed[:, :, self.input_frames :]], dim=2)
         start = trajectory[:, :, self.input_frames - 1 : self.input_frames]
         target = trajectory[:, :, self.input_frames :]
-        blocks = self.encode(trajectory, None)
+        blocks = self.encode(trajectory)
         loss = 0
         for head, decoded in zip(self.head, blocks):
             prediction = head(decoded[:, :, self.input_frames :]) + start
             loss = loss + torch.linalg.vector_norm(prediction - target, dim=-1).mean() / len(blocks)
         hidden = (1 - masked)[..., None]
-        recovered = (self.aux_head(self.encode(trajectory, masked)[-1]) + start) * hidden
+        recovered = self.aux_head(self.encode(trajectory, corruption.visible)[-1]) + start
+        recovered = recovered * hidden
         error = torch.linalg.vector_norm(recovered - trajectory * hidden, dim=-1)
         loss = loss + error.sum() / hidden.sum()
-        noisy = self.encode(trajectory + corruption.noise, None)[-1]
+        noisy = self.encode(trajectory + corruption.noise)[-1]
         denoised = self.aux_head_2(noisy[:, :, : self.input_frames]) + start
         past = trajectory[:, :, : self.input_frames]
         return loss + torch.linalg.vector_norm(denoised - past, dim=-1).mean()
