@@ -194,7 +194,7 @@ def cards_dir_for(results_root: str | Path) -> Path:
 def card_models(
     registry: Registry,
     shipped: dict[str, list[Shipped]],
-    tables: list[tuple[Path, EvalResult]] = (),
+    tables: list[ReadTable] = (),
 ) -> list[str]:
     """Models with a card: every registered model with shipped weights, published figures or
     a row in ``tables`` (a researcher's own model from its registry entry), and every trainable
@@ -203,8 +203,8 @@ def card_models(
     with_rows = {
         name
         for name in registry.list_models()
-        for _, table in tables
-        if any(_belongs(str(label), name) for label in table.frame["model"].unique())
+        for table in tables
+        if any(_belongs(label, name) for label in table.rows_of)
     }
     return [
         n
@@ -410,39 +410,64 @@ def _belongs(label: str, name: str) -> bool:
     return base == name
 
 
-def read_tables(results_root: Path) -> list[tuple[Path, EvalResult]]:
-    """Every table under ``results_root`` (its ``leaderboard.md``) with its rows read: read
-    once for all the cards."""
-    return [(table, read_table(table.parent)) for table in table_files(results_root, depth=2)]
+@dataclass(frozen=True, eq=False)
+class ReadTable:
+    """A table as the cards read it: its ``leaderboard.md``, its protocol record, each row
+    label's rows of the headline (action average, the headline's metric and joints, frame
+    averaging) and all of its rows, split once for every card."""
 
+    path: Path
+    record: dict[str, Any]
+    headline: dict[str, pd.DataFrame]
+    rows_of: dict[str, pd.DataFrame]
+    horizons: list[int]
 
-def _row_tables(
-    name: str, tables: list[tuple[Path, EvalResult]], results_link: str = "../../results"
-) -> list[str]:
-    """The headline rows of ``name`` in every table, each table linked through
-    ``results_link`` (the results root as the card's folder reaches it)."""
-    out = []
-    for table, result in tables:
-        frame = result.frame
-        labels = sorted(m for m in frame["model"].unique() if _belongs(m, name))
-        if not labels:
-            continue
-        record = result.protocol
+    @classmethod
+    def read(cls, path: Path) -> ReadTable:
+        result = read_table(path.parent)
+        frame, record = result.frame, result.protocol
         metric, joints = headline_key(record)
-        rows = frame[
+        headline = frame[
             (frame["action"] == "average")
             & (frame["metric"] == metric)
             & (frame["joints"] == joints)
             & (frame["averaging"] == "frame")
         ]
-        horizons = default_horizons(rows)
+        return cls(
+            path,
+            record,
+            {str(label): rows for label, rows in headline.groupby("model", sort=False)},
+            {str(label): rows for label, rows in frame.groupby("model", sort=False)},
+            default_horizons(headline),
+        )
+
+
+def read_tables(results_root: Path) -> list[ReadTable]:
+    """Every table under ``results_root`` (its ``leaderboard.md``) with its rows read: read
+    once for all the cards."""
+    return [ReadTable.read(table) for table in table_files(results_root, depth=2)]
+
+
+def _row_tables(
+    name: str, tables: list[ReadTable], results_link: str = "../../results"
+) -> list[str]:
+    """The headline rows of ``name`` in every table, each table linked through
+    ``results_link`` (the results root as the card's folder reaches it)."""
+    out = []
+    for read in tables:
+        labels = sorted(label for label in read.rows_of if _belongs(label, name))
+        if not labels:
+            continue
+        table, record, horizons = read.path, read.record, read.horizons
+        metric, joints = headline_key(record)
         unit, fmt = metric_unit(metric)
-        baseline = BASELINE in set(rows["model"]) and BASELINE not in labels
+        baseline = BASELINE in read.headline and BASELINE not in labels
         shown = labels + ([BASELINE] if baseline else [])
         costs = _costs(table.parent.parent)
         body = []
         for label in shown:
-            values = rows[rows["model"] == label].set_index("horizon_ms")["value"]
+            rows = read.headline.get(label)
+            values = {} if rows is None else rows.set_index("horizon_ms")["value"]
             cost = costs.get(label, {})
             body.append(
                 [f"`{label}`"]
@@ -461,7 +486,7 @@ def _row_tables(
             "",
         ]
         out += _table(["row", *(f"{h} ms" for h in horizons), "parameters", "latency (ms)"], body)
-        out += _against_paper(name, frame, record, labels)
+        out += _against_paper(name, read, labels)
     if not out:
         return ["No rows in `results/` yet.", ""]
     return [
@@ -473,11 +498,10 @@ def _row_tables(
     ]
 
 
-def _against_paper(name: str, frame: pd.DataFrame, record: dict, labels: list[str]) -> list[str]:
+def _against_paper(name: str, read: ReadTable, labels: list[str]) -> list[str]:
     """Each row over the paper's per-action figures measured under this table's protocol
     (:func:`zoo.stats.published_ratio.against_published`): per action, and the rows' mean over
     the paper's mean on the actions both have."""
-    from zoo.evaluation.results import EvalResult
     from zoo.stats.published_ratio import PublishedRatioError, against_published
 
     out = []
@@ -485,7 +509,7 @@ def _against_paper(name: str, frame: pd.DataFrame, record: dict, labels: list[st
         if paper.model != name or paper.per_action is None:
             continue
         for label in labels:
-            mine = EvalResult(frame[frame["model"] == label], record)
+            mine = EvalResult(read.rows_of[label], read.record)
             try:
                 ratios = against_published(mine, paper)
             except PublishedRatioError:  # another protocol, or a row short of a figure
@@ -537,7 +561,7 @@ def generated_card(
     registry: Registry,
     files: list[Shipped],
     results_root: Path = RESULTS_DIR,
-    tables: list[tuple[Path, EvalResult]] | None = None,
+    tables: list[ReadTable] | None = None,
     results_link: str = "../../results",
 ) -> str:
     """The generated part of ``name``'s card, ending with :data:`END_MARKER` (``tables``: the
