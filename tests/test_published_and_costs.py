@@ -154,3 +154,17 @@ def test_a_label_published_on_several_benchmarks_needs_the_benchmark():
     assert published_entry("spectrhums (reported)", "cloth").benchmark == "cloth"
     assert published_entry("spectrhums (reported)", "cmu") is None
     assert published_entry("ltd (reported, all windows)").benchmark == "cmu"
+
+
+def test_a_mistyped_published_label_is_named_with_the_closest_ones(capsys):
+    """zoo compare A B, where B can be no row's label (it has a space) and is no published
+    label, names the published labels closest to it, or those of the benchmark."""
+    from zoo.cli import main
+
+    assert main(["compare", "ltd", "ltd (reportd, all windows)", "--benchmark", "cmu"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "is no published figure's label" in err[0]
+    assert "did you mean 'ltd (reported, all windows)'" in err[0]
+    assert main(["compare", "ltd", "no such (figure)", "--benchmark", "cmu50"]) == 2
+    err = capsys.readouterr().err
+    assert "published labels on cmu50: " in err and "'tfan (reported)'" in err

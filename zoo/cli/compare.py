@@ -75,6 +75,8 @@ def run(args) -> int:
         and published_entry(args.a, args.benchmark) is not None
     ):
         raise UsageError(f"{args.a!r} is a published figure: give it second (zoo compare A B)")
+    if entry is None and not Path(args.b).is_dir():
+        _check_row_or_published(args.b, args.benchmark)
     if args.actions and entry is None:
         raise UsageError(f"--actions: only against a published figure, and {args.b!r} is none")
     if entry is not None:
@@ -139,3 +141,28 @@ def run(args) -> int:
         comparison.write(args.out)
         print(f"wrote {args.out}/comparison.md, comparison.png")
     return 0
+
+
+def _check_row_or_published(name: str, benchmark: str | None) -> None:
+    """B that can name no row (a row label names a folder) is a published figure's label
+    mistyped, or nothing: say which labels there are, the closest first."""
+    import difflib
+
+    from zoo.protocol.published import load_published
+    from zoo.store.layout import StoreError, check_label
+
+    try:
+        check_label(name)
+    except StoreError:
+        labels = sorted({e.label for e in load_published() if benchmark in (None, e.benchmark)})
+        close = difflib.get_close_matches(name, labels, n=3, cutoff=0.6)
+        hint = (
+            f"did you mean {', '.join(repr(c) for c in close)}?"
+            if close
+            else f"published labels{f' on {benchmark}' if benchmark else ''}: "
+            + ", ".join(repr(label) for label in labels)
+        )
+        raise UsageError(
+            f"{name!r} is no published figure's label (zoo/protocol/published.yaml) and cannot "
+            f"be a row's (a row label is letters, digits and '_.@+=,-'): {hint}"
+        ) from None
