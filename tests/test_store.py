@@ -895,9 +895,16 @@ def test_fingerprints_of_the_zoos_code_are_stored_for_the_next_process(tmp_path)
         return values, parsed
 
     first, parsed_first = run()
-    assert all(first) and len(list(store.glob("*/*.json"))) > 20
+    stored = [json.loads(p.read_text()) for p in store.glob("*/*.json")]
+    assert all(first) and len(stored) > 20
+    zoo = str(tmp_path / "zoo")
+    assert all(path.startswith(zoo) for entry in stored for path in entry["read"])
     again, parsed_again = run()
     assert again == first and parsed_again * 5 < parsed_first
+    # a module added anywhere in the zoo may change what an import names: all read anew
+    (tmp_path / "zoo" / "protocol" / "added.py").write_text("X = 1\n")
+    added, parsed_added = run()
+    assert added == first and parsed_added > parsed_first / 2
 
     metrics = tmp_path / "zoo" / "protocol" / "metrics.py"
     time.sleep(0.02)  # a new mtime even on a coarse clock

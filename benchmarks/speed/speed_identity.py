@@ -10,7 +10,8 @@ changes (:func:`zoo.store.fingerprint.module_pieces`). This prints, per benchmar
 - ``stored``: the caches in memory emptied, the pieces stored on disk by an earlier process
   kept (what every later process pays once);
 - ``pieces anew``: the files' syntax trees kept, the pieces and the import scan recomputed
-  and stored again (what each call cost before they were kept);
+  and stored again (what each call cost before they were kept, and since the store on disk,
+  its writes: not comparable with runs before it);
 - ``kept``: the pieces kept, as every call after the first now is;
 - the ratio ``pieces anew / kept``, and whether all three fingerprints agree (they must).
 
@@ -25,6 +26,7 @@ Run: python benchmarks/speed/speed_identity.py [--benchmark NAME ...] [--model N
 """
 
 import argparse
+import contextlib
 import os
 import shutil
 import statistics
@@ -138,17 +140,23 @@ def main(argv=None) -> list[dict]:
     parser.add_argument("--model", nargs="+", default=["ltd", "spgsn", "spectrhums"])
     parser.add_argument("--repeats", type=int, default=5)
     args = parser.parse_args(argv)
-    with tempfile.TemporaryDirectory() as store:
-        os.environ["ZOO_CACHE_DIR"], kept_env = store, os.environ.get("ZOO_CACHE_DIR")
-        fingerprint._store_folder.cache_clear()
-        try:
-            return _measured(args)
-        finally:
-            if kept_env is None:
-                os.environ.pop("ZOO_CACHE_DIR")
-            else:
-                os.environ["ZOO_CACHE_DIR"] = kept_env
-            fingerprint._store_folder.cache_clear()
+    with tempfile.TemporaryDirectory() as store, _cache_dir(store):
+        return _measured(args)
+
+
+@contextlib.contextmanager
+def _cache_dir(folder: str):
+    """``ZOO_CACHE_DIR`` set to ``folder`` while the block runs (the fingerprints' store then
+    lives there), as it was after."""
+    before = os.environ.get("ZOO_CACHE_DIR")
+    os.environ["ZOO_CACHE_DIR"] = folder
+    try:
+        yield
+    finally:
+        if before is None:
+            os.environ.pop("ZOO_CACHE_DIR")
+        else:
+            os.environ["ZOO_CACHE_DIR"] = before
 
 
 def _measured(args) -> list[dict]:

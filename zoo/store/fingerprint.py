@@ -28,7 +28,7 @@ from functools import cache
 from pathlib import Path
 from typing import Any
 
-from zoo.core.io import atomic_path
+from zoo.core.io import atomic_write_json
 from zoo.paths import REPO_ROOT
 from zoo.store.layout import StoreError
 
@@ -573,11 +573,13 @@ def _kept(key: tuple, compute):
     """``compute()``, or its value kept from an earlier call, in this process or, for the zoo's
     own code, another (:func:`_stored`), while nothing it read changed."""
     layout = _current_layout()
-    for kept in (_KEPT.get(key), _stored(key)):
-        if kept is not None and kept[2] == layout and _unchanged(kept[1]):
-            _KEPT[key] = kept
-            _record(kept[1])
-            return kept[0]
+    kept = _KEPT.get(key)
+    if kept is None or kept[2] != layout or not _unchanged(kept[1]):
+        kept = _stored(key, layout)
+    if kept is not None:
+        _KEPT[key] = kept
+        _record(kept[1])
+        return kept[0]
     _frames.append(({}, layout))
     try:
         value = compute()
@@ -585,26 +587,33 @@ def _kept(key: tuple, compute):
         read, _ = _frames.pop()
     _record(read)
     _KEPT[key] = (value, read, layout)
-    _store(key, (value, read, layout))
+    _store(key, value, read, layout)
     return value
 
 
 # Kept results are also stored on disk (under the zoo's cache folder, git ignores it) where
 # everything they read is the zoo's own code, so each command and test process does not parse
-# and walk the evaluator's modules again: its rule is the one above (the same files, mtimes and
-# layout), in a folder of its own for each version of this module and of Python, whose syntax
-# trees the texts are made of. Code outside the zoo is resolved through sys.path, which another
-# process may not share: its results are kept in memory only.
-_STORED_UNUSED_DAYS = 14  # a folder of another version no process wrote to for this long goes
+# and walk the evaluator's modules again. A process trusts its own reads by mtime; another
+# process's only while every file and folder read (the zoo's layout's included) has the same
+# mtime, size, inode and ctime as when it was stored (a copy that keeps mtimes, cp -p or
+# rsync -a, makes a new ctime, which no tool sets). One folder per version of this module and of
+# Python, whose syntax trees the texts are made of (the text-writing code lives here for that).
+# Code outside the zoo is resolved through sys.path, which another process may not share: its
+# results are kept in memory only.
+_STORED_UNUSED_DAYS = 14  # a folder of another version no process used for this long goes
 _VALUE_KINDS = {"str": str, "tuple": tuple, "frozenset": frozenset}
 
 
 @cache
-def _store_folder() -> Path:
-    from zoo.data.mesh import cache_root
-
+def _store_version() -> str:
     version = f"{Path(__file__).read_bytes()!r}{sys.version_info[:2]}"
-    return cache_root() / "fingerprints" / hashlib.sha256(version.encode()).hexdigest()[:16]
+    return hashlib.sha256(version.encode()).hexdigest()[:16]
+
+
+def _store_folder() -> Path:
+    from zoo.data.mesh import cache_root  # the cache folder's one home (ZOO_CACHE_DIR)
+
+    return cache_root() / "fingerprints" / _store_version()
 
 
 def _store_file(key: tuple) -> Path:
@@ -612,52 +621,85 @@ def _store_file(key: tuple) -> Path:
     return _store_folder() / f"{name}.json"
 
 
-def _zoo_code_only(key: tuple, read: dict[str, int]) -> bool:
-    zoo = REPO_ROOT / "zoo"
-    return all(Path(p).is_relative_to(zoo) for p in [*read, key[1]])
+def _signature(path: str) -> list[int]:
+    stat = os.stat(path)
+    return [stat.st_mtime_ns, stat.st_size, stat.st_ino, stat.st_ctime_ns]
 
 
-def _stored(key: tuple) -> tuple | None:
-    """A result another process stored (:func:`_store`) as ``(value, read, layout)``; None
-    where there is none to use (never stored, unreadable, another key)."""
+@cache
+def _as_stored(folders: tuple[tuple, ...]) -> bool:
+    """Whether the zoo's folders have the signatures a stored result recorded (every result
+    stored by one process records the same: checked once)."""
+    try:
+        return all(_signature(folder) == list(signature) for folder, *signature in folders)
+    except OSError:
+        return False
+
+
+def _stored(key: tuple, layout: tuple) -> tuple | None:
+    """A result another process stored (:func:`_store`) as ``(value, read, layout)``, where
+    the zoo's layout is ``layout`` and every file and folder it read is as it was; None where
+    there is none to use (never stored, unreadable, another key, anything changed)."""
     try:
         stored = json.loads(_store_file(key).read_text())
         if stored["key"] != list(key):
             return None
+        if tuple((folder, mtime) for folder, mtime in stored["layout"]) != layout:
+            return None
+        if not _as_stored(tuple((f, *signature) for f, signature in stored["folders"])):
+            return None
+        if any(_signature(path) != signature for path, signature in stored["stats"].items()):
+            return None
         value = _VALUE_KINDS[stored["kind"]](stored["value"])
-        layout = tuple((folder, mtime) for folder, mtime in stored["layout"])
-        return value, dict(stored["read"]), layout
-    except (OSError, ValueError, KeyError, TypeError):
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
         return None
+    _mark_store_used()
+    return value, dict(stored["read"]), layout
 
 
-def _store(key: tuple, kept: tuple) -> None:
-    value, read, layout = kept
+def _store(key: tuple, value, read: dict[str, int], layout: tuple) -> None:
     kind = type(value).__name__
-    if kind not in _VALUE_KINDS or not _zoo_code_only(key, read):
+    zoo = REPO_ROOT / "zoo"
+    if kind not in _VALUE_KINDS or not all(Path(p).is_relative_to(zoo) for p in [*read, key[1]]):
         return
-    stored = {
-        "key": list(key),
-        "kind": kind,
-        "value": sorted(value) if kind == "frozenset" else value,
-        "read": read,
-        "layout": layout,
-    }
     try:
-        with atomic_path(_store_file(key)) as tmp:
-            tmp.write_text(json.dumps(stored))
+        stats = {path: _signature(path) for path in read}
+        folders = [(folder, _signature(folder)) for folder, mtime in layout]
+        # what was read must still be what it was: an edit since is never stored under it
+        if any(stats[path][0] != mtime for path, mtime in read.items()) or any(
+            signature[0] != mtime for (_, signature), (_, mtime) in zip(folders, layout)
+        ):
+            return
+        stored = {
+            "key": list(key),
+            "kind": kind,
+            "value": sorted(value) if kind == "frozenset" else value,
+            "read": read,
+            "layout": layout,
+            "folders": folders,
+            "stats": stats,
+        }
+        atomic_write_json(_store_file(key), stored)
     except OSError:  # a cache folder not writable here: kept in memory only
         return
-    _remove_unused_stores()
+    _mark_store_used()
 
 
 @cache
-def _remove_unused_stores() -> None:
+def _mark_store_used() -> None:
+    """This version's folder used now (its mtime), once a process; the other versions' folders
+    no process used for :data:`_STORED_UNUSED_DAYS` removed."""
+    folder = _store_folder()
     oldest = time.time() - _STORED_UNUSED_DAYS * 86400
-    for folder in _store_folder().parent.iterdir():
+    try:
+        os.utime(folder)
+        others = [f for f in folder.parent.iterdir() if f != folder]
+    except OSError:
+        return
+    for other in others:
         try:
-            if folder != _store_folder() and folder.stat().st_mtime < oldest:
-                shutil.rmtree(folder)
+            if other.stat().st_mtime < oldest:
+                shutil.rmtree(other)
         except OSError:  # another process removed it first
             pass
 
