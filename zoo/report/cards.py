@@ -418,6 +418,8 @@ class ReadTable:
 
     path: Path
     record: dict[str, Any]
+    metric: str
+    joints: str
     headline: dict[str, pd.DataFrame]
     rows_of: dict[str, pd.DataFrame]
     horizons: list[int]
@@ -427,19 +429,27 @@ class ReadTable:
         result = read_table(path.parent)
         frame, record = result.frame, result.protocol
         metric, joints = headline_key(record)
-        headline = frame[
-            (frame["action"] == "average")
-            & (frame["metric"] == metric)
-            & (frame["joints"] == joints)
-            & (frame["averaging"] == "frame")
-        ]
+        headline = _action_average(frame, metric, joints)
         return cls(
             path,
             record,
+            metric,
+            joints,
             {str(label): rows for label, rows in headline.groupby("model", sort=False)},
             {str(label): rows for label, rows in frame.groupby("model", sort=False)},
             default_horizons(headline),
         )
+
+
+def _action_average(frame: pd.DataFrame, metric: str, joints: str) -> pd.DataFrame:
+    """The rows a headline shows: the action average of ``metric`` on ``joints``, frame
+    averaging."""
+    return frame[
+        (frame["action"] == "average")
+        & (frame["metric"] == metric)
+        & (frame["joints"] == joints)
+        & (frame["averaging"] == "frame")
+    ]
 
 
 def read_tables(results_root: Path) -> list[ReadTable]:
@@ -458,8 +468,7 @@ def _row_tables(
         labels = sorted(label for label in read.rows_of if _belongs(label, name))
         if not labels:
             continue
-        table, record, horizons = read.path, read.record, read.horizons
-        metric, joints = headline_key(record)
+        table, metric, joints, horizons = read.path, read.metric, read.joints, read.horizons
         unit, fmt = metric_unit(metric)
         baseline = BASELINE in read.headline and BASELINE not in labels
         shown = labels + ([BASELINE] if baseline else [])
@@ -782,18 +791,10 @@ def headline_tables(text: str, results_root: Path) -> str:
     <joints> -->`` ... ``<!-- end headline -->``) rewritten from the committed table: the same
     rows and horizons, each value the action average with frame averaging, printed as the
     tables print it."""
-    from zoo.evaluation.markdown import metric_unit
-    from zoo.evaluation.results import read_table
 
     def block(match: re.Match) -> str:
         start, bench, table, metric, joints, body, end = match.groups()
-        frame = read_table(results_root / bench / table).frame
-        frame = frame[
-            (frame["action"] == "average")
-            & (frame["metric"] == metric)
-            & (frame["joints"] == joints)
-            & (frame["averaging"] == "frame")
-        ]
+        frame = _action_average(read_table(results_root / bench / table).frame, metric, joints)
         lines = [line for line in body.strip().splitlines() if line.startswith("|")]
         horizons = [int(h.strip().removesuffix(" ms")) for h in lines[0].strip("|").split("|")[1:]]
         fmt = metric_unit(metric)[1]
