@@ -102,13 +102,14 @@ def test_the_encoder_reading_the_observed_frames_alone_is_the_codes_masked_encod
         model.zero_grad()
         blocks = encode()
         sum(b.square().mean() for b in blocks).backward()
-        grads = [p.grad.clone() for p in model.parameters() if p.grad is not None]
+        grads = {n: p.grad.clone() for n, p in model.named_parameters() if p.grad is not None}
         results.append(([b.detach() for b in blocks], grads))
     (code_blocks, code_grads), (blocks, grads) = results
     for theirs, ours in zip(code_blocks, blocks, strict=True):
         torch.testing.assert_close(ours, theirs, rtol=1e-5, atol=1e-5)
-    for theirs, ours in zip(code_grads, grads, strict=True):
-        torch.testing.assert_close(ours, theirs, rtol=1e-4, atol=1e-6)
+    assert grads.keys() == code_grads.keys()
+    for name, ours in grads.items():
+        torch.testing.assert_close(ours, code_grads[name], rtol=1e-4, atol=1e-6, msg=name)
 
 
 def test_auxiliary_draws_hide_the_code_share_of_observed_tokens():

@@ -72,10 +72,11 @@ def save_epoch(
     )
 
 
-# The run's budget may grow when it is resumed (its epochs, batches an epoch, and patience, which
-# only says when to stop), and its precision change with the machine (a GPU's float32 epochs, a
-# bfloat16 CPU's): each change is recorded with the epoch it took effect, and each epoch records
-# its precision; every other field of the recipe must stay what the checkpoint says was run.
+# The run's budget may change when it is resumed (its epochs, batches an epoch, and patience,
+# which only says when to stop: counted from the best epoch of the whole history, a lower one may
+# end the run after its next epoch), and its precision with the machine (a GPU's float32 epochs,
+# a bfloat16 CPU's): each change is recorded with the epoch it took effect, and each epoch
+# records its precision; every other field of the recipe must stay what the checkpoint says.
 BUDGET_FIELDS = ("epochs", "max_batches", "patience", "precision")
 
 
