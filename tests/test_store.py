@@ -862,8 +862,8 @@ import json, sys
 sys.path.insert(0, sys.argv[1])
 from zoo.store import fingerprint as fp
 
-evaluator = fp.code_closure("zoo/evaluation/evaluator.py", computing_only=True)
-values = [fp.code_fingerprint(*evaluator), fp.definition_fingerprint(
+joints = fp.code_closure("zoo/protocol/joints.py", computing_only=True)
+values = [fp.code_fingerprint(*joints), fp.definition_fingerprint(
     fp.zoo_module_file("zoo.models.ltd"), "LTD")]
 print(json.dumps([values, fp._module_parts.cache_info().misses]))
 """
