@@ -32,9 +32,9 @@ class JointNorm(nn.Module):
         self.beta = nn.Parameter(torch.zeros(1, joints, 1, 1))
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        mean = x.mean(dim=1, keepdim=True)
-        var = ((x - mean) ** 2).mean(dim=1, keepdim=True)
-        return (x - mean) / (var + self.eps).sqrt() * self.alpha + self.beta
+        centred = x - x.mean(dim=1, keepdim=True)  # once, where the code subtracts twice
+        var = (centred**2).mean(dim=1, keepdim=True)
+        return centred / (var + self.eps).sqrt() * self.alpha + self.beta
 
 
 class TemporalBlock(nn.Module):
@@ -156,9 +156,9 @@ class TFAN(nn.Module):
 
     def _stream(self, predictor: Predictor, x: torch.Tensor) -> torch.Tensor:
         """The next ``chunk`` frames of one stream ``(B, T, D)``: its last frame plus the inverse
-        DCT of the predicted coefficients."""
+        DCT of the predicted coefficients (only the rows of those frames)."""
         coefficients = predictor(self.dct @ x)
-        return (self.idct @ coefficients)[:, : self.chunk] + x[:, -1:]
+        return self.idct[: self.chunk] @ coefficients + x[:, -1:]
 
     def fuse(self, bones: torch.Tensor, positions: torch.Tensor, gates: torch.Tensor):
         """Joint positions ``(B, T, J, 3)`` from both streams' predictions (``bones`` in the bone
