@@ -221,6 +221,8 @@ def test_patience_stops_a_run_that_no_longer_improves_and_its_state_says_finishe
     ckpt = read_checkpoint(out / "last.pt")
     assert [h["epoch"] for h in ckpt["history"]] == [1, 2, 3, 4, 5]
     assert {"field": "patience", "from": 2, "to": None, "from_epoch": 4} in ckpt["recipe_changes"]
+    # and its resume command keeps it lifted, where the registry's recipe would not
+    assert "--resume --train-set patience=null" in paused_summary(ckpt)["resume"]
     with pytest.raises(
         TrainingError, match="field 'patience': input should be greater than or equal to 1, got 0"
     ):
