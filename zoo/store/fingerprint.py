@@ -644,17 +644,19 @@ def _stored(key: tuple, layout: tuple) -> tuple | None:
         stored = json.loads(_store_file(key).read_text())
         if stored["key"] != list(key):
             return None
-        if tuple((folder, mtime) for folder, mtime in stored["layout"]) != layout:
+        # the layout is the folders' mtimes, the first of each signature
+        if tuple((folder, signature[0]) for folder, signature in stored["folders"]) != layout:
             return None
         if not _as_stored(tuple((f, *signature) for f, signature in stored["folders"])):
             return None
-        if any(_signature(path) != signature for path, signature in stored["stats"].items()):
+        if any(_signature(path) != signature for path, signature in stored["read"].items()):
             return None
         value = _VALUE_KINDS[stored["kind"]](stored["value"])
-    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        read = {path: signature[0] for path, signature in stored["read"].items()}
+    except (OSError, ValueError, KeyError, TypeError, AttributeError, IndexError):
         return None
     _mark_store_used()
-    return value, dict(stored["read"]), layout
+    return value, read, layout
 
 
 def _store(key: tuple, value, read: dict[str, int], layout: tuple) -> None:
@@ -663,10 +665,10 @@ def _store(key: tuple, value, read: dict[str, int], layout: tuple) -> None:
     if kind not in _VALUE_KINDS or not all(Path(p).is_relative_to(zoo) for p in [*read, key[1]]):
         return
     try:
-        stats = {path: _signature(path) for path in read}
-        folders = [(folder, _signature(folder)) for folder, mtime in layout]
+        signed = {path: _signature(path) for path in read}
+        folders = [(folder, _signature(folder)) for folder, _ in layout]
         # what was read must still be what it was: an edit since is never stored under it
-        if any(stats[path][0] != mtime for path, mtime in read.items()) or any(
+        if any(signed[path][0] != mtime for path, mtime in read.items()) or any(
             signature[0] != mtime for (_, signature), (_, mtime) in zip(folders, layout)
         ):
             return
@@ -674,10 +676,8 @@ def _store(key: tuple, value, read: dict[str, int], layout: tuple) -> None:
             "key": list(key),
             "kind": kind,
             "value": sorted(value) if kind == "frozenset" else value,
-            "read": read,
-            "layout": layout,
-            "folders": folders,
-            "stats": stats,
+            "read": signed,  # each file and folder read, as signed (its mtime first)
+            "folders": folders,  # the zoo's layout, likewise
         }
         atomic_write_json(_store_file(key), stored)
     except OSError:  # a cache folder not writable here: kept in memory only
