@@ -26,9 +26,10 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
-import torch  # noqa: E402
 
-if os.environ.get("PYTEST_XDIST_WORKER"):
+if os.environ.get("PYTEST_XDIST_WORKER"):  # xdist's controller runs no test: no torch there
+    import torch
+
     torch.set_num_threads(1)
 
 # A full collection walks every object the imported libraries keep (torch's, pandas',
@@ -185,6 +186,96 @@ def _each_plot_drawn_once(monkeypatch):
 
     monkeypatch.setattr(outputs, "save_figure", save_figure)
     monkeypatch.setattr(sensitivity, "save_figure", save_figure)
+
+
+_PLOT_DRAWING = ("placed", "tight")
+
+
+def _kept_plots_of(digests: dict[str, str], tight: bool) -> dict[str, bytes] | None:
+    """``{file: bytes}`` kept for every digest of ``digests`` (``{file: digest}``), or None
+    where any is to be drawn."""
+    kept = {}
+    for name, digest in digests.items():
+        data = _kept_plot(_drawing_environment() / f"{digest}-{_PLOT_DRAWING[tight]}.png")
+        if data is None:
+            return None
+        kept[name] = data
+    return kept
+
+
+@pytest.fixture(autouse=True)
+def _a_kept_plot_is_not_built(request, monkeypatch):
+    """A table's plots whose bytes are all kept (:func:`_each_plot_drawn_once`) are written
+    without building their figures: the digest covers the drawing code and its inputs, so the
+    figure would be the one kept. A plot the table's previous folder holds is copied, as
+    ``plot_average`` does; any plot to draw draws them all as ``plot_average`` does. A test
+    marked ``draws_plots`` (of the drawing itself) gets ``plot_average`` as it is."""
+    if request.node.get_closest_marker("draws_plots"):
+        return
+    from zoo.core.io import atomic_path, figure_drawn_from
+    from zoo.report import outputs
+
+    draw = outputs.plot_average
+
+    @functools.wraps(draw)  # the digest reads the drawing code's source: plot_average's
+    def plot_average(frame, out_dir, title="", previous=None):
+        digests = outputs.plot_digests(frame, title)
+        if previous is not None and any(
+            figure_drawn_from(Path(previous) / name) == digest for name, digest in digests.items()
+        ):
+            return draw(frame, out_dir, title, previous)
+        kept = _kept_plots_of(digests, tight=False)
+        if kept is None:
+            return draw(frame, out_dir, title, previous)
+        written = []
+        for name in outputs.plot_files(frame):
+            with atomic_path(Path(out_dir) / name) as tmp:
+                tmp.write_bytes(kept[name])
+            written.append(Path(out_dir) / name)
+        return written
+
+    monkeypatch.setattr(outputs, "plot_average", plot_average)
+
+
+# A CMU or H3.6M file's sequence by its bytes and how it is read: tests load the same texts
+# (write_cmu_file's, the shared recordings) many times a process; each is parsed and carried
+# through the forward kinematics once, and a fresh copy of its arrays given each time.
+_SEQUENCES: dict[tuple, object] = {}
+
+
+def _each_recording_read_once() -> None:
+    import dataclasses
+    import hashlib
+
+    from zoo.data import motion
+
+    load = motion._load_sequence
+
+    @functools.wraps(load)
+    def _load_sequence(path, root, action, skeleton, source_fps, subsample, subaction=1):
+        try:
+            digest = hashlib.sha256(Path(path).read_bytes()).hexdigest()
+        except OSError:  # refused as the loader refuses it
+            return load(path, root, action, skeleton, source_fps, subsample, subaction)
+        key = (digest, skeleton.name, source_fps, subsample)
+        if key not in _SEQUENCES:
+            _SEQUENCES[key] = load(path, root, action, skeleton, source_fps, subsample, subaction)
+        read = _SEQUENCES[key]
+        return dataclasses.replace(
+            read,
+            name=Path(path).relative_to(root).as_posix(),
+            action=action,
+            subaction=subaction,
+            positions=read.positions.copy(),
+            angles=None if read.angles is None else read.angles.copy(),
+        )
+
+    motion._load_sequence = _load_sequence
+
+
+@pytest.fixture(autouse=True, scope="session")
+def _recordings_read_once_a_process():
+    _each_recording_read_once()
 
 
 def use_toy_loader(monkeypatch, loader: Callable) -> None:

@@ -6,8 +6,6 @@ from __future__ import annotations
 import json
 import re
 import shutil
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -240,19 +238,17 @@ def test_a_card_cannot_run_a_script_or_load_from_the_network(tmp_path):
 
 
 def test_zoo_site_cli_reports_and_refuses_a_foreign_folder(tmp_path, capsys):
-    """The command as a user runs it refuses a folder it did not write in one line; a build,
-    and a second one replacing it, succeed (in this process: the command is the same)."""
+    """The command refuses a folder it did not write in one line; a build, and a second one
+    replacing it, succeed. (The zoo's entry point is ``main``: test_cli_conventions.py runs it
+    as a process.)"""
     results = _copy_results(tmp_path, "cmu_anny_oi_low")
     foreign = tmp_path / "mine"
     foreign.mkdir()
     (foreign / "notes.txt").write_text("keep me")
-    bad = subprocess.run(
-        [sys.executable, "-m", "zoo.cli", "site", "--results", str(results), "--out", str(foreign)],
-        capture_output=True,
-        text=True,
-    )
-    assert bad.returncode != 0 and "Traceback" not in bad.stderr
-    assert "not one the zoo wrote (no .zoo-site)" in bad.stderr
+    assert main(["site", "--results", str(results), "--out", str(foreign)]) != 0
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and len(err.strip().splitlines()) == 1
+    assert "not one the zoo wrote (no .zoo-site)" in err
     assert (foreign / "notes.txt").read_text() == "keep me"
     for _ in range(2):  # a second build replaces the first
         assert main(["site", "--results", str(results), "--out", str(tmp_path / "site")]) == 0

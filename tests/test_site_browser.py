@@ -98,7 +98,9 @@ def _load(browser, address: str) -> None:
 
     browser.execute_script("window.zooLeft = true")
     browser.get(address)
-    WebDriverWait(browser, 30, ignored_exceptions=(JavascriptException,)).until(
+    WebDriverWait(
+        browser, 30, poll_frequency=0.02, ignored_exceptions=(JavascriptException,)
+    ).until(
         lambda b: b.execute_script("return !window.zooLeft && document.readyState == 'complete'")
     )
 

@@ -31,7 +31,7 @@ def write_setup(folder: Path):
     for split, n in (("train", 3), ("test", 1)):
         for i in range(1, n + 1):
             write_cmu_file(
-                folder / "cmu" / split / "walking" / f"walking_{i}.txt", 0.01 * i * np.arange(500)
+                folder / "cmu" / split / "walking" / f"walking_{i}.txt", 0.01 * i * np.arange(250)
             )
     (folder / "registry.yaml").write_text(REGISTRY)
     shutil.copy(HERE / "tiny_models.py", folder / "tiny_models.py")
