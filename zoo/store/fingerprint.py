@@ -189,7 +189,8 @@ def _researcher_folders_of(path: tuple[str, ...]) -> tuple[Path, ...]:
         if _holds_installed(str(folder), folder.stat().st_mtime_ns):
             continue
         folders.append(folder)
-    return tuple(f for f in folders if f not in _named_by_path_files(path))
+    libraries = _named_by_path_files(path)
+    return tuple(f for f in folders if f not in libraries)
 
 
 @cache
