@@ -10,6 +10,7 @@ from __future__ import annotations
 from collections.abc import Iterable
 from typing import Any
 
+import numpy as np
 import pandas as pd
 from tabulate import tabulate
 
@@ -71,29 +72,15 @@ def markdown_tables(
     for (metric, averaging, joints), group in groups:
         group = group[group["horizon_ms"].isin(horizons)]
 
-        def pivot(values: str, group: pd.DataFrame = group) -> pd.DataFrame:
-            # mostly one row per (model, action, horizon): an unstack, not pivot_table's
-            # group-by; a table's ground-truth rows come with each of its results, averaged
-            keyed = group.set_index(["model", "action", "horizon_ms"])[values]
-            if not keyed.index.is_unique:
-                keyed = keyed.groupby(level=[0, 1, 2], sort=False).mean()
-            table = keyed.unstack()
-            # every model beside every action, blank where a model has no row (as pivot_table)
-            table = table.reindex(pd.MultiIndex.from_product(table.index.levels))
-            table = table.reindex(columns=[h for h in horizons if h in table.columns])
-            return table.sort_index(
-                level=["model", "action"],
-                key=lambda idx: idx.map(order) if idx.name == "action" else idx,
-            )
-
-        table = pivot("value")
+        table = _pivot(group, "value", horizons, order)
+        columns = list(table.columns[2:])  # the horizons, after model and action
         description = record.get("joint_protocols", {}).get(joints, "")
         unit, fmt = metric_unit(metric)
         how = f"{record.get('averaging', {}).get(averaging, '')}. {description}."
         if metric in WITH_STD and "std" in group and group["std"].notna().any():
-            spread = pivot("std")
+            spread = _pivot(group, "std", horizons, order)
             table = table.astype(object)
-            for column in table.columns:
+            for column in columns:
                 table[column] = [
                     f"{m:{fmt}} ({s:{fmt}})" for m, s in zip(table[column], spread[column])
                 ]
@@ -104,8 +91,8 @@ def markdown_tables(
             how,
             "",
             tabulate(
-                table.reset_index(),
-                headers=["model", "action"] + [f"{h} ms" for h in table.columns],
+                table,
+                headers=["model", "action"] + [f"{h} ms" for h in columns],
                 tablefmt="github",
                 floatfmt=fmt,
                 showindex=False,
@@ -114,6 +101,28 @@ def markdown_tables(
             "",
         ]
     return "\n".join(out)
+
+
+def _pivot(
+    group: pd.DataFrame, values: str, horizons: list[int], order: dict[str, int]
+) -> pd.DataFrame:
+    """``values`` of one table's rows, a row for every model beside every action (blank where a
+    model has no row, as pivot_table gives), actions in ``order`` (others after, by name):
+    columns ``model``, ``action``, then the horizons. Built from the rows in Python: pandas'
+    index operations cost more than the tables they make here (docs/architecture.md)."""
+    keys = list(zip(group["model"], group["action"], group["horizon_ms"]))
+    cells = dict(zip(keys, group[values].to_numpy(dtype=float)))
+    if len(cells) < len(keys):  # a table's ground-truth rows come with each of its results
+        keyed = group.set_index(["model", "action", "horizon_ms"])[values]
+        cells = keyed.groupby(level=[0, 1, 2], sort=False).mean().to_dict()
+    present = {h for _, _, h in keys}
+    columns = [h for h in horizons if h in present]
+    actions = sorted({a for _, a, _ in keys}, key=lambda a: (order.get(a, len(order) + 1), a))
+    rows = [(m, a) for m in sorted({m for m, _, _ in keys}) for a in actions]
+    table = {"model": [m for m, _ in rows], "action": [a for _, a in rows]}
+    for h in columns:
+        table[h] = np.array([cells.get((m, a, h), np.nan) for m, a in rows], dtype=float)
+    return pd.DataFrame(table)
 
 
 def _frames_text(record: dict[str, Any]) -> str:
