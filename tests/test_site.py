@@ -34,6 +34,16 @@ def _copy_results(tmp_path: Path, *benchmarks: str) -> Path:
 
 
 @pytest.fixture(scope="module")
+def cmu_site(tmp_path_factory) -> tuple[Path, Path]:
+    """The committed CMU results copied and their site built, once for the tests that only
+    read them: ``(results, site)``."""
+    tmp = tmp_path_factory.mktemp("cmu_site")
+    results = _copy_results(tmp, "cmu")
+    build_site(tmp / "site", results)
+    return results, tmp / "site"
+
+
+@pytest.fixture(scope="module")
 def table():
     """TABLE's rows and their summary, made once for the tests that read them."""
     rows = [EvalResult.read(TABLE / label) for label in table_labels(TABLE)]
@@ -290,10 +300,9 @@ def test_a_model_without_weights_says_where_its_training_stands(tmp_path, capsys
     assert "training: no weights shipped yet (" in line
 
 
-def test_the_index_names_the_lowest_row_the_table_shows_and_how_many_are_bold(tmp_path):
-    results = _copy_results(tmp_path, "cmu")
-    build_site(tmp_path / "site", results)
-    index = (tmp_path / "site" / "index.html").read_text()
+def test_the_index_names_the_lowest_row_the_table_shows_and_how_many_are_bold(cmu_site):
+    results, site = cmu_site
+    index = (site / "index.html").read_text()
     summary = json.loads((results / "cmu" / "all" / "summary.json").read_text())
     view = next(v for v in summary["views"] if v["headline"])
     shown = [m for m in view["models"] if "@" not in m["model"] and not m["floor"]]
@@ -305,14 +314,13 @@ def test_the_index_names_the_lowest_row_the_table_shows_and_how_many_are_bold(tm
     assert "@last<br>" not in index
 
 
-def test_the_compare_page_says_which_model_is_lower_in_the_tables_digits(tmp_path):
+def test_the_compare_page_says_which_model_is_lower_in_the_tables_digits(cmu_site):
     """ltd against repeat_last at 720 ms on ltd8: the interval includes 0 (few windows a
     recording), so no verdict; the page says that is the rule, and that ltd is lower."""
     import html as html_lib
 
-    results = _copy_results(tmp_path, "cmu")
-    build_site(tmp_path / "site", results)
-    page = html_lib.unescape((tmp_path / "site" / "compare-cmu.html").read_text())
+    results, site = cmu_site
+    page = html_lib.unescape((site / "compare-cmu.html").read_text())
     summary = json.loads((results / "cmu" / "ltd8" / "summary.json").read_text())
     pair = next(c for c in summary["comparisons"] if (c["a"], c["b"]) == ("ltd", "repeat_last"))
     row = next(r for r in pair["rows"] if r["verdict"] == "none")
@@ -387,10 +395,9 @@ def test_a_row_trained_short_of_its_recipe_says_so_where_its_number_is(tmp_path)
     assert short_training_notes(load_registry(), shipped) == {}
 
 
-def test_a_model_page_shows_its_card_once_and_every_horizon(tmp_path):
-    results = _copy_results(tmp_path, "cmu")
-    build_site(tmp_path / "site", results)
-    page = (tmp_path / "site" / "model-spgsn.html").read_text()
+def test_a_model_page_shows_its_card_once_and_every_horizon(cmu_site):
+    _, site = cmu_site
+    page = (site / "model-spgsn.html").read_text()
     assert page.count("<h1>") == 1  # the page's title, not the card's again
     assert "<h2>Rows</h2>" not in page and "<h2>Training curve</h2>" not in page
     assert "<h2>Hyper-parameters</h2>" in page and "<h2>Architecture</h2>" in page
