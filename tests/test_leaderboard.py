@@ -418,7 +418,6 @@ def test_base_with_an_unknown_model_writes_nothing(tmp_path, capsys):
     assert not (tmp_path / "mine").exists()
 
 
-@pytest.mark.draws_plots
 def test_a_plot_drawn_from_the_same_rows_is_copied_and_any_change_draws_it_again(
     tmp_path, monkeypatch
 ):
@@ -483,7 +482,6 @@ def test_a_plot_drawn_from_the_same_rows_is_copied_and_any_change_draws_it_again
         assert draws == [path] and figure_drawn_from(path) == key
 
 
-@pytest.mark.draws_plots
 @pytest.mark.parametrize("table", ["cmu/ltd8", "cloth/all", "cmu_anny_oi/stride5_strict"])
 def test_the_fixed_margins_hold_every_label_of_a_committed_table(tmp_path, monkeypatch, table):
     """The average plots' margins are fixed (no layout pass measures the text): every axis's

@@ -275,7 +275,6 @@ def test_speed_anny(capsys):
     assert "cached load: full" in out and "end to end (09_03" in out
 
 
-@pytest.mark.draws_plots
 def test_speed_plots_copies_the_drawn_bytes_and_prints_a_finite_ratio(capsys):
     (row,) = load("speed_plots").main(["--table", str(REPO / "results" / "cmu" / "ltd8"),
                                        "--repeats", "1"])  # fmt: skip
