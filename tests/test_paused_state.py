@@ -18,6 +18,7 @@ import zoo.hub.weights
 from zoo.cli import main
 from zoo.core.errors import TrainingError
 from zoo.hub.checkpoints import CheckpointError, pause_run, read_checkpoint
+from zoo.train.state import restore_paused
 
 setup = test_train.setup  # the tiny CMU data and registry of the training tests
 
@@ -92,12 +93,22 @@ def test_pausing_again_replaces_the_state_and_a_tensor_past_float16_stays_float3
     assert zoo.hub.weights.paused_runs(weights_root)[("cmu", "tiny")]["epochs_run"] == 2
 
 
-def test_precision_may_change_on_resume_and_each_epoch_records_its_own(setup, tmp_path):
+def test_precision_may_change_on_resume_and_each_epoch_records_its_own(setup, tmp_path, capsys):
     out = tmp_path / "run"
-    run(setup, out, epochs=2, max_batches=2, stop_after_epoch=1)
-    run(setup, out, epochs=2, max_batches=2, resume=True, recipe={"precision": "bfloat16"})
+    run(setup, out, epochs=3, max_batches=2, stop_after_epoch=1)
+    run(
+        setup, out, epochs=3, max_batches=2, resume=True, stop_after_epoch=2,
+        recipe={"precision": "bfloat16"},
+    )  # fmt: skip
+    # a resume not given the precision keeps the run's, not the registry's, and says so
+    capsys.readouterr()
+    run(setup, out, epochs=3, max_batches=2, resume=True)
+    assert (
+        "resuming with the run's precision bfloat16, not the registry's float32 "
+        "(--train-set precision=float32 takes it)" in capsys.readouterr().out
+    )
     ckpt = read_checkpoint(out / "last.pt")
-    assert [h["precision"] for h in ckpt["history"]] == ["float32", "bfloat16"]
+    assert [h["precision"] for h in ckpt["history"]] == ["float32", "bfloat16", "bfloat16"]
     assert ckpt["recipe_changes"] == [
         {"field": "precision", "from": "float32", "to": "bfloat16", "from_epoch": 2}
     ]
@@ -217,12 +228,23 @@ def test_patience_stops_a_run_that_no_longer_improves_and_its_state_says_finishe
     )
     assert read_checkpoint(out / "last.pt")["epoch"] == 2  # resuming adds no epoch
     # patience only says when to stop: a resume may lift it, and the run says from when
+    # a resume not given the patience keeps the run's 2, not the registry's (none), and says so
+    capsys.readouterr()
+    run(setup, out, epochs=10, max_batches=1, resume=True, recipe={"lr": 0.0})
+    assert read_checkpoint(out / "last.pt")["epoch"] == 2
+    assert (
+        "resuming with the run's patience 2, not the registry's null "
+        "(--train-set patience=null takes it)" in capsys.readouterr().out
+    )
     run(setup, out, epochs=5, max_batches=1, resume=True, recipe={"lr": 0.0, "patience": None})
+    # lifted, it stays lifted for the next resume, which its command needs not repeat
+    run(setup, out, epochs=6, max_batches=1, resume=True, recipe={"lr": 0.0})
     ckpt = read_checkpoint(out / "last.pt")
-    assert [h["epoch"] for h in ckpt["history"]] == [1, 2, 3, 4, 5]
-    assert {"field": "patience", "from": 2, "to": None, "from_epoch": 4} in ckpt["recipe_changes"]
-    # and its resume command keeps it lifted, where the registry's recipe would not
-    assert "--resume --train-set patience=null" in paused_summary(ckpt)["resume"]
+    assert [h["epoch"] for h in ckpt["history"]] == [1, 2, 3, 4, 5, 6]
+    assert [c for c in ckpt["recipe_changes"] if c["field"] == "patience"] == [
+        {"field": "patience", "from": 2, "to": None, "from_epoch": 4}
+    ]
+    assert "--train-set" not in paused_summary(ckpt)["resume"]
     with pytest.raises(
         TrainingError, match="field 'patience': input should be greater than or equal to 1, got 0"
     ):
@@ -310,15 +332,6 @@ def test_a_study_run_pauses_under_its_own_name_beside_the_models_queue(
     assert [h["val_mpjpe"] for h in history[:2]] == [h["val_mpjpe"] for h in study]
 
 
-def test_a_resume_command_repeats_a_forced_precision_and_not_auto():
-    from zoo.hub.checkpoints import paused_summary
-
-    last = {"model": "m", "protocol": {"benchmark": "cmu"}, "epoch": 0, "seed": 0}
-    for precision, said in (("bfloat16", True), ("auto", False), ("float32", False)):
-        summary = paused_summary({**last, "recipe": {"epochs": 2, "precision": precision}})
-        assert ("--train-set precision=" in summary["resume"]) is said, precision
-
-
 def test_a_best_epoch_that_is_the_last_is_stored_once(setup, tmp_path, weights_root):
     # lr 0 keeps epoch 1 the best: its best.pt differs from the last epoch's
     run(setup, tmp_path / "flat", epochs=3, max_batches=1, stop_after_epoch=2, recipe={"lr": 0.0})
@@ -336,7 +349,7 @@ def test_a_best_epoch_that_is_the_last_is_stored_once(setup, tmp_path, weights_r
     assert sorted(p.name for p in dest.iterdir()) == ["last.pt", "state.json"]
     # a new machine: the resumed run gets both, the best the paused last epoch's weights
     fresh = tmp_path / "fresh"
-    run(setup, fresh, epochs=2, resume=True)
+    assert restore_paused(fresh, "cmu", "tiny", root=weights_root) == dest  # what --resume does
     best = read_checkpoint(fresh / "best.pt")
     paused = read_checkpoint(dest / "last.pt")
     assert best["epoch"] == paused["epoch"] and all(

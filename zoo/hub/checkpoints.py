@@ -340,7 +340,6 @@ def paused_summary(last: dict[str, Any], run: str | None = None) -> dict[str, An
     history = last.get("history") or []
     recipe = last.get("recipe") or {}
     training = last.get("training") or {}
-    resumed_with = {change["field"] for change in last.get("recipe_changes") or []}
     done = last["epoch"] + 1
     best = last.get("best") or {"epoch": -1}
     return {
@@ -370,21 +369,6 @@ def paused_summary(last: dict[str, Any], run: str | None = None) -> dict[str, An
         "seed": last.get("seed"),
         "resume": f"zoo train --model {last['model']} --benchmark "
         f"{last['protocol']['benchmark']} --seed {last.get('seed')} --resume"
-        # a precision it was forced into (on a CPU without native bfloat16, or a GPU, drop it),
-        # or one a resume chose; auto decides again on the machine that resumes it
-        + (
-            f" --train-set precision={recipe['precision']}"
-            if recipe.get("precision", "float32") not in ("float32", "auto")
-            or "precision" in resumed_with
-            and recipe.get("precision") != "auto"
-            else ""
-        )
-        # a patience a resume set (lifted: null) is the run's from then on, not the registry's
-        + (
-            f" --train-set patience={_yaml_value(recipe.get('patience'))}"
-            if "patience" in resumed_with
-            else ""
-        )
         + (f" --max-batches {last['max_batches']}" if last.get("max_batches") else "")
         + (" --compile" if history and history[-1].get("compiled") else "")
         + (f" --out checkpoints/{last['protocol']['benchmark']}/{run}" if run else ""),
@@ -623,8 +607,3 @@ def export_weights(
     )
     atomic_write_json(record_file(path), record.to_json())
     return path
-
-
-def _yaml_value(value) -> str:
-    """A recipe value as ``--train-set KEY=VALUE`` reads it (YAML): None as ``null``."""
-    return "null" if value is None else str(value)

@@ -79,13 +79,24 @@ def train(
     entry = registry.get(model_name)
     _check_trainable(entry)
     entry.load_class()  # a class that cannot load fails here, before the data is read
-    recipe = training_recipe(
-        {**({"val_split": bench.val_split} if bench.val_split else {}), **entry.train},
-        recipe_overrides or {},
-    )
     options = options or RunOptions()
     device, init_from, data_root = options.device, options.init_from, options.data_root
     dist_info = init_distributed(device)
+    out_dir = (
+        Path(options.out_dir)
+        if options.out_dir
+        else REPO_ROOT / "checkpoints" / bench.name / model_name
+    )
+    registry_train = {**({"val_split": bench.val_split} if bench.val_split else {}), **entry.train}
+    state = _resume_state(out_dir, bench, model_name, dist_info.rank) if options.resume else None
+    continued: dict[str, Any] = {}
+    if state is not None:
+        continued, said = _continued_budget(
+            state, training_recipe(registry_train), recipe_overrides or {}
+        )
+        for line in said if dist_info.rank == 0 else ():
+            print(line)
+    recipe = training_recipe(registry_train, {**continued, **(recipe_overrides or {})})
     _warn_slow_bfloat16(model_name, recipe, device)
     view = bench.view_for(entry.representation)
     # a skeleton model on a mesh benchmark trains on its regressed joints
@@ -94,11 +105,6 @@ def train(
     )
     _, hparams = model_args_for(
         registry, model_name, bench, data_root=data_root, dataset=dataset, overrides=overrides
-    )
-    out_dir = (
-        Path(options.out_dir)
-        if options.out_dir
-        else REPO_ROOT / "checkpoints" / bench.name / model_name
     )
     initial = _initial_stage(init_from, out_dir, model_name, bench, registry, data_root, dataset)
 
@@ -112,10 +118,10 @@ def train(
 
     run = _Run(first_epoch=0, best={"val_mpjpe": math.inf, "epoch": -1}, history=[])
     run.init_record = initial[1] if initial is not None else None
-    if options.resume:
+    if state is not None:
         run = _resumed(
-            out_dir, bench, model_name, hparams, model, optimizer, recipe, options, graphed,
-            dist_info.rank,
+            out_dir / "last.pt", state, model_name, hparams, model, optimizer, recipe, options,
+            graphed,
         )  # fmt: skip
 
     epochs = _Epochs(
@@ -341,17 +347,49 @@ class _Run:
         self.recipe_changes = self.recipe_changes or []
 
 
-def _resumed(
-    out_dir: Path, bench, model_name, hparams, model, optimizer, recipe, options, graphed, rank
-) -> _Run:
-    """The run ``out_dir/last.pt`` holds (copied there from its committed paused state where
-    there is none), its weights, optimiser and RNG states loaded onto the run's device, and the
-    budget changes this resume makes recorded."""
+def _resume_state(out_dir: Path, bench, model_name: str, rank: int) -> dict[str, Any]:
+    """The run ``out_dir/last.pt`` holds, copied there first from its committed paused state
+    where there is none."""
     restored = restore_paused(out_dir, bench.name, model_name)
     if restored is not None and rank == 0:
         print(f"resuming {model_name} from its paused state in {repo_relative(restored)}")
-    path = out_dir / "last.pt"
-    state = read_checkpoint(path)
+    return read_checkpoint(out_dir / "last.pt")
+
+
+# A resume continues the run as it last trained: a budget field it is not given keeps the
+# checkpoint's value (a study's lifted patience, a forced precision), not the registry's.
+CONTINUED = {"epochs": "--epochs {}", "patience": "--train-set patience={}",
+             "precision": "--train-set precision={}"}  # fmt: skip
+
+
+def _continued_budget(
+    state: dict[str, Any], registry_recipe: Recipe, given: dict[str, Any]
+) -> tuple[dict[str, Any], list[str]]:
+    """The budget fields ``state``'s run trained with that this resume is not given, and a
+    line for each that is not the registry's, naming the option that takes the registry's."""
+    stored = state.get("recipe") or {}
+    kept = {key: stored[key] for key in CONTINUED if key in stored and key not in given}
+    said = []
+    for key, value in kept.items():
+        registry_value = _yaml_text(getattr(registry_recipe, key))
+        if value != getattr(registry_recipe, key):
+            said.append(
+                f"resuming with the run's {key} {_yaml_text(value)}, not the registry's "
+                f"{registry_value} ({CONTINUED[key].format(registry_value)} takes it)"
+            )
+    return kept, said
+
+
+def _yaml_text(value: Any) -> str:
+    return "null" if value is None else str(value)
+
+
+def _resumed(
+    path: Path, state: dict[str, Any], model_name, hparams, model, optimizer, recipe, options,
+    graphed,
+) -> _Run:  # fmt: skip
+    """The run ``state`` (read from ``path``) resumed: its weights, optimiser and RNG states
+    loaded onto the run's device, and the budget changes this resume makes recorded."""
     if state["model"] != model_name or state["hparams"] != stored_hparams(hparams)[0]:
         raise CheckpointError(
             f"{path}: cannot resume: it holds {state['model']!r} with other hyper-parameters"

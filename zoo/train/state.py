@@ -103,10 +103,10 @@ def resume_changes(
             f"with the checkpoint's values, or start a new run in another out_dir"
         )
     done = state["epoch"] + 1
-    if recipe.epochs < done:
+    if recipe.epochs <= done:  # nothing left to train: a resume that would do nothing
         raise CheckpointError(
             f"epochs: cannot resume {path} with {recipe.epochs} epochs: the run has already "
-            f"trained {done} epochs",
+            f"trained {done} epochs (--epochs with more continues it)",
             parameter="epochs",
         )
     changes = list(state.get("recipe_changes") or [])
