@@ -43,10 +43,9 @@ TOP_OPS = 8
 TINY_BATCH = 4  # --tiny checks the script, not a rate: 4 windows run every path 32 do
 
 
-def make_step(precision: str, compiled: bool, tiny: bool):
-    """One engine training step of a fresh seeded SPGSN in ``precision`` (a closure), and the
-    compile time where ``compiled``."""
-    batch = TINY_BATCH if tiny else TRAIN_BATCH
+def make_step(precision: str, compiled: bool, tiny: bool, batch: int):
+    """One engine training step of a fresh seeded SPGSN in ``precision`` on ``batch`` windows
+    (a closure), and the compile time where ``compiled``."""
     bench = get_benchmark("cmu")
     entry = zoo.load_registry().get("spgsn")
     recipe = training_recipe(entry.train, {"precision": precision})
@@ -104,7 +103,7 @@ def main(argv: list[str] | None = None) -> None:
     for precision in PRECISIONS:
         for compiled in modes:
             label = f"{precision} {'compiled' if compiled else 'eager'}"
-            steps[label], compile_seconds[label] = make_step(precision, compiled, args.tiny)
+            steps[label], compile_seconds[label] = make_step(precision, compiled, args.tiny, batch)
     public_step, _ = make_public_step(batch_size=batch, **(TINY_PUBLIC if args.tiny else {}))
     steps["public code, float32 eager"] = public_step
     rates: dict[tuple[str, int], float] = {}
