@@ -18,7 +18,6 @@ import zoo.hub.weights
 from zoo.cli import main
 from zoo.core.errors import TrainingError
 from zoo.hub.checkpoints import CheckpointError, pause_run, read_checkpoint
-from zoo.train.state import restore_paused
 
 setup = test_train.setup  # the tiny CMU data and registry of the training tests
 
@@ -237,7 +236,7 @@ def test_patience_stops_a_run_that_no_longer_improves_and_its_state_says_finishe
         "(--train-set patience=null takes it)" in capsys.readouterr().out
     )
     run(setup, out, epochs=5, max_batches=1, resume=True, recipe={"lr": 0.0, "patience": None})
-    # lifted, it stays lifted for the next resume, which its command needs not repeat
+    # the next resume not given it records no second change, and its command names none
     run(setup, out, epochs=6, max_batches=1, resume=True, recipe={"lr": 0.0})
     ckpt = read_checkpoint(out / "last.pt")
     assert [h["epoch"] for h in ckpt["history"]] == [1, 2, 3, 4, 5, 6]
@@ -293,14 +292,19 @@ def test_the_paused_moments_are_restored_not_reset(setup, tmp_path, weights_root
     assert gap("paused") < gap("reset") / 5, (gap("paused"), gap("reset"))
 
 
-def test_a_pilot_paused_with_a_larger_budget_resumes_to_it(setup, tmp_path, weights_root):
+def test_a_pilot_paused_with_a_larger_budget_resumes_to_it(setup, tmp_path, weights_root, capsys):
     run(setup, tmp_path / "pilot", epochs=1)  # a one-epoch pilot, finished as it was planned
     with pytest.raises(CheckpointError, match="its budget can only grow"):
         pause_run(tmp_path / "pilot", root=weights_root, epochs=0)
     dest = pause_run(tmp_path / "pilot", root=weights_root, epochs=3)
     summary = json.loads((dest / "state.json").read_text())
     assert (summary["epochs_run"], summary["epochs_planned"], summary["finished"]) == (1, 3, False)
-    run(setup, tmp_path / "long", epochs=3, resume=True)
+    capsys.readouterr()
+    run(setup, tmp_path / "long", resume=True)  # its 3 epochs, not the registry's 2
+    assert (
+        "resuming with the run's epochs 3, not the registry's 2 (--epochs 2 takes it)"
+        in capsys.readouterr().out
+    )
     ckpt = read_checkpoint(tmp_path / "long" / "last.pt")
     assert [h["epoch"] for h in ckpt["history"]] == [1, 2, 3]
     assert ckpt["recipe_changes"] == [{"field": "epochs", "from": 1, "to": 3, "from_epoch": 2}]
@@ -349,7 +353,9 @@ def test_a_best_epoch_that_is_the_last_is_stored_once(setup, tmp_path, weights_r
     assert sorted(p.name for p in dest.iterdir()) == ["last.pt", "state.json"]
     # a new machine: the resumed run gets both, the best the paused last epoch's weights
     fresh = tmp_path / "fresh"
-    assert restore_paused(fresh, "cmu", "tiny", root=weights_root) == dest  # what --resume does
+    # its 2 epochs all run: the resume is refused, once the paused files are in place
+    with pytest.raises(CheckpointError, match="already trained 2 epochs"):
+        run(setup, fresh, epochs=2, resume=True)
     best = read_checkpoint(fresh / "best.pt")
     paused = read_checkpoint(dest / "last.pt")
     assert best["epoch"] == paused["epoch"] and all(

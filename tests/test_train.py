@@ -388,10 +388,13 @@ def test_resume_refuses_another_recipe_and_records_a_larger_budget(setup, tmp_pa
             run(setup, out, epochs=3, max_batches=2, resume=True, **kw)
     with pytest.raises(CheckpointError, match="already trained 2 epochs"):
         run(setup, out, epochs=1, max_batches=2, resume=True)
-    # the run's own 2 epochs (a resume keeps its budget): nothing left, refused, not a no-op
-    with pytest.raises(CheckpointError, match=r"already trained 2 epochs \(--epochs with more"):
-        run(setup, out, max_batches=2, resume=True)
     run(setup, out, epochs=4, max_batches=3, resume=True)
+    # the run's own 4 epochs, not the registry's 2 (a resume keeps its budget): nothing left to
+    # train, refused, not a no-op
+    with pytest.raises(
+        CheckpointError, match=r"with 4 epochs: the run has already trained 4 epochs \(--epochs"
+    ):
+        run(setup, out, max_batches=3, resume=True)
     ckpt = read_checkpoint(out / "last.pt")
     assert ckpt["recipe"]["epochs"] == 4 and ckpt["max_batches"] == 3
     assert ckpt["recipe_changes"] == [

@@ -259,7 +259,10 @@ def main(argv=None) -> int:
     r.add_argument("--models", nargs="+", default=list(QUEUE), help="in this order")
     r.add_argument("--device", help="default: cuda where there is one, else cpu")
     r.add_argument("--max-batches", type=int, help="cap batches per epoch (a quick check)")
-    r.add_argument("--precision", help="train in this precision (default: the recipe's)")
+    r.add_argument(
+        "--precision",
+        help="train in this precision (default: a resumed run's own, a new run's recipe's)",
+    )
     r.add_argument("--registry", action="append", help="extra registry file (repeatable)")
     u = actions.add_parser("unpack", help="the states a run brought back, into weights/")
     u.add_argument("folder", help="the run's returned files (its --out)")

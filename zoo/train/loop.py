@@ -21,7 +21,13 @@ from zoo.data.windows import frame_counts, gather_windows
 from zoo.hub.build import model_args_for
 from zoo.hub.checkpoints import CheckpointError, read_checkpoint, stored_hparams
 from zoo.models.hooks import Hooks, model_hooks
-from zoo.models.recipe import Recipe, learning_rate, patience_spent, training_recipe
+from zoo.models.recipe import (
+    DEFAULT_RECIPE,
+    Recipe,
+    learning_rate,
+    patience_spent,
+    training_recipe,
+)
 from zoo.models.registry import ModelEntry, Registry, load_registry
 from zoo.paths import REPO_ROOT
 from zoo.protocol.benchmark import Benchmark, get_benchmark
@@ -367,16 +373,22 @@ def _continued_budget(
 ) -> tuple[dict[str, Any], list[str]]:
     """The budget fields ``state``'s run trained with that this resume is not given, and a
     line for each that is not the registry's, naming the option that takes the registry's."""
-    stored = state.get("recipe") or {}
+    # a patience or precision a checkpoint predates held its default then (as resume_changes
+    # reads it); one with no epochs says nothing of them
+    defaults = {key: DEFAULT_RECIPE[key] for key in ("patience", "precision")}
+    stored = {**defaults, **(state.get("recipe") or {})}
     kept = {key: stored[key] for key in CONTINUED if key in stored and key not in given}
+    done = state["epoch"] + 1
     said = []
     for key, value in kept.items():
-        registry_value = _yaml_text(getattr(registry_recipe, key))
-        if value != getattr(registry_recipe, key):
-            said.append(
-                f"resuming with the run's {key} {_yaml_text(value)}, not the registry's "
-                f"{registry_value} ({CONTINUED[key].format(registry_value)} takes it)"
-            )
+        registry_value = getattr(registry_recipe, key)
+        if value == registry_value:
+            continue
+        line = f"resuming with the run's {key} {_yaml_text(value)}, not the registry's "
+        line += _yaml_text(registry_value)
+        if key != "epochs" or registry_value > done:  # an option a resume would refuse: none
+            line += f" ({CONTINUED[key].format(_yaml_text(registry_value))} takes it)"
+        said.append(line)
     return kept, said
 
 
