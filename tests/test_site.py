@@ -428,9 +428,19 @@ def test_a_model_being_retrained_says_so_beside_its_shipped_rows(tmp_path):
     shutil.copytree(REPO_ROOT / "weights" / "cmu", weights / "cmu")
     paused = weights / "in_progress" / "cmu" / "spgsn"
     paused.mkdir(parents=True)
-    summary = {"epochs_run": 6, "epochs_planned": 50, "finished": False}
+    summary = {
+        "epochs_run": 6,
+        "epochs_planned": 50,
+        "finished": False,
+        "best": {"val_mpjpe": 41.234, "epoch": 5},
+        "resume": "zoo train --model spgsn --benchmark cmu --seed 0 --resume",
+    }
     (paused / "state.json").write_text(json.dumps(summary))
     status = unshipped_models(load_registry(), weights)["spgsn"]
-    assert status.startswith("retraining: 6 of 50 epochs done")
+    # the queue's line, as a model with no weights shows it: progress, best, how to resume
+    assert status.startswith(
+        "retraining: 6 of 50 epochs done; best validation 41.23 mm at epoch 5; resume: zoo "
+        "train --model spgsn --benchmark cmu --seed 0 --resume (its rows are"
+    )
     (paused / "state.json").write_text(json.dumps({**summary, "finished": True}))
     assert "spgsn" not in unshipped_models(load_registry(), weights)

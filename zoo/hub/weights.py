@@ -193,6 +193,11 @@ def training_status(paused: dict[str, Any] | None, epochs_planned: int | None) -
     epochs its paused training has done (``paused``: its summary, or None where none is paused)
     of those planned (the paused run's, else the registry recipe's ``epochs_planned``), its best
     validation so far and the command that resumes it."""
+    return f"training: no weights shipped yet ({_progress(paused, epochs_planned)})"
+
+
+def _progress(paused: dict[str, Any] | None, epochs_planned: int | None) -> str:
+    """A paused run's epochs done of those planned, best validation and resume command."""
     done = paused["epochs_run"] if paused else 0
     planned = paused["epochs_planned"] if paused else epochs_planned
     best = (paused or {}).get("best") or {}
@@ -201,7 +206,7 @@ def training_status(paused: dict[str, Any] | None, epochs_planned: int | None) -
         said.append(f"best validation {best['val_mpjpe']:.2f} mm at epoch {best['epoch']}")
     if (paused or {}).get("resume"):
         said.append(f"resume: {paused['resume']}")
-    return f"training: no weights shipped yet ({'; '.join(said)})"
+    return "; ".join(said)
 
 
 def unshipped_models(
@@ -224,10 +229,9 @@ def unshipped_models(
         elif entry.trainable and (entry.weights_of or name) not in shipped:
             out[name] = training_status(paused.get(name), (entry.train or {}).get("epochs"))
         elif entry.trainable and name in paused and not paused[name].get("finished"):
-            run = paused[name]
             out[name] = (
-                f"retraining: {run['epochs_run']} of {run['epochs_planned']} epochs done (its "
-                f"rows are the earlier weights' until this run ships)"
+                f"retraining: {_progress(paused[name], None)} (its rows are the earlier "
+                f"weights' until this run ships)"
             )
     return out
 
