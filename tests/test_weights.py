@@ -2,6 +2,7 @@
 ``zoo eval`` / ``zoo leaderboard`` computing a trained row from exactly the stored tensors."""
 
 import json
+import shutil
 from dataclasses import asdict
 
 import pandas as pd
@@ -254,6 +255,22 @@ def test_eval_and_leaderboard_compute_the_row_from_the_weights(
     assert (tmp_path / "results" / "cmu" / "training.png").stat().st_size > 0  # its curve
     assert len(same) == len(row)  # the same sampler in both: the same numbers
     pd.testing.assert_series_equal(same["value"], same["value_board"], check_names=False)
+    # A checkpoint beside the shipped weights: the weights are scored, and the note saying so
+    # comes once a run, not once for each table that plans the row.
+    beside = tmp_path / "checkpoints" / "cmu" / "tiny"
+    beside.mkdir(parents=True)
+    shutil.copy(trained / "last.pt", beside / "last.pt")
+    capsys.readouterr()
+    regenerate(
+        "cmu",
+        registry=registry,
+        data_root=root,
+        out_root=tmp_path / "results",
+        checkpoints=tmp_path / "checkpoints",
+        weights=weights,
+    )
+    err = capsys.readouterr().err
+    assert err.count("cmu: tiny@last: the shipped weights") == 1, err
 
 
 def test_training_plot_draws_each_validation_horizon_beside_repeat_last(tmp_path, monkeypatch):

@@ -121,6 +121,7 @@ class Leaderboard:
                 file=sys.stderr,
             )
         self.loaded: dict = {}
+        self.said: set[str] = set()  # notes printed once a run, however many tables plan a row
         self.protocols: dict = {}  # each table's protocol, planned once: {(sampler, task, truth)}
         unknown = sorted(set(plan.models) - set(registry.list_models()))
         if unknown:
@@ -251,10 +252,9 @@ class Leaderboard:
                         Row(label, name, ModelSource.of(weights=shipped, label=label, **variant))
                     )
                     if checkpoint is not None and checkpoint.is_file():
-                        print(
+                        self._say_once(
                             f"{bench.name}: {label}: the shipped weights {shipped}, not "
-                            f"{checkpoint} (zoo weights export publishes a checkpoint)",
-                            file=sys.stderr,
+                            f"{checkpoint} (zoo weights export publishes a checkpoint)"
                         )
                 elif checkpoint is not None and checkpoint.is_file():
                     if suffix and _no_further_than_best(checkpoint):
@@ -267,6 +267,11 @@ class Leaderboard:
                         )
                     )
         return rows
+
+    def _say_once(self, note: str) -> None:
+        if note not in self.said:
+            self.said.add(note)
+            print(note, file=sys.stderr)
 
     def withheld(self, label: str):
         """``(path, record)`` of ``label``'s weights where their record is here and their licence
