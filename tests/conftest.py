@@ -298,10 +298,46 @@ def use_toy_loader(monkeypatch, loader: Callable) -> None:
     )
 
 
-# The anny package's first build of the Anny body is minutes of one core, cached for the machine
-# (~/.cache/anny): its tests run first, so that under worksteal (pyproject's addopts) the first
-# worker's half starts with them and the other worker runs the rest meanwhile, and a load waits
-# for one in progress (a lock for the machine, as the cache is) instead of building it again.
+# The anny package's first build of the Anny body is minutes of one core, cached for the
+# machine (anny's cache folder: ANNY_CACHE_DIR, else ~/.cache/anny). The low body's build, the
+# only one these tests load, ships in tests/data as anny 0.6.2 names it and is put in that cache
+# where the cache has none: test_anny.py checks that anny loads it without building, and (slow)
+# that a build here gives the same body.
+ANNY_SHIPPED = REPO / "tests" / "data" / "anny-0.6.2"
+
+
+def anny_cache_folder() -> Path:
+    """anny's cache folder, as ``anny.paths`` reads it, without importing anny (seconds)."""
+    return Path(os.environ.get("ANNY_CACHE_DIR", Path.home() / ".cache" / "anny"))
+
+
+def seed_anny_cache(folder: Path) -> None:
+    """Each shipped build put in anny's cache ``folder`` where it is missing (atomically: the
+    xdist workers may do it at once)."""
+    for shipped in ANNY_SHIPPED.rglob("*.safetensors"):
+        target = folder / shipped.relative_to(ANNY_SHIPPED)
+        if target.exists():
+            continue
+        target.parent.mkdir(parents=True, exist_ok=True)
+        handle, name = tempfile.mkstemp(dir=target.parent, suffix=".partial")
+        os.close(handle)
+        tmp = Path(name)
+        try:
+            shutil.copyfile(shipped, tmp)
+            os.replace(tmp, target)
+        finally:
+            tmp.unlink(missing_ok=True)
+
+
+try:
+    seed_anny_cache(anny_cache_folder())
+except OSError:  # a read-only cache: anny builds the body as it would have
+    pass
+
+# If a body is built all the same (another anny, another topology), anny's tests run first, so
+# that under worksteal (pyproject's addopts) the first worker's half starts with them and the
+# other worker runs the rest meanwhile, and a load waits for one in progress (a lock for the
+# machine, as the cache is) instead of building it again.
 ANNY_FIRST = ("test_anny.py", "test_spectrhums_anchored.py")
 _ANNY_LOCK = Path(tempfile.gettempdir()) / "zoo-tests-anny-body.lock"
 

@@ -1,8 +1,9 @@
 """CMU BVH motion on the Anny body (zoo.data.anny).
 
 The tests that need the ``anny`` package share one low-resolution model (session fixture) and
-use the shortest trials (09_03: 128 motion frames at 120 fps, 27 frames at 25 Hz). With a cold
-anny cache the first model build takes a few minutes; afterwards loading takes seconds.
+use the shortest trials (09_03: 128 motion frames at 120 fps, 27 frames at 25 Hz). The low
+model loads in seconds from the build the tests ship (tests/conftest.py); the full one is built
+by anny on its first load on a machine (minutes) and cached there.
 """
 
 import importlib.util
@@ -121,6 +122,46 @@ def low_model():
     if importlib.util.find_spec("anny") is None:
         pytest.skip("the anny package is not installed (pip install anny==0.6.2); CI installs it")
     return anny.shared_model("low")  # the one the zoo's own calls load, loaded once
+
+
+@needs_anny
+def test_the_shipped_low_body_is_what_anny_loads_without_building(tmp_path, monkeypatch):
+    """The low body's build that the tests ship (conftest.ANNY_SHIPPED, put in anny's cache) is
+    the file anny looks for: from a cache holding only it, the body loads and nothing is built.
+    If another anny names or builds it otherwise, this fails: ship that anny's build instead."""
+    from conftest import anny_cache_folder, seed_anny_cache
+
+    paths = importlib.import_module("anny.paths")  # the package's, not zoo.data.anny
+    assert anny_cache_folder() == paths.get_anny_cache_path()
+    monkeypatch.setattr(paths, "_ANNY_CACHE_DIR", [paths.get_anny_cache_path()])
+
+    def no_build(*args, **kwargs):
+        raise AssertionError("anny built the body: the shipped build was not used")
+
+    monkeypatch.setattr(importlib.import_module("anny.models"), "build_model_data", no_build)
+    seed_anny_cache(tmp_path)
+    model = anny.load_anny_model("low", anny_cache_dir=tmp_path)
+    assert model.template_vertices.shape == (1229, 3)
+
+
+@needs_anny
+@pytest.mark.slow
+def test_a_build_here_gives_the_shipped_low_body(tmp_path, monkeypatch):
+    """What the shipped build stands for: anny's own build of the low body on this CPU, from an
+    empty cache, gives the same rest bodies (the default one and an MI one) as the shipped
+    build, to 1e-4 mm (a float32 step of a body's coordinates in millimetres is 6e-5 mm)."""
+    from conftest import seed_anny_cache
+
+    paths = importlib.import_module("anny.paths")
+    monkeypatch.setattr(paths, "_ANNY_CACHE_DIR", [paths.get_anny_cache_path()])
+    seed_anny_cache(tmp_path / "shipped")
+    shipped = anny.load_anny_model("low", anny_cache_dir=tmp_path / "shipped")
+    built = anny.load_anny_model("low", anny_cache_dir=tmp_path / "built")
+    assert list((tmp_path / "built").rglob("build_compact_model_data_*"))  # built, not loaded
+    for phenotype in (None, anny.mi_phenotype(0, "02_01")):
+        here, there = anny.rest_skeleton(built, phenotype), anny.rest_skeleton(shipped, phenotype)
+        for part in ("vertices", "heads", "tails"):
+            np.testing.assert_allclose(here[part], there[part], rtol=0, atol=1e-7)
 
 
 @pytest.fixture(scope="session")
