@@ -252,7 +252,10 @@ def _budget_rows(files: list[Shipped]) -> list[list[str]]:
         best = t.get("best") or {}
         steps = _steps(r.recipe, t, training_points(r))
         # imported weights their licence keeps out: the record ships, the file is made here
-        kept_out = " (not shipped: its licence; `zoo leaderboard --check` says how to make it)"
+        kept_out = (
+            " (not shipped: its licence; `zoo weights import` of the files its record names makes "
+            "it)"
+        )
         rows.append(
             [
                 f"`{repo_relative(s.path)}`" + (kept_out if withheld(r) else ""),
