@@ -235,15 +235,19 @@ def test_eval_and_leaderboard_compute_the_row_from_the_weights(
         evaluated.protocol["provenance"]["weights_sha256"]
         == read_weights(weights / "cmu" / "tiny@last.safetensors")[1].sha256
     )
+
+    def rebuild(checkpoints):
+        regenerate(
+            "cmu",
+            registry=registry,
+            data_root=root,
+            out_root=tmp_path / "results",
+            checkpoints=checkpoints,
+            weights=weights,
+        )
+
     # No checkpoints at all: the leaderboard still computes the row, from the weights.
-    regenerate(
-        "cmu",
-        registry=registry,
-        data_root=root,
-        out_root=tmp_path / "results",
-        checkpoints=tmp_path / "no-checkpoints",
-        weights=weights,
-    )
+    rebuild(tmp_path / "no-checkpoints")
     board = read_table(tmp_path / "results" / "cmu" / "ltd8").frame
     row = board[board["model"] == "tiny@last"]
     assert len(row) > 0
@@ -261,14 +265,7 @@ def test_eval_and_leaderboard_compute_the_row_from_the_weights(
     beside.mkdir(parents=True)
     shutil.copy(trained / "last.pt", beside / "last.pt")
     capsys.readouterr()
-    regenerate(
-        "cmu",
-        registry=registry,
-        data_root=root,
-        out_root=tmp_path / "results",
-        checkpoints=tmp_path / "checkpoints",
-        weights=weights,
-    )
+    rebuild(tmp_path / "checkpoints")
     err = capsys.readouterr().err
     assert err.count("cmu: tiny@last: the shipped weights") == 1, err
 
