@@ -298,11 +298,12 @@ def use_toy_loader(monkeypatch, loader: Callable) -> None:
     )
 
 
-# The anny package's first build of the Anny body is minutes of one core, cached for the
-# machine (anny's cache folder: ANNY_CACHE_DIR, else ~/.cache/anny). The low body's build, the
-# only one these tests load, ships in tests/data as anny 0.6.2 names it and is put in that cache
-# where the cache has none: test_anny.py checks that anny loads it without building, and (slow)
-# that a build here gives the same body.
+# The anny package's first build of the Anny body is long (docs/architecture.md, "Tests"), and
+# cached for the machine (anny's cache folder: ANNY_CACHE_DIR, else ~/.cache/anny). The low
+# body's build, the only one these tests load, ships in tests/data under the anny version that
+# made it, as that anny names it, and is put in that cache where the cache has none and that
+# version is installed: test_anny.py checks that anny loads it without building, and (slow)
+# that a build here makes the same body.
 ANNY_SHIPPED = REPO / "tests" / "data" / "anny-0.6.2"
 
 
@@ -312,21 +313,24 @@ def anny_cache_folder() -> Path:
 
 
 def seed_anny_cache(folder: Path) -> None:
-    """Each shipped build put in anny's cache ``folder`` where it is missing (atomically: the
-    xdist workers may do it at once)."""
+    """Each shipped build put in anny's cache ``folder`` where it is missing, if the anny that
+    made it is the one installed (atomically: the xdist workers may do it at once)."""
+    import importlib.metadata
+
+    from zoo.core.io import atomic_path
+
+    try:
+        installed = importlib.metadata.version("anny")
+    except importlib.metadata.PackageNotFoundError:
+        return
+    if ANNY_SHIPPED.name != f"anny-{installed}":
+        return
     for shipped in ANNY_SHIPPED.rglob("*.safetensors"):
         target = folder / shipped.relative_to(ANNY_SHIPPED)
         if target.exists():
             continue
-        target.parent.mkdir(parents=True, exist_ok=True)
-        handle, name = tempfile.mkstemp(dir=target.parent, suffix=".partial")
-        os.close(handle)
-        tmp = Path(name)
-        try:
+        with atomic_path(target) as tmp:
             shutil.copyfile(shipped, tmp)
-            os.replace(tmp, target)
-        finally:
-            tmp.unlink(missing_ok=True)
 
 
 try:

@@ -1,7 +1,8 @@
 """The speed scripts of ``benchmarks/speed/`` import without doing any work, and each one's
 ``main`` runs end to end at the smallest sizes (tiny models, one repeat): a smoke test of the
 scripts, not of the figures they print. speed_anny needs the ``anny`` package and the CMU BVH
-data, and a warm anny cache (test_anny.py builds it) to take seconds rather than minutes."""
+data, and a warm anny cache to take seconds rather than minutes: the tests ship the low body's
+build (tests/conftest.py), and anny builds the full one on its first load on a machine."""
 
 import importlib.util
 import math
