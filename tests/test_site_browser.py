@@ -59,11 +59,12 @@ def site(tmp_path_factory) -> Path:
             truth,
             {"spectrhums": truth[:, 10:] + 20.0},
         ).write(results / "cmu_anny_oi_low" / "clips.npz")
-    # a row from imported weights whose licence keeps them out of the repository, as one's own
-    # tables may hold (the committed ones hold none: a committed row ships its weights)
+    # a row from imported weights whose licence keeps them out of the repository (TFAN's
+    # authors' record), as one's own tables may hold; the committed ones hold none
+    authors = json.loads((REPO_ROOT / "weights" / "cmu50" / "tfan@authors.json").read_text())
     row = results / "cmu50" / "all" / "pgbig" / "protocol.json"
     record = json.loads(row.read_text())
-    record["provenance"]["imported"] = {"whose": "authors", "redistributable": False}
+    record["provenance"]["imported"] = authors["imported"]
     row.write_text(json.dumps(record))
     build = build_site(tmp / "site", results)
     assert build.warnings == []

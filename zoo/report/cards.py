@@ -649,7 +649,7 @@ def models_index(registry: Registry, names: list[str], shipped: dict[str, list[S
     for name in registry.list_models():
         entry = registry.get(name)
         files = _files(registry, name, shipped)
-        benches = sorted({b for s in files for b in s.benchmarks})
+        benches = sorted({b for s in files if not withheld(s.record) for b in s.benchmarks})
         rows.append(
             [
                 f"[`{name}`]({name}.md)" if name in names else f"`{name}`",

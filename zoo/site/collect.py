@@ -280,7 +280,8 @@ def row_source(folder: Path, benchmark: str, protocol: dict[str, Any]) -> dict[s
     if imported and not imported.get("redistributable"):
         source["needs"] = (
             "first make its weights, which their licence keeps out of the repository: "
-            "zoo leaderboard --check names the files and the import"
+            "zoo weights import of the files their record names (zoo leaderboard --check "
+            "--results on this table names them and the command)"
         )
     return source
 
