@@ -217,19 +217,17 @@ def test_patience_stops_a_run_that_no_longer_improves_and_its_state_says_finishe
     from zoo.hub.checkpoints import paused_summary
 
     assert paused_summary(ckpt)["finished"] is True
-    run(
-        setup,
-        out,
-        epochs=10,
-        max_batches=1,
-        resume=True,
-        recipe={"lr": 0.0, "patience": 2},
-    )
+    # a resume whose patience is already spent would train nothing: refused, naming the way on
+    spent = r"cannot resume with patience 2: .* not improved in the 2 epochs since its best "
+    spent += r"\(epoch 1\); --train-set patience=null, or one over 2, continues it"
+    with pytest.raises(CheckpointError, match=spent):
+        run(setup, out, epochs=10, max_batches=1, resume=True, recipe={"lr": 0.0, "patience": 2})
     assert read_checkpoint(out / "last.pt")["epoch"] == 2  # resuming adds no epoch
     # patience only says when to stop: a resume may lift it, and the run says from when
     # a resume not given the patience keeps the run's 2, not the registry's (none), and says so
     capsys.readouterr()
-    run(setup, out, epochs=10, max_batches=1, resume=True, recipe={"lr": 0.0})
+    with pytest.raises(CheckpointError, match=spent):
+        run(setup, out, epochs=10, max_batches=1, resume=True, recipe={"lr": 0.0})
     assert read_checkpoint(out / "last.pt")["epoch"] == 2
     assert (
         "resuming with the run's patience 2, not the registry's null "

@@ -27,7 +27,7 @@ from zoo.hub.checkpoints import (
 )
 from zoo.hub.records import RunRecord
 from zoo.hub.weights import read_weights
-from zoo.models.recipe import DEFAULT_RECIPE, Recipe
+from zoo.models.recipe import DEFAULT_RECIPE, Recipe, patience_spent
 from zoo.models.registry import Registry
 from zoo.protocol.benchmark import Benchmark
 from zoo.train.host import device_name, devices_text
@@ -74,9 +74,10 @@ def save_epoch(
 
 # The run's budget may change when it is resumed (its epochs, batches an epoch, and patience,
 # which only says when to stop: counted from the best epoch of the whole history, a lower one may
-# end the run after its next epoch), and its precision with the machine (a GPU's float32 epochs,
-# a bfloat16 CPU's): each change is recorded with the epoch it took effect, and each epoch
-# records its precision; every other field of the recipe must stay what the checkpoint says.
+# end the run after its next epoch, and one already spent is refused), and its precision with the
+# machine (a GPU's float32 epochs, a bfloat16 CPU's): each change is recorded with the epoch it
+# took effect, and each epoch records its precision; every other field of the recipe must stay
+# what the checkpoint says.
 BUDGET_FIELDS = ("epochs", "max_batches", "patience", "precision")
 
 
@@ -108,6 +109,14 @@ def resume_changes(
             f"epochs: cannot resume {path} with {recipe.epochs} epochs: the run has already "
             f"trained {done} epochs (--epochs with more continues it)",
             parameter="epochs",
+        )
+    best = state.get("best") or {}
+    if patience_spent(recipe, done, best.get("epoch", -1)):  # it would stop before an epoch
+        since = done - best["epoch"]
+        raise CheckpointError(
+            f"{path}: cannot resume with patience {recipe.patience}: its validation error has "
+            f"not improved in the {since} epochs since its best (epoch {best['epoch']}); "
+            f"--train-set patience=null, or one over {since}, continues it"
         )
     changes = list(state.get("recipe_changes") or [])
     now = {
