@@ -110,12 +110,12 @@ def resume_changes(
             f"trained {done} epochs (--epochs with more continues it)",
             parameter="epochs",
         )
-    best = state.get("best") or {}
-    if patience_spent(recipe, done, best.get("epoch", -1)):  # it would stop before an epoch
-        since = done - best["epoch"]
+    best_epoch = (state.get("best") or {}).get("epoch", -1)
+    if patience_spent(recipe, done, best_epoch):  # it would stop before an epoch
+        since = done - max(best_epoch, 0)  # as patience_spent counts them
         raise CheckpointError(
             f"{path}: cannot resume with patience {recipe.patience}: its validation error has "
-            f"not improved in the {since} epochs since its best (epoch {best['epoch']}); "
+            f"not improved in the {since} epochs since its best (epoch {best_epoch}); "
             f"--train-set patience=null, or one over {since}, continues it"
         )
     changes = list(state.get("recipe_changes") or [])
