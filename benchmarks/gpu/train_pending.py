@@ -42,7 +42,7 @@ if str(REPO) not in sys.path:
 # BENCHMARK/MODEL (a bare MODEL trains on cmu); cmu50 reads the same training files
 # (cmu50/dmgnn, queued after these, is not here: its state, 313 MB, is more than a call returns).
 # A finished run leaves: with no paused state, a model here would start again from epoch 1.
-QUEUE = ("spgsn_1body", "auxformer", "cmu50/tfan")
+QUEUE = ("auxformer", "cmu50/tfan")
 PACKED_DATA = REPO / "cache" / "cmu_train.tar.xz"
 PART_BYTES = 15 * 2**20
 RETURN_FILES, RETURN_BYTES = 8, 64 * 2**20  # what the device tool brings back from $OUT
