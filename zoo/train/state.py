@@ -113,9 +113,10 @@ def resume_changes(
     best_epoch = (state.get("best") or {}).get("epoch", -1)
     if patience_spent(recipe, done, best_epoch):  # it would stop before an epoch
         since = done - max(best_epoch, 0)  # as patience_spent counts them
+        best = f"its best (epoch {best_epoch})" if best_epoch > 0 else "it began (no best named)"
         raise CheckpointError(
             f"{path}: cannot resume with patience {recipe.patience}: its validation error has "
-            f"not improved in the {since} epochs since its best (epoch {best_epoch}); "
+            f"not improved in the {since} epochs since {best}; "
             f"--train-set patience=null, or one over {since}, continues it"
         )
     changes = list(state.get("recipe_changes") or [])
