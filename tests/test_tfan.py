@@ -5,6 +5,8 @@ with the public code under the authors' weights is measured by benchmarks/speed/
 
 from __future__ import annotations
 
+import re
+
 import pytest
 import torch
 
@@ -112,4 +114,5 @@ def test_its_recipe_is_the_codes_stages_in_epochs_of_cmu50():
         for step in (0, 39_999, 40_000, streams * steps - 1, streams * steps, 51_419, 51_420)
     ]
     assert rate == [3e-4, 3e-4, 1e-5, 1e-5, 3e-4, 3e-4, 1e-5]
-    assert "0 of 250 epochs" in unshipped_models(registry)["tfan"]
+    # the listing counts the recipe's epochs, however many a paused state has run
+    assert re.search(r"\b\d+ of 250 epochs", unshipped_models(registry)["tfan"])
